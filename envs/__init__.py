@@ -1,0 +1,1 @@
+"""Truth plant, road, sensors, scenarios and Gymnasium environments of fourwis."""

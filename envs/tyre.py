@@ -1,0 +1,183 @@
+"""Pacejka Magic Formula tyre (PAC2002 / MF 5.2 form), combined slip, load dependent.
+
+Coefficients: the 185/80 R14 passenger tyre of project Chrono's VW microbus model
+(``data/vehicle/VW_microbus/json/mf_185_80R14.tir``, PAC2002, dry road, 190 kPa).
+At this car's static wheel load (~2.04 kN) it gives a lateral peak friction of 1.02,
+a cornering stiffness of 32.0 kN/rad, a longitudinal peak of 1.13 and a slip stiffness
+of 37.8 kN; relaxation lengths 0.39 m (longitudinal) and 0.36 m (lateral).
+
+Deviations from the full MF 5.2, all deliberate:
+
+* Camber is zero, and every left/right asymmetric term (PHX*, PVX*, PHY*, PVY*, PEY3,
+  RHX1, RBY3, RHY*, RVY*: conicity, ply-steer, kappa-induced side force) is dropped, so
+  the tyre, and therefore the car, is exactly mirror symmetric. PEX4 (drive/brake
+  asymmetry) is kept: it does not break the left/right mirror.
+* Road friction scales the peaks (``LMUX = LMUY = mu_road / mu_ref``), with ``mu_ref``
+  the tyre's own peak coefficient at the reference load (the car's static wheel load),
+  so that a wheel at its static load on a road of friction ``mu`` has peak force
+  ``mu * Fz`` in both directions. Load sensitivity (PDX2, PDY2) still acts around it.
+* The combined-slip weights G are floored at 0: MF 5.2's cosine weights turn slightly
+  negative near 90 deg of slip, which no tyre does.
+* Slip angle enters as ``atan(tan_alpha)``; ``tan_alpha`` is the relaxed lateral slip of
+  the transient model in :mod:`envs.vehicle`, so the formula never sees a division by
+  the wheel's forward speed.
+
+Sign convention (ISO 8855, wheel frame): ``kappa > 0`` when driving, giving ``Fx > 0``;
+``tan_alpha = v_cy / |v_cx|`` is the contact centre's lateral slip, and the lateral force
+opposes it: ``Fy = -F(alpha)`` with ``F`` odd and increasing near zero.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import numba
+import numpy as np
+
+
+@dataclass(frozen=True)
+class TyreParams:
+    """Symmetric PAC2002 coefficient set (dimensionless unless stated)."""
+
+    nominal_load: float = 3800.0  #: FNOMIN [N]
+    unloaded_radius: float = 0.376  #: UNLOADED_RADIUS [m], only for relaxation lengths
+    pcx1: float = 1.5587
+    pdx1: float = 1.09
+    pdx2: float = -0.079328
+    pex1: float = 0.27403
+    pex2: float = 0.10232
+    pex3: float = 0.074903
+    pex4: float = -0.00026944
+    pkx1: float = 19.733
+    pkx2: float = 0.093405
+    pkx3: float = 0.12433
+    rbx1: float = 14.927
+    rbx2: float = -10.534
+    rcx1: float = 1.1288
+    rex1: float = 0.62334
+    rex2: float = -0.0039079
+    ptx1: float = 1.9021
+    ptx2: float = -0.0014739
+    ptx3: float = 0.03631
+    pcy1: float = 1.4675
+    pdy1: float = 0.94002
+    pdy2: float = -0.17669
+    pey1: float = 0.0040023
+    pey2: float = 0.00085719
+    pky1: float = 12.536  #: |PKY1|: the .tir stores -12.536 in its own sign convention
+    pky2: float = 1.3856
+    rby1: float = 5.5228
+    rby2: float = 2.7966
+    rcy1: float = 1.0783
+    rey1: float = 0.055543
+    rey2: float = -0.0022958
+    pty1: float = 1.8473
+    pty2: float = 1.9465
+
+    def as_array(self) -> np.ndarray:
+        """Coefficients in field order, shape (N_TYRE_COEFFS,), for the compiled kernel."""
+        return np.array([getattr(self, f.name) for f in fields(self)], dtype=np.float64)
+
+    def peak_friction(self, fz: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Unscaled (mu_road = mu_ref) peak coefficients (mu_x, mu_y) at load ``fz`` [N]."""
+        dfz = (np.asarray(fz, dtype=float) - self.nominal_load) / self.nominal_load
+        return self.pdx1 + self.pdx2 * dfz, self.pdy1 + self.pdy2 * dfz
+
+    def cornering_stiffness(self, fz: float | np.ndarray) -> np.ndarray:
+        """Lateral slip stiffness dFy/dalpha at zero slip [N/rad] for load ``fz`` [N]."""
+        x = np.asarray(fz, dtype=float) / (self.pky2 * self.nominal_load)
+        return self.pky1 * self.nominal_load * 2.0 * x / (1.0 + x * x)
+
+    def slip_stiffness(self, fz: float | np.ndarray) -> np.ndarray:
+        """Longitudinal slip stiffness dFx/dkappa at zero slip [N] for load ``fz`` [N]."""
+        fz = np.asarray(fz, dtype=float)
+        dfz = (fz - self.nominal_load) / self.nominal_load
+        return fz * (self.pkx1 + self.pkx2 * dfz) * np.exp(self.pkx3 * dfz)
+
+
+N_TYRE_COEFFS = len(fields(TyreParams))
+# Kernel indices into TyreParams.as_array(), in field order.
+(_NOMINAL_LOAD, _UNLOADED_RADIUS, _PCX1, _PDX1, _PDX2, _PEX1, _PEX2, _PEX3, _PEX4, _PKX1, _PKX2, _PKX3, _RBX1, _RBX2, _RCX1, _REX1, _REX2, _PTX1, _PTX2, _PTX3, _PCY1, _PDY1, _PDY2, _PEY1, _PEY2, _PKY1, _PKY2, _RBY1, _RBY2, _RCY1, _REY1, _REY2, _PTY1, _PTY2) = range(N_TYRE_COEFFS)
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _magic(b: float, c: float, d: float, e: float, x: float) -> float:
+    bx = b * x
+    return d * math.sin(c * math.atan(bx - e * (bx - math.atan(bx))))
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _weight(b: float, c: float, e: float, x: float) -> float:
+    bx = b * x
+    return max(math.cos(c * math.atan(bx - e * (bx - math.atan(bx)))), 0.0)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def combined_forces(tp: np.ndarray, fz: float, kappa: float, tan_alpha: float,
+                    scale_x: float, scale_y: float) -> tuple[float, float]:
+    """Tyre forces (Fx, Fy) [N] in the wheel frame for one wheel.
+
+    ``tp``: TyreParams.as_array(); ``fz`` > 0 [N]; ``kappa`` longitudinal slip [-];
+    ``tan_alpha`` lateral slip (tangent of the slip angle) [-]; ``scale_x/y``: LMUX, LMUY.
+    """
+    fz0 = tp[_NOMINAL_LOAD]
+    dfz = (fz - fz0) / fz0
+    alpha = math.atan(tan_alpha)
+    # pure longitudinal
+    cx = tp[_PCX1]
+    dx = (tp[_PDX1] + tp[_PDX2] * dfz) * scale_x * fz
+    kx = fz * (tp[_PKX1] + tp[_PKX2] * dfz) * math.exp(tp[_PKX3] * dfz)
+    sgn_k = 1.0 if kappa >= 0.0 else -1.0
+    ex = (tp[_PEX1] + tp[_PEX2] * dfz + tp[_PEX3] * dfz * dfz) * (1.0 - tp[_PEX4] * sgn_k)
+    ex = min(ex, 1.0)
+    fx0 = _magic(kx / (cx * dx), cx, dx, ex, kappa)
+    # pure lateral (odd in alpha)
+    cy = tp[_PCY1]
+    dy = (tp[_PDY1] + tp[_PDY2] * dfz) * scale_y * fz
+    xr = fz / (tp[_PKY2] * fz0)
+    ky = tp[_PKY1] * fz0 * 2.0 * xr / (1.0 + xr * xr)
+    ey = min(tp[_PEY1] + tp[_PEY2] * dfz, 1.0)
+    fy0 = _magic(ky / (cy * dy), cy, dy, ey, alpha)
+    # combined slip weights
+    bxa = tp[_RBX1] / math.sqrt(1.0 + (tp[_RBX2] * kappa) ** 2)
+    gxa = _weight(bxa, tp[_RCX1], tp[_REX1] + tp[_REX2] * dfz, alpha)
+    byk = tp[_RBY1] / math.sqrt(1.0 + (tp[_RBY2] * alpha) ** 2)
+    gyk = _weight(byk, tp[_RCY1], tp[_REY1] + tp[_REY2] * dfz, kappa)
+    return gxa * fx0, -gyk * fy0
+
+
+@numba.njit(cache=True, error_model="numpy")
+def relaxation_lengths(tp: np.ndarray, fz: float) -> tuple[float, float]:
+    """PAC2002 relaxation lengths (sigma_kappa, sigma_alpha) [m] at load ``fz`` [N]."""
+    fz0 = tp[_NOMINAL_LOAD]
+    r0 = tp[_UNLOADED_RADIUS]
+    dfz = (fz - fz0) / fz0
+    sig_k = fz * (tp[_PTX1] + tp[_PTX2] * dfz) * math.exp(-tp[_PTX3] * dfz) * r0 / fz0
+    xr = fz / (tp[_PTY2] * fz0)
+    sig_a = tp[_PTY1] * 2.0 * xr / (1.0 + xr * xr) * r0
+    return sig_k, sig_a
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _forces_batch(tp, fz, kappa, tan_alpha, scale_x, scale_y, fx, fy):
+    for i in range(fz.size):
+        fx[i], fy[i] = combined_forces(tp, fz[i], kappa[i], tan_alpha[i], scale_x[i], scale_y[i])
+
+
+def tyre_forces(tyre: TyreParams, fz, kappa, tan_alpha, mu_road=1.0, reference_load: float | None = None):
+    """Vectorised (Fx, Fy) [N] over broadcast arrays: a convenience for fitting and plots.
+
+    ``mu_road`` scales the peaks relative to ``reference_load`` [N] (default: nominal load).
+    """
+    fz, kappa, tan_alpha, mu_road = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64)
+                                                          for a in (fz, kappa, tan_alpha, mu_road)))
+    if not np.all(fz > 0.0):
+        raise ValueError(f"tyre load must be > 0 N, got min {fz.min()!r}")
+    ref = tyre.nominal_load if reference_load is None else reference_load
+    mux_ref, muy_ref = tyre.peak_friction(ref)
+    fx = np.empty(fz.size)
+    fy = np.empty(fz.size)
+    _forces_batch(tyre.as_array(), fz.ravel(), kappa.ravel(), tan_alpha.ravel(),
+                  (mu_road / mux_ref).ravel(), (mu_road / muy_ref).ravel(), fx, fy)
+    return fx.reshape(fz.shape), fy.reshape(fz.shape)

@@ -1,0 +1,209 @@
+"""Truth plant: closed-form limits, symmetry, convergence, stiffness, batching, bad input."""
+
+import math
+
+import numpy as np
+import pytest
+
+from envs.road import RoadTables, split, uniform
+from envs.tyre import TyreParams, tyre_forces
+from envs.vehicle import (A_AY, A_FZ, C_DELTA_F, C_TORQUE, GRAVITY, NU, NX, S_OMEGA, S_PSI, S_R, S_U, S_V, S_Y,
+                          VehicleParams, derivatives, initial_state, step)
+
+P = VehicleParams()
+DT = 0.002
+
+
+def speed_hold(state: np.ndarray, target: float, gain: float = 0.5) -> np.ndarray:
+    """Equal wheel torques that hold ``target`` speed [m/s] (a proportional test driver)."""
+    force = P.mass * gain * (target - state[:, S_U]) + P.rolling_resistance * P.mass * GRAVITY
+    return np.repeat((force * P.wheel_radius / 4.0)[:, None], 4, axis=1)
+
+
+def run(state, steer, seconds, road=1.0, target=None, dt=DT, torque=None):
+    """Simulate with ``steer(t)`` [rad] road-wheel angle; returns (times, states, aux)."""
+    tables = RoadTables.from_roads(uniform(road) if isinstance(road, float) else road, state.shape[0])
+    n = int(round(seconds / dt))
+    states, auxs = [], []
+    controls = np.zeros((state.shape[0], NU))
+    for k in range(n):
+        controls[:, C_DELTA_F] = steer(k * dt)
+        if torque is not None:
+            controls[:, C_TORQUE:C_TORQUE + 4] = torque
+        elif target is not None:
+            controls[:, C_TORQUE:C_TORQUE + 4] = speed_hold(state, target)
+        state, aux = step(state, controls, P, tables, dt)
+        states.append(state)
+        auxs.append(aux)
+    return np.arange(1, n + 1) * dt, np.array(states), np.array(auxs)
+
+
+def test_kinematic_yaw_rate_at_low_speed():
+    delta = 0.1
+    _, states, _ = run(initial_state(P, 3.0), lambda t: delta, 8.0, target=3.0)
+    u, r = states[-1, 0, S_U], states[-1, 0, S_R]
+    assert r == pytest.approx(u * delta / P.wheelbase, rel=0.03)
+
+
+def test_steady_state_yaw_gain_matches_linear_bicycle_model():
+    delta, speed = 0.01, 15.0
+    _, states, _ = run(initial_state(P, speed), lambda t: delta, 6.0, target=speed)
+    u, r = states[-1, 0, S_U], states[-1, 0, S_R]
+    c_f, c_r = P.axle_cornering_stiffness
+    k_us = P.mass / P.wheelbase * (P.cg_to_rear / c_f - P.cg_to_front / c_r)  # zero: neutral steer
+    assert abs(k_us) < 1e-12
+    assert r / delta == pytest.approx(u / (P.wheelbase + k_us * u**2), rel=0.05)
+
+
+@pytest.mark.parametrize("mu", [0.3, 0.6, 1.0])
+def test_lateral_acceleration_saturates_near_mu_g(mu):
+    speed = 15.0
+    _, states, aux = run(initial_state(P, speed), lambda t: 0.01 * t, 25.0, road=mu, target=speed)
+    peak = np.abs(aux[:, 0, A_AY]).max()
+    assert 0.85 * mu * GRAVITY <= peak <= 1.05 * mu * GRAVITY
+
+
+def mirror(x: np.ndarray) -> np.ndarray:
+    """Reflect plant states (..., NX) about the x axis: y, psi, v, r, steer, lateral deflection flip; L/R swap."""
+    m = x.copy()
+    for i in (S_Y, S_PSI, S_V, S_R, 14, 15, 20, 21, 22, 23, 25):
+        m[..., i] = -x[..., i]
+    for first in (6, 10, 16, 20):
+        m[..., [first, first + 1, first + 2, first + 3]] = m[..., [first + 1, first, first + 3, first + 2]]
+    return m
+
+
+def test_mirrored_steering_gives_mirrored_response():
+    steer = lambda t: 0.08 * math.sin(2.0 * math.pi * 0.7 * t)
+    _, left, _ = run(initial_state(P, 20.0), steer, 3.0, target=20.0)
+    _, right, _ = run(initial_state(P, 20.0), lambda t: -steer(t), 3.0, target=20.0)
+    np.testing.assert_allclose(mirror(right), left, rtol=1e-9, atol=1e-12)
+
+
+def test_straight_driving_stays_straight():
+    _, states, _ = run(initial_state(P, 20.0), lambda t: 0.0, 5.0, target=25.0)
+    assert np.abs(states[:, 0, [S_V, S_R, S_Y, S_PSI]]).max() < 1e-12
+    assert states[-1, 0, S_U] > 21.0
+
+
+def test_split_mu_yaws_towards_high_mu_when_braking_and_away_when_driving():
+    road = split(mu_left=0.9, mu_right=0.2)
+    _, brake, _ = run(initial_state(P, 20.0), lambda t: 0.0, 0.6, road=road, torque=-400.0)
+    _, drive, _ = run(initial_state(P, 5.0), lambda t: 0.0, 0.6, road=road, torque=500.0)
+    assert brake[-1, 0, S_R] > 0.01  # left (high mu) wheels brake harder: nose turns left
+    assert drive[-1, 0, S_R] < -0.01  # left wheels push harder: nose turns right
+
+
+def test_halving_the_step_changes_a_transient_by_less_than_one_percent():
+    steer = lambda t: 0.06 if t >= 0.5 else 0.0
+    _, coarse, _ = run(initial_state(P, 20.0), steer, 5.0, road=0.6, torque=60.0, dt=DT)
+    _, fine, _ = run(initial_state(P, 20.0), steer, 5.0, road=0.6, torque=60.0, dt=DT / 2)
+    fine = fine[1::2]
+    for i in (S_U, S_V, S_R, S_PSI, S_OMEGA):
+        scale = np.abs(fine[:, 0, i]).max()
+        assert np.abs(coarse[:, 0, i] - fine[:, 0, i]).max() / scale < 0.01, i
+
+
+def test_batch_equals_single_runs():
+    rng = np.random.default_rng(3)
+    n = 70  # above the parallel threshold
+    state = initial_state(P, rng.uniform(2.0, 40.0, n), n)
+    controls = np.zeros((n, NU))
+    controls[:, :4] = rng.uniform(-300, 300, (n, 4))
+    controls[:, 4] = rng.uniform(-0.2, 0.2, n)
+    controls[:, 5] = rng.uniform(-0.05, 0.05, n)
+    roads = [uniform(m) for m in rng.uniform(0.2, 1.0, n)]
+    batch = step(state, controls, P, roads, DT, 200)
+    for b in range(0, n, 7):
+        single = step(state[b:b + 1], controls[b:b + 1], P, roads[b], DT, 200)
+        np.testing.assert_allclose(batch.state[b], single.state[0], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(batch.aux[b], single.aux[0], rtol=1e-12, atol=1e-12)
+
+
+def rk4_amplification(z: np.ndarray) -> np.ndarray:
+    return np.abs(1 + z + z**2 / 2 + z**3 / 6 + z**4 / 24)
+
+
+@pytest.mark.parametrize("speed", [0.0, 0.5, 1.0, 5.0, 20.0, 45.0])
+def test_linearised_plant_is_inside_rk4_stability_region(speed):
+    """Wheel spin is stiff at low speed; the relaxed-slip tyre keeps every eigenvalue inside RK4's region."""
+    x0 = initial_state(P, speed)[0]
+    x0[10:14] = 200.0  # driving torque so that the tyres carry load in the linearisation
+    u0 = np.zeros(NU)
+    u0[:4] = 200.0
+    mu = np.ones((1, 4))
+    jac = np.empty((NX, NX))
+    for j in range(NX):
+        h = 1e-6 * max(1.0, abs(x0[j]))
+        xp, xm = x0.copy(), x0.copy()
+        xp[j] += h
+        xm[j] -= h
+        jac[:, j] = (derivatives(xp[None], u0[None], mu, P)[0][0] - derivatives(xm[None], u0[None], mu, P)[0][0]) / (2 * h)
+    eig = np.linalg.eigvals(jac)
+    assert rk4_amplification(eig * DT).max() <= 1.0 + 1e-9
+
+
+@pytest.mark.parametrize("speed", [1.0, 5.0, 20.0, 45.0])
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_full_torque_and_full_steer_stay_finite_and_bounded(speed, sign):
+    state = initial_state(P, speed)
+    _, states, aux = run(state, lambda t: sign * P.max_front_steer, 4.0, torque=sign * P.motor_peak_torque)
+    assert np.all(np.isfinite(states)) and np.all(np.isfinite(aux))
+    # wheel speeds bounded by the motors' power limit against tyre drag; the body cannot gain
+    # speed faster than friction allows (mu = 1 road, small margin for the tyres' peak > mu)
+    assert np.abs(states[:, 0, S_OMEGA:S_OMEGA + 4]).max() * P.wheel_radius < 80.0
+    assert np.hypot(states[:, 0, S_U], states[:, 0, S_V]).max() < speed + 1.1 * GRAVITY * 4.0
+    assert np.all(aux[:, 0, A_FZ:A_FZ + 4] >= 1.0)
+
+
+def test_motor_lag_and_torque_limit():
+    state = initial_state(P, 10.0)
+    controls = np.zeros((1, NU))
+    controls[0, :4] = 10_000.0
+    out = step(state, controls, P, uniform(1.0), DT, 5).state  # 10 ms = one time constant
+    torque = out[0, 10:14]
+    expected = P.motor_peak_torque * (1 - math.exp(-1.0))
+    np.testing.assert_allclose(torque, expected, rtol=2e-3)
+
+
+def test_tyre_peak_and_stiffness_at_reference_load():
+    tyre = TyreParams()
+    fz = P.reference_wheel_load
+    alpha = np.linspace(0.0, 0.4, 4001)
+    for mu in (0.3, 1.0):
+        _, fy = tyre_forces(tyre, fz, 0.0, np.tan(alpha), mu, fz)
+        assert -fy.min() == pytest.approx(mu * fz, rel=1e-4)
+        fx, _ = tyre_forces(tyre, fz, np.linspace(0, 0.5, 4001), 0.0, mu, fz)
+        assert fx.max() == pytest.approx(mu * fz, rel=1e-4)
+    _, fy_small = tyre_forces(tyre, fz, 0.0, 1e-5, 1.0, fz)
+    assert -fy_small / 1e-5 == pytest.approx(tyre.cornering_stiffness(fz), rel=1e-4)
+    assert tyre.cornering_stiffness(fz) == pytest.approx(32.0e3, rel=0.01)
+
+
+def test_bad_input_raises_value_error_naming_the_value():
+    state = initial_state(P, 10.0)
+    controls = np.zeros((1, NU))
+    bad = controls.copy()
+    bad[0, 2] = np.nan
+    with pytest.raises(ValueError, match="nan"):
+        step(state, bad, P, uniform(1.0))
+    bad[0, 2] = np.inf
+    with pytest.raises(ValueError, match="inf"):
+        step(state, bad, P, uniform(1.0))
+    bad_state = state.copy()
+    bad_state[0, S_V] = np.nan
+    with pytest.raises(ValueError, match="nan"):
+        step(bad_state, controls, P, uniform(1.0))
+    for mu in (0.0, -0.5, 2.5, float("nan")):
+        with pytest.raises(ValueError, match=str(mu)):
+            step(state, controls, P, mu)
+    with pytest.raises(ValueError, match="3.5"):
+        step(state, controls, P, lambda x, y: np.full_like(x, 3.5))
+    with pytest.raises(ValueError, match=r"\(1, 5\)"):
+        step(state, controls[:, :5], P, uniform(1.0))
+    with pytest.raises(ValueError, match="wheelbass"):
+        P.replace(wheelbass=2.0)
+    with pytest.raises(ValueError, match="-830"):
+        VehicleParams(mass=-830.0)
+    with pytest.raises(ValueError, match="dt"):
+        step(state, controls, P, uniform(1.0), dt=float("nan"))

@@ -1,0 +1,1 @@
+"""Training, evaluation, the closed-loop comparison and the ``fourwis`` command line."""
