@@ -1,1 +1,19 @@
-"""Truth plant, road, sensors, scenarios and Gymnasium environments of fourwis."""
+"""Truth plant, road, sensors, scenarios and Gymnasium environments of fourwis.
+
+Exports are loaded lazily, so ``import envs`` stays cheap (gymnasium imports it for registration).
+"""
+
+from importlib import import_module
+
+_EXPORTS = {
+    "PAPER_SCENARIOS": "envs.scenarios", "SCENARIOS": "envs.scenarios", "Scenario": "envs.scenarios",
+    "make_scenario": "envs.scenarios", "Trajectory": "envs.simulation", "simulate": "envs.simulation",
+    "VehicleParams": "envs.vehicle",
+}
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        return getattr(import_module(_EXPORTS[name]), name)
+    raise AttributeError(f"module 'envs' has no attribute {name!r}")

@@ -1,0 +1,1 @@
+"""Stability control: yaw-rate reference, direct yaw-moment laws, torque allocation, 4WS."""

@@ -1,0 +1,107 @@
+"""Scenario registry, drivers and the simulation loop."""
+
+import math
+
+import numpy as np
+import pytest
+
+from envs import simulate
+from envs.driver import SWD_DWELL, SWD_FREQUENCY, SineWithDwell
+from envs.scenarios import PAPER_SCENARIOS, SCENARIOS, make_scenario
+from envs.vehicle import S_U, S_X, S_Y, GRAVITY
+
+STATE = np.zeros(26)
+
+
+@pytest.mark.parametrize("name, speed_kph, mu", [
+    ("paper_dlc", 35.0, 0.5), ("paper_step", 40.0, 0.3), ("paper_sine", 40.0, 0.8), ("paper_serpentine", 40.0, 0.5),
+])
+def test_paper_scenarios_have_the_papers_speed_and_friction(name, speed_kph, mu):
+    scenario = SCENARIOS[name]
+    assert scenario.speed_kph == speed_kph
+    x = np.linspace(-50, 300, 50)
+    np.testing.assert_array_equal(scenario.road.mu_at(x, np.linspace(-5, 5, 50)), mu)
+
+
+def test_paper_split_dlc_is_split_left_05_right_03():
+    scenario = SCENARIOS["paper_split_dlc"]
+    assert scenario.speed_kph == 25.0
+    assert scenario.road.mu_at(np.array([10.0]), np.array([1.0]))[0] == 0.5
+    assert scenario.road.mu_at(np.array([10.0]), np.array([-1.0]))[0] == 0.3
+
+
+def test_paper_step_is_one_radian_at_five_seconds():
+    steer = SCENARIOS["paper_step"].steering
+    assert steer(4.99, STATE) == 0.0
+    assert steer(5.2, STATE) == 1.0
+
+
+def test_paper_sine_is_a_sine():
+    steer = SCENARIOS["paper_sine"].steering
+    t = np.linspace(1.0, 9.0, 801)
+    values = np.array([steer(x, STATE) for x in t])
+    np.testing.assert_allclose(values, math.radians(90.0) * np.sin(2 * np.pi * 0.5 * (t - 1.0)), atol=1e-12)
+
+
+def test_sine_with_dwell_profile_matches_the_regulation():
+    steer = SineWithDwell(math.radians(100.0), start=1.0)
+    assert steer(1.0 + 0.25 / SWD_FREQUENCY, STATE) == pytest.approx(math.radians(100.0))
+    for t in (1.0 + 1.0714, 1.0 + 1.3, 1.0 + 1.5714):
+        assert steer(t, STATE) == pytest.approx(-math.radians(100.0), abs=1e-3)
+    assert steer(1.0 + 1.9286 + 0.01, STATE) == 0.0
+    assert steer.end == pytest.approx(1.0 + 1.0 / SWD_FREQUENCY + SWD_DWELL)
+    # continuous everywhere
+    t = np.arange(0.0, 4.0, 1e-4)
+    values = np.array([steer(x, STATE) for x in t])
+    assert np.abs(np.diff(values)).max() < math.radians(100.0) * 2 * np.pi * SWD_FREQUENCY * 1e-4 * 1.01
+
+
+@pytest.mark.parametrize("name, kwargs, bad", [
+    ("no_such_scenario", {}, "no_such_scenario"),
+    ("paper_dlc", {"speed_kph": -10.0}, "-10.0"),
+    ("paper_dlc", {"mu": 0.0}, "0.0"),
+    ("paper_step", {"mu": 2.5}, "2.5"),
+    ("paper_sine", {"duration": float("nan")}, "nan"),
+    ("paper_sine", {"colour": "red"}, "colour"),
+    ("sine_with_dwell", {"direction": 2}, "2"),
+])
+def test_bad_scenario_arguments_raise_value_error_naming_the_value(name, kwargs, bad):
+    with pytest.raises(ValueError, match=bad):
+        make_scenario(name, **kwargs)
+
+
+def test_overrides_apply():
+    scenario = make_scenario("paper_dlc", speed_kph=50.0, mu=0.9)
+    assert scenario.speed_kph == 50.0
+    assert scenario.road.mu_at(np.array([0.0]), np.array([0.0]))[0] == 0.9
+
+
+@pytest.mark.parametrize("name", PAPER_SCENARIOS)
+def test_paper_scenarios_hold_their_speed(name):
+    traj = simulate(name, seed=1)
+    speed = traj.state[:, S_U]
+    assert np.all(np.isfinite(traj.state))
+    assert np.abs(speed - SCENARIOS[name].speed).max() < 0.08 * SCENARIOS[name].speed
+
+
+def test_random_scenarios_differ_by_seed_and_repeat_by_seed():
+    a, b, c = (make_scenario("random", seed=s) for s in (1, 1, 2))
+    assert a.speed_kph == b.speed_kph and a.speed_kph != c.speed_kph
+    assert a.steering(3.0, STATE) == b.steering(3.0, STATE)
+
+
+def test_mu_jump_drives_onto_the_low_friction_patch():
+    traj = simulate("mu_jump")
+    mu = traj.aux[:, 22:26]
+    assert mu[0].max() == 0.9 and mu[-1].max() == 0.3
+    before = traj.t < 1.0
+    assert np.abs(traj.aux[before, 1][-50:]).mean() == pytest.approx(0.4 * GRAVITY, rel=0.1)
+
+
+def test_simulation_is_deterministic_under_a_seed():
+    a = simulate("paper_sine", seed=3)
+    b = simulate("paper_sine", seed=3)
+    c = simulate("paper_sine", seed=4)
+    np.testing.assert_array_equal(a.sensors, b.sensors)
+    np.testing.assert_array_equal(a.state, b.state)
+    assert not np.array_equal(a.sensors, c.sensors)

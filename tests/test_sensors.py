@@ -1,0 +1,99 @@
+"""Sensors: seeded noise and bias, fault injection exactly where configured, bad input."""
+
+import math
+
+import numpy as np
+import pytest
+
+from envs.sensors import CHANNELS, Fault, SensorModel, SensorParams
+
+DT = 0.002
+
+
+def run(faults=(), seed=0, n=2000, batch=2, params=SensorParams()):
+    model = SensorModel(params, tuple(faults), batch, np.random.default_rng(seed))
+    truth = np.tile(np.linspace(1.0, 13.0, len(CHANNELS)), (batch, 1))
+    readings = [model.measure(truth, k * DT) for k in range(n)]
+    values = np.stack([r.values for r in readings])
+    valid = np.stack([r.valid for r in readings])
+    return values, valid, truth, model
+
+
+def test_same_seed_same_stream_different_seed_different_stream():
+    a, _, _, _ = run(seed=5)
+    b, _, _, _ = run(seed=5)
+    c, _, _, _ = run(seed=6)
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+
+
+def test_noise_and_bias_have_the_configured_statistics():
+    params = SensorParams()
+    values, valid, truth, model = run(n=20000, batch=1)
+    error = values[:, 0, :] - truth[0]
+    np.testing.assert_allclose(error.std(axis=0), params.noise_std, rtol=0.05)
+    # the mean error is the run's drawn turn-on bias, up to the noise's standard error
+    np.testing.assert_allclose(error.mean(axis=0), model.bias[0], atol=4 * np.max(params.noise_std) / math.sqrt(20000))
+    assert valid.all()
+
+
+def test_perfect_sensors_read_the_truth():
+    values, _, truth, _ = run(params=SensorParams().scaled(0.0), n=50)
+    np.testing.assert_array_equal(values, np.broadcast_to(truth, values.shape))
+
+
+def test_faults_appear_exactly_where_configured():
+    faults = (Fault("yaw_rate", "spike", start=1.0, end=2.0, magnitude=1.0, rate=50.0),
+              Fault("ay", "dropout", start=0.5, end=0.8),
+              Fault("omega_fl", "stuck", start=3.0),
+              Fault("ax", "bias_step", start=2.0, end=2.5, magnitude=0.7))
+    values, valid, truth, _ = run(faults, params=SensorParams().scaled(0.0), n=2000)
+    t = np.arange(2000) * DT
+    r = values[:, :, CHANNELS.index("yaw_rate")] - truth[0, CHANNELS.index("yaw_rate")]
+    spikes = np.abs(r) > 0.5
+    assert spikes.any() and np.all((t[spikes.any(axis=1)] >= 1.0) & (t[spikes.any(axis=1)] < 2.0))
+    assert spikes.sum() == pytest.approx(50.0 * 1.0 * 2, rel=0.4)  # Poisson, 50/s over 1 s, 2 cars
+    iy = CHANNELS.index("ay")
+    window = (t >= 0.5) & (t < 0.8)
+    assert not valid[window, :, iy].any() and valid[~window, :, iy].all()
+    assert np.isfinite(values).all()
+    ax_error = values[:, 0, 0] - truth[0, 0]
+    np.testing.assert_allclose(ax_error[(t >= 2.0) & (t < 2.5)], 0.7)
+    np.testing.assert_allclose(ax_error[(t < 2.0) | (t >= 2.5)], 0.0)
+
+
+def test_stuck_sensor_freezes_while_the_truth_moves():
+    model = SensorModel(SensorParams(), (Fault("omega_fl", "stuck", start=0.1, end=0.2),), 1,
+                        np.random.default_rng(0))
+    i = CHANNELS.index("omega_fl")
+    out = []
+    for k in range(150):
+        truth = np.full((1, len(CHANNELS)), float(k))
+        out.append(model.measure(truth, k * DT).values[0, i])
+    out = np.array(out)
+    frozen = out[50:100]
+    assert np.all(frozen == frozen[0])
+    assert abs(out[120] - 120.0) < 1.0
+
+
+@pytest.mark.parametrize("kwargs, bad", [
+    ({"channel": "speedometer", "kind": "spike"}, "speedometer"),
+    ({"channel": "ax", "kind": "melt"}, "melt"),
+    ({"channel": "ax", "kind": "bias_step", "start": 2.0, "end": 1.0}, "1.0"),
+    ({"channel": "ax", "kind": "spike", "rate": 0.0, "magnitude": 1.0}, "rate"),
+])
+def test_bad_faults_raise(kwargs, bad):
+    with pytest.raises(ValueError, match=bad):
+        Fault(**kwargs)
+
+
+def test_bad_truth_raises_naming_the_channel():
+    model = SensorModel(SensorParams(), (), 1, np.random.default_rng(0))
+    truth = np.zeros((1, len(CHANNELS)))
+    truth[0, 2] = np.nan
+    with pytest.raises(ValueError, match="yaw_rate"):
+        model.measure(truth, 0.0)
+    with pytest.raises(ValueError, match="shape"):
+        model.measure(np.zeros((2, len(CHANNELS))), 0.0)
+    with pytest.raises(ValueError, match="noise_std"):
+        SensorParams(noise_std=(1.0,) * 12)

@@ -1,0 +1,98 @@
+"""Trajectory output: one CSV row per sample and a PNG overview plot."""
+
+from __future__ import annotations
+
+import csv
+import io
+from pathlib import Path
+
+import numpy as np
+
+from envs.simulation import Trajectory
+from envs.vehicle import A_AX, A_AY, A_MU, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_V, S_X, S_Y
+from training.io import atomic_write, atomic_write_text
+
+WHEELS = ("fl", "fr", "rl", "rr")
+
+
+def trajectory_columns(traj: Trajectory) -> dict[str, np.ndarray]:
+    """Named time series (SI units) of a trajectory, truth and estimate side by side."""
+    s, a, est = traj.state, traj.aux, traj.estimate
+    cols = {
+        "t": traj.t, "x": s[:, S_X], "y": s[:, S_Y], "psi": s[:, S_PSI], "u": s[:, S_U], "v": s[:, S_V],
+        "r": s[:, S_R], "beta": np.arctan2(s[:, S_V], np.abs(s[:, S_U])), "ax": a[:, A_AX], "ay": a[:, A_AY],
+        "steering_wheel": traj.steering_wheel, "delta_f": s[:, S_DELTA_F], "delta_r": s[:, S_DELTA_R],
+    }
+    for i, w in enumerate(WHEELS):
+        cols[f"torque_{w}"] = s[:, S_TORQUE + i]
+    for i, w in enumerate(WHEELS):
+        cols[f"mu_{w}"] = a[:, A_MU + i]
+    for name in ("u", "v", "beta", "r"):
+        cols[f"est_{name}"] = getattr(est, name)
+    for i, w in enumerate(WHEELS):
+        cols[f"est_mu_{w}"] = est.mu[:, i]
+    return cols
+
+
+def write_trajectory_csv(traj: Trajectory, path: str | Path) -> Path:
+    """Write the trajectory's columns to ``path`` as CSV (atomically)."""
+    cols = trajectory_columns(traj)
+    buf = io.StringIO()
+    writer = csv.writer(buf)
+    writer.writerow(cols)
+    writer.writerows(np.column_stack(list(cols.values())).tolist())
+    return atomic_write_text(path, buf.getvalue())
+
+
+def _pyplot():
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError as err:  # optional dependency
+        raise ImportError("plots need matplotlib: pip install 'fourwis[plots]'") from err
+    return plt
+
+
+def plot_trajectory(traj: Trajectory, path: str | Path, title: str | None = None) -> Path:
+    """PNG overview: path (with cones), yaw rate, sideslip, lateral acceleration, per-wheel mu."""
+    plt = _pyplot()
+    cols = trajectory_columns(traj)
+    t = cols["t"]
+    fig, axes = plt.subplots(3, 2, figsize=(12, 10), constrained_layout=True)
+    ax = axes[0, 0]
+    ax.plot(cols["x"], cols["y"], label="CG path")
+    scenario = traj.scenario
+    if scenario.course is not None:
+        cones = scenario.course.cones
+        ax.plot(cones[:, 0], cones[:, 1], "^", color="tab:orange", ms=4, label="cones")
+    ax.set(xlabel="X [m]", ylabel="Y [m]", title="path")
+    ax.legend(loc="best")
+    ax = axes[0, 1]
+    ax.plot(t, np.degrees(cols["steering_wheel"]) / 10.0, label="steering wheel / 10", color="0.5")
+    ax.plot(t, np.degrees(cols["delta_f"]), label="front road wheel")
+    ax.plot(t, np.degrees(cols["delta_r"]), label="rear steer")
+    ax.set(xlabel="t [s]", ylabel="[deg]", title="steering")
+    ax.legend(loc="best")
+    for ax, key, label, scale in ((axes[1, 0], "r", "yaw rate [deg/s]", np.degrees),
+                                  (axes[1, 1], "beta", "sideslip [deg]", np.degrees)):
+        ax.plot(t, scale(cols[key]), label="truth")
+        ax.plot(t, scale(cols[f"est_{key}"]), "--", label="estimate")
+        ax.set(xlabel="t [s]", ylabel=label)
+        ax.legend(loc="best")
+    ax = axes[2, 0]
+    ax.plot(t, cols["ay"] / 9.80665, label="ay")
+    ax.plot(t, cols["ax"] / 9.80665, label="ax")
+    ax.set(xlabel="t [s]", ylabel="[g]", title="accelerations")
+    ax.legend(loc="best")
+    ax = axes[2, 1]
+    for i, w in enumerate(WHEELS):
+        line, = ax.plot(t, cols[f"mu_{w}"], label=f"mu {w.upper()}")
+        ax.plot(t, cols[f"est_mu_{w}"], "--", color=line.get_color())
+    ax.set(xlabel="t [s]", ylabel="mu [-]", title="road friction (solid truth, dashed estimate)")
+    ax.legend(loc="best", ncol=2)
+    fig.suptitle(title or f"{scenario.name}: {scenario.speed_kph:.0f} km/h")
+    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=100, format="png"))
+    plt.close(fig)
+    return Path(path)
