@@ -24,9 +24,54 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _scenario_overrides(args: argparse.Namespace) -> dict:
+    overrides = {}
+    if args.speed_kph is not None:
+        overrides["speed_kph"] = args.speed_kph
+    if args.mu is not None:
+        overrides["mu"] = args.mu[0] if len(args.mu) == 1 else tuple(args.mu)
+    if args.duration is not None:
+        overrides["duration"] = args.duration
+    if args.rear_steer:
+        overrides["rear_steer_feedforward"] = True
+    return overrides
+
+
+def _simulate(args: argparse.Namespace) -> int:
+    from envs.scenarios import make_scenario
+    from envs.simulation import simulate
+    from training.trajectory_io import plot_trajectory, write_trajectory_csv
+
+    try:
+        scenario = make_scenario(args.scenario, **_scenario_overrides(args))
+    except ValueError as err:
+        raise SystemExit(f"fourwis simulate: {err}") from None
+    traj = simulate(scenario, estimator=args.estimator, seed=args.seed, progress=True)
+    out = Path(args.out)
+    csv_path = write_trajectory_csv(traj, out / f"{scenario.name}.csv")
+    png_path = plot_trajectory(traj, out / f"{scenario.name}.png")
+    print(f"wrote {csv_path} and {png_path}")
+    return 0
+
+
+def _add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--speed-kph", type=float, help="initial / target speed [km/h]")
+    parser.add_argument("--mu", type=float, nargs="+",
+                        help="road friction: one value (uniform) or two (left, right split)")
+    parser.add_argument("--duration", type=float, help="simulated time [s]")
+    parser.add_argument("--rear-steer", action="store_true", help="switch on the paper's 4WS law (eq. 20)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="fourwis", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
+    sim = sub.add_parser("simulate", help="run one scenario open loop; write CSV and a PNG plot")
+    sim.add_argument("scenario", help="scenario name (see envs.SCENARIOS)")
+    _add_scenario_arguments(sim)
+    sim.add_argument("--estimator", default="oracle", help="estimator run alongside (default: oracle)")
+    sim.add_argument("--seed", type=int, default=0, help="sensor noise seed")
+    sim.add_argument("--out", default="results/simulate", help="output directory")
+    sim.set_defaults(func=_simulate)
     bench = sub.add_parser("bench", help="run the performance benchmarks in benchmarks/")
     bench.add_argument("--only", nargs="*", help="benchmark names (default: all)")
     bench.set_defaults(func=_bench)
