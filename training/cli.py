@@ -54,6 +54,24 @@ def _simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _sine_with_dwell(args: argparse.Namespace) -> int:
+    import math
+
+    from envs.fmvss126 import characterise, format_table, run_series
+    from training.io import atomic_write_text
+
+    A = math.radians(args.A) if args.A is not None else characterise()
+    tables = []
+    for mu in args.mu:
+        runs = run_series(A, mu=mu, estimator=args.estimator, seed=args.seed, progress=True)
+        tables.append(format_table(runs, A))
+    text = "\n\n".join(tables)
+    print(text)
+    if args.out:
+        print(f"wrote {atomic_write_text(Path(args.out) / 'sine_with_dwell.md', text + chr(10))}")
+    return 0
+
+
 def _add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speed-kph", type=float, help="initial / target speed [km/h]")
     parser.add_argument("--mu", type=float, nargs="+",
@@ -72,6 +90,13 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--seed", type=int, default=0, help="sensor noise seed")
     sim.add_argument("--out", default="results/simulate", help="output directory")
     sim.set_defaults(func=_simulate)
+    swd = sub.add_parser("swd", help="FMVSS 126 sine-with-dwell series (uncontrolled car): the regulation's table")
+    swd.add_argument("--mu", type=float, nargs="+", default=[1.0, 0.5, 0.3], help="road friction values")
+    swd.add_argument("--A", type=float, help="characterisation angle [deg] (default: measured at 0.3 g)")
+    swd.add_argument("--estimator", default="oracle", help="estimator run alongside (default: oracle)")
+    swd.add_argument("--seed", type=int, default=0)
+    swd.add_argument("--out", help="directory for sine_with_dwell.md")
+    swd.set_defaults(func=_sine_with_dwell)
     bench = sub.add_parser("bench", help="run the performance benchmarks in benchmarks/")
     bench.add_argument("--only", nargs="*", help="benchmark names (default: all)")
     bench.set_defaults(func=_bench)

@@ -1,0 +1,95 @@
+"""FMVSS 126 / UN R13-H electronic stability test procedure: characterisation and the
+sine-with-dwell amplitude series, on any road and with any controller/estimator.
+
+1. Slowly increasing steer (S7.6) at 80 km/h, 13.5 deg/s, to the left and to the right on a
+   dry road (mu 1.0): A = the steering-wheel angle at 0.3 g, the mean of both directions.
+2. Sine with dwell (S7.9) from 80 km/h, coasting, at 1.5A, 2A, 2.5A, ... up to the larger of
+   6.5A and 270 deg, no run above 300 deg; each amplitude steered left-first and right-first.
+   On low-mu roads we keep the dry-road A (the regulation only defines the dry test; the same
+   steering inputs on a slippery road make the controller's job harder, which is the point).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from tqdm import tqdm
+
+from envs.metrics import SineWithDwellResult, sine_with_dwell_metrics, steering_angle_at_lateral_acceleration
+from envs.scenarios import make_scenario
+from envs.simulation import simulate
+from envs.vehicle import A_AY, S_R, S_U, S_V, VehicleParams
+
+MAX_AMPLITUDE = math.radians(300.0)  #: no sine-with-dwell run above this [rad]
+MIN_LAST_AMPLITUDE = math.radians(270.0)  #: the series reaches at least this unless 6.5A is larger [rad]
+
+
+def characterise(params: VehicleParams = VehicleParams(), mu: float = 1.0, seed: int = 0) -> float:
+    """A [rad]: steering-wheel angle at 0.3 g from slowly increasing steer, left and right averaged."""
+    angles = []
+    for direction in (1, -1):
+        traj = simulate(make_scenario("slowly_increasing_steer", mu=mu, direction=direction, params=params), seed=seed)
+        angles.append(steering_angle_at_lateral_acceleration(traj.t, traj.steering_wheel, traj.aux[:, A_AY]))
+    return float(np.mean(angles))
+
+
+def amplitudes(A: float) -> np.ndarray:
+    """The series' steering-wheel amplitudes [rad]: 1.5A in steps of 0.5A up to max(6.5A, 270 deg), <= 300 deg."""
+    if not (math.isfinite(A) and A > 0):
+        raise ValueError(f"A must be a positive angle [rad], got {A!r}")
+    last = max(6.5 * A, MIN_LAST_AMPLITUDE)
+    series = np.arange(1.5, last / A + 1e-9, 0.5) * A
+    series = series[series <= MAX_AMPLITUDE + 1e-9]
+    if series[-1] < min(last, MAX_AMPLITUDE) - 1e-9:
+        series = np.append(series, min(last, MAX_AMPLITUDE))
+    return series
+
+
+@dataclass(frozen=True)
+class SeriesRun:
+    """One sine-with-dwell run of a series."""
+
+    mu: float
+    amplitude: float  #: steering-wheel amplitude [rad]
+    direction: int  #: +1 left first, -1 right first
+    result: SineWithDwellResult
+    peak_sideslip: float  #: largest |beta| [rad]
+
+
+def run_series(A: float, mu: float = 1.0, controller_factory: Callable | None = None, estimator=None,
+               params: VehicleParams = VehicleParams(), seed: int = 0, progress: bool = False,
+               amplitude_list: np.ndarray | None = None) -> list[SeriesRun]:
+    """The sine-with-dwell series at friction ``mu`` (both directions). ``controller_factory()``
+    builds a fresh controller per run (None: uncontrolled); ``estimator`` as for simulate."""
+    runs = []
+    todo = [(a, d) for a in (amplitudes(A) if amplitude_list is None else amplitude_list) for d in (1, -1)]
+    for amplitude, direction in tqdm(todo, disable=not progress, desc=f"sine with dwell, mu {mu}", unit="run"):
+        scenario = make_scenario("sine_with_dwell", mu=mu, amplitude_deg=math.degrees(amplitude),
+                                 direction=direction, params=params)
+        controller = controller_factory() if controller_factory is not None else None
+        traj = simulate(scenario, controller=controller, estimator=estimator, seed=seed)
+        beta = np.arctan2(traj.state[:, S_V], np.abs(traj.state[:, S_U]))
+        result = sine_with_dwell_metrics(traj.t, traj.steering_wheel, traj.state[:, S_R], traj.aux[:, A_AY],
+                                         sideslip=beta, A=A)
+        runs.append(SeriesRun(mu, float(amplitude), direction, result, float(np.max(np.abs(beta)))))
+    return runs
+
+
+def format_table(runs: list[SeriesRun], A: float) -> str:
+    """Markdown table of a series in the regulation's terms."""
+    lines = [f"A = {math.degrees(A):.1f} deg (0.3 g at 80 km/h, dry road)", "",
+             "| mu | amplitude | dir | yaw ratio @COS+1.00 s (<=35%) | @COS+1.75 s (<=20%) "
+             "| displacement @BOS+1.07 s | peak beta | yaw | resp. | spin |",
+             "|---:|---:|:-:|---:|---:|---:|---:|:-:|:-:|:-:|"]
+    for run in runs:
+        r = run.result
+        resp = "n/a" if r.passed_responsiveness is None else ("pass" if r.passed_responsiveness else "FAIL")
+        lines.append(f"| {run.mu:.2f} | {math.degrees(run.amplitude):.0f} deg ({run.amplitude / A:.1f}A) "
+                     f"| {'L' if run.direction > 0 else 'R'} | {100 * r.yaw_rate_ratio_1000:.1f}% "
+                     f"| {100 * r.yaw_rate_ratio_1750:.1f}% | {r.lateral_displacement:.2f} m "
+                     f"| {math.degrees(run.peak_sideslip):.1f} deg | {'pass' if r.passed_yaw else 'FAIL'} "
+                     f"| {resp} | {'SPIN' if r.spun_out else ''} |")
+    return "\n".join(lines)
