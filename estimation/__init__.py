@@ -3,17 +3,25 @@ estimator, its building blocks and baselines, behind one factory and one step in
 
 from __future__ import annotations
 
+from estimation.joint import KINDS, NoiseParams, StateEstimator, tuned_noise
+from estimation.model import ModelParams
 from estimation.oracle import Oracle
 from estimation.types import Estimate
 
-ESTIMATORS = ("oracle",)
+ESTIMATORS = ("oracle",) + KINDS  #: names accepted by make_estimator; "joint" is the paper's full system
 
 
-def make_estimator(name: str, params, dt: float = 0.002, **kwargs):
-    """Build the estimator ``name`` for vehicle ``params`` (duck-typed VehicleParams) and step ``dt`` [s]."""
+def make_estimator(name: str, params, dt: float = 0.002, noise: NoiseParams | None = None, **kwargs):
+    """Build the estimator ``name`` (see :data:`ESTIMATORS`) for vehicle ``params`` (duck-typed
+    VehicleParams) at step ``dt`` [s]. ``alo-fkf`` and ``joint`` use the ALO-tuned noise when
+    it exists; ``noise`` overrides it."""
     if name == "oracle":
         return Oracle()
-    raise ValueError(f"unknown estimator {name!r}; known: {list(ESTIMATORS)}")
+    if name not in KINDS:
+        raise ValueError(f"unknown estimator {name!r}; known: {list(ESTIMATORS)}")
+    if noise is None:
+        noise = (tuned_noise() if name in ("alo-fkf", "joint") else None) or NoiseParams()
+    return StateEstimator(ModelParams.from_vehicle(params), kind=name, dt=dt, noise=noise, **kwargs)
 
 
-__all__ = ["ESTIMATORS", "Estimate", "make_estimator"]
+__all__ = ["ESTIMATORS", "Estimate", "ModelParams", "NoiseParams", "StateEstimator", "make_estimator"]

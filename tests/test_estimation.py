@@ -1,0 +1,155 @@
+"""Estimation: CKF maths (exact on linear systems, SPD covariance, robust to outliers), federated
+fusion, the estimation model's physics, and estimator accuracy on the paper's scenarios."""
+
+import math
+
+import numpy as np
+import pytest
+
+from envs import simulate
+from envs.sensors import Fault
+from envs.vehicle import VehicleParams
+from estimation import ESTIMATORS, make_estimator
+from estimation.ckf import ckf_predict, ckf_update
+from estimation.federated import SubMeasurement, federated_step, fuse
+from estimation.model import ModelParams, dugoff_forces, normal_loads, state_transition, Inputs
+from envs.metrics import rmse
+
+RNG = np.random.default_rng(0)
+F_LIN = np.array([[1.0, 0.1], [0.0, 0.95]])
+H_LIN = np.array([[1.0, 0.0]])
+
+
+def kalman(x, P, z, Q, R):
+    x, P = F_LIN @ x, F_LIN @ P @ F_LIN.T + Q
+    S = H_LIN @ P @ H_LIN.T + R
+    K = P @ H_LIN.T @ np.linalg.inv(S)
+    return x + K @ (z - H_LIN @ x), P - K @ S @ K.T
+
+
+def test_ckf_equals_the_kalman_filter_on_a_linear_system():
+    Q, R = np.diag([0.01, 0.02]), np.array([[0.5]])
+    x, P = np.array([[1.0, -1.0]]), np.eye(2)[None] * 2.0
+    xk, Pk = x[0].copy(), P[0].copy()
+    for z in RNG.normal(size=50):
+        x, P = ckf_predict(x, P, lambda pts: pts @ F_LIN.T, Q)
+        upd = ckf_update(x, P, np.array([[z]]), lambda pts: pts @ H_LIN.T, R)
+        x, P = upd.x, upd.P
+        xk, Pk = kalman(xk, Pk, np.array([z]), Q, R)
+    np.testing.assert_allclose(x[0], xk, atol=1e-9)
+    np.testing.assert_allclose(P[0], Pk, atol=1e-9)
+
+
+def test_covariance_stays_symmetric_positive_definite_over_many_steps():
+    Q, R = np.diag([1e-8, 1e-8]), np.array([[1e-6]])
+    x, P = np.zeros((4, 2)), np.broadcast_to(np.eye(2), (4, 2, 2)).copy()
+    for z in RNG.normal(size=(20000, 4, 1)) * 1e-3:
+        x, P = ckf_predict(x, P, lambda pts: pts @ F_LIN.T, Q)
+        upd = ckf_update(x, P, z, lambda pts: pts @ H_LIN.T, R)
+        x, P = upd.x, upd.P
+    assert np.allclose(P, np.swapaxes(P, 1, 2))
+    assert np.all(np.linalg.eigvalsh(P) > 0)
+
+
+def test_huber_update_limits_an_outlier():
+    x, P = np.zeros((1, 2)), np.eye(2)[None] * 0.1
+    R = np.array([[0.01]])
+    z = np.array([[50 * math.sqrt(0.11)]])  # a 50-sigma outlier
+    plain = ckf_update(x, P, z, lambda pts: pts @ H_LIN.T, R)
+    robust = ckf_update(x, P, z, lambda pts: pts @ H_LIN.T, R, huber_c=1.5)
+    w = 1.5 / 50
+    assert robust.weights[0, 0] == pytest.approx(w, rel=1e-6)
+    # inflated noise R / w: the gain drops from P / (P + R) to P / (P + R / w)
+    assert robust.x[0, 0] == pytest.approx(0.1 / (0.1 + 0.01 / w) * z[0, 0], rel=1e-6)
+    assert abs(robust.x[0, 0]) < 0.3 * abs(plain.x[0, 0])
+
+
+def test_dropout_channels_carry_no_information():
+    x, P = np.zeros((1, 2)), np.eye(2)[None]
+    upd = ckf_update(x, P, np.array([[7.0]]), lambda pts: pts @ H_LIN.T, np.array([[0.1]]),
+                     valid=np.array([[False]]))
+    np.testing.assert_allclose(upd.x, x, atol=1e-9)
+    np.testing.assert_allclose(upd.P, P, atol=1e-9)
+
+
+def test_fusion_is_the_information_weighted_average():
+    x, P = fuse([np.array([[1.0]]), np.array([[3.0]])], [np.array([[[1.0]]]), np.array([[[3.0]]])])
+    assert x[0, 0] == pytest.approx((1.0 / 1 + 3.0 / 3) / (1 + 1 / 3))
+    assert P[0, 0, 0] == pytest.approx(0.75)
+
+
+def test_federated_filter_with_reset_equals_the_centralised_filter_on_a_linear_system():
+    Q = np.diag([0.01, 0.02])
+    H2 = np.array([[0.0, 1.0]])
+    R1, R2 = np.array([[0.5]]), np.array([[0.3]])
+    x, P, beta = np.zeros((1, 2)), np.eye(2)[None], np.full((1, 2), 0.5)
+    xc, Pc = x.copy(), P.copy()
+    for z1, z2 in RNG.normal(size=(40, 2)):
+        out = federated_step(x, P, lambda pts: pts @ F_LIN.T, Q,
+                             [SubMeasurement(np.array([[z1]]), lambda pts: pts @ H_LIN.T, R1, None),
+                              SubMeasurement(np.array([[z2]]), lambda pts: pts @ H2.T, R2, None)], beta)
+        x, P, beta = out.x, out.P, out.beta
+        xc, Pc = ckf_predict(xc, Pc, lambda pts: pts @ F_LIN.T, Q)
+        both = np.vstack([H_LIN, H2])
+        upd = ckf_update(xc, Pc, np.array([[z1, z2]]), lambda pts: pts @ both.T, np.diag([0.5, 0.3]))
+        xc, Pc = upd.x, upd.P
+    np.testing.assert_allclose(x, xc, atol=1e-8)
+    np.testing.assert_allclose(P, Pc, atol=1e-8)
+    assert beta.sum() == pytest.approx(1.0)
+
+
+PARAMS = ModelParams.from_vehicle(VehicleParams())
+
+
+def test_dugoff_is_linear_at_small_slip_and_saturates_at_mu_fz():
+    fx, fy = dugoff_forces(2000.0, 0.0, 1e-3, 0.8, 3e4, 4e4, 20.0)
+    assert fy == pytest.approx(4e4 * math.tan(1e-3)) and fx == 0.0
+    fx, fy = dugoff_forces(2000.0, 0.05, 0.3, 0.8, 3e4, 4e4, 20.0)
+    assert math.hypot(fx, fy) <= 0.8 * 2000.0 / 0.95 + 1e-9
+    assert math.hypot(fx, fy) > 0.7 * 0.8 * 2000.0
+
+
+def test_normal_loads_sum_to_the_weight_and_shift_the_right_way():
+    fz = normal_loads(np.array(0.0), np.array(0.0), PARAMS)
+    assert fz.sum() == pytest.approx(PARAMS.mass * 9.81)
+    braking = normal_loads(np.array(-5.0), np.array(0.0), PARAMS)
+    assert braking[0] > fz[0] and braking[2] < fz[2]
+    left = normal_loads(np.array(0.0), np.array(4.0), PARAMS)  # left turn loads the right wheels
+    assert left[1] > left[0] and left[3] > left[2]
+
+
+def test_model_yaw_rate_is_kinematic_at_low_speed():
+    delta = 0.05
+    inputs = Inputs(np.array([delta, delta, 0.0, 0.0]), np.full(4, 3.0 / PARAMS.wheel_radius), np.zeros(4),
+                    np.zeros(4))
+    x = np.array([3.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    for _ in range(3000):
+        x = state_transition(x, np.full(4, 0.8), inputs, PARAMS, 0.002)
+    assert x[4] == pytest.approx(3.0 * delta / PARAMS.wheelbase, rel=0.03)
+
+
+@pytest.mark.parametrize("name", ["ckf", "fkf", "joint"])
+@pytest.mark.parametrize("scenario, beta_deg", [("paper_dlc", 0.1), ("paper_sine", 0.5)])
+def test_estimators_track_sideslip_and_yaw_rate(name, scenario, beta_deg):
+    traj = simulate(scenario, estimator=name, seed=1)
+    T, E = traj.truth, traj.estimate
+    assert np.degrees(rmse(E.beta, T.beta)) < beta_deg
+    assert rmse(E.r, T.r) < 0.005
+    assert rmse(E.u, T.u) < 0.05
+    assert np.all(np.isfinite(E.mu))
+
+
+def test_robust_filter_shrugs_off_gyro_spikes():
+    faults = (Fault("yaw_rate", "spike", start=2.0, end=8.0, magnitude=0.5, rate=20.0),)
+    plain = simulate("paper_sine", estimator="fkf", seed=2, faults=faults)
+    robust = simulate("paper_sine", estimator="alo-fkf", seed=2, faults=faults)
+    assert rmse(robust.estimate.r, robust.truth.r) < 0.7 * rmse(plain.estimate.r, plain.truth.r)
+
+
+def test_estimator_is_deterministic_under_a_seed_and_names_are_checked():
+    a = simulate("paper_step", estimator="joint", seed=3).estimate.beta
+    b = simulate("paper_step", estimator="joint", seed=3).estimate.beta
+    np.testing.assert_array_equal(a, b)
+    assert "joint" in ESTIMATORS
+    with pytest.raises(ValueError, match="kalman9000"):
+        make_estimator("kalman9000", VehicleParams())
