@@ -1,1 +1,82 @@
-"""Stability control: yaw-rate reference, direct yaw-moment laws, torque allocation, 4WS."""
+"""Stability control: yaw-rate reference, direct yaw-moment laws (LQR, sliding mode), torque
+allocation and the paper's 4WS law, combined in :class:`StabilityController`. Uses only what
+an estimator provides (an Estimate-like object: u, v, beta, r, mu, fz)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from control.allocation import allocate_torques
+from control.dyc import LQRYawController, LQRWeights, SlidingModeYawController
+from control.reference import rear_steer_feedforward, reference_yaw_rate, sideslip_bound
+
+CONTROLLERS = ("none", "dyc-lqr", "dyc-smc", "dyc-lqr-4ws")
+ACTIVE_SPEED = 2.0  #: below this speed [m/s] the controller passes the driver's torques through
+YAW_DEADBAND = 0.02  #: |r - r_ref| [rad/s] tolerated without intervention (ESC practice)
+
+
+class Command(NamedTuple):
+    """Controller output for a batch: wheel torques [N m] (B, 4) and rear steer [rad] (B,)."""
+
+    torques: np.ndarray
+    rear_steer: np.ndarray
+
+
+@dataclass
+class StabilityController:
+    """Reference + yaw-moment law + allocation (+ optional eq. 20 rear steer).
+
+    The law acts on the yaw-rate error outside a deadband of 0.02 rad/s (smoothly: the error
+    is shrunk by the deadband) and on sideslip beyond half the mu-dependent bound, so that
+    it does not fight sensor noise in normal driving, as production ESC does."""
+
+    params: object
+    law: str = "lqr"
+    rear_steer: bool = False
+    dt: float = 0.002
+
+    def __post_init__(self) -> None:
+        if self.law == "lqr":
+            self._law = LQRYawController(self.params, LQRWeights())
+        elif self.law == "smc":
+            self._law = SlidingModeYawController(self.params)
+        else:
+            raise ValueError(f"unknown yaw-moment law {self.law!r}; known: ['lqr', 'smc']")
+        self.last_moment = None
+
+    def reset(self, scenario=None) -> None:
+        if isinstance(self._law, SlidingModeYawController):
+            self._law.reset()
+
+    def __call__(self, t: float, estimate, front_steer: np.ndarray, base_torques: np.ndarray) -> Command:
+        u, beta, r = estimate.u, estimate.beta, estimate.r
+        r_ref = reference_yaw_rate(u, front_steer, estimate.mu, self.params)
+        error = r - r_ref
+        shrunk_error = np.sign(error) * np.maximum(np.abs(error) - YAW_DEADBAND, 0.0)
+        half_bound = 0.5 * sideslip_bound(estimate.mu)
+        shrunk_beta = np.sign(beta) * np.maximum(np.abs(beta) - half_bound, 0.0)
+        moment = self._law(u, shrunk_beta, r_ref + shrunk_error, r_ref, front_steer, self.dt, estimate.mu)
+        moment = np.where(np.abs(u) > ACTIVE_SPEED, moment, 0.0)
+        torques, achieved = allocate_torques(base_torques, moment, estimate.fz, estimate.mu, self.params)
+        self.last_moment = achieved
+        rear = rear_steer_feedforward(u, front_steer, self.params) if self.rear_steer else np.zeros_like(u)
+        return Command(torques, rear)
+
+
+def make_controller(name: str, params, dt: float = 0.002):
+    """Controller ``name`` (see :data:`CONTROLLERS`) for duck-typed vehicle ``params``; None for "none"."""
+    if name == "none":
+        return None
+    if name == "dyc-lqr":
+        return StabilityController(params, "lqr", dt=dt)
+    if name == "dyc-smc":
+        return StabilityController(params, "smc", dt=dt)
+    if name == "dyc-lqr-4ws":
+        return StabilityController(params, "lqr", rear_steer=True, dt=dt)
+    raise ValueError(f"unknown controller {name!r}; known: {list(CONTROLLERS)}")
+
+
+__all__ = ["CONTROLLERS", "Command", "StabilityController", "allocate_torques", "make_controller"]

@@ -20,16 +20,10 @@ from envs.scenarios import Scenario, make_scenario
 from envs.sensors import CHANNELS, Fault, SensorModel, SensorParams
 from envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NAUX, NU, NX, S_DELTA_F,
                           S_DELTA_R, S_OMEGA, S_R, S_TORQUE, S_U, S_V, derivatives, step)
+from control import Command
 from estimation.types import Estimate
 
 DT = 0.002  #: physics, sensor and estimator step [s] (the paper samples at 2 ms)
-
-
-class Command(NamedTuple):
-    """Controller output for a batch: wheel torques [N m] (B, 4) and rear steer [rad] (B,)."""
-
-    torques: np.ndarray
-    rear_steer: np.ndarray
 
 
 class Controller(Protocol):

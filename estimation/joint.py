@@ -194,14 +194,14 @@ class StateEstimator:
                                                       -np.eye(N)[None] * eps[:, None, :]], axis=1)
         probe = np.concatenate([self.x[:, None, :], probe], axis=1)
         fx = f(probe)
-        F = np.swapaxes((fx[:, 1:N + 1] - fx[:, N + 1:]) / (2 * eps[:, None, :]), 1, 2)
+        F = np.swapaxes((fx[:, 1:N + 1] - fx[:, N + 1:]) / (2 * eps[:, :, None]), 1, 2)
         x_pred = fx[:, 0]
         P_pred = F @ self.P @ np.swapaxes(F, 1, 2) + self.Q
         probe = x_pred[:, None, :] + np.concatenate([np.eye(N)[None] * eps[:, None, :],
                                                       -np.eye(N)[None] * eps[:, None, :]], axis=1)
         probe = np.concatenate([x_pred[:, None, :], probe], axis=1)
         hx = h(probe)
-        H = np.swapaxes((hx[:, 1:N + 1] - hx[:, N + 1:]) / (2 * eps[:, None, :]), 1, 2)
+        H = np.swapaxes((hx[:, 1:N + 1] - hx[:, N + 1:]) / (2 * eps[:, :, None]), 1, 2)
         Rv = np.broadcast_to(R, (B,) + R.shape).copy()
         idx = np.arange(z.shape[1])
         Rv[:, idx, idx] = np.where(valid, Rv[:, idx, idx], 1e12)

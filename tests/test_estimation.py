@@ -128,7 +128,7 @@ def test_model_yaw_rate_is_kinematic_at_low_speed():
     assert x[4] == pytest.approx(3.0 * delta / PARAMS.wheelbase, rel=0.03)
 
 
-@pytest.mark.parametrize("name", ["ckf", "fkf", "joint"])
+@pytest.mark.parametrize("name", ["ekf", "ckf", "fkf", "joint"])
 @pytest.mark.parametrize("scenario, beta_deg", [("paper_dlc", 0.1), ("paper_sine", 0.5)])
 def test_estimators_track_sideslip_and_yaw_rate(name, scenario, beta_deg):
     traj = simulate(scenario, estimator=name, seed=1)

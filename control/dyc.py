@@ -1,0 +1,109 @@
+"""Direct yaw-moment control laws on the linear 2-DOF (beta, r) model.
+
+x = [beta, r - r_ref], input the corrective yaw moment Mz [N m]:
+    beta_dot = -(C_f + C_r)/(m u) beta + ((b C_r - a C_f)/(m u^2) - 1) r + C_f/(m u) delta
+    r_dot    = (b C_r - a C_f)/I_z beta - (a^2 C_f + b^2 C_r)/(I_z u) r + a C_f/I_z delta + Mz/I_z
+(Rajamani, Vehicle Dynamics and Control, 2012, sec. 2.3 and 8.3; per-axle stiffnesses).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.linalg import solve_continuous_are
+
+
+def bicycle_matrices(u: float, params) -> tuple[np.ndarray, np.ndarray]:
+    """(A, B_mz) of the 2-DOF model at speed ``u`` [m/s] for states [beta, r] and input Mz."""
+    c_f, c_r = params.axle_cornering_stiffness
+    m, iz, a, b = params.mass, params.yaw_inertia, params.cg_to_front, params.cg_to_rear
+    A = np.array([[-(c_f + c_r) / (m * u), (b * c_r - a * c_f) / (m * u**2) - 1.0],
+                  [(b * c_r - a * c_f) / iz, -(a**2 * c_f + b**2 * c_r) / (iz * u)]])
+    return A, np.array([[0.0], [1.0 / iz]])
+
+
+@dataclass(frozen=True)
+class LQRWeights:
+    """Bryson's rule: acceptable sideslip [rad], yaw-rate error [rad/s] and yaw moment [N m]."""
+
+    beta: float = 0.05
+    yaw_rate_error: float = 0.03
+    yaw_moment: float = 2500.0
+
+
+@dataclass
+class LQRYawController:
+    """Gain-scheduled LQR: Mz = -K(u) [beta, r - r_ref], K from the continuous Riccati equation
+    on a speed grid (3-45 m/s), interpolated linearly in u."""
+
+    params: object
+    weights: LQRWeights = field(default_factory=LQRWeights)
+    speeds: np.ndarray = field(default_factory=lambda: np.linspace(3.0, 45.0, 43))
+
+    def __post_init__(self) -> None:
+        w = self.weights
+        if min(w.beta, w.yaw_rate_error, w.yaw_moment) <= 0:
+            raise ValueError(f"LQR weights must be > 0, got {w}")
+        Q = np.diag([1 / w.beta**2, 1 / w.yaw_rate_error**2])
+        R = np.array([[1 / w.yaw_moment**2]])
+        gains = []
+        for u in self.speeds:
+            A, B = bicycle_matrices(float(u), self.params)
+            P = solve_continuous_are(A, B, Q, R)
+            gains.append((np.linalg.solve(R, B.T @ P))[0])
+        self.gains = np.array(gains)  # (S, 2)
+
+    def gain(self, u: np.ndarray) -> np.ndarray:
+        """K(u) (B, 2)."""
+        u = np.clip(np.abs(u), self.speeds[0], self.speeds[-1])
+        return np.stack([np.interp(u, self.speeds, self.gains[:, j]) for j in range(2)], axis=-1)
+
+    def __call__(self, u, beta, r, r_ref, delta_f, dt: float, mu: np.ndarray | None = None) -> np.ndarray:
+        k = self.gain(u)
+        return -(k[:, 0] * beta + k[:, 1] * (r - r_ref))
+
+
+@dataclass
+class SlidingModeYawController:
+    """Sliding mode on s = (r - r_ref) + lam * beta: Mz = I_z (r_ref_dot - f_r - eta sat(s / phi))
+    with f_r the 2-DOF yaw acceleration without Mz; the boundary layer ``phi`` [rad/s]
+    removes chattering (Slotine & Li 1991, ch. 7). ``lam`` weights sideslip into the surface.
+
+    The linear model's tyre forces grow without bound with slip; beyond the friction limit
+    that would command large moments of the wrong sign. f_r therefore uses axle forces
+    saturated at the estimated mu times the axle load (mu given per call)."""
+
+    params: object
+    lam: float = 0.5
+    eta: float = 1.0
+    phi: float = 0.05
+    max_moment: float = 4000.0
+    _previous_ref: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("eta", "phi", "max_moment"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"SlidingModeYawController.{name} must be > 0, got {getattr(self, name)!r}")
+        if self.lam < 0:
+            raise ValueError(f"lam must be >= 0, got {self.lam!r}")
+
+    def reset(self) -> None:
+        self._previous_ref = None
+
+    def __call__(self, u, beta, r, r_ref, delta_f, dt: float, mu: np.ndarray | None = None) -> np.ndarray:
+        p = self.params
+        c_f, c_r = p.axle_cornering_stiffness
+        a, b, iz, m, L = p.cg_to_front, p.cg_to_rear, p.yaw_inertia, p.mass, p.wheelbase
+        u = np.maximum(np.abs(u), 1.0)
+        mu_mean = np.ones_like(u) if mu is None else np.mean(mu, axis=-1)
+        front_limit = mu_mean * m * 9.81 * b / L
+        rear_limit = mu_mean * m * 9.81 * a / L
+        fy_front = np.clip(c_f * (delta_f - beta - a * r / u), -front_limit, front_limit)
+        fy_rear = np.clip(c_r * (-beta + b * r / u), -rear_limit, rear_limit)
+        f_r = (a * fy_front - b * fy_rear) / iz
+        ref_dot = np.zeros_like(r_ref) if self._previous_ref is None else (r_ref - self._previous_ref) / dt
+        self._previous_ref = r_ref.copy()
+        s = (r - r_ref) + self.lam * beta
+        mz = iz * (ref_dot - f_r - self.eta * np.clip(s / self.phi, -1.0, 1.0))
+        return np.clip(mz, -self.max_moment, self.max_moment)

@@ -1,0 +1,100 @@
+"""Control: references, the 4WS law, LQR/SMC yaw-moment laws, allocation, and closed loop."""
+
+import math
+
+import numpy as np
+import pytest
+
+from control import CONTROLLERS, make_controller
+from control.allocation import allocate_torques
+from control.dyc import LQRYawController, bicycle_matrices
+from control.reference import rear_steer_gain, reference_yaw_rate, sideslip_bound, understeer_gradient
+from envs.fmvss126 import characterise, run_series
+from envs.vehicle import VehicleParams
+
+P = VehicleParams()
+
+
+def test_reference_is_kinematic_at_low_speed_and_friction_bounded():
+    delta = np.array([0.05])
+    assert understeer_gradient(P) == pytest.approx(0.0, abs=1e-9)  # a = b, equal tyres
+    r = reference_yaw_rate(np.array([3.0]), delta, np.full((1, 4), 1.0), P)
+    assert r[0] == pytest.approx(3.0 * 0.05 / P.wheelbase)
+    fast = reference_yaw_rate(np.array([30.0]), delta, np.full((1, 4), 0.3), P)
+    assert fast[0] == pytest.approx(0.85 * 0.3 * 9.81 / 30.0)
+    mirrored = reference_yaw_rate(np.array([30.0]), -delta, np.full((1, 4), 0.3), P)
+    assert mirrored[0] == -fast[0]
+    assert sideslip_bound(np.full((1, 4), 1.0))[0] > sideslip_bound(np.full((1, 4), 0.2))[0]
+
+
+def test_eq20_gain_changes_phase_at_the_closed_form_speed():
+    c_f, c_r = P.axle_cornering_stiffness
+    u0 = math.sqrt(P.cg_to_rear * c_r * P.wheelbase / (P.mass * P.cg_to_front))
+    assert rear_steer_gain(np.array(u0 * 0.5), P) < 0 < rear_steer_gain(np.array(u0 * 1.5), P)
+    assert rear_steer_gain(np.array(u0), P) == pytest.approx(0.0, abs=1e-12)
+    assert rear_steer_gain(np.array(0.0), P) == pytest.approx(-P.cg_to_rear / P.cg_to_front)
+
+
+def test_lqr_closed_loop_is_stable_at_every_scheduled_speed():
+    lqr = LQRYawController(P)
+    for u, k in zip(lqr.speeds, lqr.gains):
+        A, B = bicycle_matrices(float(u), P)
+        assert np.all(np.linalg.eigvals(A - B @ k[None, :]).real < 0)
+
+
+def test_lqr_reduces_yaw_error_on_an_oversteering_plant():
+    """Linear 2-DOF plant with 30% less rear stiffness (oversteer) tracking a step reference."""
+    c_f, c_r = P.axle_cornering_stiffness
+
+    class Oversteer:
+        mass, yaw_inertia, cg_to_front, cg_to_rear, wheelbase = P.mass, P.yaw_inertia, 1.17, 1.17, 2.34
+        axle_cornering_stiffness = (c_f, 0.7 * c_r)
+
+    lqr = LQRYawController(P)
+    u, delta, dt = 25.0, 0.02, 0.002
+    A, B = bicycle_matrices(u, Oversteer)
+    E = np.array([c_f / (P.mass * u), P.cg_to_front * c_f / P.yaw_inertia])
+    r_ref = u * delta / P.wheelbase
+    errors = {}
+    for control in (False, True):
+        x = np.zeros(2)
+        err = []
+        for _ in range(1500):
+            mz = lqr(np.array([u]), np.array([x[0]]), np.array([x[1]]), np.array([r_ref]), delta, dt)[0] if control else 0
+            x = x + dt * (A @ x + B[:, 0] * mz + E * delta)
+            err.append(x[1] - r_ref)
+        errors[control] = np.sqrt(np.mean(np.square(err)))
+    assert errors[True] < 0.5 * errors[False]
+
+
+def test_allocation_achieves_the_moment_within_limits_and_keeps_drive_force():
+    base = np.full((1, 4), 50.0)
+    fz, mu = np.full((1, 4), 2000.0), np.full((1, 4), 1.0)
+    torques, achieved = allocate_torques(base, np.array([800.0]), fz, mu, P)
+    assert achieved[0] == pytest.approx(800.0)
+    assert torques.sum() == pytest.approx(base.sum())  # equal capacities: pure differential
+    assert torques[0, 1] > torques[0, 0]  # positive (left) moment: more drive on the right
+    flipped, _ = allocate_torques(base, np.array([-800.0]), fz, mu, P)
+    np.testing.assert_allclose(flipped[0], torques[0, [1, 0, 3, 2]])
+    huge, achieved = allocate_torques(base, np.array([1e6]), fz, mu, P)
+    assert achieved[0] < 1e6
+    assert np.all(np.abs(huge) <= np.minimum(P.motor_peak_torque, P.wheel_radius * mu * fz) + 1e-9)
+
+
+def test_bad_input_raises():
+    with pytest.raises(ValueError, match="pid"):
+        make_controller("pid", P)
+    with pytest.raises(ValueError, match="finite"):
+        allocate_torques(np.full((1, 4), np.nan), np.zeros(1), np.ones((1, 4)), np.ones((1, 4)), P)
+    assert set(CONTROLLERS) >= {"none", "dyc-lqr", "dyc-smc"}
+
+
+@pytest.mark.parametrize("name", ["dyc-lqr", "dyc-smc"])
+def test_dyc_makes_the_car_pass_sine_with_dwell_it_fails_without(name):
+    A = characterise()
+    amplitude = np.array([5.5 * A])
+    open_loop = run_series(A, mu=1.0, amplitude_list=amplitude)[0]
+    closed = run_series(A, mu=1.0, amplitude_list=amplitude, controller_factory=lambda: make_controller(name, P))[0]
+    assert not open_loop.result.passed_yaw and open_loop.result.spun_out
+    assert closed.result.passed and not closed.result.spun_out
+    assert closed.peak_sideslip < math.radians(5.0)
