@@ -31,7 +31,9 @@ class StabilityController:
 
     The law acts on the yaw-rate error outside a deadband of 0.02 rad/s (smoothly: the error
     is shrunk by the deadband) and on sideslip beyond half the mu-dependent bound, so that
-    it does not fight sensor noise in normal driving, as production ESC does."""
+    it does not fight sensor noise in normal driving, as production ESC does. Moments that
+    turn the car further into the bend (understeer correction) fade out linearly as |beta|
+    approaches the mu-dependent sideslip bound."""
 
     params: object
     law: str = "lqr"
@@ -59,6 +61,12 @@ class StabilityController:
         half_bound = 0.5 * sideslip_bound(estimate.mu)
         shrunk_beta = np.sign(beta) * np.maximum(np.abs(beta) - half_bound, 0.0)
         moment = self._law(u, shrunk_beta, r_ref + shrunk_error, r_ref, front_steer, self.dt, estimate.mu)
+        # a moment that turns the car further (understeer correction) is faded out as |beta|
+        # approaches its bound: at the friction limit more yaw moment only spins the car
+        bound = sideslip_bound(estimate.mu)
+        turning_further = np.sign(moment) == np.sign(r_ref)
+        fade = np.clip(1.0 - np.abs(beta) / bound, 0.0, 1.0)
+        moment = np.where(turning_further, moment * fade, moment)
         moment = np.where(np.abs(u) > ACTIVE_SPEED, moment, 0.0)
         torques, achieved = allocate_torques(base_torques, moment, estimate.fz, estimate.mu, self.params)
         self.last_moment = achieved

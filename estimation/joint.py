@@ -21,7 +21,10 @@ speeds R*omega (zero-slip model, variance allowing 2% slip) as production ESC sp
 mu is held, not drifting, when it is unobservable: with Dugoff's lambda >= 1 (force demand
 below mu*Fz/2) dF/dmu = 0. The cubature points of a wide mu prior still straddle lambda = 1,
 so model mismatch would leak into mu: a wheel's mu is therefore updated only while its
-lambda at the current estimate is below 1, and its random-walk variance growth is capped.
+lambda at the current estimate is below 1 (all four while any wheel is), and its random-walk
+variance growth is capped. The four mu share a correlated prior and random walk (correlation
+0.8): a saturating outer wheel informs the lightly loaded inner one, while a split road still
+separates left from right over time.
 """
 
 from __future__ import annotations
@@ -45,13 +48,21 @@ MU_BOUNDS = (0.1, 1.2)  #: estimated mu stays inside these bounds
 EXCITATION_LAMBDA = 1.0  #: a wheel's mu is updated only while its Dugoff lambda is below this
 
 
+MU_CORRELATION = 0.8  #: prior/random-walk correlation of the four wheels' mu (roads vary smoothly)
+
+
+def _correlated(variance: float) -> np.ndarray:
+    """4x4 covariance with ``variance`` on the diagonal and MU_CORRELATION between wheels."""
+    return variance * (MU_CORRELATION + (1.0 - MU_CORRELATION) * np.eye(4))
+
+
 @dataclass(frozen=True)
 class NoiseParams:
     """Filter noise (standard deviations, SI). Process: per 2 ms step on u, v, ax, ay, r, Gamma;
     measurement: accelerometer, gyro (sensor noise plus model error), wheel-speed pseudo
     measurement; mu random walk per step. ALO tuning rescales these."""
 
-    process_std: tuple[float, ...] = (0.01, 0.01, 0.3, 0.3, 0.002, 80.0)
+    process_std: tuple[float, ...] = (0.01, 0.001, 0.3, 0.3, 0.002, 80.0)
     accel_std: float = 0.15
     gyro_std: float = 0.005
     wheel_speed_std: float = 0.15
@@ -110,7 +121,7 @@ class StateEstimator:
         x0[:, I_AX], x0[:, I_AY], x0[:, I_R] = values[:, 0], values[:, 1], values[:, 2]
         P0 = np.broadcast_to(np.diag([0.5, 0.3, 1.0, 1.0, 0.02, 500.0]) ** 2, (B, N_STATE, N_STATE))
         mu0 = np.full((B, 4), self.nominal_mu)
-        Pmu0 = np.broadcast_to(np.eye(4) * 0.3**2, (B, 4, 4))
+        Pmu0 = np.broadcast_to(_correlated(0.3**2), (B, 4, 4))
         if mask is None or not hasattr(self, "x"):
             self.x, self.P = x0, P0.copy()
             self.mu, self.P_mu = mu0, Pmu0.copy()
@@ -233,7 +244,7 @@ class StateEstimator:
         def h2(mu_points):
             return predicted(mu_points)[..., 1:]
 
-        Q_mu = np.eye(4) * n.mu_walk_std**2
+        Q_mu = _correlated(n.mu_walk_std**2)
         R1 = np.diag([n.mu_accel_std**2, n.mu_accel_std**2, n.gyro_std**2])
         R2 = np.diag([n.mu_accel_std**2, n.gyro_std**2])
         out = federated_step(self.mu, self.P_mu, lambda m: m, Q_mu,
@@ -241,7 +252,7 @@ class StateEstimator:
                               SubMeasurement(values[:, 1:3], h2, R2, valid[:, 1:3])],
                              self.beta_mu, huber_c=self.huber_c)
         # hold mu where the tyre is far from saturation (Dugoff lambda >= EXCITATION_LAMBDA)
-        excited = self._excitation(inputs) < EXCITATION_LAMBDA
+        excited = np.any(self._excitation(inputs) < EXCITATION_LAMBDA, axis=1, keepdims=True)
         self.mu = np.where(excited, np.clip(out.x, *MU_BOUNDS), self.mu)
         # cap the random walk's growth where mu is unobservable
         var = np.diagonal(out.P, axis1=1, axis2=2)

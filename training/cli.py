@@ -72,6 +72,18 @@ def _sine_with_dwell(args: argparse.Namespace) -> int:
     return 0
 
 
+def _compare(args: argparse.Namespace) -> int:
+    from training.compare import compare
+
+    try:
+        report = compare(args.out, args.scenarios, args.estimators, args.controllers, args.seeds, args.jobs)
+    except ValueError as err:
+        raise SystemExit(f"fourwis compare: {err}") from None
+    print(report.read_text())
+    print(f"wrote {report} (+ runs.csv and PNG plots in {report.parent})")
+    return 0
+
+
 def _add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speed-kph", type=float, help="initial / target speed [km/h]")
     parser.add_argument("--mu", type=float, nargs="+",
@@ -90,6 +102,16 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--seed", type=int, default=0, help="sensor noise seed")
     sim.add_argument("--out", default="results/simulate", help="output directory")
     sim.set_defaults(func=_simulate)
+    from training.compare import DEFAULT_CONTROLLERS, DEFAULT_ESTIMATORS, HEADLINE
+
+    cmp_ = sub.add_parser("compare", help="closed-loop matrix estimator x controller x scenario: report + plots")
+    cmp_.add_argument("--scenarios", nargs="+", default=list(HEADLINE), help="scenario names ('swd_wet': SWD 5.5A, mu 0.5)")
+    cmp_.add_argument("--estimators", nargs="+", default=list(DEFAULT_ESTIMATORS))
+    cmp_.add_argument("--controllers", nargs="+", default=list(DEFAULT_CONTROLLERS))
+    cmp_.add_argument("--seeds", type=int, default=2, help="sensor-noise seeds per cell")
+    cmp_.add_argument("--jobs", type=int, help="worker processes (default: up to 2)")
+    cmp_.add_argument("--out", default="results/compare", help="output directory")
+    cmp_.set_defaults(func=_compare)
     swd = sub.add_parser("swd", help="FMVSS 126 sine-with-dwell series (uncontrolled car): the regulation's table")
     swd.add_argument("--mu", type=float, nargs="+", default=[1.0, 0.5, 0.3], help="road friction values")
     swd.add_argument("--A", type=float, help="characterisation angle [deg] (default: measured at 0.3 g)")

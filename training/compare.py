@@ -1,0 +1,239 @@
+"""The closed-loop comparison (the main job): estimator x controller x scenario x seed.
+
+Every run simulates the truth plant with noisy sensors; the estimator turns readings into an
+estimate and the controller acts on that estimate only. Reported per run (and averaged
+over seeds): peak |sideslip|, yaw-rate tracking RMS against the friction-bounded reference
+of the *true* state, spin-out, path deviation and cone hits on course scenarios, FMVSS 126
+ratios and displacement on sine-with-dwell, and the estimator's RMSE/MAE (paper Table 2)
+of u, v, beta, r and mu.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from control import CONTROLLERS, make_controller
+from control.reference import reference_yaw_rate
+from envs.fmvss126 import characterise
+from envs.metrics import cone_hits, mae, path_deviation, rmse, sine_with_dwell_metrics, spin_out
+from envs.scenarios import SCENARIOS, make_scenario
+from envs.simulation import Trajectory, simulate
+from envs.vehicle import A_AY, S_DELTA_F, S_PSI, S_R, S_U, S_X, S_Y
+from estimation import ESTIMATORS
+from training.io import atomic_write, atomic_write_text
+
+#: headline scenarios: the paper's five conditions, FMVSS 126 at 5.5A on a wet road, the mu jump
+HEADLINE = ("paper_dlc", "paper_step", "paper_sine", "paper_split_dlc", "paper_serpentine", "swd_wet", "mu_jump")
+DEFAULT_ESTIMATORS = ("oracle", "ckf", "joint")
+DEFAULT_CONTROLLERS = ("none", "dyc-lqr")
+SWD_MULTIPLE = 5.5  #: sine-with-dwell amplitude in multiples of A for the comparison
+SWD_MU = 0.5  #: road friction of the comparison's sine with dwell (wet asphalt)
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    scenario: str
+    estimator: str
+    controller: str
+    seed: int
+    swd_A: float
+
+
+def _scenario(spec: RunSpec):
+    if spec.scenario == "swd_wet":
+        return make_scenario("sine_with_dwell", mu=SWD_MU, amplitude_deg=math.degrees(SWD_MULTIPLE * spec.swd_A))
+    return make_scenario(spec.scenario)
+
+
+def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float]:
+    """The comparison's metrics of one trajectory (SI units; angles in rad)."""
+    scenario = traj.scenario
+    params = scenario.vehicle_params
+    T, E = traj.truth, traj.estimate
+    beta = T.beta
+    r_ref = reference_yaw_rate(traj.state[:, S_U], traj.state[:, S_DELTA_F], T.mu, params)
+    out = {"peak_beta": float(np.max(np.abs(beta))), "yaw_tracking_rms": rmse(traj.state[:, S_R], r_ref),
+           "spin_out": float(spin_out(beta))}
+    if scenario.reference_path is not None:
+        rms_dev, max_dev = path_deviation(traj.state[:, S_X], traj.state[:, S_Y], scenario.reference_path)
+        out.update(path_rms=rms_dev, path_max=max_dev)
+        out["cone_hits"] = float(cone_hits(traj.state[:, S_X], traj.state[:, S_Y], traj.state[:, S_PSI],
+                                           scenario.course.cones, params.width,
+                                           params.cg_to_front + params.front_overhang,
+                                           params.cg_to_rear + params.rear_overhang))
+    if scenario.name == "sine_with_dwell":
+        res = sine_with_dwell_metrics(traj.t, traj.steering_wheel, traj.state[:, S_R], traj.aux[:, A_AY],
+                                      sideslip=beta, A=swd_A)
+        out.update(swd_ratio_1000=res.yaw_rate_ratio_1000, swd_ratio_1750=res.yaw_rate_ratio_1750,
+                   swd_displacement=res.lateral_displacement, swd_passed=float(res.passed))
+    for name in ("u", "v", "beta", "r"):
+        out[f"rmse_{name}"] = rmse(getattr(E, name), getattr(T, name))
+        out[f"mae_{name}"] = mae(getattr(E, name), getattr(T, name))
+    out["rmse_mu"] = rmse(E.mu.ravel(), T.mu.ravel())
+    out["mae_mu"] = mae(E.mu.ravel(), T.mu.ravel())
+    out["final_mu_error"] = float(np.mean(np.abs(E.mu[-1] - T.mu[-1])))
+    return out
+
+
+def _run(spec: RunSpec) -> tuple[RunSpec, dict[str, float], Trajectory | None]:
+    scenario = _scenario(spec)
+    controller = make_controller(spec.controller, scenario.vehicle_params)
+    traj = simulate(scenario, controller=controller, estimator=spec.estimator, seed=spec.seed)
+    keep = spec.seed == 0  # trajectories of the first seed feed the plots
+    return spec, run_metrics(traj, spec.swd_A), (traj if keep else None)
+
+
+def _check(kind: str, names: Sequence[str], known: Sequence[str]) -> None:
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise ValueError(f"unknown {kind} {unknown}; known: {list(known)}")
+
+
+def run_matrix(scenarios: Sequence[str] = HEADLINE, estimators: Sequence[str] = DEFAULT_ESTIMATORS,
+               controllers: Sequence[str] = DEFAULT_CONTROLLERS, seeds: int = 2, jobs: int | None = None,
+               progress: bool = True) -> tuple[list[tuple[RunSpec, dict]], dict]:
+    """Run the matrix in parallel processes; returns per-run (spec, metrics) and seed-0 trajectories."""
+    _check("scenario(s)", scenarios, tuple(SCENARIOS) + ("swd_wet",))
+    _check("estimator(s)", estimators, ESTIMATORS)
+    _check("controller(s)", controllers, CONTROLLERS)
+    if seeds < 1:
+        raise ValueError(f"seeds must be >= 1, got {seeds!r}")
+    A = characterise() if "swd_wet" in scenarios or "sine_with_dwell" in scenarios else float("nan")
+    specs = [RunSpec(s, e, c, k, A) for s in scenarios for c in controllers for e in estimators for k in range(seeds)]
+    jobs = jobs or min(os.cpu_count() or 1, 2)
+    results, trajectories = [], {}
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        for spec, metrics, traj in tqdm(pool.map(_run, specs), total=len(specs), disable=not progress,
+                                        desc="closed-loop runs", unit="run"):
+            results.append((spec, metrics))
+            if traj is not None:
+                trajectories[(spec.scenario, spec.estimator, spec.controller)] = traj
+    return results, trajectories
+
+
+def aggregate(results: list[tuple[RunSpec, dict]]) -> dict[tuple[str, str, str], dict[str, float]]:
+    """Mean of every metric over seeds per (scenario, estimator, controller)."""
+    groups: dict[tuple[str, str, str], list[dict]] = {}
+    for spec, metrics in results:
+        groups.setdefault((spec.scenario, spec.estimator, spec.controller), []).append(metrics)
+    return {key: {m: float(np.mean([r[m] for r in runs])) for m in runs[0]} for key, runs in groups.items()}
+
+
+def write_csv(results: list[tuple[RunSpec, dict]], path: Path) -> Path:
+    names = sorted({m for _, metrics in results for m in metrics})
+    buffer = io.StringIO()
+    writer = csv.writer(buffer)
+    writer.writerow(["scenario", "estimator", "controller", "seed", *names])
+    for spec, metrics in results:
+        writer.writerow([spec.scenario, spec.estimator, spec.controller, spec.seed,
+                         *(f"{metrics[n]:.6g}" if n in metrics else "" for n in names)])
+    return atomic_write_text(path, buffer.getvalue())
+
+
+def _fmt(value: float | None, scale: float = 1.0, digits: int = 2) -> str:
+    return "—" if value is None or not math.isfinite(value) else f"{value * scale:.{digits}f}"
+
+
+def markdown_report(table: dict, scenarios: Sequence[str], estimators: Sequence[str], controllers: Sequence[str],
+                    seeds: int) -> str:
+    deg = 180.0 / math.pi
+    lines = ["# fourwis closed-loop comparison", "",
+             f"Runs: {len(scenarios)} scenarios x {len(estimators)} estimators x {len(controllers)} controllers "
+             f"x {seeds} seeds (means over seeds). The controller sees only the estimate.",
+             f"`swd_wet`: FMVSS 126 sine with dwell at {SWD_MULTIPLE}A on mu {SWD_MU} from 80 km/h.", "",
+             "## Stability", "",
+             "| scenario | controller | estimator | peak beta [deg] | yaw-rate RMS err [deg/s] | spin-outs "
+             "| path RMS [m] | cone hits | SWD ratio @1.0 s | SWD ratio @1.75 s | SWD displ. [m] |",
+             "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for s in scenarios:
+        for c in controllers:
+            for e in estimators:
+                m = table[(s, e, c)]
+                lines.append(f"| {s} | {c} | {e} | {_fmt(m['peak_beta'], deg, 1)} | {_fmt(m['yaw_tracking_rms'], deg)} "
+                             f"| {_fmt(m['spin_out'], 1, 1)} | {_fmt(m.get('path_rms'))} | {_fmt(m.get('cone_hits'), 1, 1)} "
+                             f"| {_fmt(m.get('swd_ratio_1000'), 100, 0)}{'%' if 'swd_ratio_1000' in m else ''} "
+                             f"| {_fmt(m.get('swd_ratio_1750'), 100, 0)}{'%' if 'swd_ratio_1750' in m else ''} "
+                             f"| {_fmt(m.get('swd_displacement'))} |")
+    lines += ["", "## Estimation accuracy (paper Table 2 form, open loop: controller none)" if "none" in controllers
+              else "## Estimation accuracy (first controller)", "",
+              "| scenario | estimator | RMSE u [m/s] | RMSE v [m/s] | RMSE beta [deg] | MAE beta [deg] "
+              "| RMSE r [deg/s] | RMSE mu | final mu error |", "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+    c = "none" if "none" in controllers else controllers[0]
+    for s in scenarios:
+        for e in estimators:
+            m = table[(s, e, c)]
+            lines.append(f"| {s} | {e} | {_fmt(m['rmse_u'], 1, 3)} | {_fmt(m['rmse_v'], 1, 3)} "
+                         f"| {_fmt(m['rmse_beta'], deg, 3)} | {_fmt(m['mae_beta'], deg, 3)} | {_fmt(m['rmse_r'], deg, 3)} "
+                         f"| {_fmt(m['rmse_mu'], 1, 3)} | {_fmt(m['final_mu_error'], 1, 3)} |")
+    return "\n".join(lines) + "\n"
+
+
+def plot_report(table: dict, trajectories: dict, scenarios, estimators, controllers, out: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = []
+    fig, ax = plt.subplots(figsize=(12, 5))
+    combos = [(c, e) for c in controllers for e in estimators]
+    width = 0.8 / len(combos)
+    for i, (c, e) in enumerate(combos):
+        values = [math.degrees(table[(s, e, c)]["peak_beta"]) for s in scenarios]
+        ax.bar(np.arange(len(scenarios)) + i * width, values, width, label=f"{c} / {e}")
+    ax.set_xticks(np.arange(len(scenarios)) + 0.4 - width / 2, scenarios, rotation=20)
+    ax.set_ylabel("peak |sideslip| [deg]")
+    ax.set_yscale("log")
+    ax.legend(fontsize=8, ncol=2)
+    ax.set_title("Peak sideslip by scenario, controller and estimator (mean over seeds)")
+    fig.tight_layout()
+    paths.append(atomic_write(out / "peak_sideslip.png", lambda p: fig.savefig(p, format="png", dpi=110)))
+    plt.close(fig)
+
+    for s in scenarios:
+        fig, axes = plt.subplots(1, 3, figsize=(15, 4))
+        for c in controllers:
+            for e in estimators:
+                traj = trajectories.get((s, e, c))
+                if traj is None:
+                    continue
+                label = f"{c} / {e}"
+                axes[0].plot(traj.t, np.degrees(traj.state[:, S_R]), label=label)
+                axes[1].plot(traj.t, np.degrees(traj.truth.beta), label=label)
+                if c == controllers[-1]:
+                    axes[2].plot(traj.t, traj.estimate.mu.mean(axis=1), label=f"{e} estimate")
+        first = next((t for k, t in trajectories.items() if k[0] == s), None)
+        if first is not None:
+            axes[2].plot(first.t, first.truth.mu.mean(axis=1), "k--", label="truth")
+        for a, title in zip(axes, ("yaw rate [deg/s]", "sideslip [deg]", "mean mu (last controller)")):
+            a.set_title(title)
+            a.set_xlabel("t [s]")
+            a.grid(alpha=0.3)
+        axes[0].legend(fontsize=7)
+        axes[2].legend(fontsize=7)
+        fig.suptitle(s)
+        fig.tight_layout()
+        paths.append(atomic_write(out / f"{s}.png", lambda p: fig.savefig(p, format="png", dpi=100)))
+        plt.close(fig)
+    return paths
+
+
+def compare(out: str | Path, scenarios: Sequence[str] = HEADLINE, estimators: Sequence[str] = DEFAULT_ESTIMATORS,
+            controllers: Sequence[str] = DEFAULT_CONTROLLERS, seeds: int = 2, jobs: int | None = None) -> Path:
+    """Run the matrix and write report.md, runs.csv and PNG plots into ``out``; returns the report path."""
+    out = Path(out)
+    results, trajectories = run_matrix(scenarios, estimators, controllers, seeds, jobs)
+    table = aggregate(results)
+    write_csv(results, out / "runs.csv")
+    plot_report(table, trajectories, scenarios, estimators, controllers, out)
+    return atomic_write_text(out / "report.md", markdown_report(table, scenarios, estimators, controllers, seeds))
