@@ -16,6 +16,7 @@ from control.reference import rear_steer_feedforward, reference_yaw_rate, sidesl
 CONTROLLERS = ("none", "dyc-lqr", "dyc-smc", "dyc-lqr-4ws")
 ACTIVE_SPEED = 2.0  #: below this speed [m/s] the controller passes the driver's torques through
 YAW_DEADBAND = 0.02  #: |r - r_ref| [rad/s] tolerated without intervention (ESC practice)
+REFERENCE_LAG = 0.15  #: time constant of the yaw-rate reference [s]: the car's own yaw response lag
 
 
 class Command(NamedTuple):
@@ -28,6 +29,10 @@ class Command(NamedTuple):
 @dataclass
 class StabilityController:
     """Reference + yaw-moment law + allocation (+ optional eq. 20 rear steer).
+
+    The yaw-rate reference is the friction-bounded 2-DOF steady state passed through a
+    first-order lag of 0.15 s (the car's natural yaw response), so the controller corrects
+    deviations from how a stable car responds rather than the response delay itself.
 
     The law acts on the yaw-rate error outside a deadband of 0.02 rad/s (smoothly: the error
     is shrunk by the deadband) and on sideslip beyond half the mu-dependent bound, so that
@@ -48,14 +53,21 @@ class StabilityController:
         else:
             raise ValueError(f"unknown yaw-moment law {self.law!r}; known: ['lqr', 'smc']")
         self.last_moment = None
+        self._reference = None
 
     def reset(self, scenario=None) -> None:
+        self._reference = None
         if isinstance(self._law, SlidingModeYawController):
             self._law.reset()
 
     def __call__(self, t: float, estimate, front_steer: np.ndarray, base_torques: np.ndarray) -> Command:
         u, beta, r = estimate.u, estimate.beta, estimate.r
-        r_ref = reference_yaw_rate(u, front_steer, estimate.mu, self.params)
+        steady = reference_yaw_rate(u, front_steer, estimate.mu, self.params)
+        # first-order lag: the reference a well-behaved car can follow, not a step it cannot
+        if self._reference is None:
+            self._reference = steady.copy()
+        self._reference = self._reference + (steady - self._reference) * min(self.dt / REFERENCE_LAG, 1.0)
+        r_ref = self._reference
         error = r - r_ref
         shrunk_error = np.sign(error) * np.maximum(np.abs(error) - YAW_DEADBAND, 0.0)
         half_bound = 0.5 * sideslip_bound(estimate.mu)

@@ -65,7 +65,9 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
     out = {"peak_beta": float(np.max(np.abs(beta))), "yaw_tracking_rms": rmse(traj.state[:, S_R], r_ref),
            "spin_out": float(spin_out(beta))}
     if scenario.reference_path is not None:
-        rms_dev, max_dev = path_deviation(traj.state[:, S_X], traj.state[:, S_Y], scenario.reference_path)
+        path = scenario.reference_path
+        on_course = (traj.state[:, S_X] >= path[0, 0]) & (traj.state[:, S_X] <= path[-1, 0])
+        rms_dev, max_dev = path_deviation(traj.state[on_course, S_X], traj.state[on_course, S_Y], path)
         out.update(path_rms=rms_dev, path_max=max_dev)
         out["cone_hits"] = float(cone_hits(traj.state[:, S_X], traj.state[:, S_Y], traj.state[:, S_PSI],
                                            scenario.course.cones, params.width,
