@@ -1,8 +1,13 @@
 """Stability metrics as pure functions on uniformly sampled time series (SI units).
 
-FMVSS 126 (49 CFR 571.126, S7) / UN R13-H Annex 9 / GTR 8 sine-with-dwell evaluation, the
-ISO 3888 cone and path measures, and generic ones (peak sideslip, tracking RMS, spin-out,
-the paper's Table 2 RMSE/MAE).
+* FMVSS 126 (49 CFR 571.126 S7.6, S7.9-S7.11; the same procedure as GTR 8, UN R13-H Annex 9 and
+  GB/T 30677-2014): the phaseless filters, the sine-with-dwell evaluation (zeroing, BOS, COS,
+  yaw-rate ratios, lateral displacement) and the characterisation angle A.
+* ISO 3888-1/-2 lane changes: cones touched by the car's footprint, deviation from a path.
+* Generic: peak, RMS, yaw-rate tracking, spin-out, and the paper's Table 2 RMSE/MAE.
+
+Angles are in rad and rates in rad/s throughout; the regulation's thresholds, stated in degrees,
+are converted once below.
 """
 
 from __future__ import annotations
@@ -11,240 +16,386 @@ import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy.signal import butter, sosfiltfilt
+from scipy.signal import butter, find_peaks, sosfiltfilt
 
-STEERING_CUTOFF = 10.0  #: FMVSS 126 S7.11.2: steering filter cutoff [Hz]
-RESPONSE_CUTOFF = 6.0  #: yaw rate and lateral acceleration filter cutoff [Hz]
-ZEROING_RATE = math.radians(75.0)  #: steering rate that opens the manoeuvre [rad/s]
-ZEROING_HOLD = 0.2  #: ... for at least this long [s]
-BOS_ANGLE = math.radians(5.0)  #: beginning of steer threshold [rad]
-YAW_RATIO_1000 = 0.35  #: S5.2.1 limit at COS + 1.000 s
-YAW_RATIO_1750 = 0.20  #: S5.2.2 limit at COS + 1.750 s
+STEERING_CUTOFF = 10.0  #: S7.11.1: steering-wheel angle filter cutoff [Hz]
+RESPONSE_CUTOFF = 6.0  #: S7.11.2-3: yaw rate and lateral acceleration filter cutoff [Hz]
+FILTER_ORDER = 12  #: the regulation's "12-pole phaseless Butterworth" (6 poles each way)
+RATE_AVERAGE = 0.1  #: S7.11.4: running average applied to the steering rate [s]
+ZEROING_RATE = math.radians(75.0)  #: S7.11.5: steering rate that ends the zeroing range [rad/s]
+ZEROING_HOLD = 0.2  #: ... and that it must stay above for this long [s]
+ZEROING_RANGE = 1.0  #: the zeroing range: this long before the rate event [s]
+BOS_ANGLE = math.radians(5.0)  #: S7.11.6: beginning of steer threshold [rad]
+COS_TOLERANCE = math.radians(0.1)  #: COS: back within this of zero (steering sensor resolution) [rad]
+YAW_RATIO_1000 = 0.35  #: S5.2.1: limit on r(COS + 1.000 s) / first peak
+YAW_RATIO_1750 = 0.20  #: S5.2.2: limit on r(COS + 1.750 s) / first peak
 DISPLACEMENT_TIME = 1.07  #: S5.2.3: lateral displacement measured at BOS + 1.07 s
-DISPLACEMENT_LIMIT = 1.83  #: [m] for vehicles with GVWR <= 3500 kg
-SPIN_OUT_SIDESLIP = math.radians(20.0)  #: |beta| above this counts as a spin-out [rad]
+DISPLACEMENT_LIMIT = 1.83  #: S5.2.3: minimum displacement [m] for GVWR <= 3500 kg
+RESPONSIVENESS_FROM = 5.0  #: S5.2.3 applies to amplitudes of 5A and more
+AMPLITUDE_MARGIN = 0.01  #: the measured amplitude stands in for the commanded one within 1%
+G_UNIT = 9.80665  #: the unit "g" of the regulation's thresholds (standard gravity) [m/s^2]
+SPIN_OUT_SIDESLIP = math.radians(20.0)  #: default |beta| spin-out threshold [rad]
+SPIN_OUT_HEADING = math.pi / 2  #: heading this far from the course counts as a spin-out [rad]
+CONE_RADIUS = 0.15  #: base radius of a road cone [m] (300 mm base, ISO 3888 course marking)
 
 
 def _series(name: str, x, n: int | None = None) -> np.ndarray:
+    """``x`` as a finite 1-D float array (of ``n`` samples when given)."""
     x = np.asarray(x, dtype=float)
     if x.ndim != 1:
         raise ValueError(f"{name} must be a 1-D time series, got shape {x.shape}")
     if n is not None and len(x) != n:
-        raise ValueError(f"{name} has {len(x)} samples, expected {n}")
+        raise ValueError(f"{name} has {len(x)} samples, expected {n} (the length of t)")
     if not np.all(np.isfinite(x)):
         raise ValueError(f"{name} contains NaN or inf")
     return x
 
 
+def _same_shape(name_a: str, a, name_b: str, b) -> tuple[np.ndarray, np.ndarray]:
+    """Two finite arrays of equal, non-empty shape."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    if a.shape != b.shape or a.size == 0:
+        raise ValueError(f"{name_a} {a.shape} and {name_b} {b.shape} must have the same non-empty shape")
+    for name, x in ((name_a, a), (name_b, b)):
+        if not np.all(np.isfinite(x)):
+            raise ValueError(f"{name} contains NaN or inf")
+    return a, b
+
+
 def _sample_rate(t: np.ndarray) -> float:
-    if len(t) < 16:
+    """Sample rate [Hz] of the increasing, uniformly spaced (within 0.1%) times ``t`` [s]."""
+    if len(t) < 2:
         raise ValueError(f"time series too short: {len(t)} samples")
     dt = np.diff(t)
-    if np.any(dt <= 0) or np.ptp(dt) > 1e-6 * dt.mean() + 1e-12:
-        raise ValueError("time must be uniformly sampled and increasing")
-    return 1.0 / dt.mean()
+    if np.any(dt <= 0) or np.ptp(dt) > 1e-3 * dt.mean():
+        raise ValueError(f"t must be increasing and uniformly sampled (steps {dt.min():.6g} to {dt.max():.6g} s)")
+    return float(1.0 / dt.mean())
 
 
-def phaseless_butterworth(x: np.ndarray, fs: float, cutoff: float, order: int = 12) -> np.ndarray:
-    """Zero-phase Butterworth low-pass of total ``order`` poles at ``cutoff`` [Hz], sample rate ``fs`` [Hz].
+def phaseless_butterworth(x, fs: float, cutoff: float, order: int = FILTER_ORDER) -> np.ndarray:
+    """Zero-phase Butterworth low-pass of ``x`` (..., n) along the last axis.
 
-    The regulation's "12-pole phaseless Butterworth" is a 6-pole filter run forwards and
-    backwards (``sosfiltfilt``), which doubles the order and cancels the phase; its gain at
-    the cutoff is then 0.5 (-6 dB)."""
-    if order % 2 or order < 2:
-        raise ValueError(f"order must be even (forward-backward), got {order!r}")
+    ``fs`` sample rate [Hz], ``cutoff`` [Hz], ``order`` total poles. The regulation's "12-pole
+    phaseless Butterworth" is a 6-pole filter run forwards then backwards (``sosfiltfilt``):
+    the second pass doubles the order to 12 poles and cancels the phase, so the response is
+    |H(f)|^2 of the 6-pole filter, 0.5 in amplitude (-6 dB) at ``cutoff``."""
+    if order < 2 or order % 2:
+        raise ValueError(f"order must be even (forward-backward halves), got {order!r}")
+    if not (math.isfinite(fs) and fs > 0):
+        raise ValueError(f"fs must be a positive sample rate [Hz], got {fs!r}")
     if not 0 < cutoff < fs / 2:
-        raise ValueError(f"cutoff {cutoff!r} Hz must lie in (0, fs/2 = {fs / 2})")
+        raise ValueError(f"cutoff {cutoff!r} Hz must lie in (0, fs/2 = {fs / 2} Hz)")
+    x = np.asarray(x, dtype=float)
+    if not np.all(np.isfinite(x)):
+        raise ValueError("signal contains NaN or inf")
     sos = butter(order // 2, cutoff, fs=fs, output="sos")
-    return sosfiltfilt(sos, _series("signal", x))
+    padlen = 3 * (2 * len(sos) + 1)
+    if x.ndim == 0 or x.shape[-1] <= padlen:
+        raise ValueError(f"signal too short to filter: {x.shape[-1] if x.ndim else 0} samples, need > {padlen}")
+    return sosfiltfilt(sos, x, axis=-1, padlen=padlen)
 
 
 @dataclass(frozen=True)
 class SineWithDwellResult:
-    """FMVSS 126 results of one sine-with-dwell run (angles [rad], rates [rad/s], times [s])."""
+    """FMVSS 126 evaluation of one sine-with-dwell run."""
 
-    steering_amplitude: float
-    bos_time: float
-    cos_time: float
-    first_peak_yaw_rate: float
-    yaw_rate_ratio_1000: float
-    yaw_rate_ratio_1750: float
-    lateral_displacement: float
-    passed_yaw: bool
-    passed_responsiveness: bool | None
-    spun_out: bool
+    direction: int  #: initial steering direction, +1 left (counter-clockwise), -1 right
+    steering_amplitude: float  #: largest |filtered, zeroed steering-wheel angle| [rad]
+    bos_time: float  #: beginning of steer [s]
+    cos_time: float  #: completion of steer [s]
+    first_peak_yaw_rate: float  #: first yaw-rate peak after the steering reversal, dwell sense [rad/s]
+    yaw_rate_ratio_1000: float  #: r(COS + 1.000 s) / first peak, signed (inf without a peak)
+    yaw_rate_ratio_1750: float  #: r(COS + 1.750 s) / first peak, signed (inf without a peak)
+    lateral_displacement: float  #: at BOS + 1.07 s, positive towards the initial steer [m]
+    passed_responsiveness: bool | None  #: displacement >= 1.83 m; None below 5A or without A
+    spun_out: bool | None  #: sideslip spin-out flag; None when no sideslip was given
+
+    @property
+    def passed_yaw(self) -> bool:
+        """Lateral stability (S5.2.1-2): ratios <= 35% at COS + 1 s and <= 20% at COS + 1.75 s."""
+        return bool(self.yaw_rate_ratio_1000 <= YAW_RATIO_1000 and self.yaw_rate_ratio_1750 <= YAW_RATIO_1750)
 
     @property
     def passed(self) -> bool:
-        """Both criteria that apply to this run (responsiveness only from 5A)."""
+        """Every criterion that applies to this run (responsiveness only from 5A)."""
         return self.passed_yaw and self.passed_responsiveness is not False
 
     def as_dict(self) -> dict:
-        return {**asdict(self), "passed": self.passed}
+        """All fields plus ``passed_yaw`` and ``passed``."""
+        return {**asdict(self), "passed_yaw": self.passed_yaw, "passed": self.passed}
 
 
-def _zeroing_start(t: np.ndarray, rate: np.ndarray) -> int:
-    """Index where the steering rate first exceeds 75 deg/s and stays above it for 200 ms.
+def _running_mean(x: np.ndarray, window: int) -> np.ndarray:
+    """Centred running mean over ``window`` samples (odd), shrinking at the ends."""
+    kernel = np.ones(window)
+    return np.convolve(x, kernel, mode="same") / np.convolve(np.ones_like(x), kernel, mode="same")
 
-    At small amplitudes the first quarter-sine is too short for that: the rate of a 0.7 Hz
-    sine of amplitude A stays above 75 deg/s for 200 ms only once A > ~31 deg, and below that
-    the first 200 ms stretch is at the steering reversal, 0.7 s into the manoeuvre, which
-    would put the zeroing range over the first half-wave. So a 200 ms stretch counts only if
-    it starts within 0.1 s of the first time the rate exceeds 75 deg/s; otherwise that first
-    time is taken. If the rate never exceeds 75 deg/s (A < 17 deg), the manoeuvre starts where
-    the rate first exceeds 20% of its peak (within ~30 ms of the sine's start)."""
-    dt = t[1] - t[0]
-    hold = max(1, int(round(ZEROING_HOLD / dt)))
-    fast = np.abs(rate) > ZEROING_RATE
-    if not fast.any():
-        return int(np.argmax(np.abs(rate) > 0.2 * np.abs(rate).max()))
-    first = int(np.argmax(fast))
-    run = np.convolve(fast.astype(int), np.ones(hold, dtype=int), mode="valid")
-    full = np.flatnonzero(run == hold)
-    if full.size and t[full[0]] - t[first] <= 0.1:
-        return int(full[0])
+
+def _zeroing_end(t: np.ndarray, steer: np.ndarray) -> int:
+    """Index ending the zeroing range (S7.11.4-5) from the filtered steering angle [rad].
+
+    The steering rate is the derivative of the filtered angle smoothed by a centred 0.1 s
+    running average. The range ends at the first instant the |rate| exceeds 75 deg/s and then
+    stays above it for 200 ms; failing instants are skipped (the regulation's iteration).
+    Two cases the regulation does not meet: (1) below ~27 deg of amplitude the first quarter-sine
+    (0.36 s) is too short to hold 75 deg/s for 200 ms, and the iteration would land on the
+    steering reversal and zero the signals over the first half-wave; a qualifying instant
+    therefore only counts before the rate first changes sign, else the first instant above
+    75 deg/s is taken. (2) Below ~17 deg the rate never reaches 75 deg/s; half the largest
+    |rate| then replaces the threshold (the sine's rate starts at its maximum, so this is
+    within a few ms of the start too)."""
+    fs = 1.0 / (t[1] - t[0])
+    rate = _running_mean(np.gradient(steer, t), 2 * int(round(RATE_AVERAGE * fs / 2)) + 1)
+    threshold = ZEROING_RATE if np.max(np.abs(rate)) > ZEROING_RATE else 0.5 * np.max(np.abs(rate))
+    if threshold <= 0:
+        raise ValueError("the steering-wheel angle never moves: not a sine-with-dwell run")
+    fast = np.abs(rate) > threshold
+    onsets = np.flatnonzero(fast & ~np.r_[False, fast[:-1]])
+    first = int(onsets[0])
+    flips = np.flatnonzero(np.sign(rate[first:]) != np.sign(rate[first]))
+    initial_motion_end = first + int(flips[0]) if flips.size else len(t)
+    hold = int(round(ZEROING_HOLD * fs))
+    for onset in onsets[onsets < initial_motion_end]:
+        if onset + hold < len(t) and fast[onset:onset + hold + 1].all():
+            return int(onset)
     return first
 
 
-def sine_with_dwell_metrics(t, steering_wheel_angle, yaw_rate, lateral_acceleration, sideslip=None,
-                            A: float | None = None) -> SineWithDwellResult:
-    """Evaluate one sine-with-dwell run (FMVSS 126 S7.9-S7.11).
+def _crossing_time(t: np.ndarray, x: np.ndarray, level: float, i: int) -> float:
+    """Time [s] at which ``x`` falls to ``level`` between samples i-1 and i (linear)."""
+    if i == 0:
+        return float(t[0])
+    x0, x1 = x[i - 1], x[i]
+    return float(t[i - 1] + (t[i] - t[i - 1]) * (x0 - level) / (x0 - x1)) if x0 != x1 else float(t[i])
 
-    ``steering_wheel_angle`` [rad], ``yaw_rate`` [rad/s], ``lateral_acceleration`` [m/s^2] (body
-    frame at the CG) sampled at times ``t`` [s]; ``A`` [rad]: the characterisation angle (0.3 g),
-    needed for the responsiveness criterion (applies from 5A). ``sideslip`` [rad] (optional)
-    flags a spin-out. Steps: filter (steering 10 Hz, responses 6 Hz, 12-pole phaseless);
-    zero each signal by its mean over the 1 s before the manoeuvre starts; BOS: steering
-    reaches 5 deg in the initial direction; COS: the steering returns to zero after the dwell
-    (the last sign change of the steering, or where it is back within 0.5 deg); first peak
-    yaw rate: the largest yaw rate of the dwell's sign between the steering reversal and COS
-    + 1.75 s; ratios interpolated at COS + 1.000 s and COS + 1.750 s; lateral displacement:
-    double integral of the zeroed lateral acceleration from BOS to BOS + 1.07 s, positive in
-    the initial steering direction.
+
+def sine_with_dwell_metrics(t, steering_wheel_angle, yaw_rate, lateral_acceleration, A: float | None = None,
+                            direction: int | None = None, sideslip=None) -> SineWithDwellResult:
+    """Evaluate one sine-with-dwell run by FMVSS 126 S7.11.
+
+    ``t`` (n,) uniform times [s]; ``steering_wheel_angle`` [rad], ``yaw_rate`` [rad/s],
+    ``lateral_acceleration`` [m/s^2] (n,) (ISO 8855 signs, left positive). ``A`` [rad]: the
+    characterisation angle, needed for the responsiveness criterion (amplitudes >= 5A).
+    ``direction``: initial steering direction (+1 left, -1 right); None infers it from the first
+    5 deg excursion. ``sideslip`` [rad] (n,), optional: sets ``spun_out`` (see :func:`spin_out`).
+
+    1. Filter: steering 10 Hz, yaw rate and lateral acceleration 6 Hz (12-pole phaseless).
+    2. Zero each filtered signal by its mean over the zeroing range: the 1 s before the steering
+       rate first exceeds 75 deg/s and holds it for 200 ms (see ``_zeroing_end``). The series
+       must cover at least half of that second.
+    3. BOS: the filtered, zeroed steering first reaches 5 deg in the initial direction after
+       the zeroing range (interpolated).
+    4. COS: after the dwell (the largest steering excursion opposite the initial direction), the
+       first time the zeroed steering angle is back within 0.1 deg (the sensor resolution) of
+       zero, or of its closest approach to zero when a zeroing residue keeps it off zero
+       (interpolated; early by 0.1 deg / steering rate, ~1 ms at 20 deg of amplitude). S7.11.7
+       does not ask for the filtered angle, and the 10 Hz filter rounds the abrupt stop of the
+       profile and moves its zero ~15 ms later, so the unfiltered angle (zeroed like the
+       others) is used.
+    5. First peak yaw rate: the first local maximum of the yaw rate in the dwell's sense after
+       the steering reverses (S7.11.8); the largest such yaw rate if it never peaks (a spin).
+    6. Ratios: the yaw rate at COS + 1.000 s and COS + 1.750 s (interpolated, dwell sense) over
+       that peak. Lateral stability: <= 0.35 and <= 0.20.
+    7. Lateral displacement: the zeroed, filtered lateral acceleration integrated twice from
+       BOS (velocity and displacement zero there; cumulative trapezoid), read at BOS + 1.07 s
+       and signed towards the initial steering. The regulation integrates the lateral
+       acceleration of the CG corrected for roll; here it is the body-frame value given.
     """
     t = _series("t", t)
     n = len(t)
     fs = _sample_rate(t)
-    steer = phaseless_butterworth(_series("steering_wheel_angle", steering_wheel_angle, n), fs, STEERING_CUTOFF)
+    raw_steer = _series("steering_wheel_angle", steering_wheel_angle, n)
+    steer = phaseless_butterworth(raw_steer, fs, STEERING_CUTOFF)
     yaw = phaseless_butterworth(_series("yaw_rate", yaw_rate, n), fs, RESPONSE_CUTOFF)
     ay = phaseless_butterworth(_series("lateral_acceleration", lateral_acceleration, n), fs, RESPONSE_CUTOFF)
-    start = _zeroing_start(t, np.gradient(steer, t))
-    window = (t >= t[start] - 1.0) & (t < t[start])
-    if window.sum() < 2:
-        raise ValueError("the series needs at least 1 s of data before the steering starts")
-    steer, yaw, ay = (x - x[window].mean() for x in (steer, yaw, ay))
-    direction = float(np.sign(steer[np.argmax(np.abs(steer) > BOS_ANGLE)]))
-    if direction == 0 or not np.any(np.abs(steer) > BOS_ANGLE):
-        raise ValueError("steering never reaches 5 deg: not a sine-with-dwell run")
-    amplitude = float(np.max(np.abs(steer)))
-    i_bos = int(np.argmax(direction * steer >= BOS_ANGLE))
-    bos = float(np.interp(BOS_ANGLE, direction * steer[i_bos - 1:i_bos + 1], t[i_bos - 1:i_bos + 1]))
-    # steering reversal: the first crossing of zero towards the dwell side after BOS
-    i_rev = i_bos + int(np.argmax(direction * steer[i_bos:] < 0))
-    # COS: after the dwell peak the steering comes back towards zero
-    i_dwell = i_rev + int(np.argmax(-direction * steer[i_rev:]))
-    back = np.flatnonzero(-direction * steer[i_dwell:] <= math.radians(0.5))
-    i_cos = i_dwell + int(back[0]) if back.size else n - 1
-    cos_time = float(t[i_cos])
-    if cos_time + 1.75 > t[-1]:
-        raise ValueError(f"the series ends at {t[-1]:.2f} s, before COS + 1.75 s = {cos_time + 1.75:.2f} s")
+    if direction not in (None, 1, -1):
+        raise ValueError(f"direction must be +1 (left), -1 (right) or None, got {direction!r}")
+    if A is not None and not (math.isfinite(A) and A > 0):
+        raise ValueError(f"A must be a positive angle [rad], got {A!r}")
+
+    end = _zeroing_end(t, steer)
+    window = (t >= t[end] - ZEROING_RANGE) & (t < t[end])
+    if not window.any() or t[end] - max(t[0], t[end] - ZEROING_RANGE) < 0.5 * ZEROING_RANGE:
+        raise ValueError(f"the steering starts at {t[end]:.3f} s: the series needs ~1 s of data before it")
+    steer, yaw, ay, raw_steer = (x - x[window].mean() for x in (steer, yaw, ay, raw_steer))
+
+    excursion = np.abs(steer[end:]) >= BOS_ANGLE if direction is None else direction * steer[end:] >= BOS_ANGLE
+    if not excursion.any():
+        raise ValueError("the steering never reaches 5 deg in the initial direction: not a sine-with-dwell run")
+    i_bos = end + int(np.argmax(excursion))
+    direction = int(np.sign(steer[i_bos])) if direction is None else direction
+    bos = _crossing_time(t, -direction * steer, -BOS_ANGLE, i_bos)
+
     dwell_sign = -direction
-    search = (t >= t[i_rev]) & (t <= cos_time + 1.75)
-    peak = float(np.max(dwell_sign * yaw[search]))
-    if peak <= 0:
-        ratio_1000 = ratio_1750 = math.inf
+    reversed_ = np.flatnonzero(dwell_sign * steer[i_bos:] > 0)
+    if not reversed_.size:
+        raise ValueError("the steering never reverses after BOS: not a sine-with-dwell run")
+    i_rev = i_bos + int(reversed_[0])
+    i_dwell = i_rev + int(np.argmax(dwell_sign * steer[i_rev:]))
+    back = dwell_sign * raw_steer[i_dwell:]
+    level = max(float(back.min()), 0.0) + COS_TOLERANCE
+    if level > 0.5 * np.max(np.abs(steer)):
+        raise ValueError("the steering does not return to zero after the dwell")
+    cos = _crossing_time(t[i_dwell:], back, level, int(np.argmax(back <= level)))
+    if cos + 1.75 > t[-1]:
+        raise ValueError(f"the series ends at {t[-1]:.3f} s, before COS + 1.75 s = {cos + 1.75:.3f} s")
+
+    response = dwell_sign * yaw[i_rev:]
+    peaks, _ = find_peaks(response, height=0.0)
+    peak = float(response[peaks[0]] if peaks.size else response.max())
+    if peak > 0:
+        ratio_1000 = float(dwell_sign * np.interp(cos + 1.0, t, yaw) / peak)
+        ratio_1750 = float(dwell_sign * np.interp(cos + 1.75, t, yaw) / peak)
     else:
-        ratio_1000 = float(dwell_sign * np.interp(cos_time + 1.0, t, yaw) / peak)
-        ratio_1750 = float(dwell_sign * np.interp(cos_time + 1.75, t, yaw) / peak)
-    after = t >= bos
-    velocity = np.concatenate([[0.0], np.cumsum(0.5 * (ay[after][1:] + ay[after][:-1]) * np.diff(t[after]))])
-    position = np.concatenate([[0.0], np.cumsum(0.5 * (velocity[1:] + velocity[:-1]) * np.diff(t[after]))])
-    displacement = float(direction * np.interp(bos + DISPLACEMENT_TIME, t[after], position))
-    responsive = None if A is None or amplitude < 5.0 * A * 0.98 else displacement >= DISPLACEMENT_LIMIT
-    spun = bool(sideslip is not None and spin_out(_series("sideslip", sideslip, n)))
-    return SineWithDwellResult(amplitude, bos, cos_time, peak, ratio_1000, ratio_1750, displacement,
-                               bool(ratio_1000 <= YAW_RATIO_1000 and ratio_1750 <= YAW_RATIO_1750),
+        ratio_1000 = ratio_1750 = math.inf
+
+    t_end = bos + DISPLACEMENT_TIME
+    if t_end > t[-1]:
+        raise ValueError(f"the series ends at {t[-1]:.3f} s, before BOS + 1.07 s = {t_end:.3f} s")
+    inside = (t > bos) & (t < t_end)
+    grid = np.concatenate([[bos], t[inside], [t_end]])
+    acc = direction * np.interp(grid, t, ay)
+    dt = np.diff(grid)
+    velocity = np.concatenate([[0.0], np.cumsum(0.5 * (acc[1:] + acc[:-1]) * dt)])
+    displacement = float(np.sum(0.5 * (velocity[1:] + velocity[:-1]) * dt))
+
+    amplitude = float(np.max(np.abs(steer)))
+    applies = A is not None and amplitude >= (1.0 - AMPLITUDE_MARGIN) * RESPONSIVENESS_FROM * A
+    responsive = bool(displacement >= DISPLACEMENT_LIMIT) if applies else None
+    spun = None if sideslip is None else spin_out(_series("sideslip", sideslip, n))
+    return SineWithDwellResult(direction, amplitude, bos, cos, peak, ratio_1000, ratio_1750, displacement,
                                responsive, spun)
 
 
 def steering_angle_at_lateral_acceleration(t, steering_wheel_angle, lateral_acceleration, target_g: float = 0.3,
                                            fit_range_g: tuple[float, float] = (0.1, 0.375)) -> float:
-    """FMVSS 126 S7.6: the steering-wheel angle [rad] that produces ``target_g`` in the slowly
-    increasing steer test, by linear regression of the filtered steering angle on the filtered
-    |ay| over ``fit_range_g`` (the regulation's 0.1-0.375 g window around 0.3 g)."""
+    """Characterisation angle A [rad] from a slowly increasing steer run (FMVSS 126 S7.6).
+
+    ``t`` (n,) [s], ``steering_wheel_angle`` [rad], ``lateral_acceleration`` [m/s^2] (n,).
+    The standard defines A as the steering-wheel angle that produces a steady-state lateral
+    acceleration of 0.3 g in the 13.5 deg/s ramp at 80 km/h, found by linear regression
+    (NHTSA TP-126: over 0.1-0.375 g). Here the filtered |steering angle| (10 Hz) is regressed
+    on the filtered |ay| (6 Hz) [g] over ``fit_range_g`` while ay still rises (up to its
+    peak), and the fitted line is read at ``target_g``. Sensor offsets are assumed removed
+    (the standard zeroes with static pre-test data). Returns a positive magnitude."""
     t = _series("t", t)
     fs = _sample_rate(t)
+    lo, hi = fit_range_g
+    if not 0 <= lo < hi or not target_g > 0:
+        raise ValueError(f"need 0 <= fit_range_g[0] < fit_range_g[1] and target_g > 0, got {fit_range_g}, {target_g}")
     steer = np.abs(phaseless_butterworth(_series("steering_wheel_angle", steering_wheel_angle, len(t)), fs,
                                          STEERING_CUTOFF))
     ay_g = np.abs(phaseless_butterworth(_series("lateral_acceleration", lateral_acceleration, len(t)), fs,
-                                        RESPONSE_CUTOFF)) / 9.80665
-    lo, hi = fit_range_g
-    peak = int(np.argmax(ay_g))
-    fit = np.flatnonzero((ay_g[:peak + 1] >= lo) & (ay_g[:peak + 1] <= hi))
+                                        RESPONSE_CUTOFF)) / G_UNIT
+    rising = slice(0, int(np.argmax(ay_g)) + 1)
+    fit = np.flatnonzero((ay_g[rising] >= lo) & (ay_g[rising] <= hi))
     if fit.size < 10:
-        raise ValueError(f"lateral acceleration never spans {lo}-{hi} g: cannot determine A")
+        raise ValueError(f"lateral acceleration never spans {lo}-{hi} g (peak {ay_g.max():.3f} g): cannot find A")
     slope, intercept = np.polyfit(ay_g[fit], steer[fit], 1)
     return float(slope * target_g + intercept)
 
 
-def cone_hits(x, y, psi, cones: np.ndarray, width: float, front_extent: float, rear_extent: float,
-              cone_radius: float = 0.15) -> int:
-    """Number of distinct cones (M, 2) [m] touched by the car's body rectangle (``width`` [m],
-    ``front_extent`` / ``rear_extent`` ahead of / behind the CG [m]) along the CG path x, y [m]
-    with heading psi [rad]; a cone is a disc of ``cone_radius`` [m]."""
+def cone_hits(x, y, psi, cones, width: float, front_extent: float, rear_extent: float,
+              cone_radius: float = CONE_RADIUS) -> int:
+    """Number of distinct cones touched by the car's footprint (ISO 3888 counts displaced cones).
+
+    ``x, y`` (n,) CG path [m], ``psi`` (n,) heading [rad]; ``cones`` (M, 2) cone centres [m].
+    The footprint is the rectangle ``width`` [m] wide from ``rear_extent`` [m] behind to
+    ``front_extent`` [m] ahead of the CG along the heading; a cone is a disc of ``cone_radius``
+    [m] (0.15 m: the ~300 mm base of a road cone, its widest part — a conservative count).
+    The test is made at the samples, so the step must be short against the cone size."""
     x = _series("x", x)
     y, psi = _series("y", y, len(x)), _series("psi", psi, len(x))
-    cones = np.asarray(cones, dtype=float).reshape(-1, 2)
-    hits = 0
-    for cx, cy in cones:
-        dx, dy = cx - x, cy - y
-        lon = dx * np.cos(psi) + dy * np.sin(psi)
-        lat = -dx * np.sin(psi) + dy * np.cos(psi)
-        ex = np.maximum(np.maximum(lon - front_extent, -rear_extent - lon), 0.0)
-        ey = np.maximum(np.abs(lat) - width / 2, 0.0)
-        hits += bool(np.any(np.hypot(ex, ey) < cone_radius))
-    return hits
+    cones = np.asarray(cones, dtype=float)
+    if cones.ndim != 2 or cones.shape[1] != 2 or not np.all(np.isfinite(cones)):
+        raise ValueError(f"cones must be a finite (M, 2) array, got shape {cones.shape}")
+    for name, value in (("width", width), ("front_extent + rear_extent", front_extent + rear_extent),
+                        ("cone_radius", cone_radius)):
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be positive [m], got {value!r}")
+    dx, dy = cones[:, None, 0] - x, cones[:, None, 1] - y  # (M, n)
+    cos_psi, sin_psi = np.cos(psi), np.sin(psi)
+    lon = dx * cos_psi + dy * sin_psi
+    lat = -dx * sin_psi + dy * cos_psi
+    out_lon = np.maximum(np.maximum(lon - front_extent, -rear_extent - lon), 0.0)
+    out_lat = np.maximum(np.abs(lat) - 0.5 * width, 0.0)
+    return int(np.sum(np.any(np.hypot(out_lon, out_lat) < cone_radius, axis=1)))
 
 
-def path_deviation(x, y, path: np.ndarray) -> tuple[float, float]:
-    """RMS and largest distance [m] of the points (x, y) from the polyline ``path`` (N, 2)."""
+def path_deviation(x, y, path, chunk: int = 2048) -> tuple[float, float]:
+    """RMS and largest distance [m] of the points ``x, y`` (n,) [m] from the polyline ``path``
+    (N >= 2, 2) [m]: each point's distance to its nearest segment (vectorised over segments,
+    ``chunk`` points at a time to bound memory)."""
     x = _series("x", x)
     y = _series("y", y, len(x))
     path = np.asarray(path, dtype=float)
-    if path.ndim != 2 or path.shape[1] != 2 or len(path) < 2:
-        raise ValueError(f"path must be an (N >= 2, 2) polyline, got shape {path.shape}")
-    a, b = path[:-1], path[1:]
-    ab = b - a
-    length2 = np.maximum(np.sum(ab**2, axis=1), 1e-12)
-    p = np.column_stack([x, y])
-    best = np.full(len(p), np.inf)
-    for chunk in range(0, len(p), 2048):
-        q = p[chunk:chunk + 2048, None, :]
-        s = np.clip(np.sum((q - a) * ab, axis=2) / length2, 0.0, 1.0)
-        d = np.hypot(*(q - (a + s[..., None] * ab)).transpose(2, 0, 1))
-        best[chunk:chunk + 2048] = d.min(axis=1)
-    return float(np.sqrt(np.mean(best**2))), float(best.max())
+    if path.ndim != 2 or path.shape[1] != 2 or len(path) < 2 or not np.all(np.isfinite(path)):
+        raise ValueError(f"path must be a finite (N >= 2, 2) polyline, got shape {path.shape}")
+    if len(x) == 0:
+        raise ValueError("x, y are empty")
+    a, ab = path[:-1], np.diff(path, axis=0)
+    length2 = np.maximum(np.sum(ab**2, axis=1), np.finfo(float).tiny)
+    points = np.column_stack([x, y])
+    distance = np.empty(len(points))
+    for start in range(0, len(points), chunk):
+        q = points[start:start + chunk, None, :] - a  # (c, N-1, 2)
+        s = np.clip(np.sum(q * ab, axis=2) / length2, 0.0, 1.0)
+        distance[start:start + chunk] = np.min(np.linalg.norm(q - s[..., None] * ab, axis=2), axis=1)
+    return float(np.sqrt(np.mean(distance**2))), float(distance.max())
 
 
-def spin_out(sideslip) -> bool:
-    """Whether |sideslip| [rad] ever exceeds 20 deg: beyond it the driver has lost the car
-    (ESC literature treats 10-20 deg as the edge of controllability; van Zanten, 2000)."""
-    return bool(np.max(np.abs(_series("sideslip", sideslip))) > SPIN_OUT_SIDESLIP)
+def spin_out(beta, psi=None, course_heading=None, threshold_beta: float = SPIN_OUT_SIDESLIP) -> bool:
+    """Whether the car spun out.
+
+    ``beta`` (n,) sideslip [rad]: spin-out once |beta| > ``threshold_beta`` (default 20 deg;
+    not a regulation value: normal driving stays within a few degrees, atan(0.02 mu g)
+    (Rajamani), and ESC studies treat 10-20 deg as beyond a driver's recovery).
+    ``psi`` (n,) heading [rad], optional: spin-out also when the heading deviates more than
+    90 deg from ``course_heading`` [rad] (scalar or (n,): the direction of travel the
+    course asks for; None: the initial heading psi[0]); NHTSA's ESC research counted a
+    heading change of 90 deg or more as a spinout."""
+    beta = _series("beta", beta)
+    if not (math.isfinite(threshold_beta) and threshold_beta > 0):
+        raise ValueError(f"threshold_beta must be a positive angle [rad], got {threshold_beta!r}")
+    spun = bool(np.max(np.abs(beta)) > threshold_beta)
+    if psi is not None:
+        psi = _series("psi", psi, len(beta))
+        course = psi[0] if course_heading is None else np.asarray(course_heading, dtype=float)
+        if course.ndim > 1 or (course.ndim == 1 and len(course) != len(psi)) or not np.all(np.isfinite(course)):
+            raise ValueError(f"course_heading must be finite, scalar or ({len(psi)},), got shape {course.shape}")
+        deviation = np.angle(np.exp(1j * (psi - course)))
+        spun = spun or bool(np.max(np.abs(deviation)) > SPIN_OUT_HEADING)
+    return spun
+
+
+def peak_abs(x) -> float:
+    """Largest |x| over all samples (e.g. peak sideslip [rad])."""
+    x = np.asarray(x, dtype=float)
+    if x.size == 0 or not np.all(np.isfinite(x)):
+        raise ValueError(f"x must be finite and non-empty, got shape {x.shape}")
+    return float(np.max(np.abs(x)))
 
 
 def rms(x) -> float:
-    """Root mean square of a series."""
-    x = _series("x", x)
+    """Root mean square over all samples."""
+    x = np.asarray(x, dtype=float)
+    if x.size == 0 or not np.all(np.isfinite(x)):
+        raise ValueError(f"x must be finite and non-empty, got shape {x.shape}")
     return float(np.sqrt(np.mean(x**2)))
 
 
 def rmse(estimate, truth) -> float:
-    """Root-mean-square error (the paper's Table 2)."""
-    truth = _series("truth", truth)
-    return rms(_series("estimate", estimate, len(truth)) - truth)
+    """Root-mean-square error over all samples of equally shaped arrays (the paper's Table 2)."""
+    estimate, truth = _same_shape("estimate", estimate, "truth", truth)
+    return float(np.sqrt(np.mean((estimate - truth) ** 2)))
 
 
 def mae(estimate, truth) -> float:
-    """Mean absolute error (the paper's Table 2)."""
-    truth = _series("truth", truth)
-    return float(np.mean(np.abs(_series("estimate", estimate, len(truth)) - truth)))
+    """Mean absolute error over all samples of equally shaped arrays (the paper's Table 2)."""
+    estimate, truth = _same_shape("estimate", estimate, "truth", truth)
+    return float(np.mean(np.abs(estimate - truth)))
+
+
+def yaw_rate_tracking_rms(r, r_ref) -> float:
+    """RMS [rad/s] of the yaw-rate tracking error r - r_ref (equal shapes)."""
+    return rmse(r, r_ref)
