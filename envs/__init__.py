@@ -17,3 +17,15 @@ def __getattr__(name: str):
     if name in _EXPORTS:
         return getattr(import_module(_EXPORTS[name]), name)
     raise AttributeError(f"module 'envs' has no attribute {name!r}")
+
+
+def _register() -> None:
+    """Register the Gymnasium environment once (idempotent: spawn/forkserver workers re-import)."""
+    import gymnasium
+
+    if "FourWIS/YawStability-v0" not in gymnasium.registry:
+        gymnasium.register(id="FourWIS/YawStability-v0", entry_point="envs.gym_env:YawStabilityEnv",
+                           max_episode_steps=500)
+
+
+_register()

@@ -89,6 +89,76 @@ def _stack(items: list[Estimate]) -> Estimate:
     return Estimate(*(np.stack([getattr(e, f)[0] for e in items]) for f in Estimate._fields))
 
 
+class StepRecord(NamedTuple):
+    """One 2 ms sample of a closed loop, taken before the plant advances (batch of 1)."""
+
+    t: float
+    state: np.ndarray
+    aux: np.ndarray
+    controls: np.ndarray
+    steering_wheel: float
+    reading: object
+    truth: Estimate
+    estimate: Estimate
+
+
+class ClosedLoop:
+    """Driver + sensors + estimator + controller + plant for one vehicle, advanced 2 ms at a time.
+
+    Used by :func:`simulate` (records every sample) and the Gymnasium env (an agent's command
+    enters through ``controller``). ``rng`` seeds the sensor noise and faults.
+    """
+
+    def __init__(self, scenario: Scenario, controller: Controller | None, estimator: Estimator | str | None,
+                 rng: np.random.Generator, sensor_params: SensorParams | None = None, faults: Sequence[Fault] = (),
+                 dt: float = DT):
+        params = scenario.vehicle_params
+        if isinstance(estimator, str) or estimator is None:
+            from estimation import make_estimator
+
+            estimator = make_estimator(estimator or "oracle", params, dt)
+        self.scenario, self.controller, self.estimator, self.dt = scenario, controller, estimator, dt
+        self.params = params
+        self.sensors = SensorModel(sensor_params or SensorParams(), tuple(faults), 1, rng)
+        self.state = scenario.initial_state()
+        self.speed_driver = scenario.speed_driver()
+        self.road = RoadTables.from_roads(scenario.road, 1) if scenario.road.table() is not None else scenario.road
+        if controller is not None:
+            controller.reset(scenario)
+        gx, gy = contact_points(self.state, params)  # diagnostics of the initial state
+        _, self.aux = derivatives(self.state, np.zeros((1, NU)), scenario.road.mu_at(gx, gy), params)
+        self.k = 0
+
+    @property
+    def t(self) -> float:
+        return self.k * self.dt
+
+    def advance(self, integrate: bool = True) -> StepRecord:
+        """Measure, estimate, drive and control at the current time; then (if ``integrate``)
+        advance the plant one step. Returns the sample taken before the plant moved."""
+        t, params = self.t, self.params
+        reading = self.sensors.measure(sensor_truth(self.state, self.aux), t)
+        truth = true_estimate(self.state, self.aux)
+        if self.k == 0:
+            self.estimator.reset(reading, np.array([self.scenario.speed]))
+        estimate = self.estimator.step(reading, truth if self.estimator.needs_truth else None)
+        steer_wheel = self.scenario.steering(t, self.state[0])
+        controls = np.zeros((1, NU))
+        controls[0, C_TORQUE:C_TORQUE + 4] = self.speed_driver(t, self.state[0])
+        controls[0, C_DELTA_F] = steer_wheel / params.steering_ratio
+        if self.controller is not None:
+            command = self.controller(t, estimate, controls[:, C_DELTA_F].copy(),
+                                      controls[:, C_TORQUE:C_TORQUE + 4].copy())
+            controls[0, C_TORQUE:C_TORQUE + 4] = command.torques[0]
+            controls[0, C_DELTA_R] = command.rear_steer[0]
+        record = StepRecord(t, self.state[0].copy(), self.aux[0].copy(), controls[0].copy(), steer_wheel, reading,
+                            truth, estimate)
+        if integrate:
+            self.state, self.aux = step(self.state, controls, params, self.road, self.dt)
+            self.k += 1
+        return record
+
+
 def simulate(scenario: Scenario | str, controller: Controller | None = None, estimator: Estimator | str | None = None,
              seed: int = 0, sensor_params: SensorParams | None = None, faults: Sequence[Fault] = (),
              dt: float = DT, progress: bool = False) -> Trajectory:
@@ -99,56 +169,11 @@ def simulate(scenario: Scenario | str, controller: Controller | None = None, est
     """
     if isinstance(scenario, str):
         scenario = make_scenario(scenario)
-    params = scenario.vehicle_params
-    if isinstance(estimator, str) or estimator is None:
-        from estimation import make_estimator
-
-        estimator = make_estimator(estimator or "oracle", params, dt)
-    rng = np.random.default_rng(seed)
-    sensors = SensorModel(sensor_params or SensorParams(), tuple(faults), 1, rng)
+    loop = ClosedLoop(scenario, controller, estimator, np.random.default_rng(seed), sensor_params, faults, dt)
     n = int(math.ceil(scenario.duration / dt - 1e-9))
-    state = scenario.initial_state()
-    speed_driver = scenario.speed_driver()
-    static_road = scenario.road.table() is not None
-    tables = RoadTables.from_roads(scenario.road, 1) if static_road else None
-    if controller is not None:
-        controller.reset(scenario)
-
-    out_state = np.empty((n + 1, NX))
-    out_aux = np.empty((n + 1, NAUX))
-    out_controls = np.zeros((n + 1, NU))
-    out_steer = np.zeros(n + 1)
-    out_sensors = np.empty((n + 1, len(CHANNELS)))
-    out_valid = np.empty((n + 1, len(CHANNELS)), dtype=bool)
-    truths, estimates = [], []
-
-    # diagnostics of the initial state: one evaluation of the dynamics
-    gx, gy = contact_points(state, params)
-    _, aux = derivatives(state, np.zeros((1, NU)), scenario.road.mu_at(gx, gy), params)
-    controls = np.zeros((1, NU))
-    for k in tqdm(range(n + 1), disable=not progress, desc=scenario.name, unit="step", mininterval=0.5):
-        t = k * dt
-        reading = sensors.measure(sensor_truth(state, aux), t)
-        truth = true_estimate(state, aux)
-        if k == 0:
-            estimator.reset(reading, np.array([scenario.speed]))
-        estimate = estimator.step(reading, truth if estimator.needs_truth else None)
-        steer_wheel = scenario.steering(t, state[0])
-        base = speed_driver(t, state[0])
-        controls[0, C_TORQUE:C_TORQUE + 4] = base
-        controls[0, C_DELTA_F] = steer_wheel / params.steering_ratio
-        controls[0, C_DELTA_R] = 0.0
-        if controller is not None:
-            command = controller(t, estimate, controls[:, C_DELTA_F].copy(), controls[:, C_TORQUE:C_TORQUE + 4].copy())
-            controls[0, C_TORQUE:C_TORQUE + 4] = command.torques[0]
-            controls[0, C_DELTA_R] = command.rear_steer[0]
-        out_state[k], out_aux[k], out_controls[k], out_steer[k] = state[0], aux[0], controls[0], steer_wheel
-        out_sensors[k], out_valid[k] = reading.values[0], reading.valid[0]
-        truths.append(truth)
-        estimates.append(estimate)
-        if k == n:
-            break
-        state, aux = step(state, controls, params, tables if static_road else scenario.road, dt)
-    t = np.arange(n + 1) * dt
-    return Trajectory(t, out_state, out_aux, out_controls, out_steer, out_sensors, out_valid,
-                      _stack(truths), _stack(estimates), scenario)
+    records = [loop.advance(integrate=k < n)
+               for k in tqdm(range(n + 1), disable=not progress, desc=scenario.name, unit="step", mininterval=0.5)]
+    return Trajectory(np.arange(n + 1) * dt, np.stack([r.state for r in records]), np.stack([r.aux for r in records]),
+                      np.stack([r.controls for r in records]), np.array([r.steering_wheel for r in records]),
+                      np.stack([r.reading.values[0] for r in records]), np.stack([r.reading.valid[0] for r in records]),
+                      _stack([r.truth for r in records]), _stack([r.estimate for r in records]), scenario)
