@@ -84,6 +84,15 @@ def _compare(args: argparse.Namespace) -> int:
     return 0
 
 
+def _tune(args: argparse.Namespace) -> int:
+    from training.tune import OUTPUT, tune
+
+    data = tune(args.agents, args.iterations, args.seed, args.jobs, Path(args.out) if args.out else OUTPUT)
+    print(f"ALO tuning: cost {data['default_cost']:.3f} (default noise) -> {data['cost']:.3f}, "
+          f"log10 factors {data['log10_factors']}")
+    return 0
+
+
 def _add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speed-kph", type=float, help="initial / target speed [km/h]")
     parser.add_argument("--mu", type=float, nargs="+",
@@ -112,6 +121,13 @@ def build_parser() -> argparse.ArgumentParser:
     cmp_.add_argument("--jobs", type=int, help="worker processes (default: up to 2)")
     cmp_.add_argument("--out", default="results/compare", help="output directory")
     cmp_.set_defaults(func=_compare)
+    tune = sub.add_parser("tune", help="ALO tuning of the filter noise on a calibration run")
+    tune.add_argument("--agents", type=int, default=8)
+    tune.add_argument("--iterations", type=int, default=8)
+    tune.add_argument("--seed", type=int, default=0)
+    tune.add_argument("--jobs", type=int, default=2)
+    tune.add_argument("--out", help="output JSON (default: estimation/data/tuned_noise.json)")
+    tune.set_defaults(func=_tune)
     swd = sub.add_parser("swd", help="FMVSS 126 sine-with-dwell series (uncontrolled car): the regulation's table")
     swd.add_argument("--mu", type=float, nargs="+", default=[1.0, 0.5, 0.3], help="road friction values")
     swd.add_argument("--A", type=float, help="characterisation angle [deg] (default: measured at 0.3 g)")
