@@ -71,3 +71,17 @@ def test_yaw_moment_action_turns_the_car():
     for _ in range(25):
         obs, *_ = env.step(np.array([1.0, 0.0], dtype=np.float32))
     assert obs[2] > 0.05  # positive (left) moment: positive yaw rate on the straight lead-in
+
+
+def test_random_actions_across_scenarios_never_produce_nan():
+    rng = np.random.default_rng(0)
+    for scenario in ("random", "paper_step", "mu_jump", "paper_serpentine"):
+        env = YawStabilityEnv(scenario=scenario, estimator="oracle", action="wheel_torques")
+        obs, _ = env.reset(seed=int(rng.integers(1000)))
+        for _ in range(400):
+            obs, reward, terminated, truncated, info = env.step(rng.uniform(-1, 1, 4).astype(np.float32))
+            assert np.all(np.isfinite(obs)) and np.isfinite(reward)
+            assert np.all(np.isfinite(info["truth"].beta))
+            if terminated or truncated:
+                assert terminated == info["spin_out"] or info["path_deviation"] > 5.0 or truncated
+                obs, _ = env.reset()
