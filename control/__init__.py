@@ -19,6 +19,11 @@ YAW_DEADBAND = 0.02  #: |r - r_ref| [rad/s] tolerated without intervention (ESC 
 REFERENCE_LAG = 0.15  #: time constant of the yaw-rate reference [s]: the car's own yaw response lag
 
 
+def _deadband(x: np.ndarray, width) -> np.ndarray:
+    """``x`` shrunk towards zero by ``width`` (zero inside the band, continuous outside)."""
+    return np.sign(x) * np.maximum(np.abs(x) - width, 0.0)
+
+
 class Command(NamedTuple):
     """Controller output for a batch: wheel torques [N m] (B, 4) and rear steer [rad] (B,)."""
 
@@ -52,7 +57,6 @@ class StabilityController:
             self._law = SlidingModeYawController(self.params)
         else:
             raise ValueError(f"unknown yaw-moment law {self.law!r}; known: ['lqr', 'smc']")
-        self.last_moment = None
         self._reference = None
 
     def reset(self, scenario=None) -> None:
@@ -68,20 +72,17 @@ class StabilityController:
             self._reference = steady.copy()
         self._reference = self._reference + (steady - self._reference) * min(self.dt / REFERENCE_LAG, 1.0)
         r_ref = self._reference
-        error = r - r_ref
-        shrunk_error = np.sign(error) * np.maximum(np.abs(error) - YAW_DEADBAND, 0.0)
-        half_bound = 0.5 * sideslip_bound(estimate.mu)
-        shrunk_beta = np.sign(beta) * np.maximum(np.abs(beta) - half_bound, 0.0)
+        bound = sideslip_bound(estimate.mu)
+        shrunk_error = _deadband(r - r_ref, YAW_DEADBAND)
+        shrunk_beta = _deadband(beta, 0.5 * bound)
         moment = self._law(u, shrunk_beta, r_ref + shrunk_error, r_ref, front_steer, self.dt, estimate.mu)
         # a moment that turns the car further (understeer correction) is faded out as |beta|
         # approaches its bound: at the friction limit more yaw moment only spins the car
-        bound = sideslip_bound(estimate.mu)
         turning_further = np.sign(moment) == np.sign(r_ref)
         fade = np.clip(1.0 - np.abs(beta) / bound, 0.0, 1.0)
         moment = np.where(turning_further, moment * fade, moment)
         moment = np.where(np.abs(u) > ACTIVE_SPEED, moment, 0.0)
-        torques, achieved = allocate_torques(base_torques, moment, estimate.fz, estimate.mu, self.params)
-        self.last_moment = achieved
+        torques, _ = allocate_torques(base_torques, moment, estimate.fz, estimate.mu, self.params)
         rear = rear_steer_feedforward(u, front_steer, self.params) if self.rear_steer else np.zeros_like(u)
         return Command(torques, rear)
 

@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.linalg import solve_continuous_are
 
+from control.reference import GRAVITY
+
 
 def bicycle_matrices(u: float, params) -> tuple[np.ndarray, np.ndarray]:
     """(A, B_mz) of the 2-DOF model at speed ``u`` [m/s] for states [beta, r] and input Mz."""
@@ -97,8 +99,8 @@ class SlidingModeYawController:
         a, b, iz, m, L = p.cg_to_front, p.cg_to_rear, p.yaw_inertia, p.mass, p.wheelbase
         u = np.maximum(np.abs(u), 1.0)
         mu_mean = np.ones_like(u) if mu is None else np.mean(mu, axis=-1)
-        front_limit = mu_mean * m * 9.81 * b / L
-        rear_limit = mu_mean * m * 9.81 * a / L
+        front_limit = mu_mean * m * GRAVITY * b / L
+        rear_limit = mu_mean * m * GRAVITY * a / L
         fy_front = np.clip(c_f * (delta_f - beta - a * r / u), -front_limit, front_limit)
         fy_rear = np.clip(c_r * (-beta + b * r / u), -rear_limit, rear_limit)
         f_r = (a * fy_front - b * fy_rear) / iz

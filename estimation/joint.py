@@ -35,10 +35,10 @@ from importlib import resources
 
 import numpy as np
 
-from estimation.ckf import ckf_predict, ckf_update
+from estimation.ckf import DROPOUT_VARIANCE, ckf_predict, ckf_update
 from estimation.federated import SubMeasurement, federated_step
 from estimation.model import (Inputs, ModelParams, body_forces, dugoff_lambda, normal_loads, state_transition,
-                              wheel_kinematics)
+                              tyre_state, wheel_kinematics)
 from estimation.types import Estimate
 
 N_STATE = 6
@@ -215,7 +215,7 @@ class StateEstimator:
         H = np.swapaxes((hx[:, 1:N + 1] - hx[:, N + 1:]) / (2 * eps[:, :, None]), 1, 2)
         Rv = np.broadcast_to(R, (B,) + R.shape).copy()
         idx = np.arange(z.shape[1])
-        Rv[:, idx, idx] = np.where(valid, Rv[:, idx, idx], 1e12)
+        Rv[:, idx, idx] = np.where(valid, Rv[:, idx, idx], DROPOUT_VARIANCE)
         nu = np.where(valid, z - hx[:, 0], 0.0)
         S = H @ P_pred @ np.swapaxes(H, 1, 2) + Rv
         K = np.swapaxes(np.linalg.solve(S, H @ P_pred), 1, 2)
@@ -238,9 +238,6 @@ class StateEstimator:
             ax_m, ay_m, gamma = body_forces(u, v, r, ax, ay, mu_points, point_inputs, p)
             return np.stack([ax_m, ay_m, r_prev + dt * gamma / p.yaw_inertia], axis=-1)
 
-        def h1(mu_points):
-            return predicted(mu_points)
-
         def h2(mu_points):
             return predicted(mu_points)[..., 1:]
 
@@ -248,7 +245,7 @@ class StateEstimator:
         R1 = np.diag([n.mu_accel_std**2, n.mu_accel_std**2, n.gyro_std**2])
         R2 = np.diag([n.mu_accel_std**2, n.gyro_std**2])
         out = federated_step(self.mu, self.P_mu, lambda m: m, Q_mu,
-                             [SubMeasurement(values[:, 0:3], h1, R1, valid[:, 0:3]),
+                             [SubMeasurement(values[:, 0:3], predicted, R1, valid[:, 0:3]),
                               SubMeasurement(values[:, 1:3], h2, R2, valid[:, 1:3])],
                              self.beta_mu, huber_c=self.huber_c)
         # hold mu where the tyre is far from saturation (Dugoff lambda >= EXCITATION_LAMBDA)
@@ -262,12 +259,9 @@ class StateEstimator:
 
     def _excitation(self, inputs: Inputs) -> np.ndarray:
         """Dugoff lambda (B, 4) of each wheel at the current estimates: small = saturating."""
-        p, x = self.params, self.x
-        fz = normal_loads(x[:, I_AX], x[:, I_AY], p)
-        alpha, along = wheel_kinematics(x[:, I_U], x[:, I_V], x[:, I_R], inputs.delta, p)
-        wheel_speed = inputs.omega * p.wheel_radius
-        slip = (wheel_speed - along) / np.maximum(np.maximum(np.abs(wheel_speed), np.abs(along)), 1.0)
-        return dugoff_lambda(fz, slip, alpha, self.mu, p.m1 * fz - p.n1 * fz**2, p.m2 * fz - p.n2 * fz**2)
+        x = self.x
+        tyre = tyre_state(x[:, I_U], x[:, I_V], x[:, I_R], x[:, I_AX], x[:, I_AY], inputs, self.params)
+        return dugoff_lambda(tyre.fz, tyre.slip, tyre.alpha, self.mu, tyre.cx, tyre.cy)
 
     def _estimate(self) -> Estimate:
         x, P = self.x, self.P

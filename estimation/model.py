@@ -129,17 +129,32 @@ def dugoff_lambda(fz, slip, alpha, mu, cx, cy) -> np.ndarray:
     return mu * fz * np.maximum(1.0 - slip, 0.05) / (2.0 * np.maximum(demand, 1e-9))
 
 
+class TyreState(NamedTuple):
+    """Per-wheel tyre operating point (..., 4): load [N], slip angle [rad], longitudinal slip,
+    longitudinal and lateral stiffness (eq. 17)."""
+
+    fz: np.ndarray
+    alpha: np.ndarray
+    slip: np.ndarray
+    cx: np.ndarray
+    cy: np.ndarray
+
+
+def tyre_state(u, v, r, ax, ay, inputs: Inputs, p: ModelParams) -> TyreState:
+    """The tyres' operating point at body state (u, v, r), accelerations (ax, ay) and ``inputs``."""
+    fz = normal_loads(ax, ay, p)
+    alpha, speed_along = wheel_kinematics(u, v, r, inputs.delta, p)
+    wheel_speed = inputs.omega * p.wheel_radius
+    slip = (wheel_speed - speed_along) / np.maximum(np.maximum(np.abs(wheel_speed), np.abs(speed_along)), MIN_SPEED)
+    return TyreState(fz, alpha, slip, p.m1 * fz - p.n1 * fz**2, p.m2 * fz - p.n2 * fz**2)
+
+
 def body_forces(u, v, r, ax, ay, mu, inputs: Inputs, p: ModelParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Body accelerations ax, ay [m/s^2] and yaw moment Gamma [N m] from the tyre forces (eq. 4-6,
     corrected). Fx from the wheel's torque balance (eq. 7), limited by the Dugoff friction
     ellipse; Fy from Dugoff with the slip angle and mu. Loads from the (previous) ax, ay."""
-    fz = normal_loads(ax, ay, p)
-    alpha, speed_along = wheel_kinematics(u, v, r, inputs.delta, p)
+    fz, alpha, slip, cx, cy = tyre_state(u, v, r, ax, ay, inputs, p)
     fx_torque = (inputs.torque - p.wheel_inertia * inputs.omega_dot) / p.wheel_radius
-    cx = p.m1 * fz - p.n1 * fz**2
-    cy = p.m2 * fz - p.n2 * fz**2
-    wheel_speed = inputs.omega * p.wheel_radius
-    slip = (wheel_speed - speed_along) / np.maximum(np.maximum(np.abs(wheel_speed), np.abs(speed_along)), MIN_SPEED)
     _, fy = dugoff_forces(fz, slip, alpha, mu, cx, cy, np.asarray(u)[..., None], p.eps)
     limit = mu * fz
     fx = np.clip(fx_torque, -limit, limit)
