@@ -21,7 +21,7 @@ from tqdm import tqdm
 from envs.metrics import SineWithDwellResult, sine_with_dwell_metrics, steering_angle_at_lateral_acceleration
 from envs.scenarios import make_scenario
 from envs.simulation import simulate
-from envs.vehicle import A_AY, S_R, S_U, S_V, VehicleParams
+from envs.vehicle import A_AY, S_R, VehicleParams
 
 MAX_AMPLITUDE = math.radians(300.0)  #: no sine-with-dwell run above this [rad]
 MIN_LAST_AMPLITUDE = math.radians(270.0)  #: the series reaches at least this unless 6.5A is larger [rad]
@@ -71,7 +71,7 @@ def run_series(A: float, mu: float = 1.0, controller_factory: Callable | None = 
                                  direction=direction, params=params)
         controller = controller_factory() if controller_factory is not None else None
         traj = simulate(scenario, controller=controller, estimator=estimator, seed=seed)
-        beta = np.arctan2(traj.state[:, S_V], np.abs(traj.state[:, S_U]))
+        beta = traj.truth.beta
         result = sine_with_dwell_metrics(traj.t, traj.steering_wheel, traj.state[:, S_R], traj.aux[:, A_AY],
                                          sideslip=beta, A=A)
         runs.append(SeriesRun(mu, float(amplitude), direction, result, float(np.max(np.abs(beta)))))

@@ -49,6 +49,7 @@ from gymnasium import spaces
 from control import Command
 from control.allocation import allocate_torques
 from control.reference import reference_yaw_rate
+from envs.metrics import SPIN_OUT_SIDESLIP, path_deviation
 from envs.scenarios import SCENARIOS, make_scenario
 from envs.sensors import Fault
 from envs.simulation import ClosedLoop, StepRecord
@@ -56,7 +57,6 @@ from envs.vehicle import S_X, S_Y
 from estimation import ESTIMATORS
 
 MAX_YAW_MOMENT = 3000.0  #: yaw-moment action scale [N m]
-SPIN_OUT_BETA = math.radians(20.0)  #: termination sideslip [rad]
 MAX_PATH_DEVIATION = 5.0  #: termination distance from the path [m]
 OBSERVATIONS = ("estimated", "true", "sensors")
 ACTIONS = ("yaw_moment", "wheel_torques")
@@ -168,7 +168,7 @@ class YawStabilityEnv(gym.Env):
         deviation = self._deviation(rec)
         reward = -self.control_dt * (((truth.r[0] - r_ref_true) / 0.1) ** 2 + (beta / 0.05) ** 2
                                      + 0.1 * float(np.sum(clipped**2)) + (deviation / 1.0) ** 2)
-        terminated = bool(abs(beta) > SPIN_OUT_BETA or deviation > MAX_PATH_DEVIATION)
+        terminated = bool(abs(beta) > SPIN_OUT_SIDESLIP or deviation > MAX_PATH_DEVIATION)
         if terminated:
             reward -= 100.0
         truncated = self._loop.k >= self._end
@@ -176,12 +176,11 @@ class YawStabilityEnv(gym.Env):
             raise FloatingPointError("non-finite observation: the estimator diverged")
         info = {"truth": truth, "estimate": rec.estimate, "action_clipped": bool(np.any(clipped != action)),
                 "peak_beta": abs(beta), "yaw_rate_error": float(truth.r[0] - r_ref_true), "path_deviation": deviation,
-                "spin_out": abs(beta) > SPIN_OUT_BETA}
+                "spin_out": abs(beta) > SPIN_OUT_SIDESLIP}
         return obs, float(reward), terminated, truncated, info
 
     def _deviation(self, rec: StepRecord) -> float:
         path = self._loop.scenario.reference_path
         if path is None:
             return 0.0
-        x, y = rec.state[S_X], rec.state[S_Y]
-        return float(np.min(np.hypot(path[:, 0] - x, path[:, 1] - y)))
+        return path_deviation(rec.state[S_X:S_X + 1], rec.state[S_Y:S_Y + 1], path)[1]

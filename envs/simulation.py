@@ -17,8 +17,8 @@ from tqdm import tqdm
 
 from envs.road import RoadTables, contact_points
 from envs.scenarios import Scenario, make_scenario
-from envs.sensors import CHANNELS, Fault, SensorModel, SensorParams
-from envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NAUX, NU, NX, S_DELTA_F,
+from envs.sensors import Fault, SensorModel, SensorParams
+from envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NU, S_DELTA_F,
                           S_DELTA_R, S_OMEGA, S_R, S_TORQUE, S_U, S_V, derivatives, step)
 from control import Command
 from estimation.types import Estimate

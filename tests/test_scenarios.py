@@ -8,7 +8,7 @@ import pytest
 from envs import simulate
 from envs.driver import SWD_DWELL, SWD_FREQUENCY, SineWithDwell
 from envs.scenarios import PAPER_SCENARIOS, SCENARIOS, make_scenario
-from envs.vehicle import S_U, S_X, S_Y, GRAVITY
+from envs.vehicle import S_U, GRAVITY
 
 STATE = np.zeros(26)
 

@@ -20,7 +20,7 @@ def trajectory_columns(traj: Trajectory) -> dict[str, np.ndarray]:
     s, a, est = traj.state, traj.aux, traj.estimate
     cols = {
         "t": traj.t, "x": s[:, S_X], "y": s[:, S_Y], "psi": s[:, S_PSI], "u": s[:, S_U], "v": s[:, S_V],
-        "r": s[:, S_R], "beta": np.arctan2(s[:, S_V], np.abs(s[:, S_U])), "ax": a[:, A_AX], "ay": a[:, A_AY],
+        "r": s[:, S_R], "beta": traj.truth.beta, "ax": a[:, A_AX], "ay": a[:, A_AY],
         "steering_wheel": traj.steering_wheel, "delta_f": s[:, S_DELTA_F], "delta_r": s[:, S_DELTA_R],
     }
     for i, w in enumerate(WHEELS):
