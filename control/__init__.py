@@ -59,12 +59,12 @@ class StabilityController:
             raise ValueError(f"unknown yaw-moment law {self.law!r}; known: ['lqr', 'smc']")
         self._reference = None
 
-    def reset(self, scenario=None) -> None:
+    def reset(self) -> None:
         self._reference = None
         if isinstance(self._law, SlidingModeYawController):
             self._law.reset()
 
-    def __call__(self, t: float, estimate, front_steer: np.ndarray, base_torques: np.ndarray) -> Command:
+    def __call__(self, t: np.ndarray, estimate, front_steer: np.ndarray, base_torques: np.ndarray) -> Command:
         u, beta, r = estimate.u, estimate.beta, estimate.r
         steady = reference_yaw_rate(u, front_steer, estimate.mu, self.params)
         # first-order lag: the reference a well-behaved car can follow, not a step it cannot

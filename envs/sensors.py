@@ -26,6 +26,7 @@ at the window start; the sensor still reports valid), ``bias_step`` (``magnitude
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -100,55 +101,101 @@ class Fault:
 
 
 class SensorReading(NamedTuple):
-    """One sample for B vehicles: ``values`` (B, 13), ``valid`` (B, 13) bool, time ``t`` [s]."""
+    """One sample for B vehicles: ``values`` (B, 13), ``valid`` (B, 13) bool, times ``t`` (B,) [s]."""
 
     values: np.ndarray
     valid: np.ndarray
-    t: float
+    t: np.ndarray
+
+
+NOISE_BLOCK = 256  #: samples of noise each vehicle draws from its generator at a time
 
 
 class SensorModel:
-    """Seeded sensors for a batch of ``batch_size`` vehicles; call :meth:`measure` once per sample."""
+    """Seeded sensors for a batch of ``batch_size`` vehicles; call :meth:`measure` once per sample.
 
-    def __init__(self, params: SensorParams, faults: tuple[Fault, ...], batch_size: int, rng: np.random.Generator):
+    Every vehicle has its own random stream (``rng``: one generator per vehicle, or one
+    generator that is used as is for a single vehicle and spawned into ``batch_size``
+    children otherwise), drawn in blocks of :data:`NOISE_BLOCK` samples, so a vehicle's
+    readings do not depend on the batch it runs in: a vector env of N cars reproduces N
+    single-car runs bit for bit. :meth:`reset_members` restarts chosen vehicles.
+    """
+
+    def __init__(self, params: SensorParams, faults: tuple[Fault, ...], batch_size: int,
+                 rng: np.random.Generator | Sequence[np.random.Generator]):
         if batch_size < 1:
             raise ValueError(f"batch_size must be >= 1, got {batch_size!r}")
         self.params = params
         self.faults = tuple(faults)
         self.batch_size = batch_size
-        self.rng = rng
         self._noise = np.asarray(params.noise_std, dtype=float)
-        self.bias = rng.standard_normal((batch_size, len(CHANNELS))) * np.asarray(params.bias_std, dtype=float)
-        self._held = np.zeros((batch_size, len(CHANNELS)))
-        self._frozen: dict[int, np.ndarray] = {}
+        self._bias_std = np.asarray(params.bias_std, dtype=float)
+        n = len(CHANNELS)
+        self.bias = np.zeros((batch_size, n))
+        self._normal = np.zeros((batch_size, NOISE_BLOCK, n))
+        self._uniform = np.zeros((batch_size, NOISE_BLOCK, 2))
+        self._cursor = np.zeros(batch_size, dtype=np.int64)
+        self._held = np.zeros((batch_size, n))
+        self._frozen = np.zeros((len(self.faults), batch_size))
+        self._is_frozen = np.zeros((len(self.faults), batch_size), dtype=bool)
+        if isinstance(rng, np.random.Generator):
+            rng = [rng] if batch_size == 1 else rng.spawn(batch_size)
+        self.rngs: list[np.random.Generator] = [None] * batch_size  # type: ignore[list-item]
+        self.reset_members(np.ones(batch_size, dtype=bool), list(rng))
 
-    def measure(self, truth: np.ndarray, t: float) -> SensorReading:
-        """Readings of the true quantities ``truth`` (B, 13) in :data:`CHANNELS` order at time ``t`` [s]."""
+    def reset_members(self, mask: np.ndarray, rngs: Sequence[np.random.Generator]) -> None:
+        """Restart the vehicles selected by ``mask`` (B,) bool with new generators (one per
+        selected vehicle, in order): new turn-on bias, no held or frozen values."""
+        members = np.flatnonzero(mask)
+        if len(rngs) != len(members):
+            raise ValueError(f"need one generator per reset vehicle ({len(members)}), got {len(rngs)}")
+        for b, rng in zip(members, rngs):
+            self.rngs[b] = rng
+            self.bias[b] = rng.standard_normal(len(CHANNELS)) * self._bias_std
+            self._refill(b)
+        self._held[members] = 0.0
+        self._is_frozen[:, members] = False
+
+    def _refill(self, b: int) -> None:
+        rng = self.rngs[b]
+        self._normal[b] = rng.standard_normal((NOISE_BLOCK, len(CHANNELS)))
+        self._uniform[b] = rng.random((NOISE_BLOCK, 2))
+        self._cursor[b] = 0
+
+    def measure(self, truth: np.ndarray, t: float | np.ndarray, members: np.ndarray | None = None) -> SensorReading:
+        """Readings of the true quantities ``truth`` (M, 13) in :data:`CHANNELS` order at time ``t``
+        [s] (scalar, or (M,) when the vehicles' clocks differ) for the vehicles ``members`` (M,)
+        indices (all B vehicles if None). Each vehicle's stream advances by one sample."""
+        rows = np.arange(self.batch_size) if members is None else np.asarray(members, dtype=np.int64)
         truth = np.asarray(truth, dtype=float)
-        if truth.shape != (self.batch_size, len(CHANNELS)):
-            raise ValueError(f"sensor truth must have shape {(self.batch_size, len(CHANNELS))}, got {truth.shape}")
+        if truth.shape != (len(rows), len(CHANNELS)):
+            raise ValueError(f"sensor truth must have shape {(len(rows), len(CHANNELS))}, got {truth.shape}")
         if not np.all(np.isfinite(truth)):
             bad = CHANNELS[int(np.argwhere(~np.isfinite(truth))[0, 1])]
             raise ValueError(f"non-finite true value on sensor channel {bad!r}")
-        values = truth + self.bias + self.rng.standard_normal(truth.shape) * self._noise
+        for b in rows[self._cursor[rows] >= NOISE_BLOCK]:
+            self._refill(b)
+        cursor = self._cursor[rows]
+        normal, uniform = self._normal[rows, cursor], self._uniform[rows, cursor]
+        self._cursor[rows] = cursor + 1
+        t = np.broadcast_to(np.asarray(t, dtype=float), (len(rows),))
+        values = truth + self.bias[rows] + normal * self._noise
         valid = np.ones(truth.shape, dtype=bool)
+        held = self._held[rows]
         for n, fault in enumerate(self.faults):
             c = fault.index
-            active = fault.start <= t < fault.end
+            active = (fault.start <= t) & (t < fault.end)
             if fault.kind == "stuck":
-                if not active:
-                    self._frozen.pop(n, None)
-                    continue
-                values[:, c] = self._frozen.setdefault(n, values[:, c].copy())
-            if not active:
-                continue
-            if fault.kind == "spike":
-                hit = self.rng.random(self.batch_size) < fault.rate * self.params.sample_time
-                values[:, c] += hit * fault.magnitude * self.rng.choice([-1.0, 1.0], self.batch_size)
+                frozen = np.where(active & ~self._is_frozen[n, rows], values[:, c], self._frozen[n, rows])
+                self._frozen[n, rows], self._is_frozen[n, rows] = frozen, active
+                values[:, c] = np.where(active, frozen, values[:, c])
+            elif fault.kind == "spike":
+                hit = active & (uniform[:, 0] < fault.rate * self.params.sample_time)
+                values[:, c] += hit * fault.magnitude * np.where(uniform[:, 1] < 0.5, -1.0, 1.0)
             elif fault.kind == "bias_step":
-                values[:, c] += fault.magnitude
+                values[:, c] += active * fault.magnitude
             elif fault.kind == "dropout":
-                values[:, c] = self._held[:, c]
-                valid[:, c] = False
-        self._held = np.where(valid, values, self._held)
-        return SensorReading(values, valid, float(t))
+                values[:, c] = np.where(active, held[:, c], values[:, c])
+                valid[:, c] = ~active
+        self._held[rows] = np.where(valid, values, held)
+        return SensorReading(values, valid, t.copy())

@@ -17,7 +17,7 @@ from tqdm import tqdm
 
 from envs.road import RoadTables, contact_points
 from envs.scenarios import Scenario, make_scenario
-from envs.sensors import Fault, SensorModel, SensorParams
+from envs.sensors import Fault, SensorModel, SensorParams, SensorReading
 from envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NU, S_DELTA_F,
                           S_DELTA_R, S_OMEGA, S_R, S_TORQUE, S_U, S_V, derivatives, step)
 from control import Command
@@ -29,9 +29,9 @@ DT = 0.002  #: physics, sensor and estimator step [s] (the paper samples at 2 ms
 class Controller(Protocol):
     """A stability controller: sees the estimate and the driver's commands, never the truth."""
 
-    def reset(self, scenario: Scenario) -> None: ...
+    def reset(self) -> None: ...
 
-    def __call__(self, t: float, estimate: Estimate, front_steer: np.ndarray, base_torques: np.ndarray) -> Command: ...
+    def __call__(self, t: np.ndarray, estimate: Estimate, front_steer: np.ndarray, base_torques: np.ndarray) -> Command: ...
 
 
 class Estimator(Protocol):
@@ -89,73 +89,182 @@ def _stack(items: list[Estimate]) -> Estimate:
     return Estimate(*(np.stack([getattr(e, f)[0] for e in items]) for f in Estimate._fields))
 
 
-class StepRecord(NamedTuple):
-    """One 2 ms sample of a closed loop, taken before the plant advances (batch of 1)."""
+def _merged(full: np.ndarray, part: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """A copy of ``full`` with ``rows`` replaced by ``part``."""
+    out = full.copy()
+    out[rows] = part
+    return out
 
-    t: float
+
+def _rows(estimate: Estimate, rows: np.ndarray) -> Estimate:
+    return Estimate(*(field[rows] for field in estimate))
+
+
+class Sample(NamedTuple):
+    """What a closed loop knows at its current time, before the controller acts (B vehicles).
+
+    t (B,) [s]; reading: the sensors' :class:`envs.sensors.SensorReading`; truth and estimate
+    (:class:`Estimate` of (B, ...)); steering_wheel (B,) driver's angle [rad]; base_torques
+    (B, 4) the speed-holding driver's wheel torques [N m].
+    """
+
+    t: np.ndarray
+    reading: SensorReading
+    truth: Estimate
+    estimate: Estimate
+    steering_wheel: np.ndarray
+    base_torques: np.ndarray
+
+
+class StepRecord(NamedTuple):
+    """One 2 ms sample of a closed loop of B vehicles, taken before the plant advances:
+    t (B,), state (B, NX), aux (B, NAUX), controls (B, NU) applied, steering_wheel (B,),
+    reading, truth, estimate."""
+
+    t: np.ndarray
     state: np.ndarray
     aux: np.ndarray
     controls: np.ndarray
-    steering_wheel: float
-    reading: object
+    steering_wheel: np.ndarray
+    reading: SensorReading
     truth: Estimate
     estimate: Estimate
 
 
 class ClosedLoop:
-    """Driver + sensors + estimator + controller + plant for one vehicle, advanced 2 ms at a time.
+    """Driver + sensors + estimator + controller + plant for B vehicles, advanced 2 ms at a time.
 
-    Used by :func:`simulate` (records every sample) and the Gymnasium env (an agent's command
-    enters through ``controller``). ``rng`` seeds the sensor noise and faults.
+    ``scenarios``: one :class:`Scenario` (B = 1) or a sequence (one per vehicle, all with the
+    same vehicle parameters); each vehicle keeps its own clock, so :meth:`reset_members` can
+    restart some of them mid-run (the vector env's autoreset). ``rng``: sensor noise and
+    fault generators (see :class:`envs.sensors.SensorModel`). Used by :func:`simulate` (B = 1,
+    records every sample) and the Gymnasium envs (an agent's command enters through
+    ``controller``, which must then handle the batch; it is reset once, at construction).
+
+    Each time instant is sensed once: :meth:`sample` measures and estimates (cached until
+    the plant moves), :meth:`advance` applies the controller and integrates.
     """
 
-    def __init__(self, scenario: Scenario, controller: Controller | None, estimator: Estimator | str | None,
-                 rng: np.random.Generator, sensor_params: SensorParams | None = None, faults: Sequence[Fault] = (),
-                 dt: float = DT):
-        params = scenario.vehicle_params
+    def __init__(self, scenarios: Scenario | Sequence[Scenario], controller: Controller | None,
+                 estimator: Estimator | str | None, rng: np.random.Generator | Sequence[np.random.Generator],
+                 sensor_params: SensorParams | None = None, faults: Sequence[Fault] = (), dt: float = DT):
+        self.scenarios = [scenarios] if isinstance(scenarios, Scenario) else list(scenarios)
+        self.batch_size = len(self.scenarios)
+        self.params = params = self.scenarios[0].vehicle_params
+        self._check_params(self.scenarios)
         if isinstance(estimator, str) or estimator is None:
             from estimation import make_estimator
 
             estimator = make_estimator(estimator or "oracle", params, dt)
-        self.scenario, self.controller, self.estimator, self.dt = scenario, controller, estimator, dt
-        self.params = params
-        self.sensors = SensorModel(sensor_params or SensorParams(), tuple(faults), 1, rng)
-        self.state = scenario.initial_state()
-        self.speed_driver = scenario.speed_driver()
-        self.road = RoadTables.from_roads(scenario.road, 1) if scenario.road.table() is not None else scenario.road
+        self.controller, self.estimator, self.dt = controller, estimator, dt
+        self.sensors = SensorModel(sensor_params or SensorParams(), tuple(faults), self.batch_size, rng)
+        self.state = np.concatenate([s.initial_state() for s in self.scenarios])
+        self.speed_drivers = [s.speed_driver() for s in self.scenarios]
+        self.k = np.zeros(self.batch_size, dtype=np.int64)
+        self._fresh = np.ones(self.batch_size, dtype=bool)  # estimator needs a reset
+        self._stale = np.ones(self.batch_size, dtype=bool)  # needs sensing at the current time
+        self._sample: Sample | None = None
+        self._update_road()
+        self.aux = self._diagnostics(self.state)
         if controller is not None:
-            controller.reset(scenario)
-        gx, gy = contact_points(self.state, params)  # diagnostics of the initial state
-        _, self.aux = derivatives(self.state, np.zeros((1, NU)), scenario.road.mu_at(gx, gy), params)
-        self.k = 0
+            controller.reset()
 
     @property
-    def t(self) -> float:
+    def scenario(self) -> Scenario:
+        """The scenario of a single-vehicle loop."""
+        if self.batch_size != 1:
+            raise AttributeError("a batched loop has one scenario per vehicle: use .scenarios")
+        return self.scenarios[0]
+
+    @property
+    def t(self) -> np.ndarray:
+        """Each vehicle's time since its (re)start (B,) [s]."""
         return self.k * self.dt
 
+    def _check_params(self, scenarios: Sequence[Scenario]) -> None:
+        for s in scenarios:
+            if s.vehicle_params != self.params:
+                raise ValueError(f"all vehicles of a batch need the same vehicle parameters; scenario {s.name!r} "
+                                 "differs (e.g. its rear-steer feed-forward switch)")
+
+    def _update_road(self) -> None:
+        roads = [s.road for s in self.scenarios]
+        self.road = RoadTables.from_roads(roads, self.batch_size) if all(r.table() is not None for r in roads) \
+            else roads
+
+    def _diagnostics(self, state: np.ndarray) -> np.ndarray:
+        """Plant diagnostics (B, NAUX) of ``state`` at rest controls (the initial sample)."""
+        gx, gy = contact_points(state, self.params)
+        mu = np.stack([s.road.mu_at(gx[b], gy[b]) for b, s in enumerate(self.scenarios)])
+        return derivatives(state, np.zeros((state.shape[0], NU)), mu, self.params)[1]
+
+    def reset_members(self, mask: np.ndarray, scenarios: Sequence[Scenario],
+                      rngs: Sequence[np.random.Generator]) -> None:
+        """Restart the vehicles selected by ``mask`` (B,) bool on new ``scenarios`` with new sensor
+        generators (one each, in order): fresh plant state, clock, sensors and estimator. The
+        other vehicles' current sample stands (each time instant is sensed once)."""
+        members = np.flatnonzero(mask)
+        if len(scenarios) != len(members):
+            raise ValueError(f"need one scenario per reset vehicle ({len(members)}), got {len(scenarios)}")
+        self._check_params(scenarios)
+        for b, scenario in zip(members, scenarios):
+            self.scenarios[b] = scenario
+            self.speed_drivers[b] = scenario.speed_driver()
+            self.state[b] = scenario.initial_state()[0]
+        self.sensors.reset_members(mask, rngs)
+        self.k[members] = 0
+        self._fresh[members] = True
+        self._stale[members] = True
+        self._update_road()
+        self.aux[members] = self._diagnostics(self.state)[members]
+
+    def sample(self) -> Sample:
+        """Measure, estimate and drive at the current time: once per time instant and vehicle
+        (cached; after :meth:`reset_members` only the restarted vehicles are sensed)."""
+        if not self._stale.any():
+            return self._sample
+        rows = np.arange(self.batch_size) if self._stale.all() else np.flatnonzero(self._stale)
+        t, state, aux = self.t[rows], self.state[rows], self.aux[rows]
+        reading = self.sensors.measure(sensor_truth(state, aux), t, rows)
+        truth = true_estimate(state, aux)
+        steering = np.array([self.scenarios[b].steering(t[i], state[i]) for i, b in enumerate(rows)])
+        base = np.array([self.speed_drivers[b](t[i], state[i]) for i, b in enumerate(rows)])
+        base = np.repeat(base[:, None], 4, axis=1)
+        if len(rows) < self.batch_size:  # merge into copies: records handed out earlier stay intact
+            old = self._sample
+            reading = SensorReading(*(_merged(full, part, rows) for full, part in zip(old.reading, reading)))
+            truth = Estimate(*(_merged(full, part, rows) for full, part in zip(old.truth, truth)))
+            steering, base = _merged(old.steering_wheel, steering, rows), _merged(old.base_torques, base, rows)
+        if self._fresh.any():
+            speeds = np.array([s.speed for s in self.scenarios])
+            self.estimator.reset(reading, speeds, None if self._fresh.all() else self._fresh.copy())
+            self._fresh[:] = False
+        if len(rows) < self.batch_size:
+            part = self.estimator.step(reading, _rows(truth, rows) if self.estimator.needs_truth else None, rows)
+            estimate = Estimate(*(_merged(full, new, rows) for full, new in zip(self._sample.estimate, part)))
+        else:
+            estimate = self.estimator.step(reading, truth if self.estimator.needs_truth else None)
+        self._sample = Sample(self.t, reading, truth, estimate, steering, base)
+        self._stale[:] = False
+        return self._sample
+
     def advance(self, integrate: bool = True) -> StepRecord:
-        """Measure, estimate, drive and control at the current time; then (if ``integrate``)
-        advance the plant one step. Returns the sample taken before the plant moved."""
-        t, params = self.t, self.params
-        reading = self.sensors.measure(sensor_truth(self.state, self.aux), t)
-        truth = true_estimate(self.state, self.aux)
-        if self.k == 0:
-            self.estimator.reset(reading, np.array([self.scenario.speed]))
-        estimate = self.estimator.step(reading, truth if self.estimator.needs_truth else None)
-        steer_wheel = self.scenario.steering(t, self.state[0])
-        controls = np.zeros((1, NU))
-        controls[0, C_TORQUE:C_TORQUE + 4] = self.speed_driver(t, self.state[0])
-        controls[0, C_DELTA_F] = steer_wheel / params.steering_ratio
+        """Control at the current time from :meth:`sample`; then (if ``integrate``) advance the
+        plant one step. Returns the sample taken before the plant moved."""
+        s = self.sample()
+        controls = np.zeros((self.batch_size, NU))
+        controls[:, C_TORQUE:C_TORQUE + 4] = s.base_torques
+        controls[:, C_DELTA_F] = s.steering_wheel / self.params.steering_ratio
         if self.controller is not None:
-            command = self.controller(t, estimate, controls[:, C_DELTA_F].copy(),
-                                      controls[:, C_TORQUE:C_TORQUE + 4].copy())
-            controls[0, C_TORQUE:C_TORQUE + 4] = command.torques[0]
-            controls[0, C_DELTA_R] = command.rear_steer[0]
-        record = StepRecord(t, self.state[0].copy(), self.aux[0].copy(), controls[0].copy(), steer_wheel, reading,
-                            truth, estimate)
+            command = self.controller(s.t, s.estimate, controls[:, C_DELTA_F].copy(), s.base_torques.copy())
+            controls[:, C_TORQUE:C_TORQUE + 4] = command.torques
+            controls[:, C_DELTA_R] = command.rear_steer
+        record = StepRecord(s.t, self.state.copy(), self.aux.copy(), controls, s.steering_wheel, s.reading, s.truth,
+                            s.estimate)
         if integrate:
-            self.state, self.aux = step(self.state, controls, params, self.road, self.dt)
+            self.state, self.aux = step(self.state, controls, self.params, self.road, self.dt)
             self.k += 1
+            self._stale[:] = True
         return record
 
 
@@ -173,7 +282,8 @@ def simulate(scenario: Scenario | str, controller: Controller | None = None, est
     n = int(math.ceil(scenario.duration / dt - 1e-9))
     records = [loop.advance(integrate=k < n)
                for k in tqdm(range(n + 1), disable=not progress, desc=scenario.name, unit="step", mininterval=0.5)]
-    return Trajectory(np.arange(n + 1) * dt, np.stack([r.state for r in records]), np.stack([r.aux for r in records]),
-                      np.stack([r.controls for r in records]), np.array([r.steering_wheel for r in records]),
+    return Trajectory(np.arange(n + 1) * dt, np.stack([r.state[0] for r in records]),
+                      np.stack([r.aux[0] for r in records]), np.stack([r.controls[0] for r in records]),
+                      np.array([r.steering_wheel[0] for r in records]),
                       np.stack([r.reading.values[0] for r in records]), np.stack([r.reading.valid[0] for r in records]),
                       _stack([r.truth for r in records]), _stack([r.estimate for r in records]), scenario)

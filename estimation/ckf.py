@@ -46,7 +46,7 @@ def cubature_points(x: np.ndarray, P: np.ndarray) -> np.ndarray:
 def _moments(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     mean = points.mean(axis=1)
     d = points - mean[:, None, :]
-    return mean, np.einsum("bki,bkj->bij", d, d) / points.shape[1]
+    return mean, np.swapaxes(d, 1, 2) @ d / points.shape[1]
 
 
 def ckf_predict(x: np.ndarray, P: np.ndarray, f: Callable[[np.ndarray], np.ndarray],
@@ -91,7 +91,7 @@ def ckf_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, h: Callable[[np.ndar
     points = cubature_points(x, P)
     Z = h(points)
     z_mean, Pzz = _moments(Z)
-    Pxz = np.einsum("bki,bkj->bij", points - x[:, None, :], Z - z_mean[:, None, :]) / points.shape[1]
+    Pxz = np.swapaxes(points - x[:, None, :], 1, 2) @ (Z - z_mean[:, None, :]) / points.shape[1]
     nu = np.where(valid, z - z_mean, 0.0)
     R = np.broadcast_to(R, Pzz.shape).copy()
     idx = np.arange(z.shape[1])
@@ -105,12 +105,12 @@ def ckf_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, h: Callable[[np.ndar
     S = 0.5 * (S + np.swapaxes(S, -1, -2))
     gain = np.linalg.solve(S, np.swapaxes(Pxz, -1, -2))  # S^-1 Pzx, i.e. K^T
     gain = np.swapaxes(gain, -1, -2)
-    x_new = x + np.einsum("bij,bj->bi", gain, nu)
-    P_new = P - np.einsum("bij,bjk,blk->bil", gain, S, gain)
+    x_new = x + (gain @ nu[..., None])[..., 0]
+    P_new = P - gain @ S @ np.swapaxes(gain, -1, -2)
     P_new = 0.5 * (P_new + np.swapaxes(P_new, -1, -2))
     sign, logdet = np.linalg.slogdet(S)
     m_valid = valid.sum(axis=1)
-    maha = np.einsum("bi,bi->b", nu, np.linalg.solve(S, nu[..., None])[..., 0])
+    maha = np.sum(nu * np.linalg.solve(S, nu[..., None])[..., 0], axis=1)
     logdet_valid = logdet - np.log(DROPOUT_VARIANCE) * (z.shape[1] - m_valid)
     nll = 0.5 * (maha + logdet_valid + m_valid * np.log(2 * np.pi))
     return CKFUpdate(x_new, P_new, nu, S, weights, nll)

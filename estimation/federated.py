@@ -24,7 +24,7 @@ def fuse(xs: Sequence[np.ndarray], Ps: Sequence[np.ndarray]) -> tuple[np.ndarray
     """Information-weighted fusion: P_g = (sum P_i^-1)^-1, x_g = P_g sum P_i^-1 x_i."""
     infos = [np.linalg.inv(P) for P in Ps]
     P_g = np.linalg.inv(sum(infos))
-    x_g = np.einsum("bij,bj->bi", P_g, sum(np.einsum("bij,bj->bi", I, x) for I, x in zip(infos, xs)))
+    x_g = (P_g @ sum(I @ x[..., None] for I, x in zip(infos, xs)))[..., 0]
     return x_g, 0.5 * (P_g + np.swapaxes(P_g, -1, -2))
 
 

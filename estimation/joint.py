@@ -87,6 +87,9 @@ def tuned_noise() -> NoiseParams | None:
     return NoiseParams().scaled(np.asarray(data["log10_factors"]))
 
 
+_STATE_FIELDS = ("x", "P", "mu", "P_mu", "beta", "beta_mu", "omega_prev", "omega_dot", "last_nll")
+
+
 @dataclass
 class StateEstimator:
     """Batched estimator of ``kind`` (see module doc) for model ``params`` at step ``dt`` [s]."""
@@ -147,11 +150,28 @@ class StateEstimator:
         delta = np.stack([values[:, 7], values[:, 7], values[:, 8], values[:, 8]], axis=1)
         return Inputs(delta, omega, values[:, 9:13], self.omega_dot.copy())
 
-    def step(self, reading, truth: Estimate | None = None) -> Estimate:
+    def step(self, reading, truth: Estimate | None = None, members: np.ndarray | None = None) -> Estimate:
+        """One filter step on ``reading`` (values and valid (B, 13)); with ``members`` (M,) indices
+        only those rows step (the others keep their state) and the estimate has M rows."""
         values = np.asarray(reading.values, dtype=float)
         valid = np.asarray(reading.valid, dtype=bool)
         if values.shape != (self.x.shape[0], 13):
             raise ValueError(f"sensor reading must have shape {(self.x.shape[0], 13)}, got {values.shape}")
+        if members is None:
+            return self._step(values, valid)
+        full = {name: getattr(self, name) for name in _STATE_FIELDS}
+        try:
+            for name, value in full.items():
+                setattr(self, name, value[members])
+            estimate = self._step(values[members], valid[members])
+            for name, value in full.items():
+                value[members] = getattr(self, name)
+        finally:
+            for name, value in full.items():
+                setattr(self, name, value)
+        return estimate
+
+    def _step(self, values: np.ndarray, valid: np.ndarray) -> Estimate:
         inputs = self._inputs(values)
         p, dt, n = self.params, self.dt, self.noise
         # inputs broadcast over the cubature point axis

@@ -13,7 +13,8 @@ class Oracle:
     def reset(self, reading, initial_speed=None, mask=None) -> None:
         """Nothing to initialise."""
 
-    def step(self, reading, truth: Estimate | None = None) -> Estimate:
+    def step(self, reading, truth: Estimate | None = None, members=None) -> Estimate:
+        """The truth (already restricted to ``members`` by the caller)."""
         if truth is None:
             raise ValueError("the oracle estimator needs the truth; run it through envs.simulate")
         return truth
