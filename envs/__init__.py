@@ -25,7 +25,7 @@ def _register() -> None:
 
     if "FourWIS/YawStability-v0" not in gymnasium.registry:
         gymnasium.register(id="FourWIS/YawStability-v0", entry_point="envs.gym_env:YawStabilityEnv",
-                           max_episode_steps=500)
+                           vector_entry_point="envs.gym_env:YawStabilityVectorEnv", max_episode_steps=500)
 
 
 _register()

@@ -1,8 +1,10 @@
-"""Gymnasium environment: keep the 4WID-4WS car stable from the *estimated* state.
+"""Gymnasium environments: keep the 4WID-4WS car stable from the *estimated* state.
 
 Each env step (``control_dt``, 20 ms) holds the agent's command for ten 2 ms substeps of the
 closed loop (driver, noisy sensors, estimator, allocation, truth plant): the same
-:class:`envs.simulation.ClosedLoop` the rest of fourwis runs, with a batch of one.
+:class:`envs.simulation.ClosedLoop` the rest of fourwis runs. One batched core
+(:class:`YawStabilityCore`) serves both :class:`YawStabilityEnv` (batch of one) and the native
+:class:`YawStabilityVectorEnv` (batch of N, autoreset by masks in the same step).
 
 Observation (float32, ``observation="estimated"`` default; ``"true"`` fills the same slots
 from the truth with zero uncertainty):
@@ -24,7 +26,8 @@ idx  quantity                                     scale
 ==== ============================================ ============
 
 ``observation="sensors"``: the 13 raw channels (ax, ay, r, 4 wheel speeds, 2 steer angles,
-4 torques) scaled by (10, 10, 1, 100 x4, 0.3 x2, 600 x4), then r_ref / 1.
+4 torques) scaled by (10, 10, 1, 100 x4, 0.3 x2, 600 x4), then r_ref / 1 (from the raw
+readings and a nominal mu of 0.8).
 
 Actions (float32 in [-1, 1]): ``action="yaw_moment"`` (default): [corrective yaw moment x
 3000 N m, rear steer x max rear steer], allocated to the wheels by control/ within motor and
@@ -32,155 +35,485 @@ friction limits (from the estimate); ``"wheel_torques"``: four corrective torque
 peak torque added to the driver's speed-holding torques. Out-of-range actions are clipped
 and flagged in ``info["action_clipped"]``; NaN/inf actions raise ValueError.
 
-Reward per step: -(e_r / 0.1)^2 - (beta / 0.05)^2 - 0.1 |a|^2 - (d / 1.0)^2 (d: lateral
-deviation from the scenario's path, if it has one) times control_dt; -100 on termination.
-Terminated: |beta| > 20 deg (spin-out) or more than 5 m from the path. Truncated: the
-scenario's end (``max_episode_steps`` is set from the default duration at registration).
+Reward per step: -(e_r / 0.1)^2 - (beta / 0.05)^2 - 0.1 |a|^2 - (d / 1.0)^2 (e_r: true yaw
+rate minus the reference from the true state; d: lateral deviation from the scenario's path,
+if it has one) times control_dt; -100 on termination. Terminated: |beta| > 20 deg (spin-out)
+or more than 5 m from the path. Truncated: the scenario's end or ``max_episode_steps``.
+
+Other scenario arguments (e.g. ``amplitude_deg`` of ``sine_with_dwell``) go in
+``scenario_kwargs``.
+
+``info``: ``truth`` and ``estimate`` (:class:`estimation.types.Estimate`), ``action_clipped``,
+``beta``, ``yaw_rate_error``, ``path_deviation``, ``spin_out``; when an episode ends,
+``episode_metrics`` (length, return, yaw-rate tracking RMS, peak |beta|, largest path
+deviation, spin-out; on ``sine_with_dwell`` the FMVSS 126 ratios, displacement and verdict).
 """
 
 from __future__ import annotations
 
 import math
+import os
+import warnings
+from dataclasses import dataclass, field
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
 
 from control import Command
 from control.allocation import allocate_torques
 from control.reference import reference_yaw_rate
-from envs.metrics import SPIN_OUT_SIDESLIP, path_deviation
-from envs.scenarios import SCENARIOS, make_scenario
+from envs.metrics import SPIN_OUT_SIDESLIP, path_deviation, sine_with_dwell_metrics
+from envs.scenarios import SCENARIOS, Scenario, make_scenario
 from envs.sensors import Fault
-from envs.simulation import ClosedLoop, StepRecord
-from envs.vehicle import S_X, S_Y
+from envs.simulation import DT, ClosedLoop
+from envs.vehicle import A_AY, S_R, S_X, S_Y
 from estimation import ESTIMATORS
+from estimation.types import Estimate
 
 MAX_YAW_MOMENT = 3000.0  #: yaw-moment action scale [N m]
 MAX_PATH_DEVIATION = 5.0  #: termination distance from the path [m]
+TERMINATION_PENALTY = 100.0
 OBSERVATIONS = ("estimated", "true", "sensors")
 ACTIONS = ("yaw_moment", "wheel_torques")
+RENDER_MODES = ("rgb_array", "human")
+N_OBS = 14
 SENSOR_SCALE = np.array([10, 10, 1, 100, 100, 100, 100, 0.3, 0.3, 600, 600, 600, 600], dtype=float)
+NOMINAL_MU = 0.8  #: friction assumed for r_ref in the sensors observation
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Validated keyword arguments of the environments (see the module docstring)."""
+
+    scenario: str = "random"
+    speed_kph: float | None = None
+    mu: object = None
+    estimator: str = "joint"
+    observation: str = "estimated"
+    action: str = "yaw_moment"
+    control_dt: float = 0.02
+    sensor_faults: tuple[Fault, ...] = field(default=())
+    max_episode_steps: int | None = None
+    scenario_kwargs: dict | None = None
+
+    def __post_init__(self) -> None:
+        if self.scenario not in SCENARIOS:
+            raise ValueError(f"unknown scenario {self.scenario!r}; known: {sorted(SCENARIOS)}")
+        if self.estimator not in ESTIMATORS:
+            raise ValueError(f"unknown estimator {self.estimator!r}; known: {list(ESTIMATORS)}")
+        if self.observation not in OBSERVATIONS:
+            raise ValueError(f"unknown observation {self.observation!r}; known: {list(OBSERVATIONS)}")
+        if self.action not in ACTIONS:
+            raise ValueError(f"unknown action {self.action!r}; known: {list(ACTIONS)}")
+        substeps = self.control_dt / DT if isinstance(self.control_dt, (int, float)) else math.nan
+        if not (self.control_dt > 0 and abs(substeps - round(substeps)) < 1e-9):
+            raise ValueError(f"control_dt must be a positive multiple of {DT} s, got {self.control_dt!r}")
+        faults = tuple(self.sensor_faults)
+        if not all(isinstance(f, Fault) for f in faults):
+            raise ValueError(f"sensor_faults must be envs.sensors.Fault instances, got {self.sensor_faults!r}")
+        object.__setattr__(self, "sensor_faults", faults)
+        if self.max_episode_steps is not None and not (isinstance(self.max_episode_steps, int)
+                                                       and self.max_episode_steps > 0):
+            raise ValueError(f"max_episode_steps must be a positive integer, got {self.max_episode_steps!r}")
+        make_scenario(self.scenario, **self.overrides)  # validate the overrides now
+
+    @property
+    def overrides(self) -> dict:
+        named = {k: v for k, v in (("speed_kph", self.speed_kph), ("mu", self.mu)) if v is not None}
+        return {**(self.scenario_kwargs or {}), **named}
+
+    @property
+    def substeps(self) -> int:
+        return int(round(self.control_dt / DT))
+
+    @property
+    def action_size(self) -> int:
+        return 2 if self.action == "yaw_moment" else 4
+
+    def draw(self, rng: np.random.Generator) -> tuple[Scenario, np.random.Generator]:
+        """An episode's scenario and sensor generator, both drawn from the episode's ``rng``."""
+        kwargs = dict(self.overrides)
+        if self.scenario == "random":
+            kwargs["seed"] = int(rng.integers(2**31))
+        return make_scenario(self.scenario, **kwargs), np.random.default_rng(rng.integers(2**63))
+
+
+def state_observation(e: Estimate, delta_f: np.ndarray, params) -> np.ndarray:
+    """The 14 observation slots (B, 14) of the module docstring from an estimate (or the truth)
+    and the driver's front road-wheel steer ``delta_f`` (B,) [rad]."""
+    r_ref = reference_yaw_rate(e.u, delta_f, e.mu, params)
+    return np.column_stack([e.u / 30, e.beta / 0.2, e.r, e.ax / 10, e.ay / 10, e.mu, e.beta_std / 0.05,
+                            e.mu_std.mean(axis=1) / 0.3, r_ref, delta_f / 0.3, e.r - r_ref])
 
 
 class _AgentController:
-    """Turns the held agent action into wheel torques and rear steer each substep."""
+    """Turns the held agent actions (B, n) into wheel torques and rear steer each substep."""
 
-    def __init__(self, params, action_mode: str):
+    def __init__(self, params, action_mode: str, batch_size: int):
         self.params, self.action_mode = params, action_mode
-        self.action = np.zeros(2 if action_mode == "yaw_moment" else 4)
+        self.action = np.zeros((batch_size, 2 if action_mode == "yaw_moment" else 4))
 
-    def reset(self, scenario) -> None:
+    def reset(self) -> None:
         self.action[:] = 0.0
 
     def __call__(self, t, estimate, front_steer, base_torques) -> Command:
         p = self.params
         if self.action_mode == "yaw_moment":
-            moment = np.array([self.action[0] * MAX_YAW_MOMENT])
-            torques, _ = allocate_torques(base_torques, moment, estimate.fz, estimate.mu, p)
-            return Command(torques, np.array([self.action[1] * p.max_rear_steer]))
+            torques, _ = allocate_torques(base_torques, self.action[:, 0] * MAX_YAW_MOMENT, estimate.fz, estimate.mu, p)
+            return Command(torques, self.action[:, 1] * p.max_rear_steer)
         limit = p.motor_peak_torque
-        return Command(np.clip(base_torques + self.action[None, :] * limit, -limit, limit), np.zeros(1))
+        return Command(np.clip(base_torques + self.action * limit, -limit, limit), np.zeros(len(base_torques)))
+
+
+class _EpisodeStats:
+    """Running per-vehicle episode statistics (B,), plus the 2 ms series an SWD verdict needs."""
+
+    def __init__(self, batch_size: int):
+        self.length = np.zeros(batch_size, dtype=np.int64)
+        self.ret = np.zeros(batch_size)
+        self.yaw_sq = np.zeros(batch_size)
+        self.peak_beta = np.zeros(batch_size)
+        self.max_deviation = np.zeros(batch_size)
+        self.series: list[list] = [[] for _ in range(batch_size)]
+
+    def clear(self, members: np.ndarray) -> None:
+        for name in ("length", "ret", "yaw_sq", "peak_beta", "max_deviation"):
+            getattr(self, name)[members] = 0
+        for b in members:
+            self.series[b] = []
+
+
+class YawStabilityCore:
+    """The batched environment logic for B vehicles (one :class:`ClosedLoop`).
+
+    ``rngs``: one episode generator per vehicle (the env's ``np_random``); each episode draws
+    its scenario and sensor noise from it, so vehicle b of a batch reproduces a single env
+    seeded like it, bit for bit.
+    """
+
+    def __init__(self, config: EnvConfig, rngs: list[np.random.Generator]):
+        self.config = config
+        self.batch_size = len(rngs)
+        scenarios, sensor_rngs = zip(*(config.draw(rng) for rng in rngs))
+        params = scenarios[0].vehicle_params
+        self.controller = _AgentController(params, config.action, self.batch_size)
+        self.loop = ClosedLoop(list(scenarios), self.controller, config.estimator, list(sensor_rngs),
+                               faults=config.sensor_faults)
+        self.params = params
+        self.stats = _EpisodeStats(self.batch_size)
+        self._ends = self._end_steps(scenarios)
+        self.keep_trace = False  #: record vehicle 0's strip-chart history (set by envs that render)
+        self._renderer = None
+        self._trace: list[tuple[float, float, float, float]] = []
+
+    @staticmethod
+    def _end_steps(scenarios) -> np.ndarray:
+        return np.array([int(math.ceil(s.duration / DT - 1e-9)) for s in scenarios])
+
+    def reset_members(self, mask: np.ndarray, rngs: list[np.random.Generator]) -> None:
+        """New episodes for the vehicles selected by ``mask`` (B,) bool, drawn from ``rngs``."""
+        members = np.flatnonzero(mask)
+        scenarios, sensor_rngs = zip(*(self.config.draw(rng) for rng in rngs))
+        self.loop.reset_members(mask, list(scenarios), list(sensor_rngs))
+        self._ends[members] = self._end_steps(scenarios)
+        self.stats.clear(members)
+        if mask[0]:
+            self._trace = []
+
+    def observe(self) -> np.ndarray:
+        """Observations (B, 14) float32 at the current time."""
+        s = self.loop.sample()
+        delta_f = s.steering_wheel / self.params.steering_ratio
+        if self.config.observation == "sensors":
+            values = s.reading.values
+            r_ref = reference_yaw_rate(values[:, 3:7].mean(axis=1) * self.params.wheel_radius, values[:, 7],
+                                       np.full((self.batch_size, 4), NOMINAL_MU), self.params)
+            obs = np.concatenate([values / SENSOR_SCALE, r_ref[:, None]], axis=1)
+        else:
+            obs = state_observation(s.truth if self.config.observation == "true" else s.estimate, delta_f,
+                                    self.params)
+        if not np.all(np.isfinite(obs)):
+            b = int(np.flatnonzero(~np.all(np.isfinite(obs), axis=1))[0])
+            raise FloatingPointError(f"non-finite observation for vehicle {b}: the estimator diverged")
+        return obs.astype(np.float32)
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
+        """Advance every vehicle one control step under ``actions`` (B, n) (already validated)."""
+        clipped = np.clip(actions, -1.0, 1.0)
+        self.controller.action[:] = clipped
+        swd = [b for b, s in enumerate(self.loop.scenarios) if s.name == "sine_with_dwell"]
+        for _ in range(self.config.substeps):
+            rec = self.loop.advance()
+            for b in swd:
+                self.stats.series[b].append((rec.t[b], rec.steering_wheel[b], rec.state[b, S_R], rec.aux[b, A_AY],
+                                             rec.truth.beta[b]))
+        s = self.loop.sample()
+        obs = self.observe()
+        truth = s.truth
+        r_ref = reference_yaw_rate(truth.u, s.steering_wheel / self.params.steering_ratio, truth.mu, self.params)
+        yaw_error = truth.r - r_ref
+        beta = truth.beta
+        deviation = self._deviation()
+        reward = -self.config.control_dt * ((yaw_error / 0.1) ** 2 + (beta / 0.05) ** 2
+                                            + 0.1 * np.sum(clipped**2, axis=1) + deviation**2)
+        spin = np.abs(beta) > SPIN_OUT_SIDESLIP
+        terminated = spin | (deviation > MAX_PATH_DEVIATION)
+        reward = reward - TERMINATION_PENALTY * terminated
+        st = self.stats
+        st.length += 1
+        st.ret += reward
+        st.yaw_sq += yaw_error**2
+        st.peak_beta = np.maximum(st.peak_beta, np.abs(beta))
+        st.max_deviation = np.maximum(st.max_deviation, deviation)
+        truncated = self.loop.k >= self._ends
+        if self.config.max_episode_steps is not None:
+            truncated |= st.length >= self.config.max_episode_steps
+        if self.keep_trace:
+            self._record_trace()
+        info = {"truth": truth, "estimate": s.estimate, "action_clipped": np.any(clipped != actions, axis=1),
+                "beta": beta, "yaw_rate_error": yaw_error, "path_deviation": deviation, "spin_out": spin,
+                "episode_metrics": [self._episode_metrics(b, spin[b]) if terminated[b] or truncated[b] else None
+                                    for b in range(self.batch_size)]}
+        return obs, reward, terminated, truncated, info
+
+    def _deviation(self) -> np.ndarray:
+        out = np.zeros(self.batch_size)
+        for b, scenario in enumerate(self.loop.scenarios):
+            if scenario.reference_path is not None:
+                state = self.loop.state
+                out[b] = path_deviation(state[b:b + 1, S_X], state[b:b + 1, S_Y], scenario.reference_path)[1]
+        return out
+
+    def _episode_metrics(self, b: int, spun: bool) -> dict:
+        st = self.stats
+        out = {"length": int(st.length[b]), "return": float(st.ret[b]),
+               "yaw_rate_tracking_rms": float(np.sqrt(st.yaw_sq[b] / max(st.length[b], 1))),
+               "peak_beta": float(st.peak_beta[b]), "max_path_deviation": float(st.max_deviation[b]),
+               "spin_out": bool(spun)}
+        if st.series[b]:
+            t, swa, r, ay, beta = np.array(st.series[b]).T
+            try:
+                res = sine_with_dwell_metrics(t, swa, r, ay, sideslip=beta)
+                out.update(fmvss126_ratio_1000=res.yaw_rate_ratio_1000, fmvss126_ratio_1750=res.yaw_rate_ratio_1750,
+                           fmvss126_displacement=res.lateral_displacement, fmvss126_passed=res.passed and not spun)
+            except ValueError:  # cut short before the manoeuvre could be evaluated
+                out.update(fmvss126_passed=False)
+        return out
+
+    def render(self) -> np.ndarray:
+        """A frame of vehicle 0 (see :mod:`envs.render`)."""
+        if self._renderer is None:
+            from envs.render import Renderer
+
+            self._renderer = Renderer()
+        return self._renderer.frame(self.loop, 0, np.array(self._trace).reshape(-1, 4))
+
+    def _record_trace(self) -> None:
+        """Vehicle 0's t, r, r_ref, beta for the strip charts of :meth:`render`."""
+        s = self.loop.sample()
+        truth = s.truth
+        r_ref = reference_yaw_rate(truth.u[:1], s.steering_wheel[:1] / self.params.steering_ratio, truth.mu[:1],
+                                   self.params)
+        self._trace.append((s.t[0], truth.r[0], r_ref[0], truth.beta[0]))
+
+
+def _check_actions(actions, shape: tuple[int, ...]) -> np.ndarray:
+    actions = np.asarray(actions, dtype=float)
+    if actions.shape != shape:
+        raise ValueError(f"action must have shape {shape}, got {actions.shape}")
+    if not np.all(np.isfinite(actions)):
+        raise ValueError(f"action contains NaN or inf: {actions}")
+    return actions
+
+
+def _spaces(config: EnvConfig) -> tuple[spaces.Box, spaces.Box]:
+    return (spaces.Box(-np.inf, np.inf, (N_OBS,), np.float32),
+            spaces.Box(-1.0, 1.0, (config.action_size,), np.float32))
+
+
+def _check_render_mode(render_mode: str | None) -> None:
+    if render_mode is not None and render_mode not in RENDER_MODES:
+        raise ValueError(f"unknown render_mode {render_mode!r}; known: {list(RENDER_MODES)}")
 
 
 class YawStabilityEnv(gym.Env):
-    """See the module docstring for observation, action, reward and termination."""
+    """One car (the batched core with B = 1). See the module docstring for observation,
+    action, reward, termination and info."""
 
-    metadata = {"render_modes": [], "render_fps": 50}
+    metadata = {"render_modes": list(RENDER_MODES), "render_fps": 50}
 
     def __init__(self, scenario: str = "random", speed_kph: float | None = None, mu=None, estimator: str = "joint",
                  observation: str = "estimated", action: str = "yaw_moment", control_dt: float = 0.02,
-                 sensor_faults: tuple[Fault, ...] = (), render_mode: str | None = None):
-        if scenario not in SCENARIOS:
-            raise ValueError(f"unknown scenario {scenario!r}; known: {sorted(SCENARIOS)}")
-        if estimator not in ESTIMATORS:
-            raise ValueError(f"unknown estimator {estimator!r}; known: {list(ESTIMATORS)}")
-        if observation not in OBSERVATIONS:
-            raise ValueError(f"unknown observation {observation!r}; known: {list(OBSERVATIONS)}")
-        if action not in ACTIONS:
-            raise ValueError(f"unknown action {action!r}; known: {list(ACTIONS)}")
-        substeps = control_dt / 0.002
-        if not (control_dt > 0 and abs(substeps - round(substeps)) < 1e-9):
-            raise ValueError(f"control_dt must be a positive multiple of 0.002 s, got {control_dt!r}")
-        if render_mode is not None:
-            raise ValueError(f"render_mode {render_mode!r} is not available yet")
-        self.overrides = {k: v for k, v in (("speed_kph", speed_kph), ("mu", mu)) if v is not None}
-        make_scenario(scenario, **self.overrides)  # validate the overrides now
-        self.scenario_name, self.estimator_name = scenario, estimator
-        self.observation_mode, self.action_mode = observation, action
-        self.substeps, self.control_dt = int(round(substeps)), control_dt
-        self.sensor_faults = tuple(sensor_faults)
+                 sensor_faults: tuple[Fault, ...] = (), render_mode: str | None = None,
+                 scenario_kwargs: dict | None = None):
+        self.config = EnvConfig(scenario, speed_kph, mu, estimator, observation, action, control_dt,
+                                tuple(sensor_faults), scenario_kwargs=scenario_kwargs)
+        _check_render_mode(render_mode)
         self.render_mode = render_mode
-        n_obs = 14
-        self.observation_space = spaces.Box(-np.inf, np.inf, (n_obs,), np.float32)
-        self.action_space = spaces.Box(-1.0, 1.0, (2 if action == "yaw_moment" else 4,), np.float32)
-        self._loop: ClosedLoop | None = None
+        self.metadata = {**self.metadata, "render_fps": int(round(1 / control_dt))}
+        self.observation_space, self.action_space = _spaces(self.config)
+        self._core: YawStabilityCore | None = None
+        self._window = None
 
-    def _build(self, seed_rng: np.random.Generator) -> None:
-        kwargs = dict(self.overrides)
-        if self.scenario_name == "random":
-            kwargs["seed"] = int(seed_rng.integers(2**31))
-        scenario = make_scenario(self.scenario_name, **kwargs)
-        self._controller = _AgentController(scenario.vehicle_params, self.action_mode)
-        self._loop = ClosedLoop(scenario, self._controller, self.estimator_name,
-                                np.random.default_rng(seed_rng.integers(2**63)), faults=self.sensor_faults)
-        self._end = int(math.ceil(scenario.duration / 0.002))
-
-    def _observe(self, rec: StepRecord) -> tuple[np.ndarray, float]:
-        p = self._loop.params
-        source = rec.truth if self.observation_mode == "true" else rec.estimate
-        delta_f = rec.controls[4]
-        r_ref = float(reference_yaw_rate(np.array([source.u[0]]), np.array([delta_f]), source.mu, p)[0])
-        if self.observation_mode == "sensors":
-            obs = np.concatenate([rec.reading.values[0] / SENSOR_SCALE, [r_ref]])
-        else:
-            e = source
-            obs = np.array([e.u[0] / 30, e.beta[0] / 0.2, e.r[0], e.ax[0] / 10, e.ay[0] / 10, *e.mu[0],
-                            e.beta_std[0] / 0.05, e.mu_std[0].mean() / 0.3, r_ref, delta_f / 0.3, e.r[0] - r_ref])
-        return obs.astype(np.float32), r_ref
+    @property
+    def core(self) -> YawStabilityCore:
+        if self._core is None:
+            raise RuntimeError("call reset() before step()")
+        return self._core
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
-        self._build(self.np_random)
-        self._record = self._loop.advance(integrate=False)
-        obs, _ = self._observe(self._record)
-        return obs, {"truth": self._record.truth, "estimate": self._record.estimate}
+        if self._core is None:
+            self._core = YawStabilityCore(self.config, [self.np_random])
+            self._core.keep_trace = self.render_mode is not None
+        else:
+            self._core.reset_members(np.ones(1, dtype=bool), [self.np_random])
+        obs = self._core.observe()[0]
+        s = self._core.loop.sample()
+        if self.render_mode == "human":
+            self.render()
+        return obs, {"truth": s.truth, "estimate": s.estimate}
 
     def step(self, action):
-        if self._loop is None:
-            raise RuntimeError("call reset() before step()")
-        action = np.asarray(action, dtype=float)
-        if action.shape != self.action_space.shape:
-            raise ValueError(f"action must have shape {self.action_space.shape}, got {action.shape}")
-        if not np.all(np.isfinite(action)):
-            raise ValueError(f"action contains NaN or inf: {action}")
-        clipped = np.clip(action, -1.0, 1.0)
-        self._controller.action[:] = clipped
-        for _ in range(self.substeps):
-            self._loop.advance()
-        self._record = self._loop.advance(integrate=False)
-        rec = self._record
-        obs, _ = self._observe(rec)
-        truth = rec.truth
-        p = self._loop.params
-        r_ref_true = float(reference_yaw_rate(truth.u, np.array([rec.controls[4]]), truth.mu, p)[0])
-        beta = float(truth.beta[0])
-        deviation = self._deviation(rec)
-        reward = -self.control_dt * (((truth.r[0] - r_ref_true) / 0.1) ** 2 + (beta / 0.05) ** 2
-                                     + 0.1 * float(np.sum(clipped**2)) + (deviation / 1.0) ** 2)
-        terminated = bool(abs(beta) > SPIN_OUT_SIDESLIP or deviation > MAX_PATH_DEVIATION)
-        if terminated:
-            reward -= 100.0
-        truncated = self._loop.k >= self._end
-        if not np.all(np.isfinite(obs)):
-            raise FloatingPointError("non-finite observation: the estimator diverged")
-        info = {"truth": truth, "estimate": rec.estimate, "action_clipped": bool(np.any(clipped != action)),
-                "peak_beta": abs(beta), "yaw_rate_error": float(truth.r[0] - r_ref_true), "path_deviation": deviation,
-                "spin_out": abs(beta) > SPIN_OUT_SIDESLIP}
-        return obs, float(reward), terminated, truncated, info
+        action = _check_actions(action, self.action_space.shape)
+        obs, reward, terminated, truncated, info = self.core.step(action[None, :])
+        info = {k: (v if k in ("truth", "estimate") else v[0]) for k, v in info.items()}
+        if info["episode_metrics"] is None:
+            del info["episode_metrics"]
+        if self.render_mode == "human":
+            self.render()
+        return obs[0], float(reward[0]), bool(terminated[0]), bool(truncated[0]), info
 
-    def _deviation(self, rec: StepRecord) -> float:
-        path = self._loop.scenario.reference_path
-        if path is None:
-            return 0.0
-        return path_deviation(rec.state[S_X:S_X + 1], rec.state[S_Y:S_Y + 1], path)[1]
+    def render(self):
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'")
+            return None
+        frame = self.core.render()
+        if self.render_mode == "rgb_array":
+            return frame
+        self._window = _show(frame, self._window)
+        return None
+
+    def close(self):
+        if self._window is not None:
+            import matplotlib.pyplot as plt
+
+            plt.close(self._window[0])
+            self._window = None
+
+
+def _show(frame: np.ndarray, window):
+    """Draw ``frame`` in a matplotlib window (human mode); warns once where there is no display."""
+    import matplotlib
+
+    if matplotlib.get_backend().lower() == "agg" or (os.name == "posix" and not os.environ.get("DISPLAY")
+                                                     and not os.environ.get("WAYLAND_DISPLAY")):
+        if window != "no-display":
+            warnings.warn("render_mode='human' needs a display; none found, frames are not shown", stacklevel=3)
+        return "no-display"
+    import matplotlib.pyplot as plt
+
+    if window is None:
+        plt.ion()
+        fig, ax = plt.subplots(figsize=(frame.shape[1] / 100, frame.shape[0] / 100), dpi=100)
+        ax.set_axis_off()
+        window = (fig, ax.imshow(frame))
+    window[1].set_data(frame)
+    window[0].canvas.draw_idle()
+    plt.pause(0.001)
+    return window
+
+
+class YawStabilityVectorEnv(VectorEnv):
+    """``num_envs`` cars in one batched core: the native vector env of ``FourWIS/YawStability-v0``.
+
+    Autoreset in the same step (``AutoresetMode.SAME_STEP``): a finished car is reset at once,
+    its last observation and info are in ``info["final_obs"]`` / ``info["final_info"]``
+    (object arrays with ``_final_obs`` masks), as gymnasium's ``SyncVectorEnv`` does in that
+    mode; step for step it matches a ``SyncVectorEnv`` of single envs seeded ``seed + i``.
+    ``info`` holds (num_envs,) arrays; ``truth`` and ``estimate`` are batched Estimates.
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": list(RENDER_MODES), "render_fps": 50}
+
+    def __init__(self, num_envs: int = 1, scenario: str = "random", speed_kph: float | None = None, mu=None,
+                 estimator: str = "joint", observation: str = "estimated", action: str = "yaw_moment",
+                 control_dt: float = 0.02, sensor_faults: tuple[Fault, ...] = (), render_mode: str | None = None,
+                 max_episode_steps: int | None = None, scenario_kwargs: dict | None = None):
+        if not (isinstance(num_envs, int) and num_envs >= 1):
+            raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+        self.config = EnvConfig(scenario, speed_kph, mu, estimator, observation, action, control_dt,
+                                tuple(sensor_faults), max_episode_steps, scenario_kwargs)
+        _check_render_mode(render_mode)
+        self.num_envs, self.render_mode = num_envs, render_mode
+        self.single_observation_space, self.single_action_space = _spaces(self.config)
+        self.observation_space = batch_space(self.single_observation_space, num_envs)
+        self.action_space = batch_space(self.single_action_space, num_envs)
+        self._rngs = [seeding.np_random()[0] for _ in range(num_envs)]
+        self._core: YawStabilityCore | None = None
+        self._window = None
+
+    def reset(self, *, seed: int | list[int] | None = None, options: dict | None = None):
+        seeds = [None if seed is None else seed + i for i in range(self.num_envs)] if not isinstance(seed, list) \
+            else seed
+        if len(seeds) != self.num_envs:
+            raise ValueError(f"need {self.num_envs} seeds, got {len(seeds)}")
+        for i, s in enumerate(seeds):
+            if s is not None or self._core is None:
+                self._rngs[i] = seeding.np_random(s)[0]
+        if self._core is None:
+            self._core = YawStabilityCore(self.config, self._rngs)
+            self._core.keep_trace = self.render_mode is not None
+        else:
+            self._core.reset_members(np.ones(self.num_envs, dtype=bool), self._rngs)
+        s = self._core.loop.sample()
+        return self._core.observe(), {"truth": s.truth, "estimate": s.estimate}
+
+    def step(self, actions):
+        if self._core is None:
+            raise RuntimeError("call reset() before step()")
+        actions = _check_actions(actions, self.action_space.shape)
+        obs, reward, terminated, truncated, info = self._core.step(actions)
+        metrics = info.pop("episode_metrics")
+        done = terminated | truncated
+        if done.any():
+            final_obs = np.full(self.num_envs, None, dtype=object)
+            final_info = np.full(self.num_envs, None, dtype=object)
+            for b in np.flatnonzero(done):
+                final_obs[b] = obs[b].copy()
+                final_info[b] = {"episode_metrics": metrics[b], "spin_out": bool(info["spin_out"][b])}
+            self._core.reset_members(done, [self._rngs[b] for b in np.flatnonzero(done)])
+            obs = self._core.observe()
+            info.update(final_obs=final_obs, _final_obs=done.copy(), final_info=final_info, _final_info=done.copy())
+        if self.render_mode == "human":
+            self.render()
+        return obs, reward, terminated, truncated, info
+
+    def render(self):
+        if self.render_mode is None or self._core is None:
+            return None
+        frame = self._core.render()
+        if self.render_mode == "rgb_array":
+            return (frame,)
+        self._window = _show(frame, self._window)
+        return None
+
+
+class PrivilegedObservation(gym.ObservationWrapper):
+    """Appends the true-state observation (same 14 slots and scales) to the agent's: for
+    asymmetric actor-critic training, where the critic sees the truth and the actor only the
+    first half (the estimate). Works on :class:`YawStabilityEnv` with any observation mode."""
+
+    def __init__(self, env: gym.Env):
+        super().__init__(env)
+        self.observation_space = spaces.Box(-np.inf, np.inf, (2 * N_OBS,), np.float32)
+
+    def observation(self, observation: np.ndarray) -> np.ndarray:
+        core = self.env.unwrapped.core
+        s = core.loop.sample()
+        true = state_observation(s.truth, s.steering_wheel / core.params.steering_ratio, core.params)[0]
+        return np.concatenate([observation, true]).astype(np.float32)

@@ -1,25 +1,29 @@
 """The Gymnasium environment: checkers, determinism, estimator in the loop, bad actions."""
 
+import subprocess
+import sys
+from pathlib import Path
+
 import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
+from gymnasium.vector import AutoresetMode
 
 import envs  # noqa: F401  (registers the environment)
-from envs.gym_env import YawStabilityEnv
+from envs.gym_env import PrivilegedObservation, YawStabilityEnv, YawStabilityVectorEnv
+from envs.render import FRAME_HEIGHT, FRAME_WIDTH
 
 
-@pytest.mark.parametrize("observation, action", [("estimated", "yaw_moment"), ("true", "wheel_torques"),
-                                                 ("sensors", "yaw_moment")])
-def test_gymnasium_checker_passes(observation, action):
-    env = YawStabilityEnv(scenario="paper_sine", estimator="ckf", observation=observation, action=action)
-    check_env(env, skip_render_check=True)
-
-
-def test_stable_baselines3_checker_passes():
+@pytest.mark.parametrize("observation", ["estimated", "true", "sensors"])
+@pytest.mark.parametrize("action", ["yaw_moment", "wheel_torques"])
+def test_gymnasium_and_sb3_checkers_pass(observation, action):
     from stable_baselines3.common.env_checker import check_env as sb3_check
 
-    sb3_check(YawStabilityEnv(scenario="paper_sine", estimator="ckf"), warn=True)
+    env = YawStabilityEnv(scenario="paper_sine", estimator="ckf", observation=observation, action=action)
+    check_env(env, skip_render_check=True)
+    sb3_check(YawStabilityEnv(scenario="paper_sine", estimator="ckf", observation=observation, action=action),
+              warn=True)
 
 
 def test_make_and_determinism_under_seed():
@@ -85,3 +89,150 @@ def test_random_actions_across_scenarios_never_produce_nan():
             if terminated or truncated:
                 assert terminated == info["spin_out"] or info["path_deviation"] > 5.0 or truncated
                 obs, _ = env.reset()
+
+
+def _vector_pair(n, **kwargs):
+    native = gym.make_vec("FourWIS/YawStability-v0", num_envs=n, vectorization_mode="vector_entry_point", **kwargs)
+    sync = gym.make_vec("FourWIS/YawStability-v0", num_envs=n, vectorization_mode="sync",
+                        vector_kwargs={"autoreset_mode": AutoresetMode.SAME_STEP}, **kwargs)
+    return native, sync
+
+
+def test_native_vector_env_matches_sync_vector_env_step_for_step():
+    """Same seeds, same actions: identical observations, rewards, flags and final observations,
+    through several autoresets (short time limit) with the joint estimator in the loop."""
+    native, sync = _vector_pair(3, scenario="random", estimator="joint", max_episode_steps=20)
+    assert isinstance(native.unwrapped, YawStabilityVectorEnv)
+    assert native.metadata["autoreset_mode"] == AutoresetMode.SAME_STEP
+    a, _ = native.reset(seed=11)
+    b, _ = sync.reset(seed=11)
+    np.testing.assert_array_equal(a, b)
+    rng = np.random.default_rng(0)
+    resets = 0
+    for _ in range(45):
+        action = rng.uniform(-1, 1, (3, 2)).astype(np.float32)
+        out_n, out_s = native.step(action), sync.step(action)
+        for x, y in zip(out_n[:4], out_s[:4]):
+            np.testing.assert_array_equal(x, y)
+        done = out_n[2] | out_n[3]
+        if done.any():
+            resets += done.sum()
+            np.testing.assert_array_equal(out_n[4]["_final_obs"], out_s[4]["_final_obs"])
+            np.testing.assert_array_equal(np.stack(out_n[4]["final_obs"][done]), np.stack(out_s[4]["final_obs"][done]))
+    assert resets >= 6  # every car reset at least twice
+
+
+def test_async_vector_env_with_spawned_workers():
+    """Registration is idempotent: spawned workers re-import envs and build their env."""
+    env = gym.make_vec("FourWIS/YawStability-v0", num_envs=2, vectorization_mode="async",
+                       vector_kwargs={"context": "spawn"}, scenario="paper_sine", estimator="oracle")
+    try:
+        obs, _ = env.reset(seed=0)
+        obs2, reward, *_ = env.step(np.zeros((2, 2), dtype=np.float32))
+        assert obs.shape == (2, 14) and np.all(np.isfinite(obs2)) and reward.shape == (2,)
+    finally:
+        env.close()
+
+
+def test_make_works_in_a_fresh_interpreter_without_prior_import():
+    code = ("import gymnasium as gym, numpy as np; env = gym.make('envs:FourWIS/YawStability-v0', "
+            "estimator='oracle'); obs, _ = env.reset(seed=0); print(obs.shape)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=Path(__file__).resolve().parent.parent)
+    assert out.stdout.strip() == "(14,)"
+
+
+def test_vector_env_rejects_bad_actions_and_arguments():
+    env = YawStabilityVectorEnv(num_envs=2, scenario="paper_sine", estimator="oracle")
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="NaN"):
+        env.step(np.array([[0.0, 0.0], [np.inf, 0.0]]))
+    with pytest.raises(ValueError, match="shape"):
+        env.step(np.zeros((3, 2)))
+    *_, info = env.step(np.array([[2.0, 0.0], [0.5, 0.0]]))
+    np.testing.assert_array_equal(info["action_clipped"], [True, False])
+    for bad in ({"num_envs": 0}, {"max_episode_steps": -3}, {"render_mode": "ascii"}, {"estimator": "psychic"}):
+        with pytest.raises(ValueError, match=str(list(bad.values())[0])):
+            YawStabilityVectorEnv(**({"num_envs": 1} | bad))
+
+
+def test_random_actions_100k_vector_steps_stay_finite():
+    """100,000 env steps (4 scenarios x 25 cars x 1,000 steps) of random wheel torques with the
+    native vector env: every observation, reward and true state finite."""
+    rng = np.random.default_rng(1)
+    for scenario in ("random", "mu_jump", "paper_split_dlc", "sine_with_dwell"):
+        env = YawStabilityVectorEnv(num_envs=25, scenario=scenario, estimator="oracle", action="wheel_torques")
+        obs, _ = env.reset(seed=int(rng.integers(1000)))
+        for _ in range(1000):
+            obs, reward, terminated, truncated, info = env.step(rng.uniform(-1, 1, (25, 4)))
+            assert np.all(np.isfinite(obs)) and np.all(np.isfinite(reward))
+            assert np.all(np.isfinite(info["truth"].beta)) and np.all(np.isfinite(env.unwrapped._core.loop.state))
+
+
+def test_rgb_array_frames_show_the_car_and_work_with_record_video(tmp_path):
+    env = YawStabilityEnv(scenario="mu_jump", estimator="oracle", render_mode="rgb_array")
+    env.reset(seed=0)
+    for _ in range(10):
+        env.step(np.zeros(2, dtype=np.float32))
+    frame = env.render()
+    assert frame.shape == (FRAME_HEIGHT, FRAME_WIDTH, 3) and frame.dtype == np.uint8
+    assert len(np.unique(frame.reshape(-1, 3), axis=0)) > 50  # not blank: road, car, wheels, strip charts
+    for _ in range(25):
+        env.step(np.array([1.0, 0.0], dtype=np.float32))
+    assert not np.array_equal(env.render(), frame)  # the car moved, the charts grew
+    video = gym.wrappers.RecordVideo(YawStabilityEnv(scenario="paper_sine", estimator="oracle",
+                                                     render_mode="rgb_array"), str(tmp_path), disable_logger=True)
+    video.reset(seed=0)
+    for _ in range(30):
+        video.step(np.zeros(2, dtype=np.float32))
+    video.close()
+    movies = list(tmp_path.glob("*.mp4"))
+    assert movies and movies[0].stat().st_size > 1000
+
+
+def test_human_mode_without_a_display_warns(monkeypatch):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    env = YawStabilityEnv(scenario="paper_sine", estimator="oracle", render_mode="human")
+    with pytest.warns(UserWarning, match="display"):
+        env.reset(seed=0)
+
+
+@pytest.mark.parametrize("amplitude_deg", [40.0, 180.0])
+def test_episode_metrics_on_sine_with_dwell_give_the_fmvss126_verdict(amplitude_deg):
+    """Uncontrolled SWD episodes end with the regulation's verdict, the same as the run evaluated
+    from envs.simulate (same plant and driver; zero corrective moment): 40 deg (2.4A) passes with its
+    ratios reported, 180 deg on mu 1.0 spins out (terminated early, failed)."""
+    from envs.metrics import sine_with_dwell_metrics
+    from envs.scenarios import make_scenario
+    from envs.simulation import simulate
+    from envs.vehicle import A_AY, S_R
+
+    env = YawStabilityEnv(scenario="sine_with_dwell", estimator="oracle",
+                          scenario_kwargs={"amplitude_deg": amplitude_deg})
+    env.reset(seed=0)
+    while True:
+        *_, terminated, truncated, info = env.step(np.zeros(2, dtype=np.float32))
+        if terminated or truncated:
+            break
+    metrics = info["episode_metrics"]
+    traj = simulate(make_scenario("sine_with_dwell", amplitude_deg=amplitude_deg))
+    ref = sine_with_dwell_metrics(traj.t, traj.steering_wheel, traj.state[:, S_R], traj.aux[:, A_AY])
+    assert metrics["fmvss126_passed"] == ref.passed == (amplitude_deg < 100)
+    assert metrics["spin_out"] == terminated == (amplitude_deg > 100)
+    if ref.passed:
+        assert metrics["length"] == 250
+        assert metrics["fmvss126_ratio_1000"] == pytest.approx(ref.yaw_rate_ratio_1000, abs=0.02)
+
+
+def test_privileged_observation_appends_the_truth():
+    env = PrivilegedObservation(YawStabilityEnv(scenario="paper_sine", estimator="ckf"))
+    true = YawStabilityEnv(scenario="paper_sine", estimator="ckf", observation="true")
+    obs, _ = env.reset(seed=4)
+    ref, _ = true.reset(seed=4)
+    for _ in range(20):
+        obs, *_ = env.step(np.zeros(2, dtype=np.float32))
+        ref, *_ = true.step(np.zeros(2, dtype=np.float32))
+    assert obs.shape == (28,)
+    np.testing.assert_allclose(obs[14:], ref, atol=1e-6)
+    assert not np.allclose(obs[:14], ref)
