@@ -93,6 +93,42 @@ def _tune(args: argparse.Namespace) -> int:
     return 0
 
 
+def _json_object(text: str) -> dict:
+    import json
+
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as err:
+        raise argparse.ArgumentTypeError(f"not JSON: {text!r} ({err})") from None
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(f"expected a JSON object, got {text!r}")
+    return value
+
+
+def _train(args: argparse.Namespace) -> int:
+    from training.rl import train
+
+    try:
+        path = train(args.algo, args.out, args.timesteps, args.seed, args.env_kwargs, args.n_envs,
+                     eval_every=args.eval_every, checkpoint_every=args.checkpoint_every, resume=args.resume)
+    except (ValueError, FileNotFoundError) as err:
+        raise SystemExit(f"fourwis train: {err}") from None
+    print(f"wrote {path} (+ vecnormalize.pkl, config.json, learning_curve.png, checkpoints/, tb/ in {path.parent})")
+    return 0
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    from training.rl import evaluate
+
+    try:
+        report = evaluate(args.model, args.out, args.scenarios, args.estimator, args.seeds, args.jobs)
+    except (ValueError, FileNotFoundError) as err:
+        raise SystemExit(f"fourwis evaluate: {err}") from None
+    print(report.read_text())
+    print(f"wrote {report} (+ runs.csv and PNG plots in {report.parent})")
+    return 0
+
+
 def _add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speed-kph", type=float, help="initial / target speed [km/h]")
     parser.add_argument("--mu", type=float, nargs="+",
@@ -135,6 +171,29 @@ def build_parser() -> argparse.ArgumentParser:
     swd.add_argument("--seed", type=int, default=0)
     swd.add_argument("--out", help="directory for sine_with_dwell.md")
     swd.set_defaults(func=_sine_with_dwell)
+    from training.rl import ALGOS, EVAL_SCENARIO
+
+    train = sub.add_parser("train", help="train an RL stability controller (stable-baselines3) on the vector env")
+    train.add_argument("--algo", choices=ALGOS, default="ppo")
+    train.add_argument("--env-kwargs", type=_json_object, default={},
+                       help='env keyword arguments as JSON, e.g. \'{"estimator": "joint", "observation": "true"}\'')
+    train.add_argument("--timesteps", type=int, default=400_000, help="total env steps (a resumed run counts on)")
+    train.add_argument("--seed", type=int, default=0)
+    train.add_argument("--n-envs", type=int, default=16, help="cars in the native vector env")
+    train.add_argument("--eval-every", type=int, default=40_000, help=f"env steps between evaluations on "
+                       f"the held-out {EVAL_SCENARIO}")
+    train.add_argument("--checkpoint-every", type=int, default=50_000, help="env steps between checkpoints")
+    train.add_argument("--resume", help="run directory or checkpoint .zip to continue from")
+    train.add_argument("--out", default="results/train", help="run directory")
+    train.set_defaults(func=_train)
+    evaluate = sub.add_parser("evaluate", help="closed-loop evaluation of a trained policy (as in compare)")
+    evaluate.add_argument("model", help="run directory of fourwis train (holds model.zip)")
+    evaluate.add_argument("--scenarios", nargs="+", default=["swd_wet", "iso3888_2", "mu_jump", "paper_dlc"])
+    evaluate.add_argument("--estimator", default="joint")
+    evaluate.add_argument("--seeds", type=int, default=2)
+    evaluate.add_argument("--jobs", type=int)
+    evaluate.add_argument("--out", default="results/evaluate")
+    evaluate.set_defaults(func=_evaluate)
     bench = sub.add_parser("bench", help="run the performance benchmarks in benchmarks/")
     bench.add_argument("--only", nargs="*", help="benchmark names (default: all)")
     bench.set_defaults(func=_bench)

@@ -36,6 +36,7 @@ from training.io import atomic_write, atomic_write_text
 HEADLINE = ("paper_dlc", "paper_step", "paper_sine", "paper_split_dlc", "paper_serpentine", "swd_wet", "mu_jump")
 DEFAULT_ESTIMATORS = ("oracle", "ckf", "joint")
 DEFAULT_CONTROLLERS = ("none", "dyc-lqr")
+RL_PREFIX = "rl:"  #: controller name prefix of a trained policy: ``rl:<run directory>`` (training.rl)
 SWD_MULTIPLE = 5.5  #: sine-with-dwell amplitude in multiples of A for the comparison
 SWD_MU = 0.5  #: road friction of the comparison's sine with dwell (wet asphalt)
 
@@ -89,7 +90,12 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
 
 def _run(spec: RunSpec) -> tuple[RunSpec, dict[str, float], Trajectory | None]:
     scenario = _scenario(spec)
-    controller = make_controller(spec.controller, scenario.vehicle_params)
+    if spec.controller.startswith(RL_PREFIX):
+        from training.rl import PolicyController
+
+        controller = PolicyController(spec.controller.removeprefix(RL_PREFIX), scenario.vehicle_params)
+    else:
+        controller = make_controller(spec.controller, scenario.vehicle_params)
     traj = simulate(scenario, controller=controller, estimator=spec.estimator, seed=spec.seed)
     keep = spec.seed == 0  # trajectories of the first seed feed the plots
     return spec, run_metrics(traj, spec.swd_A), (traj if keep else None)
@@ -107,7 +113,10 @@ def run_matrix(scenarios: Sequence[str] = HEADLINE, estimators: Sequence[str] = 
     """Run the matrix in parallel processes; returns per-run (spec, metrics) and seed-0 trajectories."""
     _check("scenario(s)", scenarios, tuple(SCENARIOS) + ("swd_wet",))
     _check("estimator(s)", estimators, ESTIMATORS)
-    _check("controller(s)", controllers, CONTROLLERS)
+    _check("controller(s)", [c for c in controllers if not c.startswith(RL_PREFIX)], CONTROLLERS)
+    for name in controllers:
+        if name.startswith(RL_PREFIX) and not (Path(name.removeprefix(RL_PREFIX)) / "model.zip").exists():
+            raise ValueError(f"controller {name!r}: no trained policy (model.zip) in {name.removeprefix(RL_PREFIX)}")
     if seeds < 1:
         raise ValueError(f"seeds must be >= 1, got {seeds!r}")
     A = characterise() if "swd_wet" in scenarios or "sine_with_dwell" in scenarios else float("nan")

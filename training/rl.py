@@ -1,0 +1,314 @@
+"""Reinforcement learning with stable-baselines3 on the native vector env.
+
+``train`` runs PPO, SAC or TD3 on :class:`envs.gym_env.YawStabilityVectorEnv` through
+:class:`SB3VecEnv` (SB3 2.x does not consume ``gymnasium.vector`` envs), with VecNormalize,
+an EvalCallback on a held-out scenario, atomic checkpoints, TensorBoard logs, a progress bar
+and resume. A run directory holds ``model.zip``, ``vecnormalize.pkl`` and ``config.json``
+(+ ``checkpoints/``, ``evaluations.npz``, ``learning_curve.png``, ``tb/``).
+
+:class:`PolicyController` runs a trained policy as a stability controller inside
+:func:`envs.simulation.simulate`, so ``fourwis evaluate`` and ``fourwis compare`` judge it
+with the same metrics as the DYC (controller name ``rl:<run dir>``).
+
+Hyperparameters (:data:`ALGO_CONFIGS`): SB3 defaults scaled down for a 2-core CPU; networks of
+two 128-unit layers (the observation is 14 numbers); gamma 0.99, i.e. a ~2 s horizon at the
+20 ms control step, longer than the yaw and sideslip transients the reward penalises.
+"""
+
+from __future__ import annotations
+
+import json
+import pickle
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from envs.gym_env import EnvConfig, YawStabilityVectorEnv, _AgentController, state_observation
+from training.io import atomic_write, atomic_write_text
+
+ALGOS = ("ppo", "sac", "td3")
+ALGO_CONFIGS: dict[str, dict] = {
+    # on-policy: 16 cars x 256 steps (5 s each) per update, 10 epochs of minibatches of 1024
+    "ppo": {"n_steps": 256, "batch_size": 1024, "n_epochs": 10, "learning_rate": 3e-4, "gamma": 0.99,
+            "gae_lambda": 0.95, "clip_range": 0.2, "ent_coef": 0.0, "policy_kwargs": {"net_arch": [128, 128]}},
+    # off-policy: one gradient step per vector step (16 env steps), replay of 200k transitions
+    "sac": {"buffer_size": 200_000, "learning_starts": 2_000, "batch_size": 256, "learning_rate": 3e-4,
+            "gamma": 0.99, "tau": 0.005, "train_freq": 1, "gradient_steps": 1,
+            "policy_kwargs": {"net_arch": [128, 128]}},
+    "td3": {"buffer_size": 200_000, "learning_starts": 2_000, "batch_size": 256, "learning_rate": 1e-3,
+            "gamma": 0.99, "tau": 0.005, "train_freq": 1, "gradient_steps": 1, "action_noise_std": 0.1,
+            "policy_kwargs": {"net_arch": [128, 128]}},
+}
+TORCH_THREADS = 1  #: 128-unit MLPs gain nothing from more threads, which would compete with the env
+EVAL_SCENARIO = "sine_with_dwell"  #: held out: never drawn by the "random" training distribution
+
+
+def _algo_class(algo: str):
+    if algo not in ALGOS:
+        raise ValueError(f"unknown algo {algo!r}; known: {list(ALGOS)}")
+    import stable_baselines3 as sb3
+
+    return {"ppo": sb3.PPO, "sac": sb3.SAC, "td3": sb3.TD3}[algo]
+
+
+def _sb3_base():
+    from stable_baselines3.common.vec_env import VecEnv
+
+    return VecEnv
+
+
+class SB3VecEnv(_sb3_base()):
+    """A :class:`YawStabilityVectorEnv` as an SB3 ``VecEnv``: same-step autoreset with
+    ``terminal_observation`` and ``TimeLimit.truncated`` in the infos, Monitor-style
+    ``episode`` records (r, l, t) and the env's ``episode_metrics``."""
+
+    def __init__(self, env: YawStabilityVectorEnv):
+        self.env = env
+        super().__init__(env.num_envs, env.single_observation_space, env.single_action_space)
+        self._actions: np.ndarray | None = None
+        self._start = time.time()
+
+    def reset(self) -> np.ndarray:
+        seeds = None if all(s is None for s in self._seeds) else list(self._seeds)
+        obs, _ = self.env.reset(seed=seeds)
+        self._reset_seeds()
+        return obs
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = np.asarray(actions)
+
+    def step_wait(self):
+        obs, reward, terminated, truncated, info = self.env.step(self._actions)
+        done = terminated | truncated
+        infos: list[dict] = [{} for _ in range(self.num_envs)]
+        for b in np.flatnonzero(done):
+            metrics = info["final_info"][b]["episode_metrics"]
+            infos[b] = {"terminal_observation": info["final_obs"][b], "TimeLimit.truncated": bool(truncated[b]
+                                                                                                 and not terminated[b]),
+                        "episode": {"r": metrics["return"], "l": metrics["length"],
+                                    "t": round(time.time() - self._start, 6)},
+                        "episode_metrics": metrics}
+        return obs, reward.astype(np.float32), done, infos
+
+    def close(self) -> None:
+        self.env.close()
+
+    def get_attr(self, attr_name: str, indices=None) -> list:
+        return [getattr(self.env, attr_name)] * len(self._indices(indices))
+
+    def set_attr(self, attr_name: str, value, indices=None) -> None:
+        setattr(self.env, attr_name, value)
+
+    def env_method(self, method_name: str, *args, indices=None, **kwargs) -> list:
+        return [getattr(self.env, method_name)(*args, **kwargs)] * len(self._indices(indices))
+
+    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+        """True for SB3's Monitor: the infos carry its ``episode`` records."""
+        from stable_baselines3.common.monitor import Monitor
+
+        return [wrapper_class is Monitor] * len(self._indices(indices))
+
+    def _indices(self, indices) -> list[int]:
+        if indices is None:
+            return list(range(self.num_envs))
+        return [indices] if isinstance(indices, int) else list(indices)
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """What a run directory's ``config.json`` records: enough to rebuild env and policy."""
+
+    algo: str
+    env_kwargs: dict
+    seed: int
+    n_envs: int
+    timesteps: int
+
+
+def _vec_env(env_kwargs: dict, n_envs: int, seed: int):
+    env = SB3VecEnv(YawStabilityVectorEnv(num_envs=n_envs, **env_kwargs))
+    env.seed(seed)
+    return env
+
+
+def _atomic_save_model(model, path: Path) -> Path:
+    return atomic_write(path, lambda tmp: model.save(tmp))
+
+
+def _atomic_save_normalizer(normalizer, path: Path) -> Path:
+    return atomic_write(path, lambda tmp: normalizer.save(tmp))
+
+
+def _callbacks(out: Path, eval_env, checkpoint_every: int, eval_every: int, n_envs: int, eval_episodes: int):
+    from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
+
+    class AtomicCheckpoint(BaseCallback):
+        """Every ``checkpoint_every`` env steps: model + normaliser into checkpoints/, atomically."""
+
+        def _on_training_start(self) -> None:
+            self.last = self.num_timesteps
+
+        def _on_step(self) -> bool:
+            if self.num_timesteps // checkpoint_every > self.last // checkpoint_every:
+                self.last = self.num_timesteps
+                stem = out / "checkpoints" / f"step_{self.num_timesteps:09d}"
+                _atomic_save_model(self.model, stem.with_suffix(".zip"))
+                _atomic_save_normalizer(self.model.get_vec_normalize_env(), stem.with_suffix(".pkl"))
+            return True
+
+    evaluation = EvalCallback(eval_env, n_eval_episodes=eval_episodes, eval_freq=max(eval_every // n_envs, 1),
+                              log_path=str(out), best_model_save_path=None, deterministic=True, verbose=0)
+    return [AtomicCheckpoint(), evaluation]
+
+
+def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs: dict | None = None,
+          n_envs: int = 16, eval_scenario: str = EVAL_SCENARIO, eval_every: int = 20_000, eval_episodes: int = 4,
+          checkpoint_every: int = 50_000, resume: str | Path | None = None, progress: bool = True,
+          algo_overrides: dict | None = None) -> Path:
+    """Train ``algo`` until ``timesteps`` env steps in total (counting a resumed checkpoint's);
+    writes the run directory ``out`` and returns the path of ``model.zip``."""
+    algo_class = _algo_class(algo)
+    import torch
+
+    torch.set_num_threads(TORCH_THREADS)
+    if not (isinstance(timesteps, int) and timesteps > 0):
+        raise ValueError(f"timesteps must be a positive integer, got {timesteps!r}")
+    if not (isinstance(n_envs, int) and n_envs > 0):
+        raise ValueError(f"n_envs must be a positive integer, got {n_envs!r}")
+    env_kwargs = dict(env_kwargs or {})
+    try:
+        EnvConfig(**env_kwargs)  # validate now, with clear errors
+    except TypeError as err:
+        raise ValueError(f"bad env_kwargs {env_kwargs!r}: {err}") from None
+    from stable_baselines3.common.noise import NormalActionNoise
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    config = RunConfig(algo, env_kwargs, seed, n_envs, timesteps)
+    atomic_write_text(out / "config.json", json.dumps(asdict(config), indent=2, default=repr) + "\n")
+    off_policy = algo != "ppo"
+    train_env = _vec_env(env_kwargs, n_envs, seed)
+    eval_kwargs = {**env_kwargs, "scenario": eval_scenario}
+    eval_kwargs.pop("speed_kph", None), eval_kwargs.pop("mu", None), eval_kwargs.pop("scenario_kwargs", None)
+    eval_env = VecNormalize(_vec_env(eval_kwargs, min(eval_episodes, 4), seed + 10_000), training=False,
+                            norm_reward=False)
+    if resume is not None:
+        model_path, normalizer_path = _run_files(resume)
+        normalized = VecNormalize.load(str(normalizer_path), train_env)
+        model = algo_class.load(str(model_path), env=normalized, device="cpu")
+    else:
+        normalized = VecNormalize(train_env, norm_obs=True, norm_reward=not off_policy, clip_obs=10.0)
+        settings = {**ALGO_CONFIGS[algo], **(algo_overrides or {})}
+        noise_std = settings.pop("action_noise_std", None)
+        if noise_std is not None:
+            dim = train_env.action_space.shape[0]
+            settings["action_noise"] = NormalActionNoise(np.zeros(dim), noise_std * np.ones(dim))
+        model = algo_class("MlpPolicy", normalized, seed=seed, device="cpu", tensorboard_log=str(out / "tb"),
+                           verbose=0, **settings)
+    remaining = timesteps - model.num_timesteps
+    if remaining > 0:
+        model.learn(remaining, callback=_callbacks(out, eval_env, checkpoint_every, eval_every, n_envs,
+                                                   eval_episodes),
+                    progress_bar=progress, reset_num_timesteps=resume is None, tb_log_name=algo)
+    model_path = _atomic_save_model(model, out / "model.zip")
+    _atomic_save_normalizer(normalized, out / "vecnormalize.pkl")
+    plot_learning_curve(out)
+    return model_path
+
+
+def _run_files(path: str | Path) -> tuple[Path, Path]:
+    """(model .zip, normaliser .pkl) of a run directory or of a checkpoint's .zip."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"no trained policy at {path}: no such run directory or checkpoint")
+    model, normalizer = (path / "model.zip", path / "vecnormalize.pkl") if path.is_dir() else \
+        (path, path.with_suffix(".pkl"))
+    for p in (model, normalizer):
+        if not p.exists():
+            raise FileNotFoundError(f"no trained policy at {path}: {p} is missing")
+    return model, normalizer
+
+
+def plot_learning_curve(out: Path) -> Path | None:
+    """learning_curve.png and learning_curve.csv from EvalCallback's evaluations.npz (if any)."""
+    data_path = out / "evaluations.npz"
+    if not data_path.exists():
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    data = np.load(data_path)
+    steps, returns = data["timesteps"], data["results"]
+    mean, std = returns.mean(axis=1), returns.std(axis=1)
+    atomic_write_text(out / "learning_curve.csv", "timesteps,mean_return,std_return\n"
+                      + "".join(f"{s},{m:.6g},{d:.6g}\n" for s, m, d in zip(steps, mean, std)))
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    ax.plot(steps, mean, marker="o")
+    ax.fill_between(steps, mean - std, mean + std, alpha=0.25)
+    ax.set_xlabel("environment steps")
+    ax.set_ylabel("evaluation return (held-out scenario)")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    path = atomic_write(out / "learning_curve.png", lambda tmp: fig.savefig(tmp, format="png", dpi=120))
+    plt.close(fig)
+    return path
+
+
+class PolicyController:
+    """A trained policy as a :class:`envs.simulation.Controller`: every ``control_dt`` it builds
+    the env's observation from the *estimate* (normalised with the run's VecNormalize
+    statistics), asks the policy for a deterministic action and holds it, turned into wheel
+    torques and rear steer exactly as the env does. Policies trained on ``observation="true"``
+    are evaluated with the oracle estimator; ``"sensors"`` policies need readings and are not
+    supported here."""
+
+    def __init__(self, run: str | Path, params, dt: float = 0.002):
+        model_path, normalizer_path = _run_files(run)
+        config = json.loads((model_path.parent / "config.json").read_text()) \
+            if (model_path.parent / "config.json").exists() else \
+            json.loads((model_path.parent.parent / "config.json").read_text())
+        env = EnvConfig(**{k: v for k, v in config["env_kwargs"].items() if k in EnvConfig.__dataclass_fields__})
+        if env.observation == "sensors":
+            raise ValueError("PolicyController needs a policy trained on estimated or true observations")
+        self.model = _algo_class(config["algo"]).load(str(model_path), device="cpu")
+        with open(normalizer_path, "rb") as handle:
+            normalizer = pickle.load(handle)
+        self._mean, self._var = normalizer.obs_rms.mean, normalizer.obs_rms.var
+        self._clip, self._epsilon = normalizer.clip_obs, normalizer.epsilon
+        self.params, self.substeps = params, int(round(env.control_dt / dt))
+        self.action_mode = env.action
+        self._agent: _AgentController | None = None
+        self._k = 0
+
+    def normalise(self, obs: np.ndarray) -> np.ndarray:
+        """VecNormalize's observation transform with the run's frozen statistics."""
+        return np.clip((obs - self._mean) / np.sqrt(self._var + self._epsilon), -self._clip, self._clip
+                       ).astype(np.float32)
+
+    def reset(self) -> None:
+        self._agent, self._k = None, 0
+
+    def __call__(self, t, estimate, front_steer, base_torques):
+        if self._agent is None:
+            self._agent = _AgentController(self.params, self.action_mode, len(front_steer))
+        if self._k % self.substeps == 0:
+            obs = state_observation(estimate, front_steer, self.params).astype(np.float32)
+            action, _ = self.model.predict(self.normalise(obs), deterministic=True)
+            self._agent.action[:] = np.clip(action, -1.0, 1.0)
+        self._k += 1
+        return self._agent(t, estimate, front_steer, base_torques)
+
+
+def evaluate(run: str | Path, out: str | Path, scenarios, estimator: str = "joint", seeds: int = 2,
+             jobs: int | None = None) -> Path:
+    """``fourwis evaluate``: the policy of ``run`` as controller ``rl:<run>`` next to no control,
+    through :func:`training.compare.compare`; returns the report path."""
+    from training.compare import compare
+
+    _run_files(run)
+    return compare(out, scenarios, [estimator], ["none", f"rl:{Path(run)}"], seeds, jobs)
