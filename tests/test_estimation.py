@@ -40,6 +40,72 @@ def test_ckf_equals_the_kalman_filter_on_a_linear_system():
     np.testing.assert_allclose(P[0], Pk, atol=1e-9)
 
 
+def _turn(x, dt=0.1):
+    px, py, speed, heading, turn = np.moveaxis(np.asarray(x), -1, 0)
+    return np.stack([px + speed * np.cos(heading) * dt, py + speed * np.sin(heading) * dt, speed,
+                     heading + turn * dt, turn], axis=-1)
+
+
+def _range_bearing(x):
+    px, py = np.asarray(x)[..., 0], np.asarray(x)[..., 1]
+    return np.stack([np.hypot(px, py), np.arctan2(py, px)], axis=-1)
+
+
+def test_ckf_equals_filterpy_ukf_with_cubature_weights_on_a_nonlinear_system():
+    """A UKF with alpha = 1, beta = 0, kappa = 0 has no centre weight and 1/2n on +/- sqrt(n)
+    columns of chol(P): the cubature rule. filterpy 1.4's UKF redraws its sigma points from the
+    predicted (x, P) before the update, as the CKF does, so the two must agree on a nonlinear
+    model (coordinated turn, range-bearing measurements)."""
+    from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+
+    def fx(x, dt=0.1):
+        return _turn(x, dt)
+
+    hx = _range_bearing
+    Q, R = np.diag([0.01, 0.01, 0.1, 0.01, 0.05]), np.diag([0.3, 0.01])
+    ukf = UnscentedKalmanFilter(5, 2, 0.1, hx, fx, MerweScaledSigmaPoints(5, alpha=1.0, beta=0.0, kappa=0.0))
+    ukf.x, ukf.P, ukf.Q, ukf.R = np.array([10.0, 5.0, 3.0, 0.4, 0.2]), np.diag([1.0, 1.0, 0.5, 0.1, 0.05]), Q, R
+    x, P = ukf.x[None].copy(), ukf.P[None].copy()
+    rng = np.random.default_rng(3)
+    for _ in range(30):
+        z = hx(ukf.x) + rng.normal(size=2) * np.sqrt(np.diag(R))
+        ukf.predict()
+        ukf.update(z)
+        x, P = ckf_predict(x, P, fx, Q)
+        upd = ckf_update(x, P, z[None], hx, R)
+        x, P = upd.x, upd.P
+        np.testing.assert_allclose(x[0], ukf.x, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(P[0], ukf.P, rtol=1e-9, atol=1e-9)
+
+
+def test_ckf_is_consistent_nees_within_the_chi_square_band():
+    """Monte Carlo NEES (Bar-Shalom, Li & Kirubarajan 2001, sec. 5.4): 100 runs of a noisy
+    coordinated turn seen by range-bearing; at each step the mean of e^T P^-1 e over runs must
+    lie in the two-sided 95% chi-square band of 100 n degrees of freedom (n = 5) on at least
+    90% of the steps, and its overall mean within 10% of n."""
+    from scipy.stats import chi2
+
+    runs, n, steps = 100, 5, 60
+    Q, R = np.diag([1e-3, 1e-3, 1e-2, 1e-3, 1e-3]), np.diag([0.05, 1e-4])
+    rng = np.random.default_rng(11)
+    P0 = np.diag([0.5, 0.5, 0.2, 0.02, 0.01])
+    truth = np.array([20.0, 5.0, 5.0, 0.3, 0.1]) + rng.multivariate_normal(np.zeros(n), P0, runs)
+    x, P = np.tile([20.0, 5.0, 5.0, 0.3, 0.1], (runs, 1)), np.broadcast_to(P0, (runs, n, n)).copy()
+    nees = []
+    for _ in range(steps):
+        truth = _turn(truth) + rng.multivariate_normal(np.zeros(n), Q, runs)
+        z = _range_bearing(truth) + rng.multivariate_normal(np.zeros(2), R, runs)
+        x, P = ckf_predict(x, P, _turn, Q)
+        upd = ckf_update(x, P, z, _range_bearing, R)
+        x, P = upd.x, upd.P
+        e = truth - x
+        nees.append(np.mean(np.sum(e * np.linalg.solve(P, e[..., None])[..., 0], axis=1)))
+    nees = np.array(nees)
+    low, high = chi2.ppf([0.025, 0.975], runs * n) / runs
+    assert np.mean((nees >= low) & (nees <= high)) >= 0.9, nees
+    assert abs(nees.mean() - n) < 0.1 * n
+
+
 def test_covariance_stays_symmetric_positive_definite_over_many_steps():
     Q, R = np.diag([1e-8, 1e-8]), np.array([[1e-6]])
     x, P = np.zeros((4, 2)), np.broadcast_to(np.eye(2), (4, 2, 2)).copy()
