@@ -115,8 +115,13 @@ def run_matrix(scenarios: Sequence[str] = HEADLINE, estimators: Sequence[str] = 
     _check("estimator(s)", estimators, ESTIMATORS)
     _check("controller(s)", [c for c in controllers if not c.startswith(RL_PREFIX)], CONTROLLERS)
     for name in controllers:
-        if name.startswith(RL_PREFIX) and not (Path(name.removeprefix(RL_PREFIX)) / "model.zip").exists():
-            raise ValueError(f"controller {name!r}: no trained policy (model.zip) in {name.removeprefix(RL_PREFIX)}")
+        if name.startswith(RL_PREFIX):
+            from training.rl import run_files
+
+            try:
+                run_files(name.removeprefix(RL_PREFIX))
+            except FileNotFoundError as err:
+                raise ValueError(f"controller {name!r}: {err}") from None
     if seeds < 1:
         raise ValueError(f"seeds must be >= 1, got {seeds!r}")
     A = characterise() if "swd_wet" in scenarios or "sine_with_dwell" in scenarios else float("nan")

@@ -196,7 +196,7 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs:
     eval_env = VecNormalize(_vec_env(eval_kwargs, min(eval_episodes, 4), seed + 10_000), training=False,
                             norm_reward=False)
     if resume is not None:
-        model_path, normalizer_path = _run_files(resume)
+        model_path, normalizer_path = run_files(resume)
         normalized = VecNormalize.load(str(normalizer_path), train_env)
         model = algo_class.load(str(model_path), env=normalized, device="cpu")
     else:
@@ -219,7 +219,7 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs:
     return model_path
 
 
-def _run_files(path: str | Path) -> tuple[Path, Path]:
+def run_files(path: str | Path) -> tuple[Path, Path]:
     """(model .zip, normaliser .pkl) of a run directory or of a checkpoint's .zip."""
     path = Path(path)
     if not path.exists():
@@ -268,7 +268,7 @@ class PolicyController:
     supported here."""
 
     def __init__(self, run: str | Path, params, dt: float = 0.002):
-        model_path, normalizer_path = _run_files(run)
+        model_path, normalizer_path = run_files(run)
         config = json.loads((model_path.parent / "config.json").read_text()) \
             if (model_path.parent / "config.json").exists() else \
             json.loads((model_path.parent.parent / "config.json").read_text())
@@ -310,5 +310,5 @@ def evaluate(run: str | Path, out: str | Path, scenarios, estimator: str = "join
     through :func:`training.compare.compare`; returns the report path."""
     from training.compare import compare
 
-    _run_files(run)
+    run_files(run)
     return compare(out, scenarios, [estimator], ["none", f"rl:{Path(run)}"], seeds, jobs)

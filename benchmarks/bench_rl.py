@@ -1,0 +1,32 @@
+"""RL training throughput on 2 cores (issue 8): PPO and SAC on the native vector env of 16
+cars with the joint estimator in the loop (the default training setup), env steps per wall
+second including the learner's updates.
+
+Run: ``.venv/bin/python benchmarks/bench_rl.py`` (or ``fourwis bench --only rl``).
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+
+from training.rl import train
+
+STEPS = {"ppo": 16_384, "sac": 8_192}
+
+
+def main() -> None:
+    print("| algorithm | env steps | wall [s] | env-steps/s |")
+    print("|---|---:|---:|---:|")
+    for algo, steps in STEPS.items():
+        with tempfile.TemporaryDirectory() as out:
+            start = time.perf_counter()
+            train(algo, out, steps, env_kwargs={"estimator": "joint"}, n_envs=16, eval_every=10**9,
+                  checkpoint_every=10**9, progress=False, algo_overrides={"learning_starts": 1024}
+                  if algo == "sac" else None)
+            wall = time.perf_counter() - start
+        print(f"| {algo} | {steps:,} | {wall:.1f} | {steps / wall:,.0f} |")
+
+
+if __name__ == "__main__":
+    main()
