@@ -84,6 +84,18 @@ def _compare(args: argparse.Namespace) -> int:
     return 0
 
 
+def _estimate(args: argparse.Namespace) -> int:
+    from training.estimate import estimate_report
+
+    try:
+        report = estimate_report(args.out, args.scenarios, args.estimators, args.seeds, args.jobs)
+    except ValueError as err:
+        raise SystemExit(f"fourwis estimate: {err}") from None
+    print(report.read_text())
+    print(f"wrote {report} (+ estimate.csv and PNG plots in {report.parent})")
+    return 0
+
+
 def _tune(args: argparse.Namespace) -> int:
     from training.tune import OUTPUT, tune
 
@@ -157,6 +169,16 @@ def build_parser() -> argparse.ArgumentParser:
     cmp_.add_argument("--jobs", type=int, help="worker processes (default: up to 2)")
     cmp_.add_argument("--out", default="results/compare", help="output directory")
     cmp_.set_defaults(func=_compare)
+    from envs.scenarios import PAPER_SCENARIOS
+    from training.estimate import DEFAULT_ESTIMATORS as ESTIMATE_ESTIMATORS
+
+    est = sub.add_parser("estimate", help="open-loop estimator accuracy (paper Table 2 form): report + plots")
+    est.add_argument("--scenarios", nargs="+", default=list(PAPER_SCENARIOS), help="scenario names")
+    est.add_argument("--estimators", nargs="+", default=list(ESTIMATE_ESTIMATORS))
+    est.add_argument("--seeds", type=int, default=1, help="sensor-noise seeds per cell")
+    est.add_argument("--jobs", type=int, help="worker processes (default: up to 2)")
+    est.add_argument("--out", default="results/estimate", help="output directory")
+    est.set_defaults(func=_estimate)
     tune = sub.add_parser("tune", help="ALO tuning of the filter noise on a calibration run")
     tune.add_argument("--agents", type=int, default=8)
     tune.add_argument("--iterations", type=int, default=8)

@@ -13,14 +13,11 @@ from __future__ import annotations
 import csv
 import io
 import math
-import os
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from control import CONTROLLERS, make_controller
 from control.reference import reference_yaw_rate
@@ -31,6 +28,7 @@ from envs.simulation import Trajectory, simulate
 from envs.vehicle import A_AY, S_DELTA_F, S_PSI, S_R, S_U, S_X, S_Y
 from estimation import ESTIMATORS
 from training.io import atomic_write, atomic_write_text
+from training.pool import parallel_map
 
 #: headline scenarios: the paper's five conditions, FMVSS 126 at 5.5A on a wet road, the mu jump
 HEADLINE = ("paper_dlc", "paper_step", "paper_sine", "paper_split_dlc", "paper_serpentine", "swd_wet", "mu_jump")
@@ -126,14 +124,11 @@ def run_matrix(scenarios: Sequence[str] = HEADLINE, estimators: Sequence[str] = 
         raise ValueError(f"seeds must be >= 1, got {seeds!r}")
     A = characterise() if "swd_wet" in scenarios or "sine_with_dwell" in scenarios else float("nan")
     specs = [RunSpec(s, e, c, k, A) for s in scenarios for c in controllers for e in estimators for k in range(seeds)]
-    jobs = jobs or min(os.cpu_count() or 1, 2)
     results, trajectories = [], {}
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
-        for spec, metrics, traj in tqdm(pool.map(_run, specs), total=len(specs), disable=not progress,
-                                        desc="closed-loop runs", unit="run"):
-            results.append((spec, metrics))
-            if traj is not None:
-                trajectories[(spec.scenario, spec.estimator, spec.controller)] = traj
+    for spec, metrics, traj in parallel_map(_run, specs, jobs, "closed-loop runs", progress):
+        results.append((spec, metrics))
+        if traj is not None:
+            trajectories[(spec.scenario, spec.estimator, spec.controller)] = traj
     return results, trajectories
 
 

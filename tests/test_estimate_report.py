@@ -1,0 +1,74 @@
+"""The open-loop estimation report (paper Table 2 form): convergence time on known answers, the
+files of one short run, sane metrics, the paper's numbers in the Markdown, argument checks."""
+
+import csv
+import math
+
+import numpy as np
+import pytest
+
+from envs.scenarios import make_scenario
+from training.cli import main
+from training.estimate import METRICS, convergence_time, estimate_report
+
+T = np.arange(0.0, 5.0, 0.5)  # 0.0 .. 4.5 s
+
+
+def test_convergence_time_is_the_first_time_the_error_stays_below_tolerance():
+    error = np.array([0.5, 0.05, 0.3, 0.2, 0.09, 0.08, 0.05, 0.02, 0.01, 0.0])  # dips early, settles at 2.0 s
+    assert convergence_time(T, error, 0.1) == 2.0
+    assert convergence_time(T, np.full(T.size, 0.01), 0.1) == 0.0
+    assert math.isnan(convergence_time(T, np.r_[np.zeros(T.size - 1), 0.2], 0.1))  # above at the end: never
+    assert math.isnan(convergence_time(T, np.r_[np.zeros(T.size - 1), np.nan], 0.1))
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    out = tmp_path_factory.mktemp("estimate")
+    scenario = make_scenario("paper_sine", duration=1.5)
+    return estimate_report(out, scenarios=[scenario], estimators=("ckf", "joint"), seeds=1, jobs=1)
+
+
+def test_report_writes_csv_markdown_and_plot(report):
+    out = report.parent
+    assert report.name == "estimate.md"
+    assert (out / "paper_sine.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with open(out / "estimate.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [(r["scenario"], r["estimator"], r["seed"]) for r in rows] == [("paper_sine", "ckf", "0"),
+                                                                        ("paper_sine", "joint", "0")]
+    assert list(rows[0]) == ["scenario", "estimator", "seed", *METRICS]
+    for r in rows:
+        values = {m: float(r[m]) for m in METRICS[:7]}
+        assert all(math.isfinite(v) and v >= 0 for v in values.values())
+        assert values["mae_u"] <= values["rmse_u"] < 1.0  # m/s
+        assert values["mae_v"] <= values["rmse_v"] < 0.5  # m/s
+        assert values["rmse_beta"] < math.radians(3.0)
+    ckf, joint = rows
+    assert float(ckf["mu_estimated"]) == 0.0 and math.isnan(float(ckf["mu_convergence_time"]))
+    assert float(joint["mu_estimated"]) == 1.0
+    assert abs(float(ckf["mu_error_last_half"]) - 0.0) < 1e-9  # paper_sine: mu 0.8 = ckf's nominal mu
+
+
+def test_markdown_has_our_table_and_the_papers_numbers(report):
+    text = report.read_text()
+    assert "## paper_sine" in text and "| ckf |" in text and "| joint |" in text
+    for number in ("0.0050", "0.0274", "0.0025", "0.0008", "0.0024", "0.0002", "0.0063", "0.0572", "0.0052",
+                   "0.0010", "0.0040", "0.0003"):
+        assert number in text
+    assert "not run" in text  # paper_dlc was not in this run
+    assert "no sensor noise" in text
+
+
+@pytest.mark.parametrize("kwargs, named", [({"scenarios": ["no_such_road"]}, "no_such_road"),
+                                           ({"estimators": ["kalman9"]}, "kalman9"),
+                                           ({"seeds": 0}, "0"), ({"jobs": 0}, "0")])
+def test_bad_arguments_raise_value_error_naming_the_value(tmp_path, kwargs, named):
+    with pytest.raises(ValueError, match=named):
+        estimate_report(tmp_path, **kwargs)
+    assert not any(tmp_path.iterdir())
+
+
+def test_cli_turns_a_bad_argument_into_a_clean_exit(tmp_path):
+    with pytest.raises(SystemExit, match="fourwis estimate: unknown estimator.*kalman9"):
+        main(["estimate", "--estimators", "kalman9", "--out", str(tmp_path)])
