@@ -106,15 +106,53 @@ def test_ckf_is_consistent_nees_within_the_chi_square_band():
     assert abs(nees.mean() - n) < 0.1 * n
 
 
-def test_covariance_stays_symmetric_positive_definite_over_many_steps():
+def test_batched_ckf_equals_one_member_at_a_time():
+    """Members of a batch do not interact: a batch of three equals three single runs to 1e-12."""
+    rng = np.random.default_rng(5)
+    x = np.array([[20.0, 5.0, 5.0, 0.3, 0.1], [15.0, -3.0, 4.0, -0.2, 0.0], [25.0, 8.0, 6.0, 1.0, -0.1]])
+    P = np.stack([np.diag(d) for d in rng.uniform(0.01, 0.5, (3, 5))])
+    Q, R = np.diag([1e-3] * 5), np.diag([0.05, 1e-4])
+    z = _range_bearing(x) + rng.normal(size=(3, 2)) * 0.05
+    xb, Pb = ckf_predict(x, P, _turn, Q)
+    batch = ckf_update(xb, Pb, z, _range_bearing, R, huber_c=1.5)
+    for i in range(3):
+        xs, Ps = ckf_predict(x[i:i + 1], P[i:i + 1], _turn, Q)
+        single = ckf_update(xs, Ps, z[i:i + 1], _range_bearing, R, huber_c=1.5)
+        np.testing.assert_allclose(batch.x[i], single.x[0], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(batch.P[i], single.P[0], rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("huber_c", [None, 1.5])
+def test_covariance_stays_symmetric_positive_definite_over_100k_steps_with_outliers(huber_c):
+    """100,000 steps of a stiff two-state model (tiny Q and R) with 1% of the measurements
+    replaced by 10-sigma outliers: P stays symmetric positive definite and the state finite."""
     Q, R = np.diag([1e-8, 1e-8]), np.array([[1e-6]])
-    x, P = np.zeros((4, 2)), np.broadcast_to(np.eye(2), (4, 2, 2)).copy()
-    for z in RNG.normal(size=(20000, 4, 1)) * 1e-3:
+    rng = np.random.default_rng(2)
+    x, P = np.zeros((2, 2)), np.broadcast_to(np.eye(2), (2, 2, 2)).copy()
+    noise = rng.normal(size=(100_000, 2, 1)) * 1e-3
+    outlier = rng.random((100_000, 2, 1)) < 0.01
+    z_all = np.where(outlier, 10e-3 * np.sign(noise), noise)
+    for k, z in enumerate(z_all):
         x, P = ckf_predict(x, P, lambda pts: pts @ F_LIN.T, Q)
-        upd = ckf_update(x, P, z, lambda pts: pts @ H_LIN.T, R)
+        upd = ckf_update(x, P, z, lambda pts: pts @ H_LIN.T, R, huber_c=huber_c)
         x, P = upd.x, upd.P
-    assert np.allclose(P, np.swapaxes(P, 1, 2))
-    assert np.all(np.linalg.eigvalsh(P) > 0)
+        if k % 1000 == 0:
+            assert np.linalg.eigvalsh(P).min() > 0, k
+    assert outlier.sum() > 1500
+    np.testing.assert_array_equal(P, np.swapaxes(P, 1, 2))
+    assert np.all(np.linalg.eigvalsh(P) > 0) and np.all(np.isfinite(x))
+
+
+def test_a_10_sigma_spike_moves_the_robust_estimate_less_than_20_percent_of_the_plain_one():
+    """With the prior tighter than the sensor (a filter in its normal, converged state), the
+    Huber weight c / 10 = 0.15 inflates R so the robust update moves < 20% as far."""
+    x, P = np.zeros((1, 2)), np.diag([1e-3, 1e-3])[None]
+    R = np.array([[0.01]])
+    z = np.array([[10 * math.sqrt(0.011)]])  # 10 sigma of the innovation
+    plain = ckf_update(x, P, z, lambda pts: pts @ H_LIN.T, R)
+    robust = ckf_update(x, P, z, lambda pts: pts @ H_LIN.T, R, huber_c=1.5)
+    assert abs(robust.x[0, 0]) < 0.2 * abs(plain.x[0, 0])
+    assert abs(robust.x[0, 0]) > 0.1 * abs(plain.x[0, 0])  # down-weighted, not discarded
 
 
 def test_huber_update_limits_an_outlier():
