@@ -162,7 +162,9 @@ def build_parser() -> argparse.ArgumentParser:
     from training.compare import DEFAULT_CONTROLLERS, DEFAULT_ESTIMATORS, HEADLINE
 
     cmp_ = sub.add_parser("compare", help="closed-loop matrix estimator x controller x scenario: report + plots")
-    cmp_.add_argument("--scenarios", nargs="+", default=list(HEADLINE), help="scenario names ('swd_wet': SWD 5.5A, mu 0.5)")
+    cmp_.add_argument("--scenarios", nargs="+", default=list(HEADLINE),
+                      help="scenario names, optionally with overrides: iso3888_2:mu=0.5,speed_kph=50; "
+                           "sine_with_dwell:amplitude_A=6.5 ('swd_wet': SWD 5.5A, mu 0.5)")
     cmp_.add_argument("--estimators", nargs="+", default=list(DEFAULT_ESTIMATORS))
     cmp_.add_argument("--controllers", nargs="+", default=list(DEFAULT_CONTROLLERS))
     cmp_.add_argument("--seeds", type=int, default=2, help="sensor-noise seeds per cell")

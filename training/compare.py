@@ -48,10 +48,35 @@ class RunSpec:
     swd_A: float
 
 
+def parse_scenario(text: str) -> tuple[str, dict[str, float]]:
+    """Scenario name and numeric overrides of a comparison entry ``name[:key=value,...]``, e.g.
+    ``iso3888_2:mu=0.5,speed_kph=50``; ``amplitude_A=k`` gives sine with dwell k times A;
+    ``swd_wet`` stands for ``sine_with_dwell:mu=0.5,amplitude_A=5.5``."""
+    if text == "swd_wet":
+        return "sine_with_dwell", {"mu": SWD_MU, "amplitude_A": SWD_MULTIPLE}
+    name, _, rest = text.partition(":")
+    if name not in SCENARIOS:
+        raise ValueError(f"unknown scenario {name!r} in {text!r}; known: {sorted(SCENARIOS) + ['swd_wet']}")
+    overrides = {}
+    for item in filter(None, rest.split(",")):
+        key, sep, value = item.partition("=")
+        try:
+            overrides[key.strip()] = float(value)
+        except ValueError:
+            sep = ""
+        if not sep:
+            raise ValueError(f"bad override {item!r} in scenario {text!r}: expected key=number")
+    if "amplitude_A" in overrides and name != "sine_with_dwell":
+        raise ValueError(f"amplitude_A applies to sine_with_dwell only, not {name!r}")
+    make_scenario(name, **{k: v for k, v in overrides.items() if k != "amplitude_A"})  # validate now
+    return name, overrides
+
+
 def _scenario(spec: RunSpec):
-    if spec.scenario == "swd_wet":
-        return make_scenario("sine_with_dwell", mu=SWD_MU, amplitude_deg=math.degrees(SWD_MULTIPLE * spec.swd_A))
-    return make_scenario(spec.scenario)
+    name, overrides = parse_scenario(spec.scenario)
+    if "amplitude_A" in overrides:
+        overrides["amplitude_deg"] = math.degrees(overrides.pop("amplitude_A") * spec.swd_A)
+    return make_scenario(name, **overrides)
 
 
 def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float]:
@@ -109,7 +134,7 @@ def run_matrix(scenarios: Sequence[str] = HEADLINE, estimators: Sequence[str] = 
                controllers: Sequence[str] = DEFAULT_CONTROLLERS, seeds: int = 2, jobs: int | None = None,
                progress: bool = True) -> tuple[list[tuple[RunSpec, dict]], dict]:
     """Run the matrix in parallel processes; returns per-run (spec, metrics) and seed-0 trajectories."""
-    _check("scenario(s)", scenarios, tuple(SCENARIOS) + ("swd_wet",))
+    names = [parse_scenario(s)[0] for s in scenarios]
     _check("estimator(s)", estimators, ESTIMATORS)
     _check("controller(s)", [c for c in controllers if not c.startswith(RL_PREFIX)], CONTROLLERS)
     for name in controllers:
@@ -122,7 +147,7 @@ def run_matrix(scenarios: Sequence[str] = HEADLINE, estimators: Sequence[str] = 
                 raise ValueError(f"controller {name!r}: {err}") from None
     if seeds < 1:
         raise ValueError(f"seeds must be >= 1, got {seeds!r}")
-    A = characterise() if "swd_wet" in scenarios or "sine_with_dwell" in scenarios else float("nan")
+    A = characterise() if "sine_with_dwell" in names else float("nan")
     specs = [RunSpec(s, e, c, k, A) for s in scenarios for c in controllers for e in estimators for k in range(seeds)]
     results, trajectories = [], {}
     for spec, metrics, traj in parallel_map(_run, specs, jobs, "closed-loop runs", progress):
@@ -234,7 +259,8 @@ def plot_report(table: dict, trajectories: dict, scenarios, estimators, controll
         axes[2].legend(fontsize=7)
         fig.suptitle(s)
         fig.tight_layout()
-        paths.append(atomic_write(out / f"{s}.png", lambda p: fig.savefig(p, format="png", dpi=100)))
+        stem = "".join(ch if ch.isalnum() or ch in "._-" else "_" for ch in s)
+        paths.append(atomic_write(out / f"{stem}.png", lambda p: fig.savefig(p, format="png", dpi=100)))
         plt.close(fig)
     return paths
 
