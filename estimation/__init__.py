@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from estimation.joint import KINDS, NoiseParams, StateEstimator, tuned_noise
 from estimation.model import ModelParams
+from estimation.online import OnlineTuner
 from estimation.oracle import Oracle
 from estimation.types import Estimate
 
@@ -26,4 +27,5 @@ def make_estimator(name: str, params, dt: float = 0.002, noise: NoiseParams | No
     return StateEstimator(ModelParams.from_vehicle(params), kind=name, dt=dt, noise=noise, **kwargs)
 
 
-__all__ = ["ESTIMATORS", "Estimate", "ModelParams", "NoiseParams", "StateEstimator", "make_estimator"]
+__all__ = ["ESTIMATORS", "Estimate", "ModelParams", "NoiseParams", "OnlineTuner", "StateEstimator",
+           "make_estimator"]

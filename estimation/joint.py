@@ -51,6 +51,12 @@ EXCITATION_LAMBDA = 1.0  #: a wheel's mu is updated only while its Dugoff lambda
 MU_CORRELATION = 0.8  #: prior/random-walk correlation of the four wheels' mu (roads vary smoothly)
 
 
+def _diag(variances) -> np.ndarray:
+    """Diagonal matrices (..., m, m) of m variances, each a scalar or a (B,) array."""
+    v = np.stack(np.broadcast_arrays(*[np.asarray(x, dtype=float) for x in variances]), axis=-1)
+    return v[..., :, None] * np.eye(v.shape[-1])
+
+
 def _correlated(variance: float) -> np.ndarray:
     """4x4 covariance with ``variance`` on the diagonal and MU_CORRELATION between wheels."""
     return variance * (MU_CORRELATION + (1.0 - MU_CORRELATION) * np.eye(4))
@@ -71,11 +77,18 @@ class NoiseParams:
     mu_max_std: float = 0.3
 
     def scaled(self, log10_factors: np.ndarray) -> "NoiseParams":
-        """Scale (process_std, accel_std, gyro_std, wheel_speed_std) by 10**factors (4,)."""
+        """Scale (process_std, accel_std, gyro_std, wheel_speed_std) by 10**factors: (4,) for
+        one filter, or (B, 4) for a batch whose members each get their own noise (the scaled
+        fields become arrays: process_std (B, 6), the others (B,))."""
         f = 10.0 ** np.asarray(log10_factors, dtype=float)
-        return replace(self, process_std=tuple(float(s * f[0]) for s in self.process_std),
-                       accel_std=self.accel_std * f[1], gyro_std=self.gyro_std * f[2],
-                       wheel_speed_std=self.wheel_speed_std * f[3])
+        if f.shape[-1:] != (4,) or f.ndim > 2 or not np.all(np.isfinite(f)):
+            raise ValueError(f"log10 noise factors must be finite with shape (4,) or (B, 4), got {log10_factors!r}")
+        if f.ndim == 1:
+            return replace(self, process_std=tuple(float(s * f[0]) for s in self.process_std),
+                           accel_std=self.accel_std * f[1], gyro_std=self.gyro_std * f[2],
+                           wheel_speed_std=self.wheel_speed_std * f[3])
+        return replace(self, process_std=np.asarray(self.process_std) * f[:, :1], accel_std=self.accel_std * f[:, 1],
+                       gyro_std=self.gyro_std * f[:, 2], wheel_speed_std=self.wheel_speed_std * f[:, 3])
 
 
 def tuned_noise() -> NoiseParams | None:
@@ -87,7 +100,7 @@ def tuned_noise() -> NoiseParams | None:
     return NoiseParams().scaled(np.asarray(data["log10_factors"]))
 
 
-_STATE_FIELDS = ("x", "P", "mu", "P_mu", "beta", "beta_mu", "omega_prev", "omega_dot", "last_nll")
+STATE_FIELDS = ("x", "P", "mu", "P_mu", "beta", "beta_mu", "omega_prev", "omega_dot", "last_nll")
 
 
 @dataclass
@@ -112,7 +125,13 @@ class StateEstimator:
         self.robust = self.kind in ("alo-fkf", "joint")
         self.federated = self.kind in ("fkf", "alo-fkf", "joint")
         self.estimate_mu = self.kind == "joint"
-        self.Q = np.diag(np.square(self.noise.process_std))
+        self.set_noise(self.noise)
+
+    def set_noise(self, noise: NoiseParams) -> None:
+        """Use ``noise`` from the next step on (shared, or per member: see NoiseParams.scaled)."""
+        self.noise = noise
+        var = np.square(np.asarray(noise.process_std, dtype=float))  # (6,) or (B, 6)
+        self.Q = var[..., :, None] * np.eye(N_STATE)
 
     # ---- set-up -------------------------------------------------------------------------
     def reset(self, reading, initial_speed: np.ndarray, mask: np.ndarray | None = None) -> None:
@@ -159,7 +178,7 @@ class StateEstimator:
             raise ValueError(f"sensor reading must have shape {(self.x.shape[0], 13)}, got {values.shape}")
         if members is None:
             return self._step(values, valid)
-        full = {name: getattr(self, name) for name in _STATE_FIELDS}
+        full = {name: getattr(self, name) for name in STATE_FIELDS}
         try:
             for name, value in full.items():
                 setattr(self, name, value[members])
@@ -195,9 +214,9 @@ class StateEstimator:
 
         z1 = np.concatenate([values[:, 0:3], wheel_speed_z], axis=1)
         valid1 = np.concatenate([valid[:, 0:3], valid[:, 3:7]], axis=1)
-        R1 = np.diag([n.accel_std**2, n.accel_std**2, n.gyro_std**2] + [n.wheel_speed_std**2] * 4)
+        R1 = _diag([n.accel_std**2, n.accel_std**2, n.gyro_std**2] + [n.wheel_speed_std**2] * 4)
         z2, valid2 = values[:, 1:3], valid[:, 1:3]
-        R2 = np.diag([n.accel_std**2, n.gyro_std**2])
+        R2 = _diag([n.accel_std**2, n.gyro_std**2])
         huber = self.huber_c if self.robust else None
 
         if self.federated:
@@ -233,7 +252,7 @@ class StateEstimator:
         probe = np.concatenate([x_pred[:, None, :], probe], axis=1)
         hx = h(probe)
         H = np.swapaxes((hx[:, 1:N + 1] - hx[:, N + 1:]) / (2 * eps[:, :, None]), 1, 2)
-        Rv = np.broadcast_to(R, (B,) + R.shape).copy()
+        Rv = np.broadcast_to(R, (B,) + R.shape[-2:]).copy()
         idx = np.arange(z.shape[1])
         Rv[:, idx, idx] = np.where(valid, Rv[:, idx, idx], DROPOUT_VARIANCE)
         nu = np.where(valid, z - hx[:, 0], 0.0)
@@ -262,8 +281,8 @@ class StateEstimator:
             return predicted(mu_points)[..., 1:]
 
         Q_mu = _correlated(n.mu_walk_std**2)
-        R1 = np.diag([n.mu_accel_std**2, n.mu_accel_std**2, n.gyro_std**2])
-        R2 = np.diag([n.mu_accel_std**2, n.gyro_std**2])
+        R1 = _diag([n.mu_accel_std**2, n.mu_accel_std**2, n.gyro_std**2])
+        R2 = _diag([n.mu_accel_std**2, n.gyro_std**2])
         out = federated_step(self.mu, self.P_mu, lambda m: m, Q_mu,
                              [SubMeasurement(values[:, 0:3], predicted, R1, valid[:, 0:3]),
                               SubMeasurement(values[:, 1:3], h2, R2, valid[:, 1:3])],

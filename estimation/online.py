@@ -1,0 +1,190 @@
+"""Online re-tuning of a filter's noise on a sliding window of its own innovations.
+
+The paper's real-time rule (section 3.3): the antlion optimizer re-tunes Q and R while the
+filter runs, and a result takes effect only when an optimizer run finishes; until then the
+filter keeps the noise it has. Here every ``window`` steps the readings of the last window
+and the filter's state at its start are handed to an optimizer run. Each candidate (log10
+factors on the base noise, as in the offline tuning) is scored by replaying the window from
+that state, all candidates of a population at once (one batched filter with per-member
+noise), and summing the innovation negative log-likelihood
+``0.5 (nu^T S^-1 nu + log det S + m log 2 pi)`` of every step.
+
+Why the likelihood: a fixed-weight sum of squared innovations is minimised by scaling Q and R
+down together (the filter becomes overconfident and the innovations do not change), while
+the log det S term penalises exactly that; the NLL is the criterion of maximum-likelihood
+noise identification (Mehra 1970).
+
+Compute budget: each filter step advances the replay by at most ``replay_per_step`` steps of
+the batched population (about ``n_agents`` times one filter step of numpy work; with the
+defaults one run takes (iterations + 1) x ceil(window / replay_per_step) filter steps, 2.5 s of
+driving). The optimizer itself runs in a helper thread that only computes while the filter
+waits for its next population, so results are deterministic.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+
+import numpy as np
+
+from estimation.antlion import antlion
+from estimation.joint import STATE_FIELDS, StateEstimator
+from estimation.types import Estimate
+
+BOUNDS = [(-1.0, 1.0)] * 4  #: log10 factors on (process, accelerometer, gyro, wheel-speed) noise
+
+
+class _Abort(Exception):
+    """Stops an optimizer run (reset of the tuned filter)."""
+
+
+class _Reading:
+    """Minimal reading (values, valid) for replays."""
+
+    def __init__(self, values: np.ndarray, valid: np.ndarray):
+        self.values, self.valid = values, valid
+
+
+class WindowReplay:
+    """Scores noise candidates on a window: replays readings ``values``/``valid`` (W, 13) from
+    filter state ``snapshot`` (a single vehicle's state fields) with one batched filter whose
+    members use ``template``'s base noise scaled by ``factors`` (N, 4); ``cost`` (N,) sums
+    each member's innovation NLL (inf where the replay failed). :meth:`advance` runs a
+    bounded number of steps, so the work can be spread over filter steps."""
+
+    def __init__(self, template: StateEstimator, base_noise, snapshot: dict, values: np.ndarray,
+                 valid: np.ndarray, factors: np.ndarray):
+        n = len(factors)
+        self.filter = StateEstimator(template.params, template.kind, template.dt, base_noise.scaled(factors),
+                                     template.nominal_mu, template.huber_c)
+        for name, value in snapshot.items():
+            setattr(self.filter, name, np.repeat(value, n, axis=0))
+        self.values, self.valid = values, valid
+        self.k, self.cost = 0, np.zeros(n)
+
+    @property
+    def done(self) -> bool:
+        return self.k >= len(self.values)
+
+    def advance(self, steps: int) -> int:
+        """Replay up to ``steps`` more steps; returns how many ran."""
+        ran = 0
+        n = len(self.cost)
+        while ran < steps and not self.done:
+            reading = _Reading(np.repeat(self.values[self.k][None], n, 0), np.repeat(self.valid[self.k][None], n, 0))
+            try:
+                self.filter.step(reading)
+            except (ValueError, FloatingPointError, np.linalg.LinAlgError):
+                self.cost[:], self.k = np.inf, len(self.values)
+                return ran + 1
+            nll = self.filter.last_nll
+            self.cost += np.where(np.isfinite(nll), nll, np.inf)
+            self.k += 1
+            ran += 1
+        return ran
+
+
+class OnlineTuner:
+    """Wraps a single-vehicle :class:`StateEstimator` and re-tunes its noise while it runs
+    (see the module docstring). ``factors`` holds the log10 factors in force (None: base
+    noise); ``runs_completed`` counts finished optimizer runs."""
+
+    needs_truth = False
+
+    def __init__(self, estimator: StateEstimator, window: int = 250, n_agents: int = 6, iterations: int = 4,
+                 replay_per_step: int = 1, seed: int = 0, bounds=BOUNDS):
+        for name, value in (("window", window), ("n_agents", n_agents), ("iterations", iterations),
+                            ("replay_per_step", replay_per_step)):
+            if not (isinstance(value, int) and value >= 1):
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        self.estimator, self.base_noise = estimator, estimator.noise
+        self.window, self.n_agents, self.iterations = window, n_agents, iterations
+        self.replay_per_step, self.seed, self.bounds = replay_per_step, seed, bounds
+        self.factors: np.ndarray | None = None
+        self.runs_completed = 0
+        self.max_replay_steps_in_a_step = 0
+        self._thread: threading.Thread | None = None
+
+    # ---- the filter side ----------------------------------------------------------------
+    def reset(self, reading, initial_speed: np.ndarray, mask: np.ndarray | None = None) -> None:
+        if np.asarray(reading.values).shape[0] != 1:
+            raise ValueError("OnlineTuner tunes one vehicle's filter; use one tuner per vehicle")
+        self._stop()
+        self.estimator.set_noise(self.base_noise)
+        self.estimator.reset(reading, initial_speed, mask)
+        self.factors, self.runs_completed, self._k, self._seed_counter = None, 0, 0, self.seed
+        self._snapshot = self._state()
+        self._values, self._valid = [], []
+
+    def step(self, reading, truth: Estimate | None = None, members: np.ndarray | None = None) -> Estimate:
+        if members is not None:
+            raise ValueError("OnlineTuner runs a single vehicle; members is not supported")
+        self._advance_replay()
+        estimate = self.estimator.step(reading)
+        self._values.append(np.array(reading.values[0], dtype=float))
+        self._valid.append(np.array(reading.valid[0], dtype=bool))
+        self._k += 1
+        if self._k % self.window == 0:
+            if self._thread is None:
+                self._start(self._snapshot, np.array(self._values), np.array(self._valid))
+            self._snapshot, self._values, self._valid = self._state(), [], []
+        return estimate
+
+    def _state(self) -> dict[str, np.ndarray]:
+        return {name: np.array(getattr(self.estimator, name), copy=True) for name in STATE_FIELDS}
+
+    # ---- optimizer runs -----------------------------------------------------------------
+    def _start(self, snapshot: dict, values: np.ndarray, valid: np.ndarray) -> None:
+        self._run_data = (snapshot, values, valid)
+        self._jobs: queue.Queue = queue.Queue()
+        self._results: queue.Queue = queue.Queue()
+        seed = self._seed_counter
+        self._seed_counter += 1
+
+        def objective(X: np.ndarray) -> np.ndarray:
+            self._jobs.put(("job", np.array(X)))
+            costs = self._results.get()
+            if costs is None:
+                raise _Abort
+            return costs
+
+        def run() -> None:
+            try:
+                result = antlion(objective, self.bounds, n_agents=self.n_agents, iterations=self.iterations, rng=seed)
+            except _Abort:
+                return
+            self._jobs.put(("done", result.x))
+
+        self._thread = threading.Thread(target=run, daemon=True, name="online-noise-tuning")
+        self._thread.start()
+        self._take_message()
+
+    def _take_message(self) -> None:
+        """Wait for the optimizer's next population (or its result) and set up its replay."""
+        kind, payload = self._jobs.get()
+        if kind == "done":
+            self._thread.join()
+            self._thread = None
+            self.factors = payload
+            self.estimator.set_noise(self.base_noise.scaled(payload))
+            self.runs_completed += 1
+            return
+        snapshot, values, valid = self._run_data
+        self._replay = WindowReplay(self.estimator, self.base_noise, snapshot, values, valid, payload)
+
+    def _advance_replay(self) -> None:
+        """At most ``replay_per_step`` batched replay steps; hands costs back when a window is done."""
+        if self._thread is None:
+            return
+        ran = self._replay.advance(self.replay_per_step)
+        self.max_replay_steps_in_a_step = max(self.max_replay_steps_in_a_step, ran)
+        if self._replay.done:
+            self._results.put(self._replay.cost.copy())
+            self._take_message()
+
+    def _stop(self) -> None:
+        if self._thread is not None:
+            self._results.put(None)
+            self._thread.join()
+            self._thread = None
