@@ -29,7 +29,7 @@ class OptimizeResult:
     n_evaluations: int
 
 
-def _bounds(bounds) -> tuple[np.ndarray, np.ndarray]:
+def check_bounds(bounds) -> tuple[np.ndarray, np.ndarray]:
     b = np.asarray(bounds, dtype=float)
     if b.ndim != 2 or b.shape[1] != 2 or not np.all(np.isfinite(b)):
         raise ValueError(f"bounds must be a finite (d, 2) array, got {b!r}")
@@ -38,7 +38,7 @@ def _bounds(bounds) -> tuple[np.ndarray, np.ndarray]:
     return b[:, 0], b[:, 1]
 
 
-def _evaluate(fun: Callable[[np.ndarray], np.ndarray], X: np.ndarray) -> np.ndarray:
+def evaluate_population(fun: Callable[[np.ndarray], np.ndarray], X: np.ndarray) -> np.ndarray:
     costs = np.asarray(fun(X), dtype=float).reshape(-1)
     if costs.shape != (len(X),):
         raise ValueError(f"objective must return {len(X)} costs, got shape {costs.shape}")
@@ -71,13 +71,13 @@ def _walk(rng: np.random.Generator, steps: int, t: int, around: np.ndarray, half
 def antlion(fun: Callable[[np.ndarray], np.ndarray], bounds, n_agents: int = 20, iterations: int = 50,
             rng: np.random.Generator | int = 0, progress: bool = False) -> OptimizeResult:
     """Minimise ``fun`` (K, d) -> (K,) over the box ``bounds`` (d, 2); one ``fun`` call per iteration."""
-    lower, upper = _bounds(bounds)
+    lower, upper = check_bounds(bounds)
     if n_agents < 2 or iterations < 1:
         raise ValueError(f"need n_agents >= 2 and iterations >= 1, got {n_agents!r}, {iterations!r}")
     rng = np.random.default_rng(rng)
     d = len(lower)
     antlions = lower + rng.random((n_agents, d)) * (upper - lower)
-    costs = _evaluate(fun, antlions)
+    costs = evaluate_population(fun, antlions)
     order = np.argsort(costs)
     antlions, costs = antlions[order], costs[order]
     history, evaluations = [], n_agents
@@ -90,7 +90,7 @@ def antlion(fun: Callable[[np.ndarray], np.ndarray], bounds, n_agents: int = 20,
         walk_elite = _walk(rng, iterations, t, np.repeat(antlions[:1], n_agents, axis=0), half_width, lower, upper,
                            ratio)
         ants = np.clip((walk_chosen + walk_elite) / 2, lower, upper)
-        ant_costs = _evaluate(fun, ants)
+        ant_costs = evaluate_population(fun, ants)
         evaluations += n_agents
         pool = np.vstack([antlions, ants])
         pool_costs = np.concatenate([costs, ant_costs])

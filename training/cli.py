@@ -99,8 +99,11 @@ def _estimate(args: argparse.Namespace) -> int:
 def _tune(args: argparse.Namespace) -> int:
     from training.tune import OUTPUT, tune
 
-    data = tune(args.agents, args.iterations, args.seed, args.jobs, Path(args.out) if args.out else OUTPUT)
-    print(f"ALO tuning: cost {data['default_cost']:.3f} (default noise) -> {data['cost']:.3f}, "
+    try:
+        data = tune(args.agents, args.iterations, args.seed, Path(args.out) if args.out else OUTPUT, args.optimizer)
+    except ValueError as err:
+        raise SystemExit(f"fourwis tune: {err}") from None
+    print(f"{args.optimizer} tuning: cost {data['default_cost']:.3f} (default noise) -> {data['cost']:.3f}, "
           f"log10 factors {data['log10_factors']}")
     return 0
 
@@ -181,11 +184,12 @@ def build_parser() -> argparse.ArgumentParser:
     est.add_argument("--jobs", type=int, help="worker processes (default: up to 2)")
     est.add_argument("--out", default="results/estimate", help="output directory")
     est.set_defaults(func=_estimate)
-    tune = sub.add_parser("tune", help="ALO tuning of the filter noise on a calibration run")
+    tune = sub.add_parser("tune", help="offline tuning of alo-fkf's noise on a calibration run")
     tune.add_argument("--agents", type=int, default=8)
     tune.add_argument("--iterations", type=int, default=8)
     tune.add_argument("--seed", type=int, default=0)
-    tune.add_argument("--jobs", type=int, default=2)
+    tune.add_argument("--optimizer", choices=("alo", "cmaes", "random"), default="alo",
+                      help="alo: the paper's antlion optimizer; cmaes: CMA-ES; random: random search")
     tune.add_argument("--out", help="output JSON (default: estimation/data/tuned_noise.json)")
     tune.set_defaults(func=_tune)
     swd = sub.add_parser("swd", help="FMVSS 126 sine-with-dwell series (uncontrolled car): the regulation's table")

@@ -1,0 +1,48 @@
+"""Noise tuning optimizers side by side (issue 5): ALO (the paper's) vs CMA-ES vs random search
+on the same evaluation budget for the Q/R problem of ``fourwis tune`` (alo-fkf's cost on a
+randomised calibration run), 5 seeds each; and the time of one batched population
+evaluation, to extrapolate the issue's 30 agents x 100 iterations on a 10 s run.
+
+Run: ``.venv/bin/python benchmarks/bench_tune.py`` (or ``fourwis bench --only tune``).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from estimation.optimizers import METHODS, minimize
+from training.tune import BOUNDS, calibration_run, replay_cost
+
+DURATION = 2.5  #: calibration run [s] (shorter than fourwis tune's 6 s to keep the bench short)
+AGENTS, ITERATIONS, SEEDS = 6, 6, 5
+
+
+def main() -> None:
+    traj = calibration_run(duration=DURATION)
+    default = replay_cost(np.zeros((1, 4)), traj)[0]
+    print(f"calibration: random scenario, {DURATION} s; budget {AGENTS} agents x ({ITERATIONS} + 1) populations "
+          f"= {AGENTS * (ITERATIONS + 1)} evaluations; default-noise cost {default:.3f}")
+    print("| optimizer | best cost mean | std | min | max | wall per run [s] |")
+    print("|---|---:|---:|---:|---:|---:|")
+    for method in METHODS:
+        best, walls = [], []
+        for seed in range(SEEDS):
+            start = time.perf_counter()
+            result = minimize(lambda X: replay_cost(X, traj), BOUNDS, method, AGENTS, ITERATIONS, seed)
+            walls.append(time.perf_counter() - start)
+            best.append(result.fun)
+        b = np.array(best)
+        print(f"| {method} | {b.mean():.3f} | {b.std():.3f} | {b.min():.3f} | {b.max():.3f} | {np.mean(walls):.1f} |")
+    long_run = calibration_run(duration=10.0)
+    population = np.random.default_rng(0).uniform(-1.5, 1.5, (30, 4))
+    start = time.perf_counter()
+    replay_cost(population, long_run)
+    one = time.perf_counter() - start
+    print(f"one population of 30 on a 10 s run: {one:.1f} s -> 30 agents x 100 iterations (101 populations): "
+          f"~{101 * one / 60:.0f} min (target <= 2 min: {120 / (101 * one):.2f}x)")
+
+
+if __name__ == "__main__":
+    main()
