@@ -1,8 +1,8 @@
 """Online re-tuning of a filter's noise on a sliding window of its own innovations.
 
-The paper's real-time rule (section 3.3): the antlion optimizer re-tunes Q and R while the
-filter runs, and a result takes effect only when an optimizer run finishes; until then the
-filter keeps the noise it has. Here every ``window`` steps the readings of the last window
+The paper's real-time rule (section 3.3): the antlion optimizer (or CMA-ES / random search,
+``method``) re-tunes Q and R while the filter runs, and a result takes effect only when an
+optimizer run finishes; until then the filter keeps the noise it has. Here every ``window`` steps the readings of the last window
 and the filter's state at its start are handed to an optimizer run. Each candidate (log10
 factors on the base noise, as in the offline tuning) is scored by replaying the window from
 that state, all candidates of a population at once (one batched filter with per-member
@@ -28,7 +28,7 @@ import threading
 
 import numpy as np
 
-from estimation.antlion import antlion
+from estimation.optimizers import METHODS, minimize
 from estimation.joint import STATE_FIELDS, StateEstimator
 from estimation.types import Estimate
 
@@ -93,12 +93,14 @@ class OnlineTuner:
     needs_truth = False
 
     def __init__(self, estimator: StateEstimator, window: int = 250, n_agents: int = 6, iterations: int = 4,
-                 replay_per_step: int = 1, seed: int = 0, bounds=BOUNDS):
+                 replay_per_step: int = 1, seed: int = 0, bounds=BOUNDS, method: str = "alo"):
         for name, value in (("window", window), ("n_agents", n_agents), ("iterations", iterations),
                             ("replay_per_step", replay_per_step)):
             if not (isinstance(value, int) and value >= 1):
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
-        self.estimator, self.base_noise = estimator, estimator.noise
+        if method not in METHODS:
+            raise ValueError(f"unknown optimizer {method!r}; known: {list(METHODS)}")
+        self.estimator, self.base_noise, self.method = estimator, estimator.noise, method
         self.window, self.n_agents, self.iterations = window, n_agents, iterations
         self.replay_per_step, self.seed, self.bounds = replay_per_step, seed, bounds
         self.factors: np.ndarray | None = None
@@ -151,7 +153,7 @@ class OnlineTuner:
 
         def run() -> None:
             try:
-                result = antlion(objective, self.bounds, n_agents=self.n_agents, iterations=self.iterations, rng=seed)
+                result = minimize(objective, self.bounds, self.method, self.n_agents, self.iterations, seed)
             except _Abort:
                 return
             self._jobs.put(("done", result.x))
