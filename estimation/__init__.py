@@ -14,10 +14,11 @@ ESTIMATORS = ("oracle",) + KINDS  #: names accepted by make_estimator; "joint" i
 
 def make_estimator(name: str, params, dt: float = 0.002, noise: NoiseParams | None = None, **kwargs):
     """Build the estimator ``name`` (see :data:`ESTIMATORS`) for vehicle ``params`` (duck-typed
-    VehicleParams) at step ``dt`` [s]. ``alo-fkf`` uses the ALO-tuned noise when
-    ``fourwis tune`` has written it; ``noise`` overrides it. ``joint`` keeps the default
-    noise: the tuned factors, fitted for alo-fkf on one calibration run, made joint worse on
-    the paper scenarios (measured: beta RMSE 0.20 -> 0.85 deg on paper_sine)."""
+    VehicleParams) at step ``dt`` [s]. ``alo-fkf`` uses the ALO-tuned noise shipped in
+    estimation/data/tuned_noise.json (``fourwis tune`` rewrites it; without the file it runs
+    the hand-set noise); ``noise`` overrides it. ``joint`` keeps the hand-set noise: the ALO
+    factors, fitted for alo-fkf on one calibration run, make joint worse on the paper
+    scenarios (measured: beta RMSE 0.19 -> 0.84 deg on paper_sine, 0.21 -> 2.43 on paper_step)."""
     if name == "oracle":
         return Oracle()
     if name not in KINDS:

@@ -91,13 +91,22 @@ class NoiseParams:
                        gyro_std=self.gyro_std * f[:, 2], wheel_speed_std=self.wheel_speed_std * f[:, 3])
 
 
-def tuned_noise() -> NoiseParams | None:
-    """The ALO-tuned noise (written by ``fourwis tune``), or None if not tuned yet."""
-    path = resources.files("estimation").joinpath("data/tuned_noise.json")
+TUNED_NOISE_FILE = "data/tuned_noise.json"  #: inside the estimation package; written by ``fourwis tune``
+
+
+def tuned_noise(path=None) -> NoiseParams | None:
+    """The tuned noise in ``path`` (default: the package's :data:`TUNED_NOISE_FILE`, shipped with
+    the ALO result of ``fourwis tune``); None only if that file does not exist (then alo-fkf
+    runs the hand-set noise, as documented in make_estimator). A corrupted file raises
+    ValueError naming it, never a silent default."""
+    path = resources.files("estimation").joinpath(TUNED_NOISE_FILE) if path is None else path
     if not path.is_file():
         return None
-    data = json.loads(path.read_text())
-    return NoiseParams().scaled(np.asarray(data["log10_factors"]))
+    try:
+        factors = np.asarray(json.loads(path.read_text())["log10_factors"], dtype=float)
+        return NoiseParams().scaled(factors)
+    except (ValueError, KeyError, TypeError) as err:
+        raise ValueError(f"corrupted tuning file {path}: {err!r}; rerun `fourwis tune` or delete it") from None
 
 
 STATE_FIELDS = ("x", "P", "mu", "P_mu", "beta", "beta_mu", "omega_prev", "omega_dot", "last_nll")

@@ -5,6 +5,7 @@ import json
 import numpy as np
 import pytest
 
+from estimation import NoiseParams
 from estimation.optimizers import minimize
 
 
@@ -60,3 +61,16 @@ def test_batched_tuning_objective_equals_single_replays_and_tune_writes_its_resu
     assert saved["optimizer"] == "cmaes" and saved["evaluations"] == 12
     assert np.isfinite(saved["cost"]) and saved["cost"] == saved["history"][-1]
     assert saved["cost"] == pytest.approx(replay_cost(np.array(saved["log10_factors"])[None], traj)[0], rel=1e-12)
+
+
+def test_tuning_file_missing_means_hand_set_noise_and_corrupted_raises(tmp_path):
+    from estimation.joint import tuned_noise
+
+    assert tuned_noise(tmp_path / "absent.json") is None
+    shipped = tuned_noise()
+    assert shipped is not None and shipped.accel_std != NoiseParams().accel_std
+    for text in ("{not json", '{"cost": 1.0}', '{"log10_factors": [1, 2]}'):
+        bad = tmp_path / "tuned.json"
+        bad.write_text(text)
+        with pytest.raises(ValueError, match="corrupted tuning file"):
+            tuned_noise(bad)
