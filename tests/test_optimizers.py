@@ -74,3 +74,20 @@ def test_tuning_file_missing_means_hand_set_noise_and_corrupted_raises(tmp_path)
         bad.write_text(text)
         with pytest.raises(ValueError, match="corrupted tuning file"):
             tuned_noise(bad)
+
+
+def test_shipped_alo_noise_beats_the_hand_set_noise_on_an_unseen_scenario():
+    """The shipped factors were fitted on a randomised calibration run; on the paper's slalom
+    (never used for tuning, its own sensor seed) alo-fkf's sideslip error drops by > 20%
+    (measured 0.49 against 0.80 deg)."""
+    from envs.metrics import rmse
+    from envs.scenarios import make_scenario
+    from envs.simulation import simulate
+    from envs.vehicle import VehicleParams
+    from estimation import make_estimator
+
+    scenario = make_scenario("paper_serpentine", duration=8.0)
+    runs = [simulate(scenario, estimator=make_estimator("alo-fkf", VehicleParams(), noise=noise), seed=5)
+            for noise in (None, NoiseParams())]
+    errors = [rmse(run.estimate.beta, run.truth.beta) for run in runs]
+    assert errors[0] < 0.8 * errors[1]
