@@ -27,3 +27,14 @@ def test_overrides_reach_the_runs():
     assert traj.t[-1] == pytest.approx(1.0)
     assert traj.truth.mu[0] == pytest.approx([0.4] * 4)
     assert all(math.isfinite(v) for v in metrics.values())
+
+
+def test_cli_names_bad_scenarios_and_controllers():
+    from training.cli import main
+
+    with pytest.raises(SystemExit, match="iso9999"):
+        main(["compare", "--scenarios", "iso9999", "--out", "unused"])
+    with pytest.raises(SystemExit, match="nowhere"):
+        main(["swd", "--mu", "1.0", "--A", "16.6", "--controller", "rl:nowhere"])
+    with pytest.raises(SystemExit, match="warp"):
+        main(["swd", "--mu", "1.0", "--A", "16.6", "--controller", "warp"])

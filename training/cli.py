@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import runpy
 import sys
 from pathlib import Path
@@ -60,11 +61,24 @@ def _sine_with_dwell(args: argparse.Namespace) -> int:
     from envs.fmvss126 import characterise, format_table, run_series
     from training.io import atomic_write_text
 
+    from envs.vehicle import VehicleParams
+    from training.compare import build_controller
+
     A = math.radians(args.A) if args.A is not None else characterise()
+    factory = None
+    if args.controller != "none":
+        try:
+            build_controller(args.controller, VehicleParams())  # fail early on a bad name or path
+        except (ValueError, FileNotFoundError) as err:
+            raise SystemExit(f"fourwis swd: {err}") from None
+        factory = functools.partial(build_controller, args.controller, VehicleParams())
     tables = []
     for mu in args.mu:
-        runs = run_series(A, mu=mu, estimator=args.estimator, seed=args.seed, progress=True)
-        tables.append(format_table(runs, A))
+        runs = run_series(A, mu=mu, controller_factory=factory, estimator=args.estimator, seed=args.seed,
+                          progress=True)
+        passed = sum(run.result.passed for run in runs)
+        tables.append(f"controller {args.controller}, estimator {args.estimator}: {passed} of {len(runs)} runs "
+                      f"pass\n\n" + format_table(runs, A))
     text = "\n\n".join(tables)
     print(text)
     if args.out:
@@ -192,10 +206,12 @@ def build_parser() -> argparse.ArgumentParser:
                       help="alo: the paper's antlion optimizer; cmaes: CMA-ES; random: random search")
     tune.add_argument("--out", help="output JSON (default: estimation/data/tuned_noise.json)")
     tune.set_defaults(func=_tune)
-    swd = sub.add_parser("swd", help="FMVSS 126 sine-with-dwell series (uncontrolled car): the regulation's table")
+    swd = sub.add_parser("swd", help="FMVSS 126 sine-with-dwell series: the regulation's table")
     swd.add_argument("--mu", type=float, nargs="+", default=[1.0, 0.5, 0.3], help="road friction values")
     swd.add_argument("--A", type=float, help="characterisation angle [deg] (default: measured at 0.3 g)")
     swd.add_argument("--estimator", default="oracle", help="estimator run alongside (default: oracle)")
+    swd.add_argument("--controller", default="none",
+                     help="stability controller (none, dyc-lqr, ..., or rl:<run dir>), fed by the estimator")
     swd.add_argument("--seed", type=int, default=0)
     swd.add_argument("--out", help="directory for sine_with_dwell.md")
     swd.set_defaults(func=_sine_with_dwell)

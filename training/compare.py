@@ -111,14 +111,18 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
     return out
 
 
-def _run(spec: RunSpec) -> tuple[RunSpec, dict[str, float], Trajectory | None]:
-    scenario = _scenario(spec)
-    if spec.controller.startswith(RL_PREFIX):
+def build_controller(name: str, params):
+    """A fresh controller: a :data:`control.CONTROLLERS` name, or ``rl:<run dir>`` for a policy."""
+    if name.startswith(RL_PREFIX):
         from training.rl import PolicyController
 
-        controller = PolicyController(spec.controller.removeprefix(RL_PREFIX), scenario.vehicle_params)
-    else:
-        controller = make_controller(spec.controller, scenario.vehicle_params)
+        return PolicyController(name.removeprefix(RL_PREFIX), params)
+    return make_controller(name, params)
+
+
+def _run(spec: RunSpec) -> tuple[RunSpec, dict[str, float], Trajectory | None]:
+    scenario = _scenario(spec)
+    controller = build_controller(spec.controller, scenario.vehicle_params)
     traj = simulate(scenario, controller=controller, estimator=spec.estimator, seed=spec.seed)
     keep = spec.seed == 0  # trajectories of the first seed feed the plots
     return spec, run_metrics(traj, spec.swd_A), (traj if keep else None)
