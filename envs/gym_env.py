@@ -399,11 +399,11 @@ class YawStabilityEnv(gym.Env):
         return None
 
     def close(self):
-        if self._window is not None:
+        if isinstance(self._window, tuple):
             import matplotlib.pyplot as plt
 
             plt.close(self._window[0])
-            self._window = None
+        self._window = None
 
 
 def _show(frame: np.ndarray, window):

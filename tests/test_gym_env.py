@@ -196,6 +196,8 @@ def test_human_mode_without_a_display_warns(monkeypatch):
     env = YawStabilityEnv(scenario="paper_sine", estimator="oracle", render_mode="human")
     with pytest.warns(UserWarning, match="display"):
         env.reset(seed=0)
+    env.step(np.zeros(2, dtype=np.float32))  # warned once; stepping and closing still work
+    env.close()
 
 
 @pytest.mark.parametrize("amplitude_deg", [40.0, 180.0])
