@@ -38,3 +38,22 @@ def test_cli_names_bad_scenarios_and_controllers():
         main(["swd", "--mu", "1.0", "--A", "16.6", "--controller", "rl:nowhere"])
     with pytest.raises(SystemExit, match="warp"):
         main(["swd", "--mu", "1.0", "--A", "16.6", "--controller", "warp"])
+
+
+def test_report_is_reproducible_byte_for_byte_and_the_fault_variant_bites(tmp_path):
+    from training.compare import compare
+
+    scenarios = ["paper_sine:duration=1.0", "paper_sine:duration=1.0+faults"]
+    reports = [compare(tmp_path / name, scenarios, ["ckf"], ["none", "dyc-lqr"], seeds=1, jobs=1)
+               for name in ("a", "b")]
+    assert (tmp_path / "a" / "runs.csv").read_bytes() == (tmp_path / "b" / "runs.csv").read_bytes()
+    for name in ("report.md", "runs.csv", "peak_sideslip.png", "pass_rate.png"):
+        assert (tmp_path / "a" / name).stat().st_size > 0
+    text = reports[0].read_text()
+    assert "paper_sine:duration=1.0+faults" in text
+    rows = {(r.split(",")[0], r.split(",")[2]): r for r in (tmp_path / "a" / "runs.csv").read_text().splitlines()[1:]}
+    header = (tmp_path / "a" / "runs.csv").read_text().splitlines()[0].split(",")
+    col = header.index("rmse_r")
+    clean = float(rows[("paper_sine:duration=1.0", "none")].split(",")[col])
+    faulty = float(rows[("paper_sine:duration=1.0+faults", "none")].split(",")[col])
+    assert faulty > 1.5 * clean  # gyro spikes and a stuck gyro degrade the yaw-rate estimate

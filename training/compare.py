@@ -24,6 +24,7 @@ from control.reference import reference_yaw_rate
 from envs.fmvss126 import characterise
 from envs.metrics import cone_hits, mae, path_deviation, rmse, sine_with_dwell_metrics, spin_out
 from envs.scenarios import SCENARIOS, make_scenario
+from envs.sensors import Fault
 from envs.simulation import Trajectory, simulate
 from envs.vehicle import A_AY, S_DELTA_F, S_PSI, S_R, S_U, S_X, S_Y
 from estimation import ESTIMATORS
@@ -48,10 +49,18 @@ class RunSpec:
     swd_A: float
 
 
+#: The sensor-fault variant (``<scenario>+faults``): gyro outliers of 0.2 rad/s at 5 per second
+#: throughout, and the gyro stuck from 1.5 s to 2.5 s.
+SENSOR_FAULTS = (Fault("yaw_rate", "spike", magnitude=0.2, rate=5.0), Fault("yaw_rate", "stuck", start=1.5, end=2.5))
+FAULT_SUFFIX = "+faults"
+
+
 def parse_scenario(text: str) -> tuple[str, dict[str, float]]:
-    """Scenario name and numeric overrides of a comparison entry ``name[:key=value,...]``, e.g.
-    ``iso3888_2:mu=0.5,speed_kph=50``; ``amplitude_A=k`` gives sine with dwell k times A;
-    ``swd_wet`` stands for ``sine_with_dwell:mu=0.5,amplitude_A=5.5``."""
+    """Scenario name and numeric overrides of a comparison entry ``name[:key=value,...][+faults]``,
+    e.g. ``iso3888_2:mu=0.5,speed_kph=50``; ``amplitude_A=k`` gives sine with dwell k times A;
+    ``swd_wet`` stands for ``sine_with_dwell:mu=0.5,amplitude_A=5.5``; a ``+faults`` suffix runs
+    it with :data:`SENSOR_FAULTS`."""
+    text = text.removesuffix(FAULT_SUFFIX)
     if text == "swd_wet":
         return "sine_with_dwell", {"mu": SWD_MU, "amplitude_A": SWD_MULTIPLE}
     name, _, rest = text.partition(":")
@@ -102,6 +111,7 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
                                       sideslip=beta, A=swd_A)
         out.update(swd_ratio_1000=res.yaw_rate_ratio_1000, swd_ratio_1750=res.yaw_rate_ratio_1750,
                    swd_displacement=res.lateral_displacement, swd_passed=float(res.passed))
+    out["stable"] = float(not out["spin_out"] and out.get("swd_passed", 1.0) == 1.0)
     for name in ("u", "v", "beta", "r"):
         out[f"rmse_{name}"] = rmse(getattr(E, name), getattr(T, name))
         out[f"mae_{name}"] = mae(getattr(E, name), getattr(T, name))
@@ -123,7 +133,8 @@ def build_controller(name: str, params):
 def _run(spec: RunSpec) -> tuple[RunSpec, dict[str, float], Trajectory | None]:
     scenario = _scenario(spec)
     controller = build_controller(spec.controller, scenario.vehicle_params)
-    traj = simulate(scenario, controller=controller, estimator=spec.estimator, seed=spec.seed)
+    faults = SENSOR_FAULTS if spec.scenario.endswith(FAULT_SUFFIX) else ()
+    traj = simulate(scenario, controller=controller, estimator=spec.estimator, seed=spec.seed, faults=faults)
     keep = spec.seed == 0  # trajectories of the first seed feed the plots
     return spec, run_metrics(traj, spec.swd_A), (traj if keep else None)
 
@@ -240,8 +251,23 @@ def plot_report(table: dict, trajectories: dict, scenarios, estimators, controll
     paths.append(atomic_write(out / "peak_sideslip.png", lambda p: fig.savefig(p, format="png", dpi=110)))
     plt.close(fig)
 
+    fig, axes = plt.subplots(1, len(controllers), figsize=(1.6 + 1.3 * len(scenarios) * len(controllers), 0.9 + 0.5
+                                                                 * len(estimators)), squeeze=False)
+    for ax, c in zip(axes[0], controllers):
+        rate = np.array([[table[(s, e, c)]["stable"] for s in scenarios] for e in estimators])
+        ax.imshow(rate, vmin=0.0, vmax=1.0, cmap="RdYlGn", aspect="auto")
+        for (i, j), value in np.ndenumerate(rate):
+            ax.text(j, i, f"{100 * value:.0f}%", ha="center", va="center", fontsize=7)
+        ax.set_xticks(range(len(scenarios)), scenarios, rotation=30, ha="right", fontsize=7)
+        ax.set_yticks(range(len(estimators)), estimators, fontsize=7)
+        ax.set_title(f"{c}: pass rate", fontsize=8)
+    fig.suptitle("runs without spin-out (and passing FMVSS 126 on sine with dwell), over seeds", fontsize=8)
+    fig.tight_layout()
+    paths.append(atomic_write(out / "pass_rate.png", lambda p: fig.savefig(p, format="png", dpi=110)))
+    plt.close(fig)
+
     for s in scenarios:
-        fig, axes = plt.subplots(1, 3, figsize=(15, 4))
+        fig, axes = plt.subplots(1, 4, figsize=(19, 4))
         for c in controllers:
             for e in estimators:
                 traj = trajectories.get((s, e, c))
@@ -250,15 +276,19 @@ def plot_report(table: dict, trajectories: dict, scenarios, estimators, controll
                 label = f"{c} / {e}"
                 axes[0].plot(traj.t, np.degrees(traj.state[:, S_R]), label=label)
                 axes[1].plot(traj.t, np.degrees(traj.truth.beta), label=label)
+                beta = np.degrees(traj.truth.beta)
+                axes[3].plot(beta, np.gradient(beta, traj.t), lw=0.8, label=label)
                 if c == controllers[-1]:
                     axes[2].plot(traj.t, traj.estimate.mu.mean(axis=1), label=f"{e} estimate")
         first = next((t for k, t in trajectories.items() if k[0] == s), None)
         if first is not None:
             axes[2].plot(first.t, first.truth.mu.mean(axis=1), "k--", label="truth")
-        for a, title in zip(axes, ("yaw rate [deg/s]", "sideslip [deg]", "mean mu (last controller)")):
-            a.set_title(title)
+        for a, title in zip(axes, ("yaw rate [deg/s]", "sideslip [deg]", "mean mu (last controller)",
+                                   "phase portrait: sideslip rate [deg/s] vs sideslip [deg]")):
+            a.set_title(title, fontsize=9)
             a.set_xlabel("t [s]")
             a.grid(alpha=0.3)
+        axes[3].set_xlabel("sideslip [deg]")
         axes[0].legend(fontsize=7)
         axes[2].legend(fontsize=7)
         fig.suptitle(s)
