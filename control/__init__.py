@@ -13,7 +13,7 @@ from control.allocation import allocate_torques
 from control.dyc import LQRYawController, LQRWeights, SlidingModeYawController
 from control.reference import rear_steer_feedforward, reference_yaw_rate, sideslip_bound
 
-CONTROLLERS = ("none", "dyc-lqr", "dyc-smc", "dyc-lqr-4ws")
+CONTROLLERS = ("none", "dyc-lqr", "dyc-smc", "dyc-lqr-4ws", "dyc-smc-4ws")
 ACTIVE_SPEED = 2.0  #: below this speed [m/s] the controller passes the driver's torques through
 YAW_DEADBAND = 0.02  #: |r - r_ref| [rad/s] tolerated without intervention (ESC practice)
 REFERENCE_LAG = 0.15  #: time constant of the yaw-rate reference [s]: the car's own yaw response lag
@@ -97,6 +97,8 @@ def make_controller(name: str, params, dt: float = 0.002):
         return StabilityController(params, "smc", dt=dt)
     if name == "dyc-lqr-4ws":
         return StabilityController(params, "lqr", rear_steer=True, dt=dt)
+    if name == "dyc-smc-4ws":
+        return StabilityController(params, "smc", rear_steer=True, dt=dt)
     raise ValueError(f"unknown controller {name!r}; known: {list(CONTROLLERS)}")
 
 

@@ -89,6 +89,24 @@ def test_bad_input_raises():
     assert set(CONTROLLERS) >= {"none", "dyc-lqr", "dyc-smc"}
 
 
+@pytest.mark.parametrize("law", ["lqr", "smc"])
+def test_4ws_variants_add_the_eq20_rear_steer_and_the_plain_ones_do_not(law):
+    from control.reference import rear_steer_feedforward
+    from envs.simulation import true_estimate
+    from envs.vehicle import NU, derivatives, initial_state
+
+    state = initial_state(P, np.array([10.0, 25.0]), 2)
+    aux = derivatives(state, np.zeros((2, NU)), np.full((2, 4), 0.9), P)[1]
+    estimate = true_estimate(state, aux)
+    front = np.array([0.02, 0.02])
+    base = np.full((2, 4), 50.0)
+    with_4ws = make_controller(f"dyc-{law}-4ws", P)(np.zeros(2), estimate, front, base)
+    plain = make_controller(f"dyc-{law}", P)(np.zeros(2), estimate, front, base)
+    np.testing.assert_allclose(with_4ws.rear_steer, rear_steer_feedforward(estimate.u, front, P))
+    assert with_4ws.rear_steer[0] * with_4ws.rear_steer[1] < 0  # opposite phase slow, same phase fast
+    np.testing.assert_array_equal(plain.rear_steer, 0.0)
+
+
 @pytest.mark.parametrize("name", ["dyc-lqr", "dyc-smc"])
 def test_dyc_makes_the_car_pass_sine_with_dwell_it_fails_without(name):
     A = characterise()
