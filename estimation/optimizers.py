@@ -38,6 +38,7 @@ def minimize(fun: Callable[[np.ndarray], np.ndarray], bounds, method: str = "alo
     if n_agents < 2 or iterations < 1:
         raise ValueError(f"need n_agents >= 2 and iterations >= 1, got {n_agents!r}, {iterations!r}")
     best_x, best, history = None, np.inf, []
+    global_state = np.random.get_state()  # cma reseeds numpy's global generator: give it back after
     if method == "cmaes":
         import cma
 
@@ -62,6 +63,7 @@ def minimize(fun: Callable[[np.ndarray], np.ndarray], bounds, method: str = "alo
         if costs[k] < best:
             best, best_x = float(costs[k]), X[k].copy()
         history.append(best)
+    np.random.set_state(global_state)
     if best_x is None:
         raise FloatingPointError("every evaluation returned a non-finite cost")
     return OptimizeResult(best_x, best, np.array(history[1:]), n_agents * (iterations + 1))

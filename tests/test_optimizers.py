@@ -91,3 +91,11 @@ def test_shipped_alo_noise_beats_the_hand_set_noise_on_an_unseen_scenario():
             for noise in (None, NoiseParams())]
     errors = [rmse(run.estimate.beta, run.truth.beta) for run in runs]
     assert errors[0] < 0.8 * errors[1]
+
+
+def test_cmaes_leaves_numpys_global_generator_alone():
+    np.random.seed(123)
+    expected = np.random.random(3)
+    np.random.seed(123)
+    minimize(sphere, [(-1.0, 1.0)] * 2, "cmaes", n_agents=4, iterations=2, seed=0)
+    np.testing.assert_array_equal(np.random.random(3), expected)
