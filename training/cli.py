@@ -6,6 +6,7 @@ import argparse
 import functools
 import runpy
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
@@ -86,28 +87,30 @@ def _sine_with_dwell(args: argparse.Namespace) -> int:
     return 0
 
 
+def _report(command: str, make_report: Callable[[], Path], table: str,
+            errors: tuple[type[Exception], ...] = (ValueError,)) -> int:
+    """Run a report job, print the report; bad input exits with the command's name."""
+    try:
+        report = make_report()
+    except errors as err:
+        raise SystemExit(f"fourwis {command}: {err}") from None
+    print(report.read_text())
+    print(f"wrote {report} (+ {table} and PNG plots in {report.parent})")
+    return 0
+
+
 def _compare(args: argparse.Namespace) -> int:
     from training.compare import compare
 
-    try:
-        report = compare(args.out, args.scenarios, args.estimators, args.controllers, args.seeds, args.jobs)
-    except ValueError as err:
-        raise SystemExit(f"fourwis compare: {err}") from None
-    print(report.read_text())
-    print(f"wrote {report} (+ runs.csv and PNG plots in {report.parent})")
-    return 0
+    return _report("compare", lambda: compare(args.out, args.scenarios, args.estimators, args.controllers, args.seeds,
+                                              args.jobs), "runs.csv")
 
 
 def _estimate(args: argparse.Namespace) -> int:
     from training.estimate import estimate_report
 
-    try:
-        report = estimate_report(args.out, args.scenarios, args.estimators, args.seeds, args.jobs)
-    except ValueError as err:
-        raise SystemExit(f"fourwis estimate: {err}") from None
-    print(report.read_text())
-    print(f"wrote {report} (+ estimate.csv and PNG plots in {report.parent})")
-    return 0
+    return _report("estimate", lambda: estimate_report(args.out, args.scenarios, args.estimators, args.seeds,
+                                                       args.jobs), "estimate.csv")
 
 
 def _tune(args: argparse.Namespace) -> int:
@@ -149,13 +152,8 @@ def _train(args: argparse.Namespace) -> int:
 def _evaluate(args: argparse.Namespace) -> int:
     from training.rl import evaluate
 
-    try:
-        report = evaluate(args.model, args.out, args.scenarios, args.estimator, args.seeds, args.jobs)
-    except (ValueError, FileNotFoundError) as err:
-        raise SystemExit(f"fourwis evaluate: {err}") from None
-    print(report.read_text())
-    print(f"wrote {report} (+ runs.csv and PNG plots in {report.parent})")
-    return 0
+    return _report("evaluate", lambda: evaluate(args.model, args.out, args.scenarios, args.estimator, args.seeds,
+                                                args.jobs), "runs.csv", (ValueError, FileNotFoundError))
 
 
 def _add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
