@@ -272,8 +272,8 @@ class YawStabilityCore:
         truncated = self.loop.k >= self._ends
         if self.config.max_episode_steps is not None:
             truncated |= st.length >= self.config.max_episode_steps
-        if self.keep_trace:
-            self._record_trace()
+        if self.keep_trace:  # vehicle 0's t, r, r_ref, beta for the strip charts of render()
+            self._trace.append((s.t[0], truth.r[0], r_ref[0], beta[0]))
         info = {"truth": truth, "estimate": s.estimate, "action_clipped": np.any(clipped != actions, axis=1),
                 "beta": beta, "yaw_rate_error": yaw_error, "path_deviation": deviation, "spin_out": spin,
                 "episode_metrics": [self._episode_metrics(b, spin[b]) if terminated[b] or truncated[b] else None
@@ -311,14 +311,6 @@ class YawStabilityCore:
 
             self._renderer = Renderer()
         return self._renderer.frame(self.loop, 0, np.array(self._trace).reshape(-1, 4))
-
-    def _record_trace(self) -> None:
-        """Vehicle 0's t, r, r_ref, beta for the strip charts of :meth:`render`."""
-        s = self.loop.sample()
-        truth = s.truth
-        r_ref = reference_yaw_rate(truth.u[:1], s.steering_wheel[:1] / self.params.steering_ratio, truth.mu[:1],
-                                   self.params)
-        self._trace.append((s.t[0], truth.r[0], r_ref[0], truth.beta[0]))
 
 
 def _check_actions(actions, shape: tuple[int, ...]) -> np.ndarray:

@@ -46,7 +46,8 @@ class Estimator(Protocol):
 
     def reset(self, reading, initial_speed: np.ndarray, mask: np.ndarray | None = None) -> None: ...
 
-    def step(self, reading, truth: Estimate | None = None) -> Estimate: ...
+    def step(self, reading, truth: Estimate | None = None, members: np.ndarray | None = None) -> Estimate:
+        """Step every vehicle, or only the rows ``members`` (the estimate then has those rows)."""
 
 
 def sensor_truth(state: np.ndarray, aux: np.ndarray) -> np.ndarray:
@@ -165,7 +166,7 @@ class ClosedLoop:
         self._stale = np.ones(self.batch_size, dtype=bool)  # needs sensing at the current time
         self._sample: Sample | None = None
         self._update_road()
-        self.aux = self._diagnostics(self.state)
+        self.aux = self._diagnostics(np.arange(self.batch_size))
         if controller is not None:
             controller.reset()
 
@@ -192,11 +193,12 @@ class ClosedLoop:
         self.road = RoadTables.from_roads(roads, self.batch_size) if all(r.table() is not None for r in roads) \
             else roads
 
-    def _diagnostics(self, state: np.ndarray) -> np.ndarray:
-        """Plant diagnostics (B, NAUX) of ``state`` at rest controls (the initial sample)."""
+    def _diagnostics(self, rows: np.ndarray) -> np.ndarray:
+        """Plant diagnostics (len(rows), NAUX) of vehicles ``rows`` at rest controls (the initial sample)."""
+        state = self.state[rows]
         gx, gy = contact_points(state, self.params)
-        mu = np.stack([s.road.mu_at(gx[b], gy[b]) for b, s in enumerate(self.scenarios)])
-        return derivatives(state, np.zeros((state.shape[0], NU)), mu, self.params)[1]
+        mu = np.stack([self.scenarios[b].road.mu_at(gx[i], gy[i]) for i, b in enumerate(rows)])
+        return derivatives(state, np.zeros((len(rows), NU)), mu, self.params)[1]
 
     def reset_members(self, mask: np.ndarray, scenarios: Sequence[Scenario],
                       rngs: Sequence[np.random.Generator]) -> None:
@@ -216,7 +218,7 @@ class ClosedLoop:
         self._fresh[members] = True
         self._stale[members] = True
         self._update_road()
-        self.aux[members] = self._diagnostics(self.state)[members]
+        self.aux[members] = self._diagnostics(members)
 
     def sample(self) -> Sample:
         """Measure, estimate and drive at the current time: once per time instant and vehicle

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import queue
 import threading
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -37,13 +38,6 @@ BOUNDS = [(-1.0, 1.0)] * 4  #: log10 factors on (process, accelerometer, gyro, w
 
 class _Abort(Exception):
     """Stops an optimizer run (reset of the tuned filter)."""
-
-
-class _Reading:
-    """Minimal reading (values, valid) for replays."""
-
-    def __init__(self, values: np.ndarray, valid: np.ndarray):
-        self.values, self.valid = values, valid
 
 
 class WindowReplay:
@@ -72,7 +66,8 @@ class WindowReplay:
         ran = 0
         n = len(self.cost)
         while ran < steps and not self.done:
-            reading = _Reading(np.repeat(self.values[self.k][None], n, 0), np.repeat(self.valid[self.k][None], n, 0))
+            reading = SimpleNamespace(values=np.repeat(self.values[self.k][None], n, 0),
+                                      valid=np.repeat(self.valid[self.k][None], n, 0))
             try:
                 self.filter.step(reading)
             except (ValueError, FloatingPointError, np.linalg.LinAlgError):

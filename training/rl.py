@@ -196,7 +196,7 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs:
     eval_env = VecNormalize(_vec_env(eval_kwargs, min(eval_episodes, 4), seed + 10_000), training=False,
                             norm_reward=False)
     if resume is not None:
-        model_path, normalizer_path = run_files(resume)
+        model_path, normalizer_path, _ = run_files(resume)
         normalized = VecNormalize.load(str(normalizer_path), train_env)
         model = algo_class.load(str(model_path), env=normalized, device="cpu")
     else:
@@ -219,17 +219,18 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs:
     return model_path
 
 
-def run_files(path: str | Path) -> tuple[Path, Path]:
-    """(model .zip, normaliser .pkl) of a run directory or of a checkpoint's .zip."""
+def run_files(path: str | Path) -> tuple[Path, Path, Path]:
+    """(model .zip, normaliser .pkl, run config.json) of a run directory or of a checkpoint's
+    .zip (checkpoints/ inside its run directory)."""
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"no trained policy at {path}: no such run directory or checkpoint")
-    model, normalizer = (path / "model.zip", path / "vecnormalize.pkl") if path.is_dir() else \
-        (path, path.with_suffix(".pkl"))
-    for p in (model, normalizer):
+    files = (path / "model.zip", path / "vecnormalize.pkl", path / "config.json") if path.is_dir() else \
+        (path, path.with_suffix(".pkl"), path.parent.parent / "config.json")
+    for p in files[:2]:  # the config is read only where a policy is rebuilt (PolicyController)
         if not p.exists():
             raise FileNotFoundError(f"no trained policy at {path}: {p} is missing")
-    return model, normalizer
+    return files
 
 
 def plot_learning_curve(out: Path) -> Path | None:
@@ -268,11 +269,9 @@ class PolicyController:
     supported here."""
 
     def __init__(self, run: str | Path, params, dt: float = 0.002):
-        model_path, normalizer_path = run_files(run)
-        config = json.loads((model_path.parent / "config.json").read_text()) \
-            if (model_path.parent / "config.json").exists() else \
-            json.loads((model_path.parent.parent / "config.json").read_text())
-        env = EnvConfig(**{k: v for k, v in config["env_kwargs"].items() if k in EnvConfig.__dataclass_fields__})
+        model_path, normalizer_path, config_path = run_files(run)
+        config = json.loads(config_path.read_text())
+        env = EnvConfig(**config["env_kwargs"])
         if env.observation == "sensors":
             raise ValueError("PolicyController needs a policy trained on estimated or true observations")
         self.model = _algo_class(config["algo"]).load(str(model_path), device="cpu")
