@@ -10,8 +10,6 @@ of u, v, beta, r and mu.
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -30,6 +28,7 @@ from envs.vehicle import A_AY, S_DELTA_F, S_PSI, S_R, S_U, S_X, S_Y
 from estimation import ESTIMATORS
 from training.io import atomic_write, atomic_write_text
 from training.pool import parallel_map
+from training.tables import mean_over_seeds, write_runs_csv
 
 #: headline scenarios: the paper's five conditions, FMVSS 126 at 5.5A on a wet road, the mu jump
 HEADLINE = ("paper_dlc", "paper_step", "paper_sine", "paper_split_dlc", "paper_serpentine", "swd_wet", "mu_jump")
@@ -174,21 +173,13 @@ def run_matrix(scenarios: Sequence[str] = HEADLINE, estimators: Sequence[str] = 
 
 def aggregate(results: list[tuple[RunSpec, dict]]) -> dict[tuple[str, str, str], dict[str, float]]:
     """Mean of every metric over seeds per (scenario, estimator, controller)."""
-    groups: dict[tuple[str, str, str], list[dict]] = {}
-    for spec, metrics in results:
-        groups.setdefault((spec.scenario, spec.estimator, spec.controller), []).append(metrics)
-    return {key: {m: float(np.mean([r[m] for r in runs])) for m in runs[0]} for key, runs in groups.items()}
+    return mean_over_seeds(results, lambda spec: (spec.scenario, spec.estimator, spec.controller))
 
 
 def write_csv(results: list[tuple[RunSpec, dict]], path: Path) -> Path:
     names = sorted({m for _, metrics in results for m in metrics})
-    buffer = io.StringIO()
-    writer = csv.writer(buffer)
-    writer.writerow(["scenario", "estimator", "controller", "seed", *names])
-    for spec, metrics in results:
-        writer.writerow([spec.scenario, spec.estimator, spec.controller, spec.seed,
-                         *(f"{metrics[n]:.6g}" if n in metrics else "" for n in names)])
-    return atomic_write_text(path, buffer.getvalue())
+    return write_runs_csv(results, ["scenario", "estimator", "controller", "seed"],
+                          lambda spec: [spec.scenario, spec.estimator, spec.controller, spec.seed], names, path)
 
 
 def _fmt(value: float | None, scale: float = 1.0, digits: int = 2) -> str:

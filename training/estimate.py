@@ -10,8 +10,6 @@ of the paper's Figures 8-13.
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -25,6 +23,7 @@ from envs.simulation import Trajectory, simulate
 from estimation import ESTIMATORS, Estimate
 from training.io import atomic_write, atomic_write_text
 from training.pool import parallel_map
+from training.tables import mean_over_seeds, write_runs_csv
 
 DEFAULT_ESTIMATORS = tuple(e for e in ESTIMATORS if e != "oracle")  #: the oracle is the truth itself
 MU_TOLERANCE = 0.1  #: mean |mu_hat - mu| over the wheels below which mu counts as converged
@@ -120,19 +119,12 @@ def run_all(scenarios: Sequence[str | Scenario] = PAPER_SCENARIOS, estimators: S
 
 def aggregate(results: list[tuple[RunSpec, dict]]) -> dict[tuple[str, str], dict[str, float]]:
     """Mean of every metric over seeds per (scenario name, estimator); NaN convergence stays NaN."""
-    groups: dict[tuple[str, str], list[dict]] = {}
-    for spec, metrics in results:
-        groups.setdefault((spec.scenario.name, spec.estimator), []).append(metrics)
-    return {key: {m: float(np.mean([r[m] for r in runs])) for m in METRICS} for key, runs in groups.items()}
+    return mean_over_seeds(results, lambda spec: (spec.scenario.name, spec.estimator))
 
 
 def write_csv(results: list[tuple[RunSpec, dict]], path: Path) -> Path:
-    buffer = io.StringIO()
-    writer = csv.writer(buffer)
-    writer.writerow(["scenario", "estimator", "seed", *METRICS])
-    for spec, metrics in results:
-        writer.writerow([spec.scenario.name, spec.estimator, spec.seed, *(f"{metrics[m]:.6g}" for m in METRICS)])
-    return atomic_write_text(path, buffer.getvalue())
+    return write_runs_csv(results, ["scenario", "estimator", "seed"],
+                          lambda spec: [spec.scenario.name, spec.estimator, spec.seed], METRICS, path)
 
 
 def _fmt(value: float, digits: int = 5) -> str:
