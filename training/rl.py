@@ -24,6 +24,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+from stable_baselines3.common.vec_env import VecEnv
 
 from envs.gym_env import EnvConfig, YawStabilityVectorEnv, _AgentController, state_observation
 from training.io import atomic_write, atomic_write_text
@@ -53,13 +54,7 @@ def _algo_class(algo: str):
     return {"ppo": sb3.PPO, "sac": sb3.SAC, "td3": sb3.TD3}[algo]
 
 
-def _sb3_base():
-    from stable_baselines3.common.vec_env import VecEnv
-
-    return VecEnv
-
-
-class SB3VecEnv(_sb3_base()):
+class SB3VecEnv(VecEnv):
     """A :class:`YawStabilityVectorEnv` as an SB3 ``VecEnv``: same-step autoreset with
     ``terminal_observation`` and ``TimeLimit.truncated`` in the infos, Monitor-style
     ``episode`` records (r, l, t) and the env's ``episode_metrics``."""
