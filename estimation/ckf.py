@@ -1,60 +1,323 @@
-"""Batched cubature Kalman filter (Arasaratnam & Haykin, IEEE TAC 54(6), 2009) with a
-Huber-robust measurement update (paper eq. 21-29) and dropout masking.
+"""Cubature Kalman filter (Arasaratnam & Haykin, IEEE TAC 54(6), 2009) with a Huber-robust
+measurement update (paper eq. 21-29) and dropout masking, compiled with numba.
 
-Shapes: B batch, n state, m measurement, K = 2n cubature points. Process and measurement
-functions take point sets (B, K, n) and return (B, K, n) / (B, K, m).
+The compiled building blocks take the model's values at the cubature points rather than the
+model itself (numba cannot cache code that receives a function): a filter step draws
+:func:`cubature_points`, evaluates its model at each, and hands the results to
+:func:`predicted_moments` (time update) or :func:`measurement_update`. The estimators' compiled
+steps (estimation/joint.py) do this for the vehicle model; :func:`ckf_predict` and
+:func:`ckf_update` do it from Python for a batch (leading axis B) and any vectorised model
+``f(points (B, K, n)) -> (B, K, k)``.
+
+Shapes: n state, m measurement, K = 2n cubature points.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import math
 from typing import NamedTuple
 
+import numba
 import numpy as np
 
 DROPOUT_VARIANCE = 1e12  #: variance given to a channel without valid data (no information)
+NO_HUBER = math.inf  #: Huber threshold meaning "plain (non-robust) update"
+JIT = dict(cache=True, error_model="numpy")
 
 
-def robust_sqrt(P: np.ndarray) -> np.ndarray:
-    """S with S S^T = P (B, n, n): batched Cholesky of the symmetrised P; members where it
-    fails fall back to an eigen-decomposition with eigenvalues floored at 1e-12 trace(P)."""
-    if not np.all(np.isfinite(P)):
-        raise ValueError("covariance contains NaN or inf")
-    P = 0.5 * (P + np.swapaxes(P, -1, -2))
-    try:
-        return np.linalg.cholesky(P)
-    except np.linalg.LinAlgError:
-        pass
-    S = np.empty_like(P)
-    for i in range(P.shape[0]):
-        try:
-            S[i] = np.linalg.cholesky(P[i])
-        except np.linalg.LinAlgError:
-            w, V = np.linalg.eigh(P[i])
-            w = np.maximum(w, 1e-12 * max(np.trace(P[i]), 1e-300))
-            S[i] = V * np.sqrt(w)
-    return S
+@numba.njit(**JIT)
+def cholesky(A: np.ndarray, L: np.ndarray) -> bool:
+    """Lower Cholesky factor of the symmetric A (lower triangle read) into L; False if A is not
+    numerically positive definite (or not finite)."""
+    n = A.shape[0]
+    L[:, :] = 0.0
+    for j in range(n):
+        s = A[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if not s > 0.0:
+            return False
+        d = math.sqrt(s)
+        L[j, j] = d
+        for i in range(j + 1, n):
+            t = A[i, j]
+            for k in range(j):
+                t -= L[i, k] * L[j, k]
+            L[i, j] = t / d
+    return True
 
 
-def cubature_points(x: np.ndarray, P: np.ndarray) -> np.ndarray:
-    """The 2n third-degree spherical-radial points x +/- sqrt(n) S e_j (B, 2n, n)."""
-    n = x.shape[-1]
-    offsets = np.sqrt(n) * np.swapaxes(robust_sqrt(P), -1, -2)  # rows: scaled columns of S
-    return x[:, None, :] + np.concatenate([offsets, -offsets], axis=1)
+@numba.njit(**JIT)
+def covariance_sqrt(P: np.ndarray, S: np.ndarray) -> bool:
+    """Lower-triangular S with S S^T = P: Cholesky of the symmetrised P; if that fails (P
+    numerically semi-definite), of P plus a diagonal jitter growing tenfold from 1e-12 trace(P)
+    until it succeeds. False if P is not finite or no jitter up to trace(P) helps."""
+    n = P.shape[0]
+    sym = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            sym[i, j] = 0.5 * (P[i, j] + P[j, i])
+            if not math.isfinite(sym[i, j]):
+                return False
+    if cholesky(sym, S):
+        return True
+    jitter = 1e-12 * max(np.trace(sym), 1e-300)
+    while jitter <= max(np.trace(sym), 1e-300):
+        for i in range(n):
+            sym[i, i] += jitter
+        if cholesky(sym, S):
+            return True
+        for i in range(n):
+            sym[i, i] -= jitter
+        jitter *= 10.0
+    return False
 
 
-def _moments(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    mean = points.mean(axis=1)
-    d = points - mean[:, None, :]
-    return mean, np.swapaxes(d, 1, 2) @ d / points.shape[1]
+@numba.njit(**JIT)
+def matmul(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """A @ B for small matrices (plain loops: numba's BLAS call cannot be cached)."""
+    C = np.zeros((A.shape[0], B.shape[1]))
+    for i in range(A.shape[0]):
+        for k in range(A.shape[1]):
+            a = A[i, k]
+            for j in range(B.shape[1]):
+                C[i, j] += a * B[k, j]
+    return C
 
 
-def ckf_predict(x: np.ndarray, P: np.ndarray, f: Callable[[np.ndarray], np.ndarray],
-                Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Time update: propagate the cubature points through ``f``; returns (x_pred, P_pred)."""
-    mean, cov = _moments(f(cubature_points(x, P)))
-    cov = cov + Q
-    return mean, 0.5 * (cov + np.swapaxes(cov, -1, -2))
+@numba.njit(**JIT)
+def cholesky_solve(L: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    """out = (L L^T)^-1 b for a lower-triangular L."""
+    n = L.shape[0]
+    for i in range(n):
+        t = b[i]
+        for k in range(i):
+            t -= L[i, k] * out[k]
+        out[i] = t / L[i, i]
+    for i in range(n - 1, -1, -1):
+        t = out[i]
+        for k in range(i + 1, n):
+            t -= L[k, i] * out[k]
+        out[i] = t / L[i, i]
+
+
+@numba.njit(**JIT)
+def spd_inverse(A: np.ndarray, out: np.ndarray) -> bool:
+    """Inverse of a symmetric positive definite A into out, through its (jittered if need be)
+    Cholesky factor S: A^-1 = S^-T S^-1. False if A is not finite."""
+    n = A.shape[0]
+    S = np.empty((n, n))
+    if not covariance_sqrt(A, S):
+        return False
+    S_inv = np.zeros((n, n))  # inverse of the lower-triangular S, column by column
+    for c in range(n):
+        for i in range(c, n):
+            t = 1.0 if i == c else 0.0
+            for k in range(c, i):
+                t -= S[i, k] * S_inv[k, c]
+            S_inv[i, c] = t / S[i, i]
+    for i in range(n):
+        for j in range(i, n):
+            t = 0.0
+            for k in range(n):
+                t += S_inv[k, i] * S_inv[k, j]
+            out[i, j] = t
+            out[j, i] = t
+    return True
+
+
+@numba.njit(**JIT)
+def cubature_points(x: np.ndarray, P: np.ndarray, points: np.ndarray) -> bool:
+    """The 2n third-degree spherical-radial points x +/- sqrt(n) S e_j into points (2n, n)."""
+    n = x.shape[0]
+    S = np.empty((n, n))
+    if not covariance_sqrt(P, S):
+        return False
+    c = math.sqrt(n)
+    for k in range(n):
+        for i in range(n):
+            points[k, i] = x[i] + c * S[i, k]
+            points[n + k, i] = x[i] - c * S[i, k]
+    return True
+
+
+@numba.njit(**JIT)
+def predicted_moments(moved: np.ndarray, Q: np.ndarray, x_out: np.ndarray, P_out: np.ndarray) -> None:
+    """Time update from the propagated cubature points moved (K, n): their mean, and their
+    covariance plus Q, into (x_out, P_out)."""
+    K, n = moved.shape
+    for i in range(n):
+        t = 0.0
+        for k in range(K):
+            t += moved[k, i]
+        x_out[i] = t / K
+    for i in range(n):
+        for j in range(i, n):
+            t = 0.0
+            for k in range(K):
+                t += (moved[k, i] - x_out[i]) * (moved[k, j] - x_out[j])
+            t = t / K + 0.5 * (Q[i, j] + Q[j, i])
+            P_out[i, j] = t
+            P_out[j, i] = t
+
+
+@numba.njit(**JIT)
+def measurement_update(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nu, S, weights) -> float:
+    """Measurement update of one filter from its cubature points (K, n) of (x, P) and their
+    predicted measurements Z (K, m); returns the innovation negative log-likelihood (NaN if
+    the innovation covariance is not positive definite).
+
+    Writes the state and covariance (x_out, P_out), the innovation nu (m,) (zero on channels
+    with ``valid`` False, which carry no information: variance 1e12), its covariance S (m, m)
+    and the Huber weights (m,). Robust (finite ``huber_c``): standardised innovations
+    r_i = nu_i / sqrt(S_ii) give Huber weights w_i = min(1, c / |r_i|) (eq. 27); the noise is
+    inflated to R_ij / sqrt(w_i w_j) (the equivalent-weight form R_bar = P_bar^-1 of eq. 28-29;
+    the paper's printed indices slip) and the update redone."""
+    K, n = points.shape
+    m = z.shape[0]
+    z_mean = np.empty(m)
+    for i in range(m):
+        t = 0.0
+        for k in range(K):
+            t += Z[k, i]
+        z_mean[i] = t / K
+    Pzz = np.empty((m, m))
+    for i in range(m):
+        for j in range(i, m):
+            t = 0.0
+            for k in range(K):
+                t += (Z[k, i] - z_mean[i]) * (Z[k, j] - z_mean[j])
+            Pzz[i, j] = t / K
+            Pzz[j, i] = t / K
+    Pxz = np.empty((n, m))
+    for i in range(n):
+        for j in range(m):
+            t = 0.0
+            for k in range(K):
+                t += (points[k, i] - x[i]) * (Z[k, j] - z_mean[j])
+            Pxz[i, j] = t / K
+    Rv = np.empty((m, m))
+    m_valid = 0
+    for i in range(m):
+        nu[i] = z[i] - z_mean[i] if valid[i] else 0.0
+        m_valid += 1 if valid[i] else 0
+        for j in range(m):
+            Rv[i, j] = R[i, j]
+        if not valid[i]:
+            Rv[i, i] = DROPOUT_VARIANCE
+        weights[i] = 1.0
+    if huber_c < math.inf:
+        for i in range(m):
+            a = abs(nu[i]) / math.sqrt(Pzz[i, i] + Rv[i, i])
+            weights[i] = 1.0 if a <= huber_c else huber_c / max(a, 1e-300)
+        for i in range(m):
+            for j in range(m):
+                Rv[i, j] /= math.sqrt(weights[i] * weights[j])
+    for i in range(m):
+        for j in range(m):
+            S[i, j] = Pzz[i, j] + 0.5 * (Rv[i, j] + Rv[j, i])
+    L = np.empty((m, m))
+    if not cholesky(S, L):
+        return math.nan
+    gain = np.empty((n, m))  # K = Pxz S^-1, row by row
+    for i in range(n):
+        cholesky_solve(L, Pxz[i], gain[i])
+    for i in range(n):
+        t = x[i]
+        for j in range(m):
+            t += gain[i, j] * nu[j]
+        x_out[i] = t
+    KS = np.empty((n, m))
+    for i in range(n):
+        for j in range(m):
+            t = 0.0
+            for k in range(m):
+                t += gain[i, k] * S[k, j]
+            KS[i, j] = t
+    for i in range(n):
+        for j in range(i, n):
+            t = 0.0
+            for k in range(m):
+                t += KS[i, k] * gain[j, k]
+            value = 0.5 * (P[i, j] + P[j, i]) - t
+            P_out[i, j] = value
+            P_out[j, i] = value
+    white = np.empty(m)  # L^-1 nu: maha = |white|^2
+    log_det = 0.0
+    for i in range(m):
+        t = nu[i]
+        for k in range(i):
+            t -= L[i, k] * white[k]
+        white[i] = t / L[i, i]
+        log_det += 2.0 * math.log(L[i, i])
+    maha = 0.0
+    for i in range(m):
+        maha += white[i] * white[i]
+    log_det -= math.log(DROPOUT_VARIANCE) * (m - m_valid)
+    return 0.5 * (maha + log_det + m_valid * math.log(2.0 * math.pi))
+
+
+# ---- batched entry points from Python ----------------------------------------------------
+@numba.njit(**JIT)
+def _points_batch(x, P, points, ok):
+    for b in range(x.shape[0]):
+        ok[b] = cubature_points(x[b], P[b], points[b])
+
+
+@numba.njit(**JIT)
+def _moments_batch(moved, Q, x_out, P_out):
+    for b in range(moved.shape[0]):
+        predicted_moments(moved[b], Q[b], x_out[b], P_out[b])
+
+
+@numba.njit(**JIT)
+def _update_batch(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nu, S, weights, nll):
+    for b in range(x.shape[0]):
+        nll[b] = measurement_update(x[b], P[b], points[b], Z[b], z[b], valid[b], R[b], huber_c, x_out[b], P_out[b],
+                                    nu[b], S[b], weights[b])
+
+
+def batch_arrays(x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """x (B, n) and P (B, n, n) as contiguous float64, shapes checked."""
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    P = np.ascontiguousarray(P, dtype=np.float64)
+    if x.ndim != 2 or P.shape != x.shape + x.shape[-1:]:
+        raise ValueError(f"state must have shape (B, n) and covariance (B, n, n), got {x.shape} and {P.shape}")
+    return x, P
+
+
+def broadcast_matrix(M: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """A (k, k) or (B, k, k) matrix as a contiguous (B, k, k) float64 array."""
+    return np.ascontiguousarray(np.broadcast_to(np.asarray(M, dtype=np.float64), shape))
+
+
+def batch_points(x: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """The cubature points (B, 2n, n) of a batch x (B, n), P (B, n, n)."""
+    points, ok = np.empty((x.shape[0], 2 * x.shape[1], x.shape[1])), np.empty(len(x), dtype=np.bool_)
+    _points_batch(x, P, points, ok)
+    if not ok.all():
+        raise ValueError(f"covariance of member {int(np.argmin(ok))} contains NaN or inf")
+    return points
+
+
+def _model_values(fn, points: np.ndarray, width: int | None = None) -> np.ndarray:
+    values = np.ascontiguousarray(fn(points), dtype=np.float64)
+    if values.ndim != 3 or values.shape[:2] != points.shape[:2] or (width is not None and values.shape[2] != width):
+        raise ValueError(f"the model must map points {points.shape} to (B, K, k), got {values.shape}")
+    if not np.all(np.isfinite(values)):
+        raise ValueError("the model returned NaN or inf at a cubature point")
+    return values
+
+
+def ckf_predict(x: np.ndarray, P: np.ndarray, f, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Time update of a batch: x (B, n), P and Q (B, n, n) (Q may be (n, n)); ``f`` maps point
+    sets (B, 2n, n) to (B, 2n, n). Returns (x_pred, P_pred)."""
+    x, P = batch_arrays(x, P)
+    moved = _model_values(f, batch_points(x, P), x.shape[1])
+    x_out, P_out = np.empty_like(x), np.empty_like(P)
+    _moments_batch(moved, broadcast_matrix(Q, P.shape), x_out, P_out)
+    return x_out, P_out
+
 
 
 class CKFUpdate(NamedTuple):
@@ -69,48 +332,26 @@ class CKFUpdate(NamedTuple):
     nll: np.ndarray
 
 
-def huber_weights(standardised: np.ndarray, c: float) -> np.ndarray:
-    """Huber's equivalent weights (eq. 27): 1 inside |r| <= c, c/|r| outside."""
-    a = np.abs(standardised)
-    return np.where(a <= c, 1.0, c / np.maximum(a, 1e-300))
-
-
-def ckf_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, h: Callable[[np.ndarray], np.ndarray], R: np.ndarray,
-               huber_c: float | None = None, valid: np.ndarray | None = None) -> CKFUpdate:
-    """Measurement update with fresh cubature points of (x, P).
-
-    Robust (``huber_c``): standardised innovations r_i = nu_i / sqrt(S_ii) give Huber weights
-    w_i; the noise covariance is inflated to R_ij / sqrt(w_i w_j) (the equivalent-weight form
-    R_bar = P_bar^-1 of eq. 28-29; the paper's printed indices slip) and the update redone.
-    Channels with ``valid`` False (B, m) carry no information (variance 1e12)."""
+def ckf_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, h, R: np.ndarray, huber_c: float | None = None,
+               valid: np.ndarray | None = None) -> CKFUpdate:
+    """Measurement update of a batch (see :func:`measurement_update`) with fresh cubature points
+    of (x, P): z (B, m), ``h`` maps point sets (B, 2n, n) to (B, 2n, m), R (m, m) or (B, m, m),
+    ``huber_c`` None for the plain update, ``valid`` (B, m) bool (default all valid)."""
+    x, P = batch_arrays(x, P)
+    z = np.ascontiguousarray(z, dtype=np.float64)
     if z.ndim != 2 or z.shape[0] != x.shape[0]:
         raise ValueError(f"measurement must have shape (B, m) with B = {x.shape[0]}, got {z.shape}")
-    valid = np.ones(z.shape, dtype=bool) if valid is None else valid
+    valid = np.ones(z.shape, dtype=np.bool_) if valid is None else np.ascontiguousarray(valid, dtype=np.bool_)
     if not np.all(np.isfinite(z[valid])):
         raise ValueError("a valid measurement is NaN or inf")
-    points = cubature_points(x, P)
-    Z = h(points)
-    z_mean, Pzz = _moments(Z)
-    Pxz = np.swapaxes(points - x[:, None, :], 1, 2) @ (Z - z_mean[:, None, :]) / points.shape[1]
-    nu = np.where(valid, z - z_mean, 0.0)
-    R = np.broadcast_to(R, Pzz.shape).copy()
-    idx = np.arange(z.shape[1])
-    R[:, idx, idx] = np.where(valid, R[:, idx, idx], DROPOUT_VARIANCE)
-    S = Pzz + R
-    weights = np.ones_like(nu)
-    if huber_c is not None:
-        weights = huber_weights(nu / np.sqrt(np.diagonal(S, axis1=1, axis2=2)), huber_c)
-        R = R / np.sqrt(weights[:, :, None] * weights[:, None, :])
-        S = Pzz + R
-    S = 0.5 * (S + np.swapaxes(S, -1, -2))
-    gain = np.linalg.solve(S, np.swapaxes(Pxz, -1, -2))  # S^-1 Pzx, i.e. K^T
-    gain = np.swapaxes(gain, -1, -2)
-    x_new = x + (gain @ nu[..., None])[..., 0]
-    P_new = P - gain @ S @ np.swapaxes(gain, -1, -2)
-    P_new = 0.5 * (P_new + np.swapaxes(P_new, -1, -2))
-    sign, logdet = np.linalg.slogdet(S)
-    m_valid = valid.sum(axis=1)
-    maha = np.sum(nu * np.linalg.solve(S, nu[..., None])[..., 0], axis=1)
-    logdet_valid = logdet - np.log(DROPOUT_VARIANCE) * (z.shape[1] - m_valid)
-    nll = 0.5 * (maha + logdet_valid + m_valid * np.log(2 * np.pi))
-    return CKFUpdate(x_new, P_new, nu, S, weights, nll)
+    B, m = z.shape
+    points = batch_points(x, P)
+    Z = _model_values(h, points, m)
+    x_out, P_out = np.empty_like(x), np.empty_like(P)
+    nu, S, weights, nll = np.empty((B, m)), np.empty((B, m, m)), np.empty((B, m)), np.empty(B)
+    _update_batch(x, P, points, Z, z, valid, broadcast_matrix(R, (B, m, m)),
+                  NO_HUBER if huber_c is None else float(huber_c), x_out, P_out, nu, S, weights, nll)
+    if not np.all(np.isfinite(nll)):
+        raise ValueError(f"update of member {int(np.argmin(np.isfinite(nll)))} failed: innovation covariance "
+                         "not positive definite")
+    return CKFUpdate(x_out, P_out, nu, S, weights, nll)

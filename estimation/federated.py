@@ -1,6 +1,8 @@
-"""Federated Kalman filter with reset (Carlson, IEEE TAES 26(3), 1990; paper eq. 33-35, 59-61).
+"""Federated Kalman filter with reset (Carlson, IEEE TAES 26(3), 1990; paper eq. 33-35, 59-61):
+compiled fusion and sharing rules, and :func:`federated_step`, one cycle for a batch and any
+vectorised models (the estimators' compiled steps run the same cycle on the vehicle model).
 
-Each step the master's (x_g, P_g) is shared out to N sub-filters with information-sharing
+Each step the master's (x_g, P_g) is shared out to the sub-filters with information-sharing
 coefficients beta_i (sum 1): P_i = P_g / beta_i, Q_i = Q / beta_i. Each sub-filter predicts
 with the common model and updates with its own measurements; the master fuses them by
 information weighting. For linear-Gaussian systems this equals the centralised filter.
@@ -13,32 +15,53 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
+import numba
 import numpy as np
 
-from estimation.ckf import ckf_predict, ckf_update
+from estimation.ckf import JIT, batch_arrays, broadcast_matrix, ckf_predict, ckf_update, spd_inverse
 
 BETA_FLOOR = 0.05
 
 
-def fuse(xs: Sequence[np.ndarray], Ps: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """Information-weighted fusion: P_g = (sum P_i^-1)^-1, x_g = P_g sum P_i^-1 x_i."""
-    infos = [np.linalg.inv(P) for P in Ps]
-    P_g = np.linalg.inv(sum(infos))
-    x_g = (P_g @ sum(I @ x[..., None] for I, x in zip(infos, xs)))[..., 0]
-    return x_g, 0.5 * (P_g + np.swapaxes(P_g, -1, -2))
+@numba.njit(**JIT)
+def fuse(xs: np.ndarray, Ps: np.ndarray, x_out: np.ndarray, P_out: np.ndarray, confidence: np.ndarray) -> bool:
+    """Information-weighted fusion of N estimates xs (N, n), Ps (N, n, n):
+    P_g = (sum P_i^-1)^-1, x_g = P_g sum P_i^-1 x_i; confidence (N,) = trace(P_i^-1)."""
+    N, n = xs.shape
+    info_sum = np.zeros((n, n))
+    weighted = np.zeros(n)
+    info = np.empty((n, n))
+    for s in range(N):
+        if not spd_inverse(Ps[s], info):
+            return False
+        confidence[s] = np.trace(info)
+        for i in range(n):
+            for j in range(n):
+                info_sum[i, j] += info[i, j]
+                weighted[i] += info[i, j] * xs[s, j]
+    if not spd_inverse(info_sum, P_out):
+        return False
+    for i in range(n):
+        t = 0.0
+        for j in range(n):
+            t += P_out[i, j] * weighted[j]
+        x_out[i] = t
+    return True
 
 
-def sharing_coefficients(Ps: Sequence[np.ndarray]) -> np.ndarray:
-    """beta (B, N): proportional to trace(P_i^-1), floored at BETA_FLOOR, summing to 1."""
-    conf = np.stack([np.trace(np.linalg.inv(P), axis1=1, axis2=2) for P in Ps], axis=1)
-    beta = conf / conf.sum(axis=1, keepdims=True)
-    beta = np.maximum(beta, BETA_FLOOR)
-    return beta / beta.sum(axis=1, keepdims=True)
+@numba.njit(**JIT)
+def sharing_coefficients(confidence: np.ndarray, beta: np.ndarray) -> None:
+    """beta (N,): proportional to the confidences, floored at BETA_FLOOR, summing to 1."""
+    total = confidence.sum()
+    for s in range(beta.shape[0]):
+        beta[s] = max(confidence[s] / total, BETA_FLOOR)
+    beta /= beta.sum()
 
 
+# ---- batched entry point from Python ------------------------------------------------------
 class SubMeasurement(NamedTuple):
-    """One sub-filter's measurement: z (B, m), h(points) -> (B, K, m), R (m, m) or (B, m, m),
-    valid (B, m) bool or None."""
+    """One sub-filter's measurement: z (B, m), h(points (B, K, n)) -> (B, K, m), R (m, m) or
+    (B, m, m), valid (B, m) bool or None."""
 
     z: np.ndarray
     h: Callable[[np.ndarray], np.ndarray]
@@ -47,17 +70,31 @@ class SubMeasurement(NamedTuple):
 
 
 class FederatedStep(NamedTuple):
-    """Fused state (B, n), covariance (B, n, n), next betas (B, N), per-sub-filter innovation NLL list."""
+    """Fused state (B, n), covariance (B, n, n), next betas (B, N), innovation NLL (B, N)."""
 
     x: np.ndarray
     P: np.ndarray
     beta: np.ndarray
-    nll: list[np.ndarray]
+    nll: np.ndarray
+
+
+@numba.njit(**JIT)
+def _fuse_batch(xs, Ps, x_out, P_out, beta_out, ok):
+    for b in range(xs.shape[0]):
+        confidence = np.empty(xs.shape[1])
+        ok[b] = fuse(xs[b], Ps[b], x_out[b], P_out[b], confidence)
+        sharing_coefficients(confidence, beta_out[b])
 
 
 def federated_step(x: np.ndarray, P: np.ndarray, f: Callable[[np.ndarray], np.ndarray], Q: np.ndarray,
                    subs: Sequence[SubMeasurement], beta: np.ndarray, huber_c: float | None = None) -> FederatedStep:
-    """One federated CKF cycle: share (reset), predict + update each sub-filter, fuse."""
+    """One federated CKF cycle for a batch: share (reset) with beta (B, N), predict + update each
+    sub-filter, fuse. x (B, n), P (B, n, n), f maps point sets (B, K, n) to (B, K, n)."""
+    x, P = batch_arrays(x, P)
+    beta = np.asarray(beta, dtype=np.float64)
+    if beta.shape != (len(x), len(subs)):
+        raise ValueError(f"beta must have shape {(len(x), len(subs))}, got {beta.shape}")
+    Q = broadcast_matrix(Q, P.shape)
     xs, Ps, nlls = [], [], []
     for i, sub in enumerate(subs):
         b = beta[:, i][:, None, None]
@@ -66,5 +103,8 @@ def federated_step(x: np.ndarray, P: np.ndarray, f: Callable[[np.ndarray], np.nd
         xs.append(upd.x)
         Ps.append(upd.P)
         nlls.append(upd.nll)
-    x_g, P_g = fuse(xs, Ps)
-    return FederatedStep(x_g, P_g, sharing_coefficients(Ps), nlls)
+    x_g, P_g, beta_next, ok = np.empty_like(x), np.empty_like(P), np.empty_like(beta), np.empty(len(x), np.bool_)
+    _fuse_batch(np.stack(xs, axis=1), np.stack(Ps, axis=1), x_g, P_g, beta_next, ok)
+    if not ok.all():
+        raise ValueError(f"fusion of member {int(np.argmin(ok))} failed: a covariance is not finite")
+    return FederatedStep(x_g, P_g, beta_next, np.stack(nlls, axis=1))

@@ -30,15 +30,18 @@ separates left from right over time.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field, replace
 from importlib import resources
 
+import numba
 import numpy as np
 
-from estimation.ckf import DROPOUT_VARIANCE, ckf_predict, ckf_update
-from estimation.federated import SubMeasurement, federated_step
-from estimation.model import (Inputs, ModelParams, body_forces, dugoff_lambda, normal_loads, state_transition,
-                              tyre_state, wheel_kinematics)
+from estimation.ckf import (DROPOUT_VARIANCE, JIT, NO_HUBER, cholesky, cholesky_solve, cubature_points, matmul,
+                            measurement_update, predicted_moments)
+from estimation.federated import fuse, sharing_coefficients
+from estimation.model import (P_IZ, P_RW, ModelParams, body_forces, dugoff_lambdas, steer_trig, transition,
+                              wheel_kinematics, wheel_loads)
 from estimation.types import Estimate
 
 N_STATE = 6
@@ -49,12 +52,6 @@ EXCITATION_LAMBDA = 1.0  #: a wheel's mu is updated only while its Dugoff lambda
 
 
 MU_CORRELATION = 0.8  #: prior/random-walk correlation of the four wheels' mu (roads vary smoothly)
-
-
-def _diag(variances) -> np.ndarray:
-    """Diagonal matrices (..., m, m) of m variances, each a scalar or a (B,) array."""
-    v = np.stack(np.broadcast_arrays(*[np.asarray(x, dtype=float) for x in variances]), axis=-1)
-    return v[..., :, None] * np.eye(v.shape[-1])
 
 
 def _correlated(variance: float) -> np.ndarray:
@@ -110,11 +107,312 @@ def tuned_noise(path=None) -> NoiseParams | None:
 
 
 STATE_FIELDS = ("x", "P", "mu", "P_mu", "beta", "beta_mu", "omega_prev", "omega_dot", "last_nll")
+PARALLEL_MIN_BATCH = 64  #: batches at least this large step on all cores
+OMEGA_DOT_TIME_CONSTANT = 0.02  #: low-pass of the differentiated wheel speed [s]
+#: columns of the compiled step's output row
+(O_U, O_V, O_BETA, O_R, O_AX, O_AY), O_MU, O_FZ, O_BETA_STD, O_MU_STD, N_OUT = range(6), 6, 10, 14, 15, 19
+#: status codes of the compiled step
+OK, BAD_MEASUREMENT, FILTER_FAILED = 0, 1, 2
+
+
+# ---- measurement models (compiled, one cubature point at a time) -------------------------------
+@numba.njit(**JIT)
+def measure_state_1(x, out, args) -> None:
+    """State sub-filter 1: [ax, ay, r, wheel-centre speeds along each wheel (4)]; args = (steer, pk)."""
+    steer, pk = args
+    out[0], out[1], out[2] = x[I_AX], x[I_AY], x[I_R]
+    for w in range(4):
+        out[3 + w] = wheel_kinematics(x[I_U], x[I_V], x[I_R], steer, pk, w)[1]
+
+
+@numba.njit(**JIT)
+def measure_state_2(x, out, args) -> None:
+    """State sub-filter 2: [ay, r]."""
+    out[0], out[1] = x[I_AY], x[I_R]
+
+
+@numba.njit(**JIT)
+def _mu_prediction(mu, args) -> tuple[float, float, float]:
+    """[ax, ay, r] predicted by the tyre model with friction ``mu`` at the state filter's
+    estimate x (r one step ahead of the previous yaw rate); args = (x, steer, omega, torque,
+    omega_dot, pk, dt)."""
+    x, steer, omega, torque, omega_dot, pk, dt = args
+    ax, ay, gamma = body_forces(x[I_U], x[I_V], x[I_R], x[I_AX], x[I_AY], mu, steer, omega, torque, omega_dot, pk)
+    r_prev = x[I_R] - dt * x[I_GAMMA] / pk[P_IZ]
+    return ax, ay, r_prev + dt * gamma / pk[P_IZ]
+
+
+@numba.njit(**JIT)
+def measure_mu_1(mu, out, args) -> None:
+    """mu sub-filter 1: [ax, ay, r]."""
+    out[0], out[1], out[2] = _mu_prediction(mu, args)
+
+
+@numba.njit(**JIT)
+def measure_mu_2(mu, out, args) -> None:
+    """mu sub-filter 2: [ay, r]."""
+    _, out[0], out[1] = _mu_prediction(mu, args)
+
+
+@numba.njit(**JIT)
+def random_walk(mu, out, args) -> None:
+    """mu's process model: held (the random walk is in its Q)."""
+    out[:] = mu
+
+
+#: model ids of the compiled step (numba cannot cache code that passes functions around)
+TRANSITION, STATE_1, STATE_2, RANDOM_WALK, MU_1, MU_2 = range(6)
+
+
+@numba.njit(inline="always", **JIT)
+def _evaluate(model, point, out, f_args, h_args, m_args) -> None:
+    """Model ``model`` at one point: f_args for the transition, h_args for the state
+    measurements and the random walk, m_args for the mu measurements."""
+    if model == TRANSITION:
+        transition(point, out, f_args)
+    elif model == STATE_1:
+        measure_state_1(point, out, h_args)
+    elif model == STATE_2:
+        measure_state_2(point, out, h_args)
+    elif model == RANDOM_WALK:
+        random_walk(point, out, h_args)
+    elif model == MU_1:
+        measure_mu_1(point, out, m_args)
+    else:
+        measure_mu_2(point, out, m_args)
+
+
+@numba.njit(**JIT)
+def _ckf_predict(x, P, Q, model, f_args, h_args, m_args, x_out, P_out) -> bool:
+    """CKF time update through ``model``; False if P is not finite."""
+    n = x.shape[0]
+    points, moved = np.empty((2 * n, n)), np.empty((2 * n, n))
+    if not cubature_points(x, P, points):
+        return False
+    for k in range(2 * n):
+        _evaluate(model, points[k], moved[k], f_args, h_args, m_args)
+    predicted_moments(moved, Q, x_out, P_out)
+    return True
+
+
+@numba.njit(**JIT)
+def _ckf_update(x, P, z, valid, R, huber_c, model, f_args, h_args, m_args, x_out, P_out) -> float:
+    """CKF measurement update through ``model``; returns the innovation NLL (NaN on failure)."""
+    n, m = x.shape[0], z.shape[0]
+    points, Z = np.empty((2 * n, n)), np.empty((2 * n, m))
+    if not cubature_points(x, P, points):
+        return math.nan
+    for k in range(2 * n):
+        _evaluate(model, points[k], Z[k], f_args, h_args, m_args)
+    return measurement_update(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, np.empty(m), np.empty((m, m)),
+                              np.empty(m))
+
+
+@numba.njit(**JIT)
+def _federated(x, P, Q, beta, f_model, z1, valid1, R1, h1_model, z2, valid2, R2, h2_model, huber_c,
+               f_args, h_args, m_args, x_out, P_out, beta_out) -> float:
+    """One federated cycle (estimation/federated.py) with two sub-filters; returns the summed
+    innovation NLL (NaN on failure)."""
+    n = x.shape[0]
+    xs, Ps = np.empty((2, n)), np.empty((2, n, n))
+    x_pred, P_pred = np.empty(n), np.empty((n, n))
+    total = 0.0
+    for s in range(2):
+        if not _ckf_predict(x, P / beta[s], Q / beta[s], f_model, f_args, h_args, m_args, x_pred, P_pred):
+            return math.nan
+        if s == 0:
+            nll = _ckf_update(x_pred, P_pred, z1, valid1, R1, huber_c, h1_model, f_args, h_args, m_args, xs[0], Ps[0])
+        else:
+            nll = _ckf_update(x_pred, P_pred, z2, valid2, R2, huber_c, h2_model, f_args, h_args, m_args, xs[1], Ps[1])
+        if not math.isfinite(nll):
+            return math.nan
+        total += nll
+    confidence = np.empty(2)
+    if not fuse(xs, Ps, x_out, P_out, confidence):
+        return math.nan
+    sharing_coefficients(confidence, beta_out)
+    return total
+
+
+@numba.njit(**JIT)
+def _diagonal(variances) -> np.ndarray:
+    M = np.zeros((variances.shape[0], variances.shape[0]))
+    for i in range(variances.shape[0]):
+        M[i, i] = variances[i]
+    return M
+
+
+@numba.njit(**JIT)
+def _finite_difference_jacobian(model, x, eps, m, f_args, h_args, m_args) -> tuple[np.ndarray, np.ndarray]:
+    """model(x) (m,) and its central-difference Jacobian (m, n) with steps eps (n,)."""
+    n = x.shape[0]
+    centre, plus, minus = np.empty(m), np.empty(m), np.empty(m)
+    _evaluate(model, x, centre, f_args, h_args, m_args)
+    J = np.empty((m, n))
+    probe = x.copy()
+    for k in range(n):
+        probe[k] = x[k] + eps[k]
+        _evaluate(model, probe, plus, f_args, h_args, m_args)
+        probe[k] = x[k] - eps[k]
+        _evaluate(model, probe, minus, f_args, h_args, m_args)
+        probe[k] = x[k]
+        for i in range(m):
+            J[i, k] = (plus[i] - minus[i]) / (2.0 * eps[k])
+    return centre, J
+
+
+@numba.njit(**JIT)
+def _ekf_step(x, P, Q, z, valid, R, f_args, h_args, m_args, x_out, P_out) -> float:
+    """EKF on the same model (central-difference Jacobians, Joseph-form update); returns
+    0.5 nu^T S^-1 nu (NaN if S is not positive definite)."""
+    n, m = x.shape[0], z.shape[0]
+    eps = np.empty(n)
+    for k in range(n):
+        eps[k] = 1e-4 * max(abs(x[k]), 1e-2)
+    x_pred, F = _finite_difference_jacobian(TRANSITION, x, eps, n, f_args, h_args, m_args)
+    P_pred = matmul(matmul(F, P), F.T) + Q
+    z_pred, H = _finite_difference_jacobian(STATE_1, x_pred, eps, m, f_args, h_args, m_args)
+    Rv = R.copy()
+    nu = np.empty(m)
+    for i in range(m):
+        nu[i] = z[i] - z_pred[i] if valid[i] else 0.0
+        if not valid[i]:
+            Rv[i, i] = DROPOUT_VARIANCE
+    PHt = matmul(P_pred, H.T)
+    S = matmul(H, PHt) + Rv
+    L = np.empty((m, m))
+    if not cholesky(S, L):
+        return math.nan
+    K = np.empty((n, m))
+    for i in range(n):
+        cholesky_solve(L, PHt[i].copy(), K[i])
+    for i in range(n):
+        x_out[i] = x_pred[i] + np.sum(K[i] * nu)
+    I_KH = np.eye(n) - matmul(K, H)
+    P_new = matmul(matmul(I_KH, P_pred), I_KH.T) + matmul(matmul(K, Rv), K.T)
+    P_out[:, :] = 0.5 * (P_new + P_new.T)
+    white = np.empty(m)
+    cholesky_solve(L, nu, white)
+    return 0.5 * np.sum(nu * white)
+
+
+# ---- one estimator step (compiled) -----------------------------------------------------------
+@numba.njit(**JIT)
+def _step_member(kind, pk, dt, huber_c, process_var, sensor_var, mu_var, x, P, mu, P_mu, beta, beta_mu,
+                 omega_prev, omega_dot, values, valid, out) -> tuple[int, float]:
+    """One step of one vehicle's estimator of ``kind`` (index into KINDS); state rows are
+    updated in place only on success. Returns (status, innovation NLL) and fills ``out``."""
+    for c in range(values.shape[0]):
+        if valid[c] and not math.isfinite(values[c]):
+            return BAD_MEASUREMENT, math.nan
+    robust, federated, joint = kind >= 3, kind >= 2, kind == 4
+    # inputs; wheel angular acceleration for eq. 7: differentiated wheel speed, low-passed
+    omega, torque, od = values[3:7].copy(), values[9:13].copy(), np.empty(4)
+    for w in range(4):
+        od[w] = omega_dot[w] + ((omega[w] - omega_prev[w]) / dt - omega_dot[w]) * (dt / OMEGA_DOT_TIME_CONSTANT)
+    steer = steer_trig(np.array([values[7], values[7], values[8], values[8]]))
+    accel_var, gyro_var, wheel_var = sensor_var[0], sensor_var[1], sensor_var[2]
+    f_args = (mu, steer, omega, torque, od, pk, dt)
+    h_args = (steer, pk)
+    z1 = np.empty(7)
+    z1[:3] = values[:3]
+    z1[3:] = values[3:7] * pk[P_RW]
+    valid1, z2, valid2 = valid[:7].copy(), values[1:3].copy(), valid[1:3].copy()
+    R1 = _diagonal(np.array([accel_var, accel_var, gyro_var, wheel_var, wheel_var, wheel_var, wheel_var]))
+    R2 = _diagonal(np.array([accel_var, gyro_var]))
+    Q = _diagonal(process_var)
+    x_new, P_new, beta_new = np.empty(6), np.empty((6, 6)), beta.copy()
+    m_args = (x, steer, omega, torque, od, pk, dt)  # the mu measurements, unused by the state filter
+    if federated:
+        nll = _federated(x, P, Q, beta, TRANSITION, z1, valid1, R1, STATE_1, z2, valid2, R2, STATE_2,
+                         huber_c if robust else NO_HUBER, f_args, h_args, m_args, x_new, P_new, beta_new)
+    elif kind == 1:
+        x_pred, P_pred = np.empty(6), np.empty((6, 6))
+        if not _ckf_predict(x, P, Q, TRANSITION, f_args, h_args, m_args, x_pred, P_pred):
+            return FILTER_FAILED, math.nan
+        nll = _ckf_update(x_pred, P_pred, z1, valid1, R1, NO_HUBER, STATE_1, f_args, h_args, m_args, x_new, P_new)
+    else:
+        nll = _ekf_step(x, P, Q, z1, valid1, R1, f_args, h_args, m_args, x_new, P_new)
+    if not math.isfinite(nll):
+        return FILTER_FAILED, math.nan
+    mu_new, P_mu_new, beta_mu_new = mu.copy(), P_mu.copy(), beta_mu.copy()
+    if joint:
+        walk = mu_var[0] * (MU_CORRELATION + (1.0 - MU_CORRELATION) * np.eye(4))
+        m_args = (x_new, steer, omega, torque, od, pk, dt)
+        mu_fused, P_fused = np.empty(4), np.empty((4, 4))
+        nll_mu = _federated(mu, P_mu, walk, beta_mu, RANDOM_WALK, values[:3].copy(), valid[:3].copy(),
+                            _diagonal(np.array([mu_var[1], mu_var[1], gyro_var])), MU_1, z2, valid2,
+                            _diagonal(np.array([mu_var[1], gyro_var])), MU_2, huber_c, f_args, h_args, m_args,
+                            mu_fused, P_fused, beta_mu_new)
+        if not math.isfinite(nll_mu):
+            return FILTER_FAILED, math.nan
+        # hold mu where the tyres are far from saturation (Dugoff lambda >= EXCITATION_LAMBDA)
+        lam = np.empty(4)
+        dugoff_lambdas(x_new[I_U], x_new[I_V], x_new[I_R], x_new[I_AX], x_new[I_AY], mu, steer, omega, pk, lam)
+        if lam.min() < EXCITATION_LAMBDA:
+            for w in range(4):
+                mu_new[w] = min(max(mu_fused[w], MU_BOUNDS[0]), MU_BOUNDS[1])
+        # cap the random walk's growth where mu is unobservable
+        scale = np.empty(4)
+        for w in range(4):
+            scale[w] = math.sqrt(min(P_fused[w, w], mu_var[2]) / max(P_fused[w, w], 1e-300))
+        for i in range(4):
+            for j in range(4):
+                P_mu_new[i, j] = P_fused[i, j] * scale[i] * scale[j]
+    # commit
+    x[:], P[:, :], beta[:] = x_new, P_new, beta_new
+    mu[:], P_mu[:, :], beta_mu[:] = mu_new, P_mu_new, beta_mu_new
+    omega_prev[:], omega_dot[:] = omega, od
+    # the estimate
+    u, v = x[I_U], x[I_V]
+    out[O_U], out[O_V], out[O_R], out[O_AX], out[O_AY] = u, v, x[I_R], x[I_AX], x[I_AY]
+    out[O_BETA] = math.atan2(v, abs(u))
+    denom = max(u * u + v * v, 1.0)
+    grad_u, grad_v = -v / denom, u / denom
+    beta_var = grad_u**2 * P[I_U, I_U] + 2 * grad_u * grad_v * P[I_U, I_V] + grad_v**2 * P[I_V, I_V]
+    out[O_BETA_STD] = math.sqrt(max(beta_var, 0.0))
+    wheel_loads(x[I_AX], x[I_AY], pk, out[O_FZ:O_FZ + 4])
+    for w in range(4):
+        out[O_MU + w] = mu[w]
+        out[O_MU_STD + w] = math.sqrt(P_mu[w, w]) if joint else 0.0
+    return OK, nll
+
+
+@numba.njit(inline="always", **JIT)
+def _step_row(j, rows, kind, pk, dt, huber_c, process_var, sensor_var, mu_var, X, P, MU, P_MU, BETA, BETA_MU,
+              OMEGA_PREV, OMEGA_DOT, LAST_NLL, values, valid, out, status):
+    i = rows[j]
+    q = i if process_var.shape[0] > 1 else 0
+    status[j], nll = _step_member(kind, pk, dt, huber_c, process_var[q], sensor_var[q], mu_var, X[i], P[i], MU[i],
+                                  P_MU[i], BETA[i], BETA_MU[i], OMEGA_PREV[i], OMEGA_DOT[i], values[i], valid[i],
+                                  out[j])
+    if status[j] == OK:
+        LAST_NLL[i] = nll
+
+
+@numba.njit(**JIT)
+def _step_serial(rows, kind, pk, dt, huber_c, process_var, sensor_var, mu_var, X, P, MU, P_MU, BETA, BETA_MU,
+                 OMEGA_PREV, OMEGA_DOT, LAST_NLL, values, valid, out, status):
+    for j in range(rows.shape[0]):
+        _step_row(j, rows, kind, pk, dt, huber_c, process_var, sensor_var, mu_var, X, P, MU, P_MU, BETA, BETA_MU,
+                  OMEGA_PREV, OMEGA_DOT, LAST_NLL, values, valid, out, status)
+
+
+@numba.njit(parallel=True, **JIT)
+def _step_parallel(rows, kind, pk, dt, huber_c, process_var, sensor_var, mu_var, X, P, MU, P_MU, BETA, BETA_MU,
+                   OMEGA_PREV, OMEGA_DOT, LAST_NLL, values, valid, out, status):
+    for j in numba.prange(rows.shape[0]):
+        _step_row(j, rows, kind, pk, dt, huber_c, process_var, sensor_var, mu_var, X, P, MU, P_MU, BETA, BETA_MU,
+                  OMEGA_PREV, OMEGA_DOT, LAST_NLL, values, valid, out, status)
 
 
 @dataclass
 class StateEstimator:
-    """Batched estimator of ``kind`` (see module doc) for model ``params`` at step ``dt`` [s]."""
+    """Batched estimator of ``kind`` (see module doc) for model ``params`` at step ``dt`` [s].
+
+    One compiled step (numba) per call: every vehicle's filters run in compiled code, on both
+    cores for batches of PARALLEL_MIN_BATCH or more. The state lives in the arrays named by
+    STATE_FIELDS (leading axis B), which callers may snapshot and restore."""
 
     params: ModelParams
     kind: str = "joint"
@@ -131,16 +429,18 @@ class StateEstimator:
             raise ValueError(f"nominal_mu must lie in {MU_BOUNDS}, got {self.nominal_mu!r}")
         if not self.dt > 0:
             raise ValueError(f"dt must be > 0, got {self.dt!r}")
-        self.robust = self.kind in ("alo-fkf", "joint")
-        self.federated = self.kind in ("fkf", "alo-fkf", "joint")
-        self.estimate_mu = self.kind == "joint"
+        if not self.huber_c > 0:
+            raise ValueError(f"huber_c must be > 0, got {self.huber_c!r}")
         self.set_noise(self.noise)
 
     def set_noise(self, noise: NoiseParams) -> None:
         """Use ``noise`` from the next step on (shared, or per member: see NoiseParams.scaled)."""
         self.noise = noise
-        var = np.square(np.asarray(noise.process_std, dtype=float))  # (6,) or (B, 6)
-        self.Q = var[..., :, None] * np.eye(N_STATE)
+        self._process_var = np.ascontiguousarray(np.atleast_2d(np.square(np.asarray(noise.process_std, float))))
+        sensor_std = np.broadcast_arrays(*(np.atleast_1d(np.asarray(s, dtype=float))
+                                           for s in (noise.accel_std, noise.gyro_std, noise.wheel_speed_std)))
+        self._sensor_var = np.ascontiguousarray(np.square(np.stack(sensor_std, axis=1)))
+        self._mu_var = np.square(np.array([noise.mu_walk_std, noise.mu_accel_std, noise.mu_max_std], dtype=float))
 
     # ---- set-up -------------------------------------------------------------------------
     def reset(self, reading, initial_speed: np.ndarray, mask: np.ndarray | None = None) -> None:
@@ -169,156 +469,33 @@ class StateEstimator:
         self.last_nll = np.zeros(B)
 
     # ---- one step -----------------------------------------------------------------------
-    def _inputs(self, values: np.ndarray) -> Inputs:
-        omega = values[:, 3:7]
-        # wheel angular acceleration for eq. 7: differentiated wheel speed, 20 ms low-pass
-        raw = (omega - self.omega_prev) / self.dt
-        self.omega_dot += (raw - self.omega_dot) * (self.dt / 0.02)
-        self.omega_prev = omega.copy()
-        delta = np.stack([values[:, 7], values[:, 7], values[:, 8], values[:, 8]], axis=1)
-        return Inputs(delta, omega, values[:, 9:13], self.omega_dot.copy())
-
     def step(self, reading, truth: Estimate | None = None, members: np.ndarray | None = None) -> Estimate:
         """One filter step on ``reading`` (values and valid (B, 13)); with ``members`` (M,) indices
         only those rows step (the others keep their state) and the estimate has M rows."""
-        values = np.asarray(reading.values, dtype=float)
-        valid = np.asarray(reading.valid, dtype=bool)
-        if values.shape != (self.x.shape[0], 13):
-            raise ValueError(f"sensor reading must have shape {(self.x.shape[0], 13)}, got {values.shape}")
-        if members is None:
-            return self._step(values, valid)
-        full = {name: getattr(self, name) for name in STATE_FIELDS}
-        try:
-            for name, value in full.items():
-                setattr(self, name, value[members])
-            estimate = self._step(values[members], valid[members])
-            for name, value in full.items():
-                value[members] = getattr(self, name)
-        finally:
-            for name, value in full.items():
-                setattr(self, name, value)
-        return estimate
-
-    def _step(self, values: np.ndarray, valid: np.ndarray) -> Estimate:
-        inputs = self._inputs(values)
-        p, dt, n = self.params, self.dt, self.noise
-        # inputs broadcast over the cubature point axis
-        point_inputs = Inputs(*(q[:, None, :] for q in inputs))
-        mu_points = self.mu[:, None, :]
-
-        def f(points: np.ndarray) -> np.ndarray:
-            return state_transition(points, mu_points, point_inputs, p, dt)
-
-        wheel_speed_z = values[:, 3:7] * p.wheel_radius
-
-        def h_wheels(points: np.ndarray) -> np.ndarray:
-            _, along = wheel_kinematics(points[..., I_U], points[..., I_V], points[..., I_R], point_inputs.delta, p)
-            return along
-
-        def h1(points):
-            return np.concatenate([points[..., [I_AX, I_AY, I_R]], h_wheels(points)], axis=-1)
-
-        def h2(points):
-            return points[..., [I_AY, I_R]]
-
-        z1 = np.concatenate([values[:, 0:3], wheel_speed_z], axis=1)
-        valid1 = np.concatenate([valid[:, 0:3], valid[:, 3:7]], axis=1)
-        R1 = _diag([n.accel_std**2, n.accel_std**2, n.gyro_std**2] + [n.wheel_speed_std**2] * 4)
-        z2, valid2 = values[:, 1:3], valid[:, 1:3]
-        R2 = _diag([n.accel_std**2, n.gyro_std**2])
-        huber = self.huber_c if self.robust else None
-
-        if self.federated:
-            out = federated_step(self.x, self.P, f, self.Q,
-                                 [SubMeasurement(z1, h1, R1, valid1), SubMeasurement(z2, h2, R2, valid2)],
-                                 self.beta, huber_c=huber)
-            self.x, self.P, self.beta = out.x, out.P, out.beta
-            self.last_nll = out.nll[0] + out.nll[1]
-        elif self.kind == "ckf":
-            x_pred, P_pred = ckf_predict(self.x, self.P, f, self.Q)
-            upd = ckf_update(x_pred, P_pred, z1, h1, R1, valid=valid1)
-            self.x, self.P, self.last_nll = upd.x, upd.P, upd.nll
-        else:
-            self._ekf_step(f, h1, z1, R1, valid1)
-        if self.estimate_mu:
-            self._mu_step(values, valid, inputs)
-        return self._estimate()
-
-    def _ekf_step(self, f, h, z, R, valid) -> None:
-        """EKF on the same model: central-difference Jacobians (the cubature points with a
-        small spread give exactly those differences)."""
-        B, N = self.x.shape
-        eps = 1e-4 * np.maximum(np.abs(self.x), 1e-2)  # (B, n)
-        probe = self.x[:, None, :] + np.concatenate([np.eye(N)[None] * eps[:, None, :],
-                                                      -np.eye(N)[None] * eps[:, None, :]], axis=1)
-        probe = np.concatenate([self.x[:, None, :], probe], axis=1)
-        fx = f(probe)
-        F = np.swapaxes((fx[:, 1:N + 1] - fx[:, N + 1:]) / (2 * eps[:, :, None]), 1, 2)
-        x_pred = fx[:, 0]
-        P_pred = F @ self.P @ np.swapaxes(F, 1, 2) + self.Q
-        probe = x_pred[:, None, :] + np.concatenate([np.eye(N)[None] * eps[:, None, :],
-                                                      -np.eye(N)[None] * eps[:, None, :]], axis=1)
-        probe = np.concatenate([x_pred[:, None, :], probe], axis=1)
-        hx = h(probe)
-        H = np.swapaxes((hx[:, 1:N + 1] - hx[:, N + 1:]) / (2 * eps[:, :, None]), 1, 2)
-        Rv = np.broadcast_to(R, (B,) + R.shape[-2:]).copy()
-        idx = np.arange(z.shape[1])
-        Rv[:, idx, idx] = np.where(valid, Rv[:, idx, idx], DROPOUT_VARIANCE)
-        nu = np.where(valid, z - hx[:, 0], 0.0)
-        S = H @ P_pred @ np.swapaxes(H, 1, 2) + Rv
-        K = np.swapaxes(np.linalg.solve(S, H @ P_pred), 1, 2)
-        self.x = x_pred + np.einsum("bij,bj->bi", K, nu)
-        I_KH = np.eye(N) - K @ H
-        self.P = I_KH @ P_pred @ np.swapaxes(I_KH, 1, 2) + K @ Rv @ np.swapaxes(K, 1, 2)
-        self.last_nll = 0.5 * np.einsum("bi,bi->b", nu, np.linalg.solve(S, nu[..., None])[..., 0])
-
-    def _mu_step(self, values: np.ndarray, valid: np.ndarray, inputs: Inputs) -> None:
-        """mu FKF: random walk; sub-filter 1 measures [ax, ay, r], sub-filter 2 [ay, r], both
-        predicted by the tyre model at the state filter's estimate (r one step ahead)."""
-        p, dt, n = self.params, self.dt, self.noise
-        x = self.x
-        point_inputs = Inputs(*(q[:, None, :] for q in inputs))
-        u, v, r = (x[:, None, i] for i in (I_U, I_V, I_R))
-        ax, ay = x[:, None, I_AX], x[:, None, I_AY]
-        r_prev = r - dt * x[:, None, I_GAMMA] / p.yaw_inertia
-
-        def predicted(mu_points: np.ndarray) -> np.ndarray:
-            ax_m, ay_m, gamma = body_forces(u, v, r, ax, ay, mu_points, point_inputs, p)
-            return np.stack([ax_m, ay_m, r_prev + dt * gamma / p.yaw_inertia], axis=-1)
-
-        def h2(mu_points):
-            return predicted(mu_points)[..., 1:]
-
-        Q_mu = _correlated(n.mu_walk_std**2)
-        R1 = _diag([n.mu_accel_std**2, n.mu_accel_std**2, n.gyro_std**2])
-        R2 = _diag([n.mu_accel_std**2, n.gyro_std**2])
-        out = federated_step(self.mu, self.P_mu, lambda m: m, Q_mu,
-                             [SubMeasurement(values[:, 0:3], predicted, R1, valid[:, 0:3]),
-                              SubMeasurement(values[:, 1:3], h2, R2, valid[:, 1:3])],
-                             self.beta_mu, huber_c=self.huber_c)
-        # hold mu where the tyre is far from saturation (Dugoff lambda >= EXCITATION_LAMBDA)
-        excited = np.any(self._excitation(inputs) < EXCITATION_LAMBDA, axis=1, keepdims=True)
-        self.mu = np.where(excited, np.clip(out.x, *MU_BOUNDS), self.mu)
-        # cap the random walk's growth where mu is unobservable
-        var = np.diagonal(out.P, axis1=1, axis2=2)
-        scale = np.sqrt(np.minimum(var, n.mu_max_std**2) / np.maximum(var, 1e-300))
-        self.P_mu = out.P * scale[:, :, None] * scale[:, None, :]
-        self.beta_mu = out.beta
-
-    def _excitation(self, inputs: Inputs) -> np.ndarray:
-        """Dugoff lambda (B, 4) of each wheel at the current estimates: small = saturating."""
-        x = self.x
-        tyre = tyre_state(x[:, I_U], x[:, I_V], x[:, I_R], x[:, I_AX], x[:, I_AY], inputs, self.params)
-        return dugoff_lambda(tyre.fz, tyre.slip, tyre.alpha, self.mu, tyre.cx, tyre.cy)
-
-    def _estimate(self) -> Estimate:
-        x, P = self.x, self.P
-        u, v = x[:, I_U], x[:, I_V]
-        denom = np.maximum(u**2 + v**2, 1.0)
-        grad_u, grad_v = -v / denom, u / denom
-        beta_var = grad_u**2 * P[:, I_U, I_U] + 2 * grad_u * grad_v * P[:, I_U, I_V] + grad_v**2 * P[:, I_V, I_V]
-        mu_std = np.sqrt(np.diagonal(self.P_mu, axis1=1, axis2=2)) if self.estimate_mu else np.zeros_like(self.mu)
-        return Estimate(u=u.copy(), v=v.copy(), beta=np.arctan2(v, np.abs(u)), r=x[:, I_R].copy(),
-                        ax=x[:, I_AX].copy(), ay=x[:, I_AY].copy(), mu=self.mu.copy(),
-                        fz=normal_loads(x[:, I_AX], x[:, I_AY], self.params),
-                        beta_std=np.sqrt(np.maximum(beta_var, 0.0)), mu_std=mu_std)
+        B = self.x.shape[0]
+        values = np.ascontiguousarray(reading.values, dtype=np.float64)
+        valid = np.ascontiguousarray(reading.valid, dtype=np.bool_)
+        if values.shape != (B, 13) or valid.shape != (B, 13):
+            raise ValueError(f"sensor reading must have shape {(B, 13)}, got {values.shape} / {valid.shape}")
+        if self._process_var.shape[0] not in (1, B):
+            raise ValueError(f"per-member noise for {self._process_var.shape[0]} members, the batch has {B}")
+        rows = np.arange(B) if members is None else np.asarray(members, dtype=np.int64)
+        if rows.ndim != 1 or (len(rows) and not (0 <= rows.min() and rows.max() < B)):
+            raise ValueError(f"members must be indices into the batch of {B}, got {members!r}")
+        state = [np.ascontiguousarray(getattr(self, name), dtype=np.float64) for name in STATE_FIELDS]
+        for name, array in zip(STATE_FIELDS, state):
+            setattr(self, name, array)
+        out, status = np.empty((len(rows), N_OUT)), np.zeros(len(rows), dtype=np.int64)
+        kernel = _step_parallel if len(rows) >= PARALLEL_MIN_BATCH else _step_serial
+        kernel(rows, KINDS.index(self.kind), self.params.packed, float(self.dt), float(self.huber_c),
+               self._process_var, self._sensor_var, self._mu_var, *state, values, valid, out, status)
+        if status.any():
+            j = int(np.flatnonzero(status)[0])
+            i = int(rows[j])
+            if status[j] == BAD_MEASUREMENT:
+                raise ValueError(f"a valid measurement of vehicle {i} is NaN or inf: {values[i]!r}")
+            raise ValueError(f"the {self.kind} filter of vehicle {i} failed: a covariance is not finite or not "
+                             "positive definite")
+        return Estimate(u=out[:, O_U], v=out[:, O_V], beta=out[:, O_BETA], r=out[:, O_R], ax=out[:, O_AX],
+                        ay=out[:, O_AY], mu=out[:, O_MU:O_MU + 4], fz=out[:, O_FZ:O_FZ + 4],
+                        beta_std=out[:, O_BETA_STD], mu_std=out[:, O_MU_STD:O_MU_STD + 4])

@@ -2,8 +2,9 @@
 load-dependent stiffness (eq. 17), quasi-static normal loads. Simpler than, and different
 from, the truth plant (PAC2002 tyres with relaxation, wheel dynamics, lags): no inverse crime.
 
-All functions broadcast over leading axes, so a filter can pass (B, K, ...) cubature point
-sets. Corrections to the paper (standard textbook forms, Rajamani 2012 ch. 13; Dugoff,
+The physics is compiled (numba) and evaluated one point at a time, as the filters' compiled
+steps need it; parameters travel as the packed array :attr:`ModelParams.packed`.
+:func:`normal_loads` and :func:`state_transition` are the Python entry points. Corrections to the paper (standard textbook forms, Rajamani 2012 ch. 13; Dugoff,
 Fancher & Segel 1970):
 
 * eq. 4-6: each wheel's force is rotated by its own steer angle and the moment arms are
@@ -16,11 +17,16 @@ Fancher & Segel 1970):
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
+from functools import cached_property
 from importlib import resources
 from typing import NamedTuple
 
+import numba
 import numpy as np
+
+from estimation.ckf import JIT
 
 GRAVITY = 9.81  #: [m/s^2]
 MIN_SPEED = 1.0  #: denominator floor for slip quantities [m/s]
@@ -63,20 +69,20 @@ class ModelParams:
     def wheelbase(self) -> float:
         return self.cg_to_front + self.cg_to_rear
 
-    @property
-    def wheel_x(self) -> np.ndarray:
-        """Longitudinal wheel positions from the CG (4,) [m]."""
-        return np.array([self.cg_to_front, self.cg_to_front, -self.cg_to_rear, -self.cg_to_rear])
+    @cached_property
+    def packed(self) -> np.ndarray:
+        """The parameters as the compiled model reads them (N_PARAMS,), in field order."""
+        return np.array([getattr(self, name) for name in PACKED_FIELDS], dtype=np.float64)
 
-    @property
-    def wheel_y(self) -> np.ndarray:
-        """Lateral wheel positions from the CG (4,) [m] (left positive)."""
-        return np.array([self.track_front, -self.track_front, self.track_rear, -self.track_rear]) / 2
+
+PACKED_FIELDS = ("mass", "yaw_inertia", "cg_to_front", "cg_to_rear", "track_front", "track_rear", "wheel_radius",
+                 "cg_height", "wheel_inertia", "m1", "n1", "m2", "n2", "eps")
+(P_MASS, P_IZ, P_A, P_B, P_TF, P_TR, P_RW, P_H, P_IW, P_M1, P_N1, P_M2, P_N2, P_EPS) = range(len(PACKED_FIELDS))
 
 
 class Inputs(NamedTuple):
-    """Measured inputs of one step: road-wheel steer angles (..., 4) [rad], wheel speeds
-    (..., 4) [rad/s], motor torques (..., 4) [N m], wheel angular accelerations (..., 4) [rad/s^2]."""
+    """Measured inputs of one step: road-wheel steer angles (4,) [rad], wheel speeds (4,)
+    [rad/s], motor torques (4,) [N m], wheel angular accelerations (4,) [rad/s^2]."""
 
     delta: np.ndarray
     omega: np.ndarray
@@ -84,97 +90,147 @@ class Inputs(NamedTuple):
     omega_dot: np.ndarray
 
 
-def normal_loads(ax: np.ndarray, ay: np.ndarray, p: ModelParams) -> np.ndarray:
-    """Quasi-static wheel loads (..., 4) [N] from body accelerations ax, ay (...) [m/s^2]:
-    static share plus longitudinal (m ax h / L) and lateral (m ay h / t, split by axle
-    static share) transfer; floored at 5% of the static load."""
-    m, a, b, h, L = p.mass, p.cg_to_front, p.cg_to_rear, p.cg_height, p.wheelbase
-    ax, ay = np.asarray(ax)[..., None], np.asarray(ay)[..., None]
+@numba.njit(inline="always", **JIT)
+def wheel_position(pk: np.ndarray, w: int) -> tuple[float, float]:
+    """Wheel w's (FL, FR, RL, RR) position from the CG [m]: +a / -b forward, +/- t/2 left."""
+    x = pk[P_A] if w < 2 else -pk[P_B]
+    half = 0.5 * (pk[P_TF] if w < 2 else pk[P_TR])
+    return x, half if w % 2 == 0 else -half
+
+
+@numba.njit(**JIT)
+def wheel_loads(ax: float, ay: float, pk: np.ndarray, fz: np.ndarray) -> None:
+    """Quasi-static wheel loads fz (4,) [N] from body accelerations ax, ay [m/s^2]: static share
+    plus longitudinal (m ax h / L) and lateral (m ay h / t, split by axle static share)
+    transfer; floored at 5% of the static load."""
+    m, a, b, h = pk[P_MASS], pk[P_A], pk[P_B], pk[P_H]
+    L = a + b
     front = m * GRAVITY * b / L - m * ax * h / L
     rear = m * GRAVITY * a / L + m * ax * h / L
-    d_front = m * ay * h * (b / L) / p.track_front
-    d_rear = m * ay * h * (a / L) / p.track_rear
-    fz = np.concatenate([front / 2 - d_front, front / 2 + d_front, rear / 2 - d_rear, rear / 2 + d_rear], axis=-1)
-    static = m * GRAVITY * np.array([b, b, a, a]) / (2 * L)
-    return np.maximum(fz, 0.05 * static)
+    d_front = m * ay * h * (b / L) / pk[P_TF]
+    d_rear = m * ay * h * (a / L) / pk[P_TR]
+    floor_front, floor_rear = 0.05 * m * GRAVITY * b / (2 * L), 0.05 * m * GRAVITY * a / (2 * L)
+    fz[0] = max(front / 2 - d_front, floor_front)
+    fz[1] = max(front / 2 + d_front, floor_front)
+    fz[2] = max(rear / 2 - d_rear, floor_rear)
+    fz[3] = max(rear / 2 + d_rear, floor_rear)
 
 
-def wheel_kinematics(u, v, r, delta, p: ModelParams) -> tuple[np.ndarray, np.ndarray]:
-    """Slip angles (..., 4) [rad] and wheel-centre speeds along each wheel's heading (..., 4) [m/s]
-    (eq. 11-14, standard form: alpha_i = delta_i - atan((v + x_i r) / (u - y_i r)))."""
-    u, v, r = (np.asarray(q)[..., None] for q in (u, v, r))
-    vx = u - r * p.wheel_y
-    vy = v + r * p.wheel_x
-    vx_safe = np.maximum(np.abs(vx), MIN_SPEED)
-    alpha = delta - np.arctan2(vy, vx_safe)
-    speed_along = vx * np.cos(delta) + vy * np.sin(delta)
-    return alpha, speed_along
+@numba.njit(**JIT)
+def steer_trig(delta: np.ndarray) -> np.ndarray:
+    """cos, sin and tan of the four road-wheel steer angles delta (4,) [rad], shape (3, 4):
+    computed once per step, shared by every cubature point."""
+    trig = np.empty((3, 4))
+    for w in range(4):
+        trig[0, w], trig[1, w], trig[2, w] = math.cos(delta[w]), math.sin(delta[w]), math.tan(delta[w])
+    return trig
 
 
-def dugoff_forces(fz, slip, alpha, mu, cx, cy, speed, eps: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """Dugoff combined-slip forces Fx, Fy [N] (standard form; DESIGN.md):
+@numba.njit(inline="always", **JIT)
+def wheel_kinematics(u: float, v: float, r: float, steer: np.ndarray, pk: np.ndarray, w: int) -> tuple[float, float]:
+    """Wheel w's tan(slip angle) and wheel-centre speed along its heading [m/s] (eq. 11-14,
+    standard form: alpha_i = delta_i - atan((v + x_i r) / (u - y_i r)), the longitudinal speed
+    floored at MIN_SPEED), with tan(alpha) = (tan delta - q) / (1 + q tan delta),
+    q = (v + x_i r) / (u - y_i r): no inverse trigonometry per point. ``steer``: :func:`steer_trig`."""
+    x_w, y_w = wheel_position(pk, w)
+    vx = u - r * y_w
+    vy = v + r * x_w
+    q = vy / max(abs(vx), MIN_SPEED)
+    tan_d = steer[2, w]
+    return (tan_d - q) / (1.0 + q * tan_d), vx * steer[0, w] + vy * steer[1, w]
+
+
+@numba.njit(inline="always", **JIT)
+def dugoff(fz: float, slip: float, tan_alpha: float, mu: float, cx: float, cy: float, speed: float,
+           eps: float) -> tuple[float, float, float]:
+    """Dugoff combined-slip forces Fx, Fy [N] and Dugoff's lambda (standard form; DESIGN.md):
     lambda = mu Fz (1 - eps u sqrt(Cx^2 s^2 + Cy^2 tan^2 a)) (1 - s) / (2 sqrt(Cx^2 s^2 + Cy^2 tan^2 a)),
-    f = (2 - lambda) lambda if lambda < 1 else 1; Fx = Cx s/(1-s) f, Fy = Cy tan(a)/(1-s) f."""
-    tan_a = np.tan(alpha)
-    one_minus_s = np.maximum(1.0 - slip, 0.05)
-    demand = np.sqrt((cx * slip) ** 2 + (cy * tan_a) ** 2)
-    lam = mu * fz * (1.0 - eps * speed * demand) * one_minus_s / (2.0 * np.maximum(demand, 1e-9))
-    f = np.where(lam < 1.0, (2.0 - lam) * lam, 1.0)
-    return cx * slip / one_minus_s * f, cy * tan_a / one_minus_s * f
+    f = (2 - lambda) lambda if lambda < 1 else 1; Fx = Cx s/(1-s) f, Fy = Cy tan(a)/(1-s) f.
+    Below lambda = 1 the force depends on mu (the tyre is saturating)."""
+    one_minus_s = max(1.0 - slip, 0.05)
+    demand = math.sqrt((cx * slip) ** 2 + (cy * tan_alpha) ** 2)
+    lam = mu * fz * (1.0 - eps * speed * demand) * one_minus_s / (2.0 * max(demand, 1e-9))
+    f = (2.0 - lam) * lam if lam < 1.0 else 1.0
+    return cx * slip / one_minus_s * f, cy * tan_alpha / one_minus_s * f, lam
 
 
-def dugoff_lambda(fz, slip, alpha, mu, cx, cy) -> np.ndarray:
-    """Dugoff's lambda: below 1 the force depends on mu (the tyre is saturating)."""
-    demand = np.sqrt((cx * slip) ** 2 + (cy * np.tan(alpha)) ** 2)
-    return mu * fz * np.maximum(1.0 - slip, 0.05) / (2.0 * np.maximum(demand, 1e-9))
+@numba.njit(inline="always", **JIT)
+def tyre_operating_point(u, v, r, fz, steer, omega, pk, w) -> tuple[float, float, float, float]:
+    """Wheel w's tan(slip angle), longitudinal slip and stiffnesses Cx, Cy (eq. 17) at load fz."""
+    tan_alpha, along = wheel_kinematics(u, v, r, steer, pk, w)
+    wheel_speed = omega * pk[P_RW]
+    slip = (wheel_speed - along) / max(abs(wheel_speed), abs(along), MIN_SPEED)
+    return tan_alpha, slip, pk[P_M1] * fz - pk[P_N1] * fz * fz, pk[P_M2] * fz - pk[P_N2] * fz * fz
 
 
-class TyreState(NamedTuple):
-    """Per-wheel tyre operating point (..., 4): load [N], slip angle [rad], longitudinal slip,
-    longitudinal and lateral stiffness (eq. 17)."""
-
-    fz: np.ndarray
-    alpha: np.ndarray
-    slip: np.ndarray
-    cx: np.ndarray
-    cy: np.ndarray
-
-
-def tyre_state(u, v, r, ax, ay, inputs: Inputs, p: ModelParams) -> TyreState:
-    """The tyres' operating point at body state (u, v, r), accelerations (ax, ay) and ``inputs``."""
-    fz = normal_loads(ax, ay, p)
-    alpha, speed_along = wheel_kinematics(u, v, r, inputs.delta, p)
-    wheel_speed = inputs.omega * p.wheel_radius
-    slip = (wheel_speed - speed_along) / np.maximum(np.maximum(np.abs(wheel_speed), np.abs(speed_along)), MIN_SPEED)
-    return TyreState(fz, alpha, slip, p.m1 * fz - p.n1 * fz**2, p.m2 * fz - p.n2 * fz**2)
-
-
-def body_forces(u, v, r, ax, ay, mu, inputs: Inputs, p: ModelParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+@numba.njit(**JIT)
+def body_forces(u, v, r, ax, ay, mu, steer, omega, torque, omega_dot, pk) -> tuple[float, float, float]:
     """Body accelerations ax, ay [m/s^2] and yaw moment Gamma [N m] from the tyre forces (eq. 4-6,
     corrected). Fx from the wheel's torque balance (eq. 7), limited by the Dugoff friction
-    ellipse; Fy from Dugoff with the slip angle and mu. Loads from the (previous) ax, ay."""
-    fz, alpha, slip, cx, cy = tyre_state(u, v, r, ax, ay, inputs, p)
-    fx_torque = (inputs.torque - p.wheel_inertia * inputs.omega_dot) / p.wheel_radius
-    _, fy = dugoff_forces(fz, slip, alpha, mu, cx, cy, np.asarray(u)[..., None], p.eps)
-    limit = mu * fz
-    fx = np.clip(fx_torque, -limit, limit)
-    c, s = np.cos(inputs.delta), np.sin(inputs.delta)
-    f_long = fx * c - fy * s
-    f_lat = fx * s + fy * c
-    ax_new = f_long.sum(-1) / p.mass
-    ay_new = f_lat.sum(-1) / p.mass
-    gamma = (p.wheel_x * f_lat - p.wheel_y * f_long).sum(-1)
-    return ax_new, ay_new, gamma
+    ellipse; Fy from Dugoff with the slip angle and mu (4,). Loads from the (previous) ax, ay;
+    ``steer``: :func:`steer_trig` of the steer angles."""
+    fz = np.empty(4)
+    wheel_loads(ax, ay, pk, fz)
+    f_x_sum, f_y_sum, moment = 0.0, 0.0, 0.0
+    for w in range(4):
+        tan_alpha, slip, cx, cy = tyre_operating_point(u, v, r, fz[w], steer, omega[w], pk, w)
+        _, fy, _ = dugoff(fz[w], slip, tan_alpha, mu[w], cx, cy, u, pk[P_EPS])
+        limit = mu[w] * fz[w]
+        fx = min(max((torque[w] - pk[P_IW] * omega_dot[w]) / pk[P_RW], -limit), limit)
+        c, s = steer[0, w], steer[1, w]
+        f_long, f_lat = fx * c - fy * s, fx * s + fy * c
+        x_w, y_w = wheel_position(pk, w)
+        f_x_sum += f_long
+        f_y_sum += f_lat
+        moment += x_w * f_lat - y_w * f_long
+    return f_x_sum / pk[P_MASS], f_y_sum / pk[P_MASS], moment
+
+
+@numba.njit(**JIT)
+def dugoff_lambdas(u, v, r, ax, ay, mu, steer, omega, pk, out) -> None:
+    """Each wheel's Dugoff lambda (4,) at the given state: below 1 its force depends on mu."""
+    fz = np.empty(4)
+    wheel_loads(ax, ay, pk, fz)
+    for w in range(4):
+        tan_alpha, slip, cx, cy = tyre_operating_point(u, v, r, fz[w], steer, omega[w], pk, w)
+        out[w] = dugoff(fz[w], slip, tan_alpha, mu[w], cx, cy, u, 0.0)[2]
+
+
+@numba.njit(**JIT)
+def transition(x, out, args) -> None:
+    """Discrete process model for x_s = [u, v, ax, ay, r, Gamma] (6,), paper eq. 1-3:
+    u+ = u + dt (ax + v r), v+ = v + dt (ay - u r), r+ = r + dt Gamma / Iz (Euler at the 2 ms
+    step); ax, ay, Gamma are algebraic: recomputed from the tyre model at the new state.
+    ax, ay here are the body's specific forces (what an accelerometer reads without roll/pitch).
+    args = (mu, steer_trig(delta), omega, torque, omega_dot, packed params, dt)."""
+    mu, steer, omega, torque, omega_dot, pk, dt = args
+    u, v, ax, ay, r, gamma = x[0], x[1], x[2], x[3], x[4], x[5]
+    out[0] = u + dt * (ax + v * r)
+    out[1] = v + dt * (ay - u * r)
+    out[4] = r + dt * gamma / pk[P_IZ]
+    out[2], out[3], out[5] = body_forces(out[0], out[1], out[4], ax, ay, mu, steer, omega, torque, omega_dot, pk)
+
+
+# ---- Python entry points -------------------------------------------------------------------
+@numba.njit(**JIT)
+def _wheel_loads_flat(ax, ay, pk, out):
+    for i in range(ax.shape[0]):
+        wheel_loads(ax[i], ay[i], pk, out[i])
+
+
+def normal_loads(ax, ay, p: ModelParams) -> np.ndarray:
+    """Wheel loads (..., 4) [N] (see :func:`wheel_loads`) for arrays ax, ay (...) [m/s^2]."""
+    ax, ay = np.broadcast_arrays(np.asarray(ax, dtype=np.float64), np.asarray(ay, dtype=np.float64))
+    out = np.empty(ax.shape + (4,))
+    _wheel_loads_flat(np.ascontiguousarray(ax).ravel(), np.ascontiguousarray(ay).ravel(), p.packed,
+                      out.reshape(-1, 4))
+    return out
 
 
 def state_transition(x: np.ndarray, mu: np.ndarray, inputs: Inputs, p: ModelParams, dt: float) -> np.ndarray:
-    """Discrete process model for x_s = [u, v, ax, ay, r, Gamma] (..., 6), paper eq. 1-3:
-    u+ = u + dt (ax + v r), v+ = v + dt (ay - u r), r+ = r + dt Gamma / Iz (Euler at the 2 ms
-    step); ax, ay, Gamma are algebraic: recomputed from the tyre model at the new state.
-    ax, ay here are the body's specific forces (what an accelerometer reads without roll/pitch)."""
-    u, v, ax, ay, r, gamma = np.moveaxis(x, -1, 0)
-    u_new = u + dt * (ax + v * r)
-    v_new = v + dt * (ay - u * r)
-    r_new = r + dt * gamma / p.yaw_inertia
-    ax_new, ay_new, gamma_new = body_forces(u_new, v_new, r_new, ax, ay, mu, inputs, p)
-    return np.stack([u_new, v_new, ax_new, ay_new, r_new, gamma_new], axis=-1)
+    """:func:`transition` of one state x (6,) with mu (4,) and ``inputs``; returns the new state."""
+    out = np.empty(6)
+    mu, delta, omega, torque, omega_dot = (np.ascontiguousarray(q, dtype=np.float64) for q in (mu, *inputs))
+    transition(np.ascontiguousarray(x, dtype=np.float64), out,
+               (mu, steer_trig(delta), omega, torque, omega_dot, p.packed, float(dt)))
+    return out

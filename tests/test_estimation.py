@@ -12,7 +12,7 @@ from envs.vehicle import VehicleParams
 from estimation import ESTIMATORS, make_estimator
 from estimation.ckf import ckf_predict, ckf_update
 from estimation.federated import SubMeasurement, federated_step, fuse
-from estimation.model import ModelParams, dugoff_forces, normal_loads, state_transition, Inputs
+from estimation.model import ModelParams, dugoff, normal_loads, state_transition, Inputs
 from envs.metrics import rmse
 
 RNG = np.random.default_rng(0)
@@ -177,9 +177,11 @@ def test_dropout_channels_carry_no_information():
 
 
 def test_fusion_is_the_information_weighted_average():
-    x, P = fuse([np.array([[1.0]]), np.array([[3.0]])], [np.array([[[1.0]]]), np.array([[[3.0]]])])
-    assert x[0, 0] == pytest.approx((1.0 / 1 + 3.0 / 3) / (1 + 1 / 3))
-    assert P[0, 0, 0] == pytest.approx(0.75)
+    x, P, confidence = np.empty(1), np.empty((1, 1)), np.empty(2)
+    assert fuse(np.array([[1.0], [3.0]]), np.array([[[1.0]], [[3.0]]]), x, P, confidence)
+    assert x[0] == pytest.approx((1.0 / 1 + 3.0 / 3) / (1 + 1 / 3))
+    assert P[0, 0] == pytest.approx(0.75)
+    np.testing.assert_allclose(confidence, [1.0, 1.0 / 3.0])
 
 
 def test_federated_filter_with_reset_equals_the_centralised_filter_on_a_linear_system():
@@ -206,9 +208,10 @@ PARAMS = ModelParams.from_vehicle(VehicleParams())
 
 
 def test_dugoff_is_linear_at_small_slip_and_saturates_at_mu_fz():
-    fx, fy = dugoff_forces(2000.0, 0.0, 1e-3, 0.8, 3e4, 4e4, 20.0)
-    assert fy == pytest.approx(4e4 * math.tan(1e-3)) and fx == 0.0
-    fx, fy = dugoff_forces(2000.0, 0.05, 0.3, 0.8, 3e4, 4e4, 20.0)
+    fx, fy, lam = dugoff(2000.0, 0.0, math.tan(1e-3), 0.8, 3e4, 4e4, 20.0, 0.0)
+    assert fy == pytest.approx(4e4 * math.tan(1e-3)) and fx == 0.0 and lam > 1.0
+    fx, fy, lam = dugoff(2000.0, 0.05, math.tan(0.3), 0.8, 3e4, 4e4, 20.0, 0.0)
+    assert lam < 1.0
     assert math.hypot(fx, fy) <= 0.8 * 2000.0 / 0.95 + 1e-9
     assert math.hypot(fx, fy) > 0.7 * 0.8 * 2000.0
 
