@@ -176,11 +176,20 @@ class SensorModel:
         for b in rows[self._cursor[rows] >= NOISE_BLOCK]:
             self._refill(b)
         cursor = self._cursor[rows]
-        normal, uniform = self._normal[rows, cursor], self._uniform[rows, cursor]
+        normal, uniform = self._normal[rows, cursor], self._uniform[rows, cursor] if self.faults else None
         self._cursor[rows] = cursor + 1
-        t = np.broadcast_to(np.asarray(t, dtype=float), (len(rows),))
+        t = np.full(len(rows), t, dtype=float) if np.ndim(t) == 0 else np.asarray(t, dtype=float)
+        if t.shape != (len(rows),):
+            raise ValueError(f"time must be a scalar or have shape ({len(rows)},), got {t.shape}")
         values = truth + self.bias[rows] + normal * self._noise
         valid = np.ones(truth.shape, dtype=bool)
+        if self.faults:
+            self._inject_faults(rows, t, values, valid, uniform)
+        return SensorReading(values, valid, t)
+
+    def _inject_faults(self, rows: np.ndarray, t: np.ndarray, values: np.ndarray, valid: np.ndarray,
+                       uniform: np.ndarray) -> None:
+        """Apply the faults active at ``t`` to the readings ``values``/``valid`` of ``rows`` in place."""
         held = self._held[rows]
         for n, fault in enumerate(self.faults):
             c = fault.index
@@ -198,4 +207,3 @@ class SensorModel:
                 values[:, c] = np.where(active, held[:, c], values[:, c])
                 valid[:, c] = ~active
         self._held[rows] = np.where(valid, values, held)
-        return SensorReading(values, valid, t.copy())

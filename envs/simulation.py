@@ -50,10 +50,17 @@ class Estimator(Protocol):
         """Step every vehicle, or only the rows ``members`` (the estimate then has those rows)."""
 
 
+_MEASURED_AUX = np.array([A_AX, A_AY])  #: sensor channels 0-1 from the plant diagnostics
+_MEASURED_STATE = np.array([S_R, *range(S_OMEGA, S_OMEGA + 4), S_DELTA_F, S_DELTA_R,
+                            *range(S_TORQUE, S_TORQUE + 4)])  #: sensor channels 2-12 from the plant state
+
+
 def sensor_truth(state: np.ndarray, aux: np.ndarray) -> np.ndarray:
     """The 13 measured quantities (B, 13) in :data:`envs.sensors.CHANNELS` order from plant state/aux."""
-    return np.concatenate([aux[:, [A_AX, A_AY]], state[:, [S_R]], state[:, S_OMEGA:S_OMEGA + 4],
-                           state[:, [S_DELTA_F, S_DELTA_R]], state[:, S_TORQUE:S_TORQUE + 4]], axis=1)
+    truth = np.empty((len(state), 13))
+    truth[:, :2] = aux[:, _MEASURED_AUX]
+    truth[:, 2:] = state[:, _MEASURED_STATE]
+    return truth
 
 
 def true_estimate(state: np.ndarray, aux: np.ndarray) -> Estimate:

@@ -482,9 +482,7 @@ class StateEstimator:
         rows = np.arange(B) if members is None else np.asarray(members, dtype=np.int64)
         if rows.ndim != 1 or (len(rows) and not (0 <= rows.min() and rows.max() < B)):
             raise ValueError(f"members must be indices into the batch of {B}, got {members!r}")
-        state = [np.ascontiguousarray(getattr(self, name), dtype=np.float64) for name in STATE_FIELDS]
-        for name, array in zip(STATE_FIELDS, state):
-            setattr(self, name, array)
+        state = [getattr(self, name) for name in STATE_FIELDS]
         out, status = np.empty((len(rows), N_OUT)), np.zeros(len(rows), dtype=np.int64)
         kernel = _step_parallel if len(rows) >= PARALLEL_MIN_BATCH else _step_serial
         kernel(rows, KINDS.index(self.kind), self.params.packed, float(self.dt), float(self.huber_c),
