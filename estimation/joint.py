@@ -107,7 +107,9 @@ def tuned_noise(path=None) -> NoiseParams | None:
 
 
 STATE_FIELDS = ("x", "P", "mu", "P_mu", "beta", "beta_mu", "omega_prev", "omega_dot", "last_nll")
-PARALLEL_MIN_BATCH = 64  #: batches at least this large step on all cores
+#: batches at least this large step on all cores (one vehicle's step is ~15-30 us, far above the
+#: ~5 us thread start-up: measured faster from B = 2 on the 2-core machine of BENCHMARKS.md)
+PARALLEL_MIN_BATCH = 2
 OMEGA_DOT_TIME_CONSTANT = 0.02  #: low-pass of the differentiated wheel speed [s]
 #: columns of the compiled step's output row
 (O_U, O_V, O_BETA, O_R, O_AX, O_AY), O_MU, O_FZ, O_BETA_STD, O_MU_STD, N_OUT = range(6), 6, 10, 14, 15, 19
