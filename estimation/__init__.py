@@ -14,17 +14,15 @@ ESTIMATORS = ("oracle",) + KINDS  #: names accepted by make_estimator; "joint" i
 
 def make_estimator(name: str, params, dt: float = 0.002, noise: NoiseParams | None = None, **kwargs):
     """Build the estimator ``name`` (see :data:`ESTIMATORS`) for vehicle ``params`` (duck-typed
-    VehicleParams) at step ``dt`` [s]. ``alo-fkf`` uses the ALO-tuned noise shipped in
-    estimation/data/tuned_noise.json (``fourwis tune`` rewrites it; without the file it runs
-    the hand-set noise); ``noise`` overrides it. ``joint`` keeps the hand-set noise: the ALO
-    factors, fitted for alo-fkf on one calibration run, make joint worse on the paper
-    scenarios (measured: beta RMSE 0.19 -> 0.84 deg on paper_sine, 0.21 -> 2.43 on paper_step)."""
+    VehicleParams) at step ``dt`` [s]. ``alo-fkf`` and ``joint`` (the paper's antlion-tuned
+    filters) use the ALO-tuned noise shipped in estimation/data/tuned_noise.json (``fourwis
+    tune`` rewrites it; without the file they run the hand-set noise); ``noise`` overrides it."""
     if name == "oracle":
         return Oracle()
     if name not in KINDS:
         raise ValueError(f"unknown estimator {name!r}; known: {list(ESTIMATORS)}")
     if noise is None:
-        noise = (tuned_noise() if name == "alo-fkf" else None) or NoiseParams()
+        noise = (tuned_noise() if name in ("alo-fkf", "joint") else None) or NoiseParams()
     return StateEstimator(ModelParams.from_vehicle(params), kind=name, dt=dt, noise=noise, **kwargs)
 
 

@@ -117,7 +117,8 @@ def _tune(args: argparse.Namespace) -> int:
     from training.tune import OUTPUT, tune
 
     try:
-        data = tune(args.agents, args.iterations, args.seed, Path(args.out) if args.out else OUTPUT, args.optimizer)
+        data = tune(args.agents, args.iterations, args.seed, Path(args.out) if args.out else OUTPUT, args.optimizer,
+                    args.duration, criterion=args.criterion)
     except ValueError as err:
         raise SystemExit(f"fourwis tune: {err}") from None
     print(f"{args.optimizer} tuning: cost {data['default_cost']:.3f} (default noise) -> {data['cost']:.3f}, "
@@ -197,8 +198,11 @@ def build_parser() -> argparse.ArgumentParser:
     est.add_argument("--out", default="results/estimate", help="output directory")
     est.set_defaults(func=_estimate)
     tune = sub.add_parser("tune", help="offline tuning of alo-fkf's noise on a calibration run")
-    tune.add_argument("--agents", type=int, default=8)
-    tune.add_argument("--iterations", type=int, default=8)
+    tune.add_argument("--agents", type=int, default=30)
+    tune.add_argument("--iterations", type=int, default=100)
+    tune.add_argument("--duration", type=float, default=10.0, help="calibration run length [s]")
+    tune.add_argument("--criterion", choices=("nll", "truth"), default="nll",
+                      help="innovation negative log-likelihood (no truth needed) or error against the truth")
     tune.add_argument("--seed", type=int, default=0)
     tune.add_argument("--optimizer", choices=("alo", "cmaes", "random"), default="alo",
                       help="alo: the paper's antlion optimizer; cmaes: CMA-ES; random: random search")
