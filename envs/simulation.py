@@ -63,13 +63,18 @@ def sensor_truth(state: np.ndarray, aux: np.ndarray) -> np.ndarray:
     return truth
 
 
+_TRUTH_STATE = np.array([S_U, S_V, S_R])
+_TRUTH_AUX = np.array([A_AX, A_AY, *range(A_MU, A_MU + 4), *range(A_FZ, A_FZ + 4)])
+
+
 def true_estimate(state: np.ndarray, aux: np.ndarray) -> Estimate:
-    """The truth in estimator form: what a perfect estimator would report."""
-    u, v = state[:, S_U], state[:, S_V]
-    zeros = np.zeros_like(u)
-    return Estimate(u=u.copy(), v=v.copy(), beta=np.arctan2(v, np.abs(u)), r=state[:, S_R].copy(),
-                    ax=aux[:, A_AX].copy(), ay=aux[:, A_AY].copy(), mu=aux[:, A_MU:A_MU + 4].copy(),
-                    fz=aux[:, A_FZ:A_FZ + 4].copy(), beta_std=zeros, mu_std=np.zeros_like(aux[:, A_MU:A_MU + 4]))
+    """The truth in estimator form: what a perfect estimator would report (fields are views of
+    two fresh arrays, never of ``state`` or ``aux``)."""
+    body, diag = state[:, _TRUTH_STATE], aux[:, _TRUTH_AUX]
+    u, v = body[:, 0], body[:, 1]
+    zeros = np.zeros((len(state), 5))
+    return Estimate(u=u, v=v, beta=np.arctan2(v, np.abs(u)), r=body[:, 2], ax=diag[:, 0], ay=diag[:, 1],
+                    mu=diag[:, 2:6], fz=diag[:, 6:10], beta_std=zeros[:, 0], mu_std=zeros[:, 1:])
 
 
 class Trajectory(NamedTuple):
