@@ -9,7 +9,7 @@ import pytest
 
 from envs.scenarios import make_scenario
 from training.cli import main
-from training.estimate import METRICS, convergence_time, estimate_report
+from training.estimate import METRICS, convergence_time, estimate_report, markdown_report
 
 T = np.arange(0.0, 5.0, 0.5)  # 0.0 .. 4.5 s
 
@@ -72,3 +72,16 @@ def test_bad_arguments_raise_value_error_naming_the_value(tmp_path, kwargs, name
 def test_cli_turns_a_bad_argument_into_a_clean_exit(tmp_path):
     with pytest.raises(SystemExit, match="fourwis estimate: unknown estimator.*kalman9"):
         main(["estimate", "--estimators", "kalman9", "--out", str(tmp_path)])
+
+
+def test_ratio_section_divides_each_sideslip_rmse_by_fkfs():
+    scenarios = [make_scenario("paper_dlc"), make_scenario("paper_step")]
+    table = {}
+    for s, fkf_rmse in zip(scenarios, (0.004, 0.010)):
+        for e, factor in (("fkf", 1.0), ("alo-fkf", 0.5), ("joint", 1.25)):
+            table[(s.name, e)] = {**dict.fromkeys(METRICS, 0.1), "rmse_beta": fkf_rmse * factor}
+    text = markdown_report(table, scenarios, ("fkf", "alo-fkf", "joint"), 1)
+    assert "| scenario | alo-fkf / fkf | joint / fkf |" in text
+    assert "| paper_dlc | 0.500 | 1.250 |" in text and "| paper_step | 0.500 | 1.250 |" in text
+    assert "0.058 (0.0003 / 0.0052)" in text  # the paper's ALO-FKF / FKF on its DLC
+    assert "relative to fkf" not in markdown_report(table, scenarios, ("alo-fkf", "joint"), 1)

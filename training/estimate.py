@@ -167,12 +167,32 @@ def markdown_report(table: dict, scenarios: Sequence[Scenario], estimators: Sequ
         cells = [f"{p:.4f} | {_fmt(ours[f'{stat.lower()}_{q}']) if ours else 'not run'}"
                  for p, q in zip(paper, ("u", "v", "beta"))]
         lines.append(f"| {stat} | {e} | " + " | ".join(cells) + " |")
+    lines += _ratio_section(table, scenarios, estimators)
     lines += ["", "Caveats: the paper states no sensor noise levels (nor biases) for its CarSim runs, "
               "nor the units of Table 2 (the sideslip column is read as rad here), nor its filters' initial "
               "errors; its plant is CarSim's, ours is fourwis's own model. Our runs use the default sensor "
               "model (envs.sensors.SensorParams: white noise and turn-on biases on every channel), so the "
               "numbers are comparable in form, not like for like.", ""]
     return "\n".join(lines)
+
+
+def _ratio_section(table: dict, scenarios: Sequence[Scenario], estimators: Sequence[str]) -> list[str]:
+    """Sideslip RMSE of each estimator over fkf's (the same federated filter with hand-set noise),
+    per scenario, with the paper's ratio on its DLC beside ours (below 1: better than fkf)."""
+    others = [e for e in estimators if e != "fkf"]
+    if "fkf" not in estimators or not others:
+        return []
+    paper = PAPER_TABLE2[("RMSE", "alo-fkf")][2] / PAPER_TABLE2[("RMSE", "fkf")][2]
+    lines = ["", "### Sideslip RMSE relative to fkf", "",
+             f"Below 1: better than `fkf`. The paper's ALO-FKF / FKF on its DLC: {paper:.3f} "
+             f"({PAPER_TABLE2[('RMSE', 'alo-fkf')][2]} / {PAPER_TABLE2[('RMSE', 'fkf')][2]}).", "",
+             "| scenario | " + " | ".join(f"{e} / fkf" for e in others) + " |",
+             "|---|" + "---:|" * len(others)]
+    for s in scenarios:
+        fkf = table[(s.name, "fkf")]["rmse_beta"]
+        lines.append(f"| {s.name} | " + " | ".join(f"{table[(s.name, e)]['rmse_beta'] / fkf:.3f}" for e in others)
+                     + " |")
+    return lines
 
 
 def plot_scenario(name: str, series: dict, estimators: Sequence[str], path: Path) -> Path:
