@@ -27,7 +27,7 @@ JIT = dict(cache=True, error_model="numpy")
 
 @numba.njit(**JIT)
 def cholesky(A: np.ndarray, L: np.ndarray) -> bool:
-    """Lower Cholesky factor of the symmetric A (lower triangle read) into L; False if A is not
+    """Lower Cholesky factor of the symmetrised A, 0.5 (A + A^T), into L; False if it is not
     numerically positive definite (or not finite)."""
     n = A.shape[0]
     L[:, :] = 0.0
@@ -35,12 +35,12 @@ def cholesky(A: np.ndarray, L: np.ndarray) -> bool:
         s = A[j, j]
         for k in range(j):
             s -= L[j, k] * L[j, k]
-        if not s > 0.0:
+        if not (s > 0.0 and s < math.inf):
             return False
         d = math.sqrt(s)
         L[j, j] = d
         for i in range(j + 1, n):
-            t = A[i, j]
+            t = 0.5 * (A[i, j] + A[j, i])
             for k in range(j):
                 t -= L[i, k] * L[j, k]
             L[i, j] = t / d
@@ -52,6 +52,8 @@ def covariance_sqrt(P: np.ndarray, S: np.ndarray) -> bool:
     """Lower-triangular S with S S^T = P: Cholesky of the symmetrised P; if that fails (P
     numerically semi-definite), of P plus a diagonal jitter growing tenfold from 1e-12 trace(P)
     until it succeeds. False if P is not finite or no jitter up to trace(P) helps."""
+    if cholesky(P, S):
+        return True
     n = P.shape[0]
     sym = np.empty((n, n))
     for i in range(n):
@@ -59,8 +61,6 @@ def covariance_sqrt(P: np.ndarray, S: np.ndarray) -> bool:
             sym[i, j] = 0.5 * (P[i, j] + P[j, i])
             if not math.isfinite(sym[i, j]):
                 return False
-    if cholesky(sym, S):
-        return True
     jitter = 1e-12 * max(np.trace(sym), 1e-300)
     while jitter <= max(np.trace(sym), 1e-300):
         for i in range(n):
