@@ -17,6 +17,9 @@ four wheel speeds, front and rear road-wheel steer, four motor torques) and retu
 (estimation/data/tuned_noise.json, written by ``fourwis tune``); a StateEstimator built
 directly uses ``noise`` (default: the hand-set :class:`NoiseParams`).
 
+Every estimator checks its inertial channels for plausibility first: a reading repeated exactly
+STUCK_SAMPLES times is a frozen sensor and counts as invalid (no information) until it changes.
+
 Deviation from the paper, on purpose: its measurement sets [ax, ay, r] leave u unobservable
 (it is only integrated from ax and drifts); sub-filter 1 also measures the four wheel-centre
 speeds R*omega (zero-slip model, variance allowing 2% slip) as production ESC speed observers do.
@@ -116,11 +119,17 @@ def tuned_noise(path=None) -> NoiseParams | None:
         raise ValueError(f"corrupted tuning file {path}: {err!r}; rerun `fourwis tune` or delete it") from None
 
 
-STATE_FIELDS = ("x", "P", "mu", "P_mu", "beta", "beta_mu", "omega_prev", "omega_dot", "last_nll")
+STATE_FIELDS = ("x", "P", "mu", "P_mu", "beta", "beta_mu", "omega_prev", "omega_dot", "inertial_prev", "inertial_repeats",
+                "last_nll")
 #: batches at least this large step on all cores (one vehicle's step is ~15-30 us, far above the
 #: ~5 us thread start-up: measured faster from B = 2 on the 2-core machine of BENCHMARKS.md)
 PARALLEL_MIN_BATCH = 2
 OMEGA_DOT_TIME_CONSTANT = 0.02  #: low-pass of the differentiated wheel speed [s]
+#: plausibility check of the inertial channels (ax, ay, yaw rate): a reading identical to the
+#: previous one this many times in a row is treated as stuck (invalid) until it changes. A MEMS
+#: sensor's white noise (0.02 m/s^2, 0.004 rad/s at 500 Hz) never repeats a value exactly; a
+#: frozen output does (envs.sensors fault "stuck"). 5 samples = 10 ms.
+STUCK_SAMPLES = 5
 #: columns of the compiled step's output row
 (O_U, O_V, O_BETA, O_R, O_AX, O_AY), O_MU, O_FZ, O_BETA_STD, O_MU_STD, N_OUT = range(6), 6, 10, 14, 15, 19
 #: status codes of the compiled step
@@ -311,12 +320,17 @@ def _ekf_step(x, P, Q, z, valid, R, f_args, h_args, m_args, x_out, P_out) -> flo
 # ---- one estimator step (compiled) -----------------------------------------------------------
 @numba.njit(**JIT)
 def _step_member(kind, pk, dt, huber_c, process_var, sensor_var, mu_var, x, P, mu, P_mu, beta, beta_mu,
-                 omega_prev, omega_dot, values, valid, out) -> tuple[int, float]:
+                 omega_prev, omega_dot, inertial_prev, inertial_repeats, values, valid_in, out) -> tuple[int, float]:
     """One step of one vehicle's estimator of ``kind`` (index into KINDS); state rows are
     updated in place only on success. Returns (status, innovation NLL) and fills ``out``."""
     for c in range(values.shape[0]):
-        if valid[c] and not math.isfinite(values[c]):
+        if valid_in[c] and not math.isfinite(values[c]):
             return BAD_MEASUREMENT, math.nan
+    valid, repeats = valid_in.copy(), inertial_repeats.copy()
+    for c in range(3):  # stuck inertial sensors (STUCK_SAMPLES)
+        repeats[c] = repeats[c] + 1.0 if valid_in[c] and values[c] == inertial_prev[c] else 0.0
+        if repeats[c] >= STUCK_SAMPLES:
+            valid[c] = False
     robust, federated, joint = kind >= 3, kind >= 2, kind == 4
     # inputs; wheel angular acceleration for eq. 7: differentiated wheel speed, low-passed
     omega, torque, od = values[3:7].copy(), values[9:13].copy(), np.empty(4)
@@ -375,6 +389,10 @@ def _step_member(kind, pk, dt, huber_c, process_var, sensor_var, mu_var, x, P, m
     x[:], P[:, :], beta[:] = x_new, P_new, beta_new
     mu[:], P_mu[:, :], beta_mu[:] = mu_new, P_mu_new, beta_mu_new
     omega_prev[:], omega_dot[:] = omega, od
+    inertial_repeats[:] = repeats
+    for c in range(3):
+        if valid_in[c]:
+            inertial_prev[c] = values[c]
     # the estimate
     u, v = x[I_U], x[I_V]
     out[O_U], out[O_V], out[O_R], out[O_AX], out[O_AY] = u, v, x[I_R], x[I_AX], x[I_AY]
@@ -392,30 +410,30 @@ def _step_member(kind, pk, dt, huber_c, process_var, sensor_var, mu_var, x, P, m
 
 @numba.njit(inline="always", **JIT)
 def _step_row(j, rows, kind, pk, dt, huber_c, process_var, sensor_var, mu_var, X, P, MU, P_MU, BETA, BETA_MU,
-              OMEGA_PREV, OMEGA_DOT, LAST_NLL, values, valid, out, status):
+              OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS, LAST_NLL, values, valid, out, status):
     i = rows[j]
     q = i if process_var.shape[0] > 1 else 0
     status[j], nll = _step_member(kind, pk, dt, huber_c, process_var[q], sensor_var[q], mu_var, X[i], P[i], MU[i],
-                                  P_MU[i], BETA[i], BETA_MU[i], OMEGA_PREV[i], OMEGA_DOT[i], values[i], valid[i],
-                                  out[j])
+                                  P_MU[i], BETA[i], BETA_MU[i], OMEGA_PREV[i], OMEGA_DOT[i], INERTIAL_PREV[i],
+                                  INERTIAL_REPEATS[i], values[i], valid[i], out[j])
     if status[j] == OK:
         LAST_NLL[i] = nll
 
 
 @numba.njit(**JIT)
 def _step_serial(rows, kind, pk, dt, huber_c, process_var, sensor_var, mu_var, X, P, MU, P_MU, BETA, BETA_MU,
-                 OMEGA_PREV, OMEGA_DOT, LAST_NLL, values, valid, out, status):
+                 OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS, LAST_NLL, values, valid, out, status):
     for j in range(rows.shape[0]):
         _step_row(j, rows, kind, pk, dt, huber_c, process_var, sensor_var, mu_var, X, P, MU, P_MU, BETA, BETA_MU,
-                  OMEGA_PREV, OMEGA_DOT, LAST_NLL, values, valid, out, status)
+                  OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS, LAST_NLL, values, valid, out, status)
 
 
 @numba.njit(parallel=True, **JIT)
 def _step_parallel(rows, kind, pk, dt, huber_c, process_var, sensor_var, mu_var, X, P, MU, P_MU, BETA, BETA_MU,
-                   OMEGA_PREV, OMEGA_DOT, LAST_NLL, values, valid, out, status):
+                   OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS, LAST_NLL, values, valid, out, status):
     for j in numba.prange(rows.shape[0]):
         _step_row(j, rows, kind, pk, dt, huber_c, process_var, sensor_var, mu_var, X, P, MU, P_MU, BETA, BETA_MU,
-                  OMEGA_PREV, OMEGA_DOT, LAST_NLL, values, valid, out, status)
+                  OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS, LAST_NLL, values, valid, out, status)
 
 
 @dataclass
@@ -473,12 +491,16 @@ class StateEstimator:
             self.beta_mu = np.full((B, 2), 0.5)
             self.omega_prev = values[:, 3:7].copy()
             self.omega_dot = np.zeros((B, 4))
+            self.inertial_prev = np.full((B, 3), np.nan)
+            self.inertial_repeats = np.zeros((B, 3))
         else:
             for name, new in (("x", x0), ("P", P0), ("mu", mu0), ("P_mu", Pmu0), ("omega_prev", values[:, 3:7])):
                 getattr(self, name)[mask] = new[mask]
             self.beta[mask] = 0.5
             self.beta_mu[mask] = 0.5
             self.omega_dot[mask] = 0.0
+            self.inertial_prev[mask] = np.nan
+            self.inertial_repeats[mask] = 0.0
         self.last_nll = np.zeros(B)
 
     # ---- one step -----------------------------------------------------------------------

@@ -303,3 +303,16 @@ def test_joint_estimator_follows_a_friction_drop_and_the_dyc_stays_stable():
     last = joint.t >= joint.t[-1] - 2.0
     assert abs(joint.estimate.mu[last].mean() - 0.3) < 0.15
     assert np.all(joint.truth.mu[last] == pytest.approx(0.3))
+
+
+@pytest.mark.parametrize("name", ["ckf", "joint"])
+def test_a_stuck_gyro_is_detected_and_bridged_by_the_model(name):
+    """A yaw-rate sensor frozen for 2 s of a sine steer: after STUCK_SAMPLES identical readings
+    the channel counts as invalid, and the estimate keeps following the car from the model and
+    the other sensors (its yaw-rate error stays far below the frozen reading's)."""
+    faults = (Fault("yaw_rate", "stuck", start=2.0, end=4.0),)
+    traj = simulate("paper_sine", estimator=name, seed=4, faults=faults)
+    window = (traj.t > 2.1) & (traj.t < 4.0)
+    sensor_error = rmse(traj.sensors[window, 2], traj.truth.r[window])
+    assert sensor_error > 0.1  # the frozen reading is far off while the car keeps turning
+    assert rmse(traj.estimate.r[window], traj.truth.r[window]) < 0.1 * sensor_error
