@@ -185,22 +185,30 @@ def random_walk(mu, out, args) -> None:
 TRANSITION, STATE_1, STATE_2, RANDOM_WALK, MU_1, MU_2 = range(6)
 
 
-@numba.njit(inline="always", **JIT)
-def _evaluate(model, point, out, f_args, h_args, m_args) -> None:
-    """Model ``model`` at one point: f_args for the transition, h_args for the state
-    measurements and the random walk, m_args for the mu measurements."""
+@numba.njit(**JIT)
+def _evaluate(model, points, out, f_args, h_args, m_args) -> None:
+    """Model ``model`` at every row of points (K, n) into out (K, k): f_args for the transition,
+    h_args for the state measurements and the random walk, m_args for the mu measurements
+    (one dispatch per point set, not per point)."""
+    K = points.shape[0]
     if model == TRANSITION:
-        transition(point, out, f_args)
+        for k in range(K):
+            transition(points[k], out[k], f_args)
     elif model == STATE_1:
-        measure_state_1(point, out, h_args)
+        for k in range(K):
+            measure_state_1(points[k], out[k], h_args)
     elif model == STATE_2:
-        measure_state_2(point, out, h_args)
+        for k in range(K):
+            measure_state_2(points[k], out[k], h_args)
     elif model == RANDOM_WALK:
-        random_walk(point, out, h_args)
+        for k in range(K):
+            random_walk(points[k], out[k], h_args)
     elif model == MU_1:
-        measure_mu_1(point, out, m_args)
+        for k in range(K):
+            measure_mu_1(points[k], out[k], m_args)
     else:
-        measure_mu_2(point, out, m_args)
+        for k in range(K):
+            measure_mu_2(points[k], out[k], m_args)
 
 
 @numba.njit(**JIT)
@@ -210,8 +218,7 @@ def _ckf_predict(x, P, Q, model, f_args, h_args, m_args, x_out, P_out) -> bool:
     points, moved = np.empty((2 * n, n)), np.empty((2 * n, n))
     if not cubature_points(x, P, points):
         return False
-    for k in range(2 * n):
-        _evaluate(model, points[k], moved[k], f_args, h_args, m_args)
+    _evaluate(model, points, moved, f_args, h_args, m_args)
     predicted_moments(moved, Q, x_out, P_out)
     return True
 
@@ -223,8 +230,7 @@ def _ckf_update(x, P, z, valid, R, huber_c, model, f_args, h_args, m_args, x_out
     points, Z = np.empty((2 * n, n)), np.empty((2 * n, m))
     if not cubature_points(x, P, points):
         return math.nan
-    for k in range(2 * n):
-        _evaluate(model, points[k], Z[k], f_args, h_args, m_args)
+    _evaluate(model, points, Z, f_args, h_args, m_args)
     return measurement_update(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, np.empty(m), np.empty((m, m)),
                               np.empty(m))
 
@@ -267,18 +273,19 @@ def _diagonal(variances) -> np.ndarray:
 def _finite_difference_jacobian(model, x, eps, m, f_args, h_args, m_args) -> tuple[np.ndarray, np.ndarray]:
     """model(x) (m,) and its central-difference Jacobian (m, n) with steps eps (n,)."""
     n = x.shape[0]
-    centre, plus, minus = np.empty(m), np.empty(m), np.empty(m)
-    _evaluate(model, x, centre, f_args, h_args, m_args)
-    J = np.empty((m, n))
-    probe = x.copy()
+    probes = np.empty((2 * n + 1, n))  # x, then x + eps_k e_k, then x - eps_k e_k
+    for k in range(2 * n + 1):
+        probes[k] = x
     for k in range(n):
-        probe[k] = x[k] + eps[k]
-        _evaluate(model, probe, plus, f_args, h_args, m_args)
-        probe[k] = x[k] - eps[k]
-        _evaluate(model, probe, minus, f_args, h_args, m_args)
-        probe[k] = x[k]
+        probes[1 + k, k] += eps[k]
+        probes[1 + n + k, k] -= eps[k]
+    values = np.empty((2 * n + 1, m))
+    _evaluate(model, probes, values, f_args, h_args, m_args)
+    J = np.empty((m, n))
+    for k in range(n):
         for i in range(m):
-            J[i, k] = (plus[i] - minus[i]) / (2.0 * eps[k])
+            J[i, k] = (values[1 + k, i] - values[1 + n + k, i]) / (2.0 * eps[k])
+    centre = values[0].copy()
     return centre, J
 
 
