@@ -98,11 +98,11 @@ def wheel_position(pk: np.ndarray, w: int) -> tuple[float, float]:
     return x, half if w % 2 == 0 else -half
 
 
-@numba.njit(**JIT)
-def wheel_loads(ax: float, ay: float, pk: np.ndarray, fz: np.ndarray) -> None:
-    """Quasi-static wheel loads fz (4,) [N] from body accelerations ax, ay [m/s^2]: static share
-    plus longitudinal (m ax h / L) and lateral (m ay h / t, split by axle static share)
-    transfer; floored at 5% of the static load."""
+@numba.njit(inline="always", **JIT)
+def load_tuple(ax: float, ay: float, pk: np.ndarray) -> tuple[float, float, float, float]:
+    """Quasi-static wheel loads (FL, FR, RL, RR) [N] from body accelerations ax, ay [m/s^2]:
+    static share plus longitudinal (m ax h / L) and lateral (m ay h / t, split by axle static
+    share) transfer; floored at 5% of the static load."""
     m, a, b, h = pk[P_MASS], pk[P_A], pk[P_B], pk[P_H]
     L = a + b
     front = m * GRAVITY * b / L - m * ax * h / L
@@ -110,10 +110,14 @@ def wheel_loads(ax: float, ay: float, pk: np.ndarray, fz: np.ndarray) -> None:
     d_front = m * ay * h * (b / L) / pk[P_TF]
     d_rear = m * ay * h * (a / L) / pk[P_TR]
     floor_front, floor_rear = 0.05 * m * GRAVITY * b / (2 * L), 0.05 * m * GRAVITY * a / (2 * L)
-    fz[0] = max(front / 2 - d_front, floor_front)
-    fz[1] = max(front / 2 + d_front, floor_front)
-    fz[2] = max(rear / 2 - d_rear, floor_rear)
-    fz[3] = max(rear / 2 + d_rear, floor_rear)
+    return (max(front / 2 - d_front, floor_front), max(front / 2 + d_front, floor_front),
+            max(rear / 2 - d_rear, floor_rear), max(rear / 2 + d_rear, floor_rear))
+
+
+@numba.njit(**JIT)
+def wheel_loads(ax: float, ay: float, pk: np.ndarray, fz: np.ndarray) -> None:
+    """:func:`load_tuple` written into fz (4,) [N]."""
+    fz[0], fz[1], fz[2], fz[3] = load_tuple(ax, ay, pk)
 
 
 @numba.njit(**JIT)
@@ -169,8 +173,7 @@ def body_forces(u, v, r, ax, ay, mu, steer, omega, torque, omega_dot, pk) -> tup
     corrected). Fx from the wheel's torque balance (eq. 7), limited by the Dugoff friction
     ellipse; Fy from Dugoff with the slip angle and mu (4,). Loads from the (previous) ax, ay;
     ``steer``: :func:`steer_trig` of the steer angles."""
-    fz = np.empty(4)
-    wheel_loads(ax, ay, pk, fz)
+    fz = load_tuple(ax, ay, pk)
     f_x_sum, f_y_sum, moment = 0.0, 0.0, 0.0
     for w in range(4):
         tan_alpha, slip, cx, cy = tyre_operating_point(u, v, r, fz[w], steer, omega[w], pk, w)
@@ -189,8 +192,7 @@ def body_forces(u, v, r, ax, ay, mu, steer, omega, torque, omega_dot, pk) -> tup
 @numba.njit(**JIT)
 def dugoff_lambdas(u, v, r, ax, ay, mu, steer, omega, pk, out) -> None:
     """Each wheel's Dugoff lambda (4,) at the given state: below 1 its force depends on mu."""
-    fz = np.empty(4)
-    wheel_loads(ax, ay, pk, fz)
+    fz = load_tuple(ax, ay, pk)
     for w in range(4):
         tan_alpha, slip, cx, cy = tyre_operating_point(u, v, r, fz[w], steer, omega[w], pk, w)
         out[w] = dugoff(fz[w], slip, tan_alpha, mu[w], cx, cy, u, 0.0)[2]
