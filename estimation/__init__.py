@@ -27,4 +27,4 @@ def make_estimator(name: str, params, dt: float = 0.002, noise: NoiseParams | No
 
 
 __all__ = ["ESTIMATORS", "Estimate", "ModelParams", "NoiseParams", "OnlineTuner", "StateEstimator",
-           "make_estimator"]
+           "make_estimator", "tuned_noise"]

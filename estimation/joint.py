@@ -39,6 +39,7 @@ import json
 import math
 from dataclasses import dataclass, field, replace
 from importlib import resources
+from pathlib import Path
 
 import numba
 import numpy as np
@@ -109,7 +110,7 @@ def tuned_noise(path=None) -> NoiseParams | None:
     the ALO result of ``fourwis tune``); None only if that file does not exist (then alo-fkf
     runs the hand-set noise, as documented in make_estimator). A corrupted file raises
     ValueError naming it, never a silent default."""
-    path = resources.files("estimation").joinpath(TUNED_NOISE_FILE) if path is None else path
+    path = resources.files("estimation").joinpath(TUNED_NOISE_FILE) if path is None else Path(path)
     if not path.is_file():
         return None
     try:

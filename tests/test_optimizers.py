@@ -67,6 +67,7 @@ def test_tuning_file_missing_means_hand_set_noise_and_corrupted_raises(tmp_path)
     from estimation.joint import tuned_noise
 
     assert tuned_noise(tmp_path / "absent.json") is None
+    assert tuned_noise(str(tmp_path / "absent.json")) is None  # a str path works too
     shipped = tuned_noise()
     assert shipped is not None and shipped.accel_std != NoiseParams().accel_std
     for text in ("{not json", '{"cost": 1.0}', '{"log10_factors": [1, 2]}'):
