@@ -113,3 +113,20 @@ def test_cmaes_leaves_numpys_global_generator_alone():
     np.random.seed(123)
     minimize(sphere, [(-1.0, 1.0)] * 2, "cmaes", n_agents=4, iterations=2, seed=0)
     np.testing.assert_array_equal(np.random.random(3), expected)
+
+
+def test_tuning_criteria_likelihood_and_truth_and_a_bad_name():
+    """The likelihood criterion rewards a filter whose noise matches the data: shrinking R
+    100-fold (overconfident) or inflating everything 100-fold (underconfident) both raise the
+    mean innovation NLL above the hand-set noise's; the truth criterion is a different
+    number; an unknown criterion is named."""
+    from training.tune import calibration_run, replay_cost
+
+    traj = calibration_run(duration=0.6)
+    X = np.array([[0.0, 0.0, 0.0, 0.0], [0.0, -2.0, -2.0, -2.0], [2.0, 2.0, 2.0, 2.0]])
+    nll = replay_cost(X, traj, criterion="nll")
+    assert nll[1] > nll[0] and nll[2] > nll[0]
+    truth = replay_cost(X[:1], traj, criterion="truth")
+    assert np.isfinite(truth[0]) and truth[0] != nll[0]
+    with pytest.raises(ValueError, match="likelihood9"):
+        replay_cost(X[:1], traj, criterion="likelihood9")
