@@ -19,7 +19,7 @@ from envs.scenarios import make_scenario
 from envs.vehicle import NU, VehicleParams, derivatives
 from estimation import make_estimator
 from estimation.joint import measure_state_1
-from estimation.model import Inputs, ModelParams, state_transition, steer_trig
+from estimation.model import Inputs, state_transition, steer_trig
 
 DT = 0.002
 
@@ -34,16 +34,22 @@ def _per_call(fn: Callable[[], None], seconds: float = 3.0) -> float:
     return (time.perf_counter() - start) / count
 
 
-def joint_step_time(batch: int) -> float:
-    """Seconds per ``joint`` step for ``batch`` vehicles driving straight at 20 m/s."""
+def _started(name: str, batch: int):
+    """Estimator ``name`` for ``batch`` vehicles reset on one noisy reading of paper_sine's
+    initial state (40 km/h, straight); returns (estimator, reading)."""
     params = VehicleParams()
     scenario = make_scenario("paper_sine")
     state = scenario.initial_state(batch)
     aux = derivatives(state, np.zeros((batch, NU)), np.full((batch, 4), 0.8), params)[1]
-    sensors = SensorModel(SensorParams(), (), batch, np.random.default_rng(0))
-    reading = sensors.measure(sensor_truth(state, aux), 0.0)
-    estimator = make_estimator("joint", params, DT)
+    reading = SensorModel(SensorParams(), (), batch, np.random.default_rng(0)).measure(sensor_truth(state, aux), 0.0)
+    estimator = make_estimator(name, params, DT)
     estimator.reset(reading, np.full(batch, scenario.speed))
+    return estimator, reading
+
+
+def joint_step_time(batch: int) -> float:
+    """Seconds per ``joint`` step for ``batch`` vehicles (see :func:`_started`)."""
+    estimator, reading = _started("joint", batch)
     return _per_call(lambda: estimator.step(reading))
 
 
@@ -53,15 +59,8 @@ def ckf_versus_filterpy() -> tuple[float, float]:
     compiled 6-state model and 7 measurements, with the same Q and R."""
     from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
-    params = VehicleParams()
-    scenario = make_scenario("paper_sine")
-    state = scenario.initial_state(1)
-    aux = derivatives(state, np.zeros((1, NU)), np.full((1, 4), 0.8), params)[1]
-    reading = SensorModel(SensorParams(), (), 1, np.random.default_rng(0)).measure(sensor_truth(state, aux), 0.0)
-    estimator = make_estimator("ckf", params, DT)
-    estimator.reset(reading, np.full(1, scenario.speed))
-
-    p = ModelParams.from_vehicle(params)
+    estimator, reading = _started("ckf", 1)
+    p = estimator.params
     values = reading.values[0]
     delta = np.array([values[7], values[7], values[8], values[8]])
     inputs = Inputs(delta, values[3:7].copy(), values[9:13].copy(), np.zeros(4))
