@@ -165,6 +165,16 @@ def _add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rear-steer", action="store_true", help="switch on the paper's 4WS law (eq. 20)")
 
 
+def _add_matrix_arguments(parser: argparse.ArgumentParser, scenarios, estimators, seeds: int, out: str,
+                          scenarios_help: str) -> None:
+    """The scenario x estimator x seed matrix arguments that compare and estimate share."""
+    parser.add_argument("--scenarios", nargs="+", default=list(scenarios), help=scenarios_help)
+    parser.add_argument("--estimators", nargs="+", default=list(estimators))
+    parser.add_argument("--seeds", type=int, default=seeds, help="sensor-noise seeds per cell")
+    parser.add_argument("--jobs", type=int, help="worker processes (default: up to 2)")
+    parser.add_argument("--out", default=out, help="output directory")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="fourwis", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -178,33 +188,28 @@ def build_parser() -> argparse.ArgumentParser:
     from training.compare import DEFAULT_CONTROLLERS, DEFAULT_ESTIMATORS, HEADLINE
 
     cmp_ = sub.add_parser("compare", help="closed-loop matrix estimator x controller x scenario: report + plots")
-    cmp_.add_argument("--scenarios", nargs="+", default=list(HEADLINE),
-                      help="scenario names, optionally with overrides: iso3888_2:mu=0.5,speed_kph=50; "
-                           "sine_with_dwell:amplitude_A=6.5 ('swd_wet': SWD 5.5A, mu 0.5)")
-    cmp_.add_argument("--estimators", nargs="+", default=list(DEFAULT_ESTIMATORS))
+    _add_matrix_arguments(cmp_, HEADLINE, DEFAULT_ESTIMATORS, 2, "results/compare",
+                          "scenario names, optionally with overrides: iso3888_2:mu=0.5,speed_kph=50; "
+                          "sine_with_dwell:amplitude_A=6.5 ('swd_wet': SWD 5.5A, mu 0.5)")
     cmp_.add_argument("--controllers", nargs="+", default=list(DEFAULT_CONTROLLERS))
-    cmp_.add_argument("--seeds", type=int, default=2, help="sensor-noise seeds per cell")
-    cmp_.add_argument("--jobs", type=int, help="worker processes (default: up to 2)")
-    cmp_.add_argument("--out", default="results/compare", help="output directory")
     cmp_.set_defaults(func=_compare)
     from envs.scenarios import PAPER_SCENARIOS
     from training.estimate import DEFAULT_ESTIMATORS as ESTIMATE_ESTIMATORS
 
     est = sub.add_parser("estimate", help="open-loop estimator accuracy (paper Table 2 form): report + plots")
-    est.add_argument("--scenarios", nargs="+", default=list(PAPER_SCENARIOS), help="scenario names")
-    est.add_argument("--estimators", nargs="+", default=list(ESTIMATE_ESTIMATORS))
-    est.add_argument("--seeds", type=int, default=1, help="sensor-noise seeds per cell")
-    est.add_argument("--jobs", type=int, help="worker processes (default: up to 2)")
-    est.add_argument("--out", default="results/estimate", help="output directory")
+    _add_matrix_arguments(est, PAPER_SCENARIOS, ESTIMATE_ESTIMATORS, 1, "results/estimate", "scenario names")
     est.set_defaults(func=_estimate)
+    from estimation.optimizers import METHODS
+    from training.tune import CRITERIA
+
     tune = sub.add_parser("tune", help="offline tuning of alo-fkf's noise on a calibration run")
     tune.add_argument("--agents", type=int, default=30)
     tune.add_argument("--iterations", type=int, default=100)
     tune.add_argument("--duration", type=float, default=10.0, help="calibration run length [s]")
-    tune.add_argument("--criterion", choices=("nll", "truth"), default="nll",
+    tune.add_argument("--criterion", choices=CRITERIA, default="nll",
                       help="innovation negative log-likelihood (no truth needed) or error against the truth")
     tune.add_argument("--seed", type=int, default=0)
-    tune.add_argument("--optimizer", choices=("alo", "cmaes", "random"), default="alo",
+    tune.add_argument("--optimizer", choices=METHODS, default="alo",
                       help="alo: the paper's antlion optimizer; cmaes: CMA-ES; random: random search")
     tune.add_argument("--out", help="output JSON (default: estimation/data/tuned_noise.json)")
     tune.set_defaults(func=_tune)
