@@ -68,6 +68,7 @@ MU_CORRELATION = 0.8  #: prior/random-walk correlation of the four wheels' mu (r
 HUBER_C = 3.0
 
 
+@numba.njit(**JIT)
 def _correlated(variance: float) -> np.ndarray:
     """4x4 covariance with ``variance`` on the diagonal and MU_CORRELATION between wheels."""
     return variance * (MU_CORRELATION + (1.0 - MU_CORRELATION) * np.eye(4))
@@ -371,7 +372,7 @@ def _step_member(kind, pk, dt, huber_c, process_var, sensor_var, mu_var, x, P, m
         return FILTER_FAILED, math.nan
     mu_new, P_mu_new, beta_mu_new = mu.copy(), P_mu.copy(), beta_mu.copy()
     if joint:
-        walk = mu_var[0] * (MU_CORRELATION + (1.0 - MU_CORRELATION) * np.eye(4))
+        walk = _correlated(mu_var[0])
         m_args = (x_new, steer, omega, torque, od, pk, dt)
         mu_fused, P_fused = np.empty(4), np.empty((4, 4))
         nll_mu = _federated(mu, P_mu, walk, beta_mu, RANDOM_WALK, values[:3].copy(), valid[:3].copy(),
