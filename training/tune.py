@@ -30,6 +30,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -53,40 +54,59 @@ def calibration_run(seed: int = CALIBRATION_SEED, duration: float = 6.0) -> Traj
 CRITERIA = ("nll", "truth")
 
 
-def replay_cost(log10_factors: np.ndarray, traj: Trajectory, kind: str = "alo-fkf",
-                criterion: str = "nll") -> np.ndarray:
-    """Cost of ``kind`` with scaled noise replayed on ``traj``, for a population of candidates
-    ``log10_factors`` (N, 4) in ONE batched filter (each member its own noise); (N,) costs, inf
-    for members whose replay failed. ``nll``: mean innovation NLL per step; ``truth``: beta
-    RMSE / 0.1 deg + yaw-rate RMSE / 0.01 rad/s + speed RMSE / 0.05 m/s (each term 1 at a
-    good estimator)."""
-    if criterion not in CRITERIA:
-        raise ValueError(f"unknown tuning criterion {criterion!r}; known: {list(CRITERIA)}")
+class Replay(NamedTuple):
+    """A population's replay: estimated beta [rad], yaw rate [rad/s], speed [m/s] (T, N) and the
+    mean innovation NLL per step (N,)."""
+
+    beta: np.ndarray
+    r: np.ndarray
+    u: np.ndarray
+    mean_nll: np.ndarray
+
+
+def replay(log10_factors: np.ndarray, traj: Trajectory, kind: str = "alo-fkf") -> Replay:
+    """Replay ``traj``'s readings through ``kind`` with noise scaled by each candidate of
+    ``log10_factors`` (N, 4), all in ONE batched filter (each member its own noise). Raises
+    ValueError (or FloatingPointError) if a member's filter fails."""
     factors = np.atleast_2d(np.asarray(log10_factors, dtype=float))
     n = len(factors)
     est = make_estimator(kind, traj.scenario.vehicle_params, noise=NoiseParams().scaled(factors))
     T = len(traj.t)
     beta, r, u, nll = np.empty((T, n)), np.empty((T, n)), np.empty((T, n)), np.zeros(n)
+    for k in range(T):
+        reading = SensorReading(np.repeat(traj.sensors[k][None], n, 0), np.repeat(traj.sensor_valid[k][None], n, 0),
+                                np.full(n, traj.t[k]))
+        if k == 0:
+            est.reset(reading, np.full(n, traj.scenario.speed))
+        e = est.step(reading)
+        beta[k], r[k], u[k] = e.beta, e.r, e.u
+        nll += est.last_nll
+    return Replay(beta, r, u, nll / T)
+
+
+def replay_cost(log10_factors: np.ndarray, traj: Trajectory, kind: str = "alo-fkf",
+                criterion: str = "nll") -> np.ndarray:
+    """Cost of ``kind`` with scaled noise replayed on ``traj`` (:func:`replay`) for a population
+    of candidates ``log10_factors`` (N, 4); (N,) costs, inf for members whose replay failed.
+    ``nll``: mean innovation NLL per step; ``truth``: beta RMSE / 0.1 deg + yaw-rate RMSE /
+    0.01 rad/s + speed RMSE / 0.05 m/s (each term 1 at a good estimator)."""
+    if criterion not in CRITERIA:
+        raise ValueError(f"unknown tuning criterion {criterion!r}; known: {list(CRITERIA)}")
+    factors = np.atleast_2d(np.asarray(log10_factors, dtype=float))
     try:
-        for k in range(T):
-            reading = SensorReading(np.repeat(traj.sensors[k][None], n, 0), np.repeat(traj.sensor_valid[k][None], n, 0),
-                                    np.full(n, traj.t[k]))
-            if k == 0:
-                est.reset(reading, np.full(n, traj.scenario.speed))
-            e = est.step(reading)
-            beta[k], r[k], u[k] = e.beta, e.r, e.u
-            nll += est.last_nll
+        run = replay(factors, traj, kind)
     except (np.linalg.LinAlgError, ValueError, FloatingPointError):
-        if n == 1:
+        if len(factors) == 1:
             return np.array([math.inf])
         return np.concatenate([replay_cost(f[None], traj, kind, criterion) for f in factors])  # isolate the failure
     if criterion == "nll":
-        return np.where(np.isfinite(nll), nll / T, math.inf)
+        return np.where(np.isfinite(run.mean_nll), run.mean_nll, math.inf)
 
     def error(est_series: np.ndarray, truth: np.ndarray) -> np.ndarray:
         return np.sqrt(np.mean((est_series - truth[:, None]) ** 2, axis=0))
 
-    cost = error(beta, traj.truth.beta) / math.radians(0.1) + error(r, traj.truth.r) / 0.01 + error(u, traj.truth.u) / 0.05
+    cost = (error(run.beta, traj.truth.beta) / math.radians(0.1) + error(run.r, traj.truth.r) / 0.01
+            + error(run.u, traj.truth.u) / 0.05)
     return np.where(np.isfinite(cost), cost, math.inf)
 
 
