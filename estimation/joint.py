@@ -451,7 +451,8 @@ class StateEstimator:
 
     One compiled step (numba) per call: every vehicle's filters run in compiled code, on both
     cores for batches of PARALLEL_MIN_BATCH or more. The state lives in the arrays named by
-    STATE_FIELDS (leading axis B), which callers may snapshot and restore."""
+    STATE_FIELDS (leading axis B; writable float64 arrays the compiled step updates in place), which
+    callers may snapshot and restore (with arrays of the same kind)."""
 
     params: ModelParams
     kind: str = "joint"
