@@ -9,7 +9,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from control.allocation import allocate_torques
+from control.allocation import Allocation, allocate_for_estimate, allocate_torques
 from control.dyc import LQRYawController, LQRWeights, SlidingModeYawController
 from control.reference import rear_steer_feedforward, reference_yaw_rate, sideslip_bound
 
@@ -49,6 +49,7 @@ class StabilityController:
     law: str = "lqr"
     rear_steer: bool = False
     dt: float = 0.002
+    friction_ellipse: bool = False  #: see :func:`control.allocation.allocate_for_estimate`
 
     def __post_init__(self) -> None:
         if self.law == "lqr":
@@ -82,7 +83,7 @@ class StabilityController:
         fade = np.clip(1.0 - np.abs(beta) / bound, 0.0, 1.0)
         moment = np.where(turning_further, moment * fade, moment)
         moment = np.where(np.abs(u) > ACTIVE_SPEED, moment, 0.0)
-        torques, _ = allocate_torques(base_torques, moment, estimate.fz, estimate.mu, self.params)
+        torques = allocate_for_estimate(base_torques, moment, estimate, self.params, self.friction_ellipse).torques
         rear = rear_steer_feedforward(u, front_steer, self.params) if self.rear_steer else np.zeros_like(u)
         return Command(torques, rear)
 
@@ -102,4 +103,5 @@ def make_controller(name: str, params, dt: float = 0.002):
     raise ValueError(f"unknown controller {name!r}; known: {list(CONTROLLERS)}")
 
 
-__all__ = ["CONTROLLERS", "Command", "StabilityController", "allocate_torques", "make_controller"]
+__all__ = ["CONTROLLERS", "Allocation", "Command", "StabilityController", "allocate_for_estimate", "allocate_torques",
+           "make_controller"]

@@ -1,61 +1,193 @@
-"""Lower layer: the four wheel torques that add a yaw moment to the driver's drive torques.
+"""Lower layer: the four in-wheel torques that deliver the driver's drive force and the
+corrective yaw moment with the least tyre workload.
 
-The moment comes from left/right torque differences (differential drive): a wheel force
-change dFx_i at lateral arm y_i gives dMz = -y_i dFx_i (ISO axes, y left), so more drive on
-the right wheels yaws the car left. The request is shared over the wheels in proportion to
-their friction capacity mu_i Fz_i (estimated), each torque is limited by the motor and by
-the tyre's friction (|T| <= R mu Fz), and the achieved moment is returned so callers see
-saturation. Closed form + clipping, compiled: it runs every 2 ms step for a batch.
+Decision variables are the longitudinal tyre forces Fx_i = T_i / R (wheel inertia neglected).
+With the lateral forces Fy_i as they are, the tyre workload
+
+    J = sum_i (Fx_i^2 + Fy_i^2) / (mu_i Fz_i)^2
+
+is minimised over Fx subject to
+
+    sum_i Fx_i = Fx_total             (the driver's drive force, from the base torques)
+    sum_i c_i Fx_i = Mz               (c_i = -/+ half-track for left/right wheels, ISO axes)
+    |Fx_i| <= min(T_motor(u) / R, sqrt((mu_i Fz_i)^2 - Fy_i^2))   (motor and friction ellipse)
+
+(straight-wheel lever arms; T_motor(u) = min(peak torque, peak power / (u / R))). When no bound
+is active this is the closed-form weighted least squares Fx = W^-1 A^T (A W^-1 A^T)^-1 d. When
+a bound binds, the small bounded QP is solved exactly: the optimum lies on one face of the box
+(each force free, at its lower or at its upper bound, 3^4 = 81 faces), on each face the
+equality-constrained least squares is closed form, and the cheapest feasible face solution is
+the optimum (strict convexity). It is compiled and batched; a scipy QP per vehicle costs
+~1,000x more per 2 ms step (BENCHMARKS.md) and serves as the tests' reference instead.
+
+Infeasible demands degrade in a fixed priority: the drive force is clipped to what the bounds
+allow, then the yaw moment to the largest one feasible with that drive force (an exact
+greedy linear programme over the box); the result reports what was delivered and flags it.
 """
 
 from __future__ import annotations
 
+from typing import NamedTuple
 
 import numba
 import numpy as np
 
+from control.reference import GRAVITY
+
 SIDE = (-1.0, 1.0, -1.0, 1.0)  #: -1 left wheels, +1 right wheels
+_FACES = 81  #: 3^4 activity patterns: free, at the lower bound, at the upper bound
 
 
-@numba.njit(cache=True, error_model="numpy")
-def _allocate(base_torques, yaw_moment, fz, mu, arm, motor_limit, wheel_radius, torques, achieved) -> None:
-    for b in range(base_torques.shape[0]):
-        capacity = np.empty(4)
+class Allocation(NamedTuple):
+    """Allocator output for a batch of B vehicles: wheel torques [N m] (B, 4), the yaw moment
+    [N m] (B,) and drive force [N] (B,) they deliver, and whether the demand was met (B,)."""
+
+    torques: np.ndarray
+    yaw_moment: np.ndarray
+    drive_force: np.ndarray
+    feasible: np.ndarray
+
+
+@numba.njit(cache=True)
+def _greedy_moment(lever, lower, upper, force, sign) -> tuple[float, np.ndarray]:
+    """Largest (sign = +1) or smallest (-1) sum lever_i x_i over lower <= x <= upper with
+    sum x_i = force (assumed within [sum lower, sum upper]): fill the best levers first."""
+    x = lower.copy()
+    remaining = force - lower.sum()
+    order = np.argsort(-sign * lever)
+    for w in order:
+        step = min(max(remaining, 0.0), upper[w] - lower[w])
+        x[w] += step
+        remaining -= step
+    return (lever * x).sum(), x
+
+
+@numba.njit(cache=True)
+def _solve_box_qp(capacity_sq, lever, lower, upper, force, moment, x_best) -> bool:
+    """min sum x_i^2 / capacity_sq_i s.t. sum x_i = force, sum lever_i x_i = moment,
+    lower <= x <= upper, by enumerating the 81 activity faces; False if no face is feasible."""
+    scale_f = np.abs(lower).sum() + np.abs(upper).sum() + abs(force) + 1.0
+    scale_m = scale_f * (np.abs(lever).max() + 1.0)
+    x = np.empty(4)
+    best_cost = np.inf
+    for face in range(_FACES):
+        code = face
+        f_rest, m_rest = force, moment
+        s0 = s1 = s2 = 0.0
         for w in range(4):
-            capacity[w] = max(mu[b, w] * fz[b, w], 1e-6)
-        total = capacity.sum()
-        # dMz = sum_i arm_i SIDE_i dFx_i with dFx_i = SIDE_i share_i X  =>  X = Mz / sum(arm_i share_i)
-        lever = 0.0
+            state = code % 3
+            code //= 3
+            if state == 0:
+                s0 += capacity_sq[w]
+                s1 += capacity_sq[w] * lever[w]
+                s2 += capacity_sq[w] * lever[w] ** 2
+                x[w] = np.nan
+            else:
+                x[w] = lower[w] if state == 1 else upper[w]
+                f_rest -= x[w]
+                m_rest -= lever[w] * x[w]
+        # free x_i = capacity_sq_i (l0 + l1 lever_i): the stationary point on this face
+        det = s0 * s2 - s1 * s1
+        if det > 1e-12 * s0 * s2:
+            l0 = (s2 * f_rest - s1 * m_rest) / det
+            l1 = (s0 * m_rest - s1 * f_rest) / det
+        elif s0 > 0.0:  # all free levers equal: only the force row is independent
+            l0, l1 = f_rest / s0, 0.0
+        else:
+            l0 = l1 = 0.0
+        cost = 0.0
+        ok = True
         for w in range(4):
-            lever += arm[w] * capacity[w] / total
-        force_scale = yaw_moment[b] / lever
-        moment = 0.0
+            if np.isnan(x[w]):
+                x[w] = capacity_sq[w] * (l0 + l1 * lever[w])
+                slack = 1e-9 * (upper[w] - lower[w] + 1.0)
+                if x[w] < lower[w] - slack or x[w] > upper[w] + slack:
+                    ok = False
+            cost += x[w] ** 2 / capacity_sq[w]
+        if not ok or cost >= best_cost:
+            continue
+        if abs(x.sum() - force) > 1e-9 * scale_f or abs((lever * x).sum() - moment) > 1e-9 * scale_m:
+            continue
+        best_cost = cost
         for w in range(4):
-            limit = min(motor_limit, wheel_radius * capacity[w])
-            share = capacity[w] / total
-            torque = base_torques[b, w] + SIDE[w] * share * force_scale * wheel_radius
-            torques[b, w] = min(max(torque, -limit), limit)
-            moment += arm[w] * SIDE[w] * (torques[b, w] - min(max(base_torques[b, w], -limit), limit))
-        achieved[b] = moment / wheel_radius
+            x_best[w] = min(max(x[w], lower[w]), upper[w])
+        if face == 0:  # no bound active: the closed-form weighted least squares is the optimum
+            break
+    return best_cost < np.inf
+
+
+@numba.njit(cache=True)
+def _allocate(drive_force, yaw_moment, capacity, force_limit, lever, torques, delivered_moment,
+              delivered_force, feasible, wheel_radius) -> None:
+    for b in range(drive_force.shape[0]):
+        upper = force_limit[b].copy()
+        lower = -upper
+        force = min(max(drive_force[b], lower.sum()), upper.sum())
+        moment_high, x_high = _greedy_moment(lever, lower, upper, force, 1.0)
+        moment_low, x_low = _greedy_moment(lever, lower, upper, force, -1.0)
+        moment = min(max(yaw_moment[b], moment_low), moment_high)
+        tolerance = 1e-9 * (abs(drive_force[b]) + abs(yaw_moment[b]) + upper.sum() + 1.0)
+        feasible[b] = abs(force - drive_force[b]) <= tolerance and abs(moment - yaw_moment[b]) <= tolerance
+        x = np.empty(4)
+        if not _solve_box_qp(capacity[b] ** 2, lever, lower, upper, force, moment, x):
+            # only at a vertex of the achievable set, within rounding: take the LP's vertex
+            x = x_high if moment >= 0.5 * (moment_high + moment_low) else x_low
+        for w in range(4):
+            torques[b, w] = x[w] * wheel_radius
+        delivered_force[b] = x.sum()
+        delivered_moment[b] = (lever * x).sum()
 
 
 def allocate_torques(base_torques: np.ndarray, yaw_moment: np.ndarray, fz: np.ndarray, mu: np.ndarray,
-                     params) -> tuple[np.ndarray, np.ndarray]:
-    """Wheel torques (B, 4) [N m] = base + differential share of ``yaw_moment`` (B,) [N m], and the
-    yaw moment actually achieved (B,) after motor and friction limits (straight-wheel arms).
-    ``fz``, ``mu`` (B, 4): estimated wheel loads [N] and friction. Compiled (numba)."""
+                     params, lateral_forces: np.ndarray | None = None,
+                     speed: np.ndarray | None = None) -> Allocation:
+    """Minimum-workload wheel torques for the drive force of ``base_torques`` (B, 4) [N m]
+    (only their sum matters) plus the yaw moment ``yaw_moment`` (B,) [N m].
+
+    ``fz``, ``mu`` (B, 4): estimated wheel loads [N] and friction; ``lateral_forces`` (B, 4)
+    [N]: estimated tyre lateral forces for the friction ellipse (None: zero, the friction
+    circle's full radius is available longitudinally); ``speed`` (B,) [m/s]: for the motors'
+    power limit (None: peak torque at any speed). Compiled (numba)."""
     base_torques = np.ascontiguousarray(base_torques, dtype=np.float64)
     if base_torques.ndim != 2 or base_torques.shape[1] != 4:
         raise ValueError(f"base_torques must have shape (B, 4), got {base_torques.shape}")
     B = base_torques.shape[0]
     yaw_moment, fz, mu = (np.ascontiguousarray(q, dtype=np.float64) for q in (yaw_moment, fz, mu))
-    if yaw_moment.shape != (B,) or fz.shape != (B, 4) or mu.shape != (B, 4):
-        raise ValueError(f"yaw_moment must have shape ({B},) and fz, mu ({B}, 4), got {yaw_moment.shape}, "
-                         f"{fz.shape}, {mu.shape}")
-    if not (np.isfinite(base_torques).all() and np.isfinite(yaw_moment).all()):
-        raise ValueError("base torques and yaw moment must be finite")
-    arm = np.array([params.track_front, params.track_front, params.track_rear, params.track_rear]) / 2
-    torques, achieved = np.empty((B, 4)), np.empty(B)
-    _allocate(base_torques, yaw_moment, fz, mu, arm, float(params.motor_peak_torque), float(params.wheel_radius),
-              torques, achieved)
-    return torques, achieved
+    lateral = np.zeros((B, 4)) if lateral_forces is None else np.asarray(lateral_forces, dtype=np.float64)
+    speed = np.zeros(B) if speed is None else np.asarray(speed, dtype=np.float64)
+    if yaw_moment.shape != (B,) or fz.shape != (B, 4) or mu.shape != (B, 4) or lateral.shape != (B, 4) \
+            or speed.shape != (B,):
+        raise ValueError(f"yaw_moment and speed must have shape ({B},) and fz, mu, lateral_forces ({B}, 4), got "
+                         f"{yaw_moment.shape}, {speed.shape}, {fz.shape}, {mu.shape}, {lateral.shape}")
+    for name, value in (("base torques", base_torques), ("yaw moment", yaw_moment), ("wheel loads", fz),
+                        ("friction", mu), ("lateral forces", lateral), ("speed", speed)):
+        if not np.isfinite(value).all():
+            raise ValueError(f"{name} must be finite, got {value[~np.isfinite(value)][:4]}")
+    p = params
+    lever = np.array(SIDE) * np.array([p.track_front, p.track_front, p.track_rear, p.track_rear]) / 2
+    capacity = np.maximum(mu * fz, 1e-6)
+    spin = np.abs(speed) / p.wheel_radius  # wheel speed [rad/s] if rolling
+    motor_torque = np.minimum(p.motor_peak_torque, p.motor_peak_power / np.maximum(spin, 1e-9))
+    friction = np.sqrt(np.maximum(capacity**2 - lateral**2, 0.0))
+    force_limit = np.minimum(motor_torque[:, None] / p.wheel_radius, friction)
+    torques, moment, force = np.empty((B, 4)), np.empty(B), np.empty(B)
+    feasible = np.empty(B, dtype=np.bool_)
+    _allocate(base_torques.sum(axis=1) / p.wheel_radius, yaw_moment, capacity, force_limit, lever, torques,
+              moment, force, feasible, float(p.wheel_radius))
+    return Allocation(torques, moment, force, feasible)
+
+
+def allocate_for_estimate(base_torques: np.ndarray, yaw_moment: np.ndarray, estimate, params,
+                          friction_ellipse: bool = False) -> Allocation:
+    """:func:`allocate_torques` fed from an Estimate-like object (u, ay, mu, fz).
+
+    ``friction_ellipse``: bound each tyre's Fx by what its lateral force leaves, with the
+    quasi-static lateral forces Fy_i = Fz_i a_y / g (each tyre carries lateral force in
+    proportion to its load, as in steady cornering). Off by default, measured: a tyre the
+    estimate sees as laterally saturated then gets no longitudinal force, which removes the
+    authority stability control needs most (braking a saturated tyre trades its lateral force
+    for yaw moment); with it on, DYC-LQR + joint spins on the wet sine with dwell (peak
+    sideslip 26 deg against 4 deg off; the oracle is unaffected, 1.5 deg). Off, the bound is
+    the friction circle |Fx_i| <= mu_i Fz_i."""
+    lateral = estimate.fz * (estimate.ay / GRAVITY)[:, None] if friction_ellipse else None
+    return allocate_torques(base_torques, yaw_moment, estimate.fz, estimate.mu, params, lateral, estimate.u)

@@ -64,7 +64,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from control import Command
-from control.allocation import allocate_torques
+from control.allocation import allocate_for_estimate
 from control.reference import reference_yaw_rate
 from envs.metrics import SPIN_OUT_SIDESLIP, path_deviation, sine_with_dwell_metrics
 from envs.scenarios import SCENARIOS, Scenario, make_scenario
@@ -163,7 +163,7 @@ class _AgentController:
     def __call__(self, t, estimate, front_steer, base_torques) -> Command:
         p = self.params
         if self.action_mode == "yaw_moment":
-            torques, _ = allocate_torques(base_torques, self.action[:, 0] * MAX_YAW_MOMENT, estimate.fz, estimate.mu, p)
+            torques = allocate_for_estimate(base_torques, self.action[:, 0] * MAX_YAW_MOMENT, estimate, p).torques
             return Command(torques, self.action[:, 1] * p.max_rear_steer)
         limit = p.motor_peak_torque
         return Command(np.clip(base_torques + self.action * limit, -limit, limit), np.zeros(len(base_torques)))

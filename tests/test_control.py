@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 
 from control import CONTROLLERS, make_controller
-from control.allocation import allocate_torques
 from control.dyc import LQRYawController, bicycle_matrices
 from control.reference import rear_steer_gain, reference_yaw_rate, sideslip_bound, understeer_gradient
 from envs.fmvss126 import characterise, run_series
@@ -67,25 +66,9 @@ def test_lqr_reduces_yaw_error_on_an_oversteering_plant():
     assert errors[True] < 0.5 * errors[False]
 
 
-def test_allocation_achieves_the_moment_within_limits_and_keeps_drive_force():
-    base = np.full((1, 4), 50.0)
-    fz, mu = np.full((1, 4), 2000.0), np.full((1, 4), 1.0)
-    torques, achieved = allocate_torques(base, np.array([800.0]), fz, mu, P)
-    assert achieved[0] == pytest.approx(800.0)
-    assert torques.sum() == pytest.approx(base.sum())  # equal capacities: pure differential
-    assert torques[0, 1] > torques[0, 0]  # positive (left) moment: more drive on the right
-    flipped, _ = allocate_torques(base, np.array([-800.0]), fz, mu, P)
-    np.testing.assert_allclose(flipped[0], torques[0, [1, 0, 3, 2]])
-    huge, achieved = allocate_torques(base, np.array([1e6]), fz, mu, P)
-    assert achieved[0] < 1e6
-    assert np.all(np.abs(huge) <= np.minimum(P.motor_peak_torque, P.wheel_radius * mu * fz) + 1e-9)
-
-
 def test_bad_input_raises():
     with pytest.raises(ValueError, match="pid"):
         make_controller("pid", P)
-    with pytest.raises(ValueError, match="finite"):
-        allocate_torques(np.full((1, 4), np.nan), np.zeros(1), np.ones((1, 4)), np.ones((1, 4)), P)
     assert set(CONTROLLERS) >= {"none", "dyc-lqr", "dyc-smc"}
 
 

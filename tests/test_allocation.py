@@ -1,0 +1,110 @@
+"""Torque allocation: minimum tyre workload under the drive-force and yaw-moment equalities,
+motor and friction bounds; checked against scipy's SLSQP and linprog on random demands."""
+
+import numpy as np
+import pytest
+from scipy.optimize import linprog, minimize
+
+from control.allocation import allocate_torques
+from envs.vehicle import VehicleParams
+
+P = VehicleParams()
+LEVER = np.array([-1.0, 1.0, -1.0, 1.0]) * P.track_front / 2  # dMz / dFx_i, ISO axes
+
+
+def _random_demands(seed: int, batch: int):
+    rng = np.random.default_rng(seed)
+    fz = rng.uniform(500.0, 3500.0, (batch, 4))
+    mu = rng.uniform(0.1, 1.0, (batch, 4))
+    lateral = rng.uniform(-0.95, 0.95, (batch, 4)) * mu * fz
+    speed = rng.uniform(0.0, 35.0, batch)
+    base = rng.normal(0.0, 150.0, (batch, 4))
+    moment = rng.normal(0.0, 1500.0, batch)
+    return base, moment, fz, mu, lateral, speed
+
+
+def _force_limits(fz, mu, lateral, speed):
+    motor = np.minimum(P.motor_peak_torque, P.motor_peak_power * P.wheel_radius / np.maximum(speed, 1e-9))
+    return np.minimum(motor[:, None] / P.wheel_radius, np.sqrt(np.maximum((mu * fz) ** 2 - lateral**2, 0.0)))
+
+
+def test_feasible_demands_are_met_exactly_at_the_least_workload_scipy_finds():
+    base, moment, fz, mu, lateral, speed = _random_demands(0, 60)
+    out = allocate_torques(base, moment, fz, mu, P, lateral, speed)
+    forces = out.torques / P.wheel_radius
+    limits = _force_limits(fz, mu, lateral, speed)
+    assert np.all(np.abs(forces) <= limits * (1 + 1e-9) + 1e-9)
+    checked = 0
+    for b in np.flatnonzero(out.feasible):
+        drive, cap = base[b].sum() / P.wheel_radius, mu[b] * fz[b]
+        assert forces[b].sum() == pytest.approx(drive, abs=1e-6)
+        assert LEVER @ forces[b] == pytest.approx(moment[b], abs=1e-6)
+        # the same QP in workload-normalised forces y = Fx / (mu Fz), which SLSQP handles well
+        reference = minimize(lambda y: y @ y, np.zeros(4), jac=lambda y: 2 * y, method="SLSQP",
+                             bounds=list(zip(-limits[b] / cap, limits[b] / cap)), options={"ftol": 1e-13},
+                             constraints=[{"type": "eq", "fun": lambda y: [(cap @ y - drive) / 1e3,
+                                                                           (LEVER * cap @ y - moment[b]) / 1e3]}])
+        assert reference.success, reference.message
+        workload = np.sum((forces[b] / cap) ** 2)
+        assert workload <= reference.fun * (1 + 1e-7) + 1e-12
+        checked += 1
+    assert checked >= 20  # the random set exercises the bounded-QP branch, not only easy cases
+    assert np.sum(np.any(np.isclose(np.abs(forces), limits), axis=1) & out.feasible) >= 5
+
+
+def test_without_active_bounds_it_is_the_closed_form_weighted_least_squares():
+    fz = np.array([[2400.0, 1800.0, 2200.0, 1600.0]])
+    mu = np.array([[0.9, 0.8, 0.9, 0.6]])
+    out = allocate_torques(np.full((1, 4), 40.0), np.array([600.0]), fz, mu, P)
+    A = np.vstack([np.ones(4), LEVER])
+    W_inv = np.diag((mu[0] * fz[0]) ** 2)
+    d = np.array([160.0 / P.wheel_radius, 600.0])
+    expected = W_inv @ A.T @ np.linalg.solve(A @ W_inv @ A.T, d)
+    np.testing.assert_allclose(out.torques[0] / P.wheel_radius, expected, rtol=1e-10)
+    assert out.feasible[0]
+
+
+def test_infeasible_moment_degrades_to_the_largest_feasible_one_and_is_flagged():
+    base, moment, fz, mu, lateral, speed = _random_demands(1, 40)
+    moment = np.sign(moment) * 2e4  # beyond any tyre's reach on this car
+    out = allocate_torques(base, moment, fz, mu, P, lateral, speed)
+    limits = _force_limits(fz, mu, lateral, speed)
+    assert not out.feasible.any()
+    for b in range(len(base)):
+        drive = np.clip(base[b].sum() / P.wheel_radius, -limits[b].sum(), limits[b].sum())
+        best = linprog(-np.sign(moment[b]) * LEVER, A_eq=np.ones((1, 4)), b_eq=[drive],
+                       bounds=list(zip(-limits[b], limits[b])))
+        assert out.drive_force[b] == pytest.approx(drive, abs=1e-6)
+        assert out.yaw_moment[b] == pytest.approx(LEVER @ best.x, abs=1e-6)
+        np.testing.assert_allclose(out.torques[b].sum() / P.wheel_radius, out.drive_force[b], atol=1e-6)
+    assert np.isfinite(out.torques).all()
+
+
+def test_mirrored_demand_mirrors_the_torques_and_a_laterally_saturated_tyre_gets_none():
+    fz, mu = np.full((1, 4), 2000.0), np.full((1, 4), 0.8)
+    base = np.full((1, 4), 50.0)
+    left = allocate_torques(base, np.array([800.0]), fz, mu, P)
+    right = allocate_torques(base, np.array([-800.0]), fz, mu, P)
+    np.testing.assert_allclose(right.torques[0], left.torques[0, [1, 0, 3, 2]], atol=1e-9)
+    assert left.torques[0, 1] > left.torques[0, 0]  # a left (positive) moment drives the right wheels harder
+    lateral = np.array([[1600.0, 0.0, 0.0, 0.0]])  # front-left at its friction limit
+    saturated = allocate_torques(base, np.array([800.0]), fz, mu, P, lateral)
+    assert saturated.torques[0, 0] == pytest.approx(0.0, abs=1e-9)
+    assert saturated.feasible[0] and saturated.yaw_moment[0] == pytest.approx(800.0)
+
+
+def test_motor_power_limits_the_torque_at_speed():
+    fz, mu = np.full((1, 4), 3000.0), np.full((1, 4), 1.0)
+    fast = allocate_torques(np.full((1, 4), 600.0), np.zeros(1), fz, mu, P, speed=np.array([30.0]))
+    assert np.abs(fast.torques).max() == pytest.approx(P.motor_peak_power * P.wheel_radius / 30.0)
+    assert not fast.feasible[0]
+
+
+@pytest.mark.parametrize("bad, match", [({"yaw_moment": np.array([np.nan])}, "yaw moment"),
+                                        ({"mu": np.full((1, 4), np.inf)}, "friction"),
+                                        ({"fz": np.ones((1, 3))}, "shape")])
+def test_bad_input_names_the_bad_value(bad, match):
+    args = {"base_torques": np.zeros((1, 4)), "yaw_moment": np.zeros(1), "fz": np.ones((1, 4)),
+            "mu": np.ones((1, 4))} | bad
+    with pytest.raises(ValueError, match=match):
+        allocate_torques(params=P, **args)
