@@ -8,11 +8,10 @@ env drives it), and a long in-kernel rollout (the kernel's own cost).
 
 from __future__ import annotations
 
-import json
-import platform
 import time
 
 import numpy as np
+from _common import report
 
 from envs.road import RoadTables, uniform
 from envs.vehicle import NU, VehicleParams, initial_state, step
@@ -66,11 +65,8 @@ def main() -> dict:
         "single, in-kernel rollout [steps/s]": _rate(in_kernel, 200_000),
         "batch 1024 [vehicle-steps/s]": _rate(batched, 500 * batch),
     }
-    results["machine"] = f"{platform.processor() or platform.machine()}, {platform.python_version()}"
-    for key, value in results.items():
-        print(f"{key:55s} {value:,.0f}" if isinstance(value, float) else f"{key:55s} {value}")
-    return results
+    return report(results)
 
 
 if __name__ == "__main__":
-    print(json.dumps(main(), indent=1))
+    main()

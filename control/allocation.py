@@ -17,8 +17,9 @@ is active this is the closed-form weighted least squares Fx = W^-1 A^T (A W^-1 A
 a bound binds, the small bounded QP is solved exactly: the optimum lies on one face of the box
 (each force free, at its lower or at its upper bound, 3^4 = 81 faces), on each face the
 equality-constrained least squares is closed form, and the cheapest feasible face solution is
-the optimum (strict convexity). It is compiled and batched; a scipy QP per vehicle costs
-~1,000x more per 2 ms step (BENCHMARKS.md) and serves as the tests' reference instead.
+the optimum (strict convexity). It is compiled and batched: 1.2 us per vehicle-step in a
+batch of 256, ~4,000x less than scipy's SLSQP on the same QP (benchmarks/bench_allocation.py,
+BENCHMARKS.md), which serves as the tests' reference instead.
 
 Infeasible demands degrade in a fixed priority: the drive force is clipped to what the bounds
 allow, then the yaw moment to the largest one feasible with that drive force (an exact
@@ -27,6 +28,7 @@ greedy linear programme over the box); the result reports what was delivered and
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import numba
@@ -117,25 +119,47 @@ def _solve_box_qp(capacity_sq, lever, lower, upper, force, moment, x_best) -> bo
 
 
 @numba.njit(cache=True)
-def _allocate(drive_force, yaw_moment, capacity, force_limit, lever, torques, delivered_moment,
-              delivered_force, feasible, wheel_radius) -> None:
-    for b in range(drive_force.shape[0]):
-        upper = force_limit[b].copy()
+def _allocate(base_torques, yaw_moment, fz, mu, lateral, speed, lever, motor_peak_torque, motor_peak_power,
+              wheel_radius, torques, delivered_moment, delivered_force, feasible) -> int:
+    """Fills the outputs; returns 0, or 1 + the index of the first non-finite input."""
+    for i, value in enumerate((base_torques.sum(), yaw_moment.sum(), fz.sum(), mu.sum(), lateral.sum(),
+                               speed.sum())):
+        if not np.isfinite(value):
+            return 1 + i
+    upper, x = np.empty(4), np.empty(4)
+    capacity = np.empty(4)
+    for b in range(base_torques.shape[0]):
+        spin = abs(speed[b]) / wheel_radius  # wheel speed [rad/s] if rolling
+        motor_force = min(motor_peak_torque, motor_peak_power / max(spin, 1e-9)) / wheel_radius
+        drive_force = 0.0
+        for w in range(4):
+            capacity[w] = max(mu[b, w] * fz[b, w], 1e-6)
+            upper[w] = min(motor_force, np.sqrt(max(capacity[w] ** 2 - lateral[b, w] ** 2, 0.0)))
+            drive_force += base_torques[b, w] / wheel_radius
         lower = -upper
-        force = min(max(drive_force[b], lower.sum()), upper.sum())
+        force = min(max(drive_force, lower.sum()), upper.sum())
         moment_high, x_high = _greedy_moment(lever, lower, upper, force, 1.0)
         moment_low, x_low = _greedy_moment(lever, lower, upper, force, -1.0)
         moment = min(max(yaw_moment[b], moment_low), moment_high)
-        tolerance = 1e-9 * (abs(drive_force[b]) + abs(yaw_moment[b]) + upper.sum() + 1.0)
-        feasible[b] = abs(force - drive_force[b]) <= tolerance and abs(moment - yaw_moment[b]) <= tolerance
-        x = np.empty(4)
-        if not _solve_box_qp(capacity[b] ** 2, lever, lower, upper, force, moment, x):
+        tolerance = 1e-9 * (abs(drive_force) + abs(yaw_moment[b]) + upper.sum() + 1.0)
+        feasible[b] = abs(force - drive_force) <= tolerance and abs(moment - yaw_moment[b]) <= tolerance
+        if not _solve_box_qp(capacity ** 2, lever, lower, upper, force, moment, x):
             # only at a vertex of the achievable set, within rounding: take the LP's vertex
-            x = x_high if moment >= 0.5 * (moment_high + moment_low) else x_low
+            x[:] = x_high if moment >= 0.5 * (moment_high + moment_low) else x_low
         for w in range(4):
             torques[b, w] = x[w] * wheel_radius
         delivered_force[b] = x.sum()
         delivered_moment[b] = (lever * x).sum()
+    return 0
+
+
+@functools.lru_cache(maxsize=8)
+def _lever(track_front: float, track_rear: float) -> np.ndarray:
+    """dMz/dFx_i [m] (4,): minus/plus the half-track for left/right wheels."""
+    return np.array(SIDE) * np.array([track_front, track_front, track_rear, track_rear]) / 2
+
+
+_INPUTS = ("base torques", "yaw moment", "wheel loads", "friction", "lateral forces", "speed")
 
 
 def allocate_torques(base_torques: np.ndarray, yaw_moment: np.ndarray, fz: np.ndarray, mu: np.ndarray,
@@ -152,28 +176,22 @@ def allocate_torques(base_torques: np.ndarray, yaw_moment: np.ndarray, fz: np.nd
     if base_torques.ndim != 2 or base_torques.shape[1] != 4:
         raise ValueError(f"base_torques must have shape (B, 4), got {base_torques.shape}")
     B = base_torques.shape[0]
-    yaw_moment, fz, mu = (np.ascontiguousarray(q, dtype=np.float64) for q in (yaw_moment, fz, mu))
-    lateral = np.zeros((B, 4)) if lateral_forces is None else np.asarray(lateral_forces, dtype=np.float64)
-    speed = np.zeros(B) if speed is None else np.asarray(speed, dtype=np.float64)
-    if yaw_moment.shape != (B,) or fz.shape != (B, 4) or mu.shape != (B, 4) or lateral.shape != (B, 4) \
-            or speed.shape != (B,):
-        raise ValueError(f"yaw_moment and speed must have shape ({B},) and fz, mu, lateral_forces ({B}, 4), got "
-                         f"{yaw_moment.shape}, {speed.shape}, {fz.shape}, {mu.shape}, {lateral.shape}")
-    for name, value in (("base torques", base_torques), ("yaw moment", yaw_moment), ("wheel loads", fz),
-                        ("friction", mu), ("lateral forces", lateral), ("speed", speed)):
-        if not np.isfinite(value).all():
-            raise ValueError(f"{name} must be finite, got {value[~np.isfinite(value)][:4]}")
+    inputs = [base_torques] + [np.ascontiguousarray(q, dtype=np.float64) for q in (
+        yaw_moment, fz, mu, np.zeros((B, 4)) if lateral_forces is None else lateral_forces,
+        np.zeros(B) if speed is None else speed)]
+    shapes = [q.shape for q in inputs[1:]]
+    if shapes != [(B,), (B, 4), (B, 4), (B, 4), (B,)]:
+        raise ValueError(f"yaw_moment and speed must have shape ({B},) and fz, mu, lateral_forces ({B}, 4); got "
+                         + ", ".join(f"{name} {shape}" for name, shape in zip(_INPUTS[1:], shapes)))
     p = params
-    lever = np.array(SIDE) * np.array([p.track_front, p.track_front, p.track_rear, p.track_rear]) / 2
-    capacity = np.maximum(mu * fz, 1e-6)
-    spin = np.abs(speed) / p.wheel_radius  # wheel speed [rad/s] if rolling
-    motor_torque = np.minimum(p.motor_peak_torque, p.motor_peak_power / np.maximum(spin, 1e-9))
-    friction = np.sqrt(np.maximum(capacity**2 - lateral**2, 0.0))
-    force_limit = np.minimum(motor_torque[:, None] / p.wheel_radius, friction)
+    lever = _lever(p.track_front, p.track_rear)
     torques, moment, force = np.empty((B, 4)), np.empty(B), np.empty(B)
     feasible = np.empty(B, dtype=np.bool_)
-    _allocate(base_torques.sum(axis=1) / p.wheel_radius, yaw_moment, capacity, force_limit, lever, torques,
-              moment, force, feasible, float(p.wheel_radius))
+    bad = _allocate(*inputs, lever, float(p.motor_peak_torque), float(p.motor_peak_power), float(p.wheel_radius),
+                    torques, moment, force, feasible)
+    if bad:
+        value = inputs[bad - 1]
+        raise ValueError(f"{_INPUTS[bad - 1]} must be finite, got {value[~np.isfinite(value)][:4]}")
     return Allocation(torques, moment, force, feasible)
 
 

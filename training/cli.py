@@ -16,6 +16,8 @@ def _bench(args: argparse.Namespace) -> int:
     if not BENCHMARKS.is_dir():
         raise SystemExit(f"benchmarks need the source tree: {BENCHMARKS} not found (install with pip install -e .)")
     names = args.only or sorted(p.stem.removeprefix("bench_") for p in BENCHMARKS.glob("bench_*.py"))
+    if str(BENCHMARKS) not in sys.path:  # the scripts share benchmarks/_common.py, as when run directly
+        sys.path.insert(0, str(BENCHMARKS))
     for name in names:
         path = BENCHMARKS / f"bench_{name}.py"
         if not path.exists():
