@@ -7,12 +7,14 @@ steering-wheel angles [rad]; the scenario divides by the steering ratio.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.linalg import expm
 
-from envs.vehicle import GRAVITY, S_PSI, S_U, S_X, S_Y, VehicleParams
+from envs.vehicle import GRAVITY, S_PSI, S_R, S_U, S_V, S_X, S_Y, VehicleParams
 
 SWD_FREQUENCY = 0.7  #: FMVSS 126 sine-with-dwell frequency [Hz]
 SWD_DWELL = 0.5  #: FMVSS 126 dwell at the second peak [s]
@@ -104,75 +106,94 @@ class SineWithDwell:
         return self.start + 1.0 / SWD_FREQUENCY + SWD_DWELL
 
 
+@functools.lru_cache(maxsize=4096)
+def _preview_responses(params: VehicleParams, speed: float, preview_time: float,
+                       points: int) -> tuple[np.ndarray, np.ndarray]:
+    """Lateral-position responses of the linear single-track model at ``speed`` [m/s] at the
+    ``points`` preview instants: (free (P, 4) rows mapping [y, psi, v, r] at t = 0 to y(t_k),
+    step (P,) y(t_k) per radian of road-wheel steer held from t = 0), in the car's own frame."""
+    c_f, c_r = params.axle_cornering_stiffness
+    m, iz, a, b, u = params.mass, params.yaw_inertia, params.cg_to_front, params.cg_to_rear, speed
+    A = np.array([[0.0, u, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0],
+                  [0.0, 0.0, -(c_f + c_r) / (m * u), (b * c_r - a * c_f) / (m * u) - u],
+                  [0.0, 0.0, (b * c_r - a * c_f) / (iz * u), -(a * a * c_f + b * b * c_r) / (iz * u)]])
+    augmented = np.zeros((5, 5))
+    augmented[:4, :4] = A * preview_time / points
+    augmented[:4, 4] = np.array([0.0, 0.0, c_f / m, a * c_f / iz]) * preview_time / points
+    transition = expm(augmented)  # zero-order hold over one preview interval
+    phi, gamma = transition[:4, :4], transition[:4, 4]
+    free, step = np.empty((points, 4)), np.empty(points)
+    power, held = np.eye(4), np.zeros(4)
+    for k in range(points):
+        power, held = phi @ power, phi @ held + gamma
+        free[k], step[k] = power[0], held[0]
+    return free, step
+
+
 @dataclass(frozen=True)
 class PathFollower:
-    """Preview path-following driver on a polyline ``path`` (N, 2) global (X, Y) [m].
+    """Optimal-preview path-following driver on a polyline ``path`` (N, 2) global (X, Y) [m]
+    (MacAdam, "Application of an optimal preview control for simulation of closed-loop
+    automobile driving", IEEE Trans. SMC 11(6), 1981; the driver model of CarSim).
 
-    Steering (road-wheel) angle = curvature feed-forward + error feedback on the kinematic
-    bicycle model of the rear-axle point (Rajamani, *Vehicle Dynamics and Control*, 2nd ed.,
-    2012, sec. 3.2; Snider, CMU-RI-TR-09-08, 2009):
+    At each instant the driver predicts, with the linear single-track model at the current
+    speed (per-axle cornering stiffness at static load), where the car's CG will be at
+    ``points`` instants over the next ``preview_time`` seconds if it held a road-wheel angle
+    delta, starting from the current lateral velocity and yaw rate; it steers the delta that
+    minimises the summed squared distance of those points from the path, seen in the car's
+    own frame (closed form: the prediction is linear in delta). The preview anticipates the
+    car's own yaw and sideslip lag, so the driver neither lags nor overshoots on a course
+    that asks for ~0.7 g (ISO 3888-2 at 60 km/h). Responses are cached per 0.1 m/s of speed.
 
-    * feed-forward ``L * kappa(s + u * feedforward_time)``: the Ackermann angle of the path
-      curvature a short preview ahead (covers the steering servo and tyre relaxation lag);
-    * feedback ``-L * (e_y / l^2 + 2 zeta e_psi / l)`` with ``l = max(min_lookahead,
-      preview_time * u)``: on the kinematic bicycle the lateral error ``e_y`` then obeys
-      ``e_y'' + 2 zeta e_y' / l + e_y / l^2 = 0`` in distance travelled, a damped response
-      over about one preview length (a pure-pursuit-like law without its corner cutting).
-
-    Returns the steering-wheel angle ``ratio * delta`` [rad]. Beyond the path's end it holds
-    the last segment's line. Defaults (4 m look-ahead up to 40 m/s, 50 ms feed-forward
-    preview, damping 0.8) were chosen on the paper's lane change and slalom; the tight
-    ISO 3888-2 course uses a 1.5 m look-ahead and 0.1 s preview (see envs.scenarios).
+    Returns the steering-wheel angle ``ratio * delta`` [rad], delta within the steering limit.
+    Beyond the path's end the driver follows the last segment's line. The default 0.4 s
+    preview (MacAdam: 0.5-1.5 s for normal drivers; shorter previews track tighter) clears
+    ISO 3888-2 at 60 km/h on mu 1.0 and 50 km/h on mu 0.6 (tests; measured 0.2-0.4 s clean,
+    0.5 s one cone, longer previews cut the corners).
     """
 
     path: np.ndarray
     params: VehicleParams = field(default_factory=VehicleParams)
-    preview_time: float = 0.1
-    min_lookahead: float = 4.0
-    feedforward_time: float = 0.05
-    damping: float = 0.8
-    _arclength: np.ndarray = field(init=False, repr=False, compare=False)
-    _heading: np.ndarray = field(init=False, repr=False, compare=False)
-    _curvature: np.ndarray = field(init=False, repr=False, compare=False)
+    preview_time: float = 0.4
+    points: int = 20
+    spacing: float = 0.25  #: path resampling step [m]
 
     def __post_init__(self) -> None:
         path = np.asarray(self.path, dtype=np.float64)
-        if path.ndim != 2 or path.shape[1] != 2 or path.shape[0] < 3 or not np.all(np.isfinite(path)):
-            raise ValueError(f"path must be a finite (N >= 3, 2) polyline, got shape {path.shape}")
-        for name in ("preview_time", "min_lookahead", "damping"):
+        if path.ndim != 2 or path.shape[1] != 2 or path.shape[0] < 2 or not np.all(np.isfinite(path)):
+            raise ValueError(f"path must be a finite (N >= 2, 2) polyline, got shape {path.shape}")
+        for name in ("preview_time", "points", "spacing"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"PathFollower.{name} must be > 0, got {getattr(self, name)!r}")
-        seg = np.hypot(*np.diff(path, axis=0).T)
-        if np.any(seg <= 0):
+        segment = np.hypot(*np.diff(path, axis=0).T)
+        if np.any(segment <= 0):
             raise ValueError("path has repeated points")
-        arclength = np.concatenate([[0.0], np.cumsum(seg)])
-        heading = np.unwrap(np.arctan2(np.gradient(path[:, 1], arclength), np.gradient(path[:, 0], arclength)))
-        object.__setattr__(self, "path", path)
-        object.__setattr__(self, "_arclength", arclength)
-        object.__setattr__(self, "_heading", heading)
-        object.__setattr__(self, "_curvature", np.gradient(heading, arclength))
+        arclength = np.concatenate([[0.0], np.cumsum(segment)])
+        s = np.append(np.arange(0.0, arclength[-1], self.spacing), arclength[-1])
+        resampled = np.column_stack([np.interp(s, arclength, path[:, 0]), np.interp(s, arclength, path[:, 1])])
+        far = path[-1] + (path[-1] - path[-2]) / segment[-1] * 1e4  # the last segment's line, continued
+        object.__setattr__(self, "path", np.vstack([resampled, far]))
 
     def __call__(self, t: float, state: np.ndarray) -> float:
         p = self.params
-        psi = state[S_PSI]
-        rear = np.array([state[S_X] - p.cg_to_rear * math.cos(psi), state[S_Y] - p.cg_to_rear * math.sin(psi)])
-        nearest = int(np.argmin(np.sum((self.path - rear) ** 2, axis=1)))
-        # project onto the neighbouring segment for a smooth arclength and lateral error
-        k = min(max(nearest, 0), len(self.path) - 2)
-        chord = self.path[k + 1] - self.path[k]
-        along = float(np.dot(rear - self.path[k], chord) / np.dot(chord, chord))
-        s = self._arclength[k] + along * (self._arclength[k + 1] - self._arclength[k])
-        heading = float(np.interp(s, self._arclength, self._heading))
-        foot = self.path[k] + along * chord
-        offset = rear - foot
-        e_y = -math.sin(heading) * offset[0] + math.cos(heading) * offset[1]
-        e_psi = math.remainder(psi - heading, 2 * math.pi)
-        speed = abs(state[S_U])
-        lookahead = max(self.min_lookahead, self.preview_time * speed)
-        kappa = float(np.interp(s + speed * self.feedforward_time, self._arclength, self._curvature,
-                                right=0.0))
-        delta = p.wheelbase * (kappa - e_y / lookahead**2 - 2 * self.damping * e_psi / lookahead)
-        return p.steering_ratio * delta
+        speed = max(abs(state[S_U]), 1.0)
+        free, step = _preview_responses(p, round(speed, 1), self.preview_time, int(self.points))
+        cos_psi, sin_psi = math.cos(state[S_PSI]), math.sin(state[S_PSI])
+        dx, dy = self.path[:, 0] - state[S_X], self.path[:, 1] - state[S_Y]
+        ahead = cos_psi * dx + sin_psi * dy  # path in the car's frame
+        left = -sin_psi * dx + cos_psi * dy
+        horizon = speed * self.preview_time
+        distances = horizon * np.arange(1, self.points + 1) / self.points
+        first = int(np.argmax(ahead > 0.0))  # first path point ahead of the car
+        stop = first + int(np.argmax(ahead[first:] > horizon)) + 1  # through the first beyond the horizon
+        start = max(first - 1, 0)  # and the last one behind it
+        if ahead[first] > 0.0 and np.all(np.diff(ahead[start:stop]) > 0):
+            target = np.interp(distances, ahead[start:stop], left[start:stop])
+        else:  # facing away from the path (spun): aim back at its nearest point
+            target = np.full(self.points, left[np.argmin(dx * dx + dy * dy)])
+        error = free @ np.array([0.0, 0.0, state[S_V], state[S_R]]) - target
+        delta = -float(step @ error) / float(step @ step)
+        return p.steering_ratio * min(max(delta, -p.max_front_steer), p.max_front_steer)
 
 
 @dataclass(frozen=True)

@@ -94,14 +94,13 @@ def _body(params: VehicleParams) -> tuple[float, float, float]:
     return params.width, params.cg_to_front + params.front_overhang, params.cg_to_rear + params.rear_overhang
 
 
-def _path_scenario(name, course, speed_kph, mu, duration, lead_in, steering, params, driver_gains=None,
-                   **kw) -> Scenario:
+def _path_scenario(name, course, speed_kph, mu, duration, lead_in, steering, params, **kw) -> Scenario:
     path = course.centreline
     if duration is None:
         duration = (path[-1, 0] - path[0, 0] + lead_in + 20.0) / (speed_kph / 3.6)
     start = path[0, 0] - lead_in
     full_path = np.vstack([[start, path[0, 1]], path])
-    driver = steering if steering is not None else PathFollower(full_path, params, **(driver_gains or {}))
+    driver = steering if steering is not None else PathFollower(full_path, params)
     return Scenario(name, speed_kph, _road(mu), _positive("duration", duration), driver, start_x=start,
                     course=course, reference_path=full_path, params=params, **kw)
 
@@ -186,8 +185,7 @@ def iso3888_2(speed_kph=60.0, mu=1.0, duration=None, steering=None, rear_steer_f
     _positive("speed_kph", speed_kph)
     lead_in = 30.0
     scenario = _path_scenario("iso3888_2", courses.iso3888_2(*_body(params)), speed_kph, mu, duration, lead_in,
-                              steering, params, driver_gains={"min_lookahead": 1.5, "feedforward_time": 0.1},
-                              rear_steer_feedforward=rear_steer_feedforward)
+                              steering, params, rear_steer_feedforward=rear_steer_feedforward)
     return replace(scenario, coast_after=lead_in / scenario.speed)
 
 

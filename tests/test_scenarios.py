@@ -105,3 +105,42 @@ def test_simulation_is_deterministic_under_a_seed():
     np.testing.assert_array_equal(a.sensors, b.sensors)
     np.testing.assert_array_equal(a.state, b.state)
     assert not np.array_equal(a.sensors, c.sensors)
+
+
+@pytest.mark.parametrize("speed_kph, mu", [(60.0, 1.0), (50.0, 0.6)])
+def test_driver_clears_iso3888_2_without_cone_hits(speed_kph, mu):
+    from training.compare import run_metrics
+
+    metrics = run_metrics(simulate(make_scenario("iso3888_2", speed_kph=speed_kph, mu=mu)))
+    assert metrics["cone_hits"] == 0
+    assert metrics["path_max"] < 0.2  # tracks the line it was given, not just the lanes
+
+
+def test_driver_settles_on_a_circle_at_the_neutral_steer_angle():
+    from dataclasses import replace
+
+    from envs.driver import PathFollower
+    from envs.vehicle import VehicleParams, S_X, S_Y
+
+    params, radius, speed, offset = VehicleParams(), 40.0, 8.0, 0.3
+    angle = np.linspace(0.0, 1.5 * math.pi, 600)
+    # the car starts at the origin heading +X, ``offset`` to the left of the circle's start
+    circle = np.column_stack([radius * np.sin(angle), radius * (1.0 - np.cos(angle)) - offset])
+    scenario = make_scenario("paper_sine", speed_kph=speed * 3.6, mu=1.0, duration=12.0)
+    trajectory = simulate(replace(scenario, steering=PathFollower(circle, params), start_x=0.0))
+    late = trajectory.t > 8.0
+    distance = np.hypot(trajectory.state[late, S_X], trajectory.state[late, S_Y] - (radius - offset))
+    assert np.max(np.abs(distance - radius)) < 0.01
+    # neutral steer: the road-wheel angle that holds the circle is the kinematic L / R
+    road_wheel = trajectory.steering_wheel[late] / params.steering_ratio
+    assert np.mean(road_wheel) == pytest.approx(params.wheelbase / radius, rel=0.02)
+
+
+@pytest.mark.parametrize("kwargs, match", [({"path": np.zeros((3, 2))}, "repeated"),
+                                           ({"path": np.ones((1, 2))}, "shape"),
+                                           ({"preview_time": 0.0}, "preview_time")])
+def test_path_follower_rejects_bad_arguments(kwargs, match):
+    from envs.driver import PathFollower
+
+    with pytest.raises(ValueError, match=match):
+        PathFollower(**({"path": np.column_stack([np.arange(3.0), np.zeros(3)])} | kwargs))
