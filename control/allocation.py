@@ -17,9 +17,9 @@ is active this is the closed-form weighted least squares Fx = W^-1 A^T (A W^-1 A
 a bound binds, the small bounded QP is solved exactly: the optimum lies on one face of the box
 (each force free, at its lower or at its upper bound, 3^4 = 81 faces), on each face the
 equality-constrained least squares is closed form, and the cheapest feasible face solution is
-the optimum (strict convexity). It is compiled and batched: 1.2 us per vehicle-step in a
-batch of 256, ~4,000x less than scipy's SLSQP on the same QP (benchmarks/bench_allocation.py,
-BENCHMARKS.md), which serves as the tests' reference instead.
+the optimum (strict convexity). It is compiled and batched: ~0.2 us per vehicle-step when no
+bound is active, ~1.5 us when the QP is needed, ~5,000x less than scipy's SLSQP on the same
+QP (benchmarks/bench_allocation.py, BENCHMARKS.md), which serves as the tests' reference.
 
 Infeasible demands degrade in a fixed priority: the drive force is clipped to what the bounds
 allow, then the yaw moment to the largest one feasible with that drive force (an exact
@@ -37,7 +37,8 @@ import numpy as np
 from control.reference import GRAVITY
 
 SIDE = (-1.0, 1.0, -1.0, 1.0)  #: -1 left wheels, +1 right wheels
-_FACES = 81  #: 3^4 activity patterns: free, at the lower bound, at the upper bound
+#: the 3^4 = 81 activity patterns (81, 4): each wheel free (0), at its lower (1) or upper (2) bound
+_FACES = np.array([[(face // 3**w) % 3 for w in range(4)] for face in range(81)], dtype=np.int64)
 
 
 class Allocation(NamedTuple):
@@ -50,7 +51,7 @@ class Allocation(NamedTuple):
     feasible: np.ndarray
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _greedy_moment(lever, lower, upper, force, sign) -> tuple[float, np.ndarray]:
     """Largest (sign = +1) or smallest (-1) sum lever_i x_i over lower <= x <= upper with
     sum x_i = force (assumed within [sum lower, sum upper]): fill the best levers first."""
@@ -64,28 +65,25 @@ def _greedy_moment(lever, lower, upper, force, sign) -> tuple[float, np.ndarray]
     return (lever * x).sum(), x
 
 
-@numba.njit(cache=True)
-def _solve_box_qp(capacity_sq, lever, lower, upper, force, moment, x_best) -> bool:
+@numba.njit(cache=True, error_model="numpy")
+def _solve_box_qp(capacity_sq, lever, lower, upper, force, moment, faces, x_best) -> bool:
     """min sum x_i^2 / capacity_sq_i s.t. sum x_i = force, sum lever_i x_i = moment,
-    lower <= x <= upper, by enumerating the 81 activity faces; False if no face is feasible."""
+    lower <= x <= upper, over the first ``faces`` activity patterns of ``_FACES`` (all 81: the
+    exact optimum; 1: only the all-free closed form); False if none of them is feasible."""
     scale_f = np.abs(lower).sum() + np.abs(upper).sum() + abs(force) + 1.0
     scale_m = scale_f * (np.abs(lever).max() + 1.0)
     x = np.empty(4)
     best_cost = np.inf
-    for face in range(_FACES):
-        code = face
+    for face in range(faces):
         f_rest, m_rest = force, moment
         s0 = s1 = s2 = 0.0
         for w in range(4):
-            state = code % 3
-            code //= 3
-            if state == 0:
+            if _FACES[face, w] == 0:
                 s0 += capacity_sq[w]
                 s1 += capacity_sq[w] * lever[w]
                 s2 += capacity_sq[w] * lever[w] ** 2
-                x[w] = np.nan
             else:
-                x[w] = lower[w] if state == 1 else upper[w]
+                x[w] = lower[w] if _FACES[face, w] == 1 else upper[w]
                 f_rest -= x[w]
                 m_rest -= lever[w] * x[w]
         # free x_i = capacity_sq_i (l0 + l1 lever_i): the stationary point on this face
@@ -100,7 +98,7 @@ def _solve_box_qp(capacity_sq, lever, lower, upper, force, moment, x_best) -> bo
         cost = 0.0
         ok = True
         for w in range(4):
-            if np.isnan(x[w]):
+            if _FACES[face, w] == 0:
                 x[w] = capacity_sq[w] * (l0 + l1 * lever[w])
                 slack = 1e-9 * (upper[w] - lower[w] + 1.0)
                 if x[w] < lower[w] - slack or x[w] > upper[w] + slack:
@@ -113,12 +111,10 @@ def _solve_box_qp(capacity_sq, lever, lower, upper, force, moment, x_best) -> bo
         best_cost = cost
         for w in range(4):
             x_best[w] = min(max(x[w], lower[w]), upper[w])
-        if face == 0:  # no bound active: the closed-form weighted least squares is the optimum
-            break
     return best_cost < np.inf
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _allocate(base_torques, yaw_moment, fz, mu, lateral, speed, lever, motor_peak_torque, motor_peak_power,
               wheel_radius, torques, delivered_moment, delivered_force, feasible) -> int:
     """Fills the outputs; returns 0, or 1 + the index of the first non-finite input."""
@@ -126,30 +122,35 @@ def _allocate(base_torques, yaw_moment, fz, mu, lateral, speed, lever, motor_pea
                                speed.sum())):
         if not np.isfinite(value):
             return 1 + i
-    upper, x = np.empty(4), np.empty(4)
-    capacity = np.empty(4)
+    upper, lower, x = np.empty(4), np.empty(4), np.empty(4)
+    capacity_sq = np.empty(4)
     for b in range(base_torques.shape[0]):
         spin = abs(speed[b]) / wheel_radius  # wheel speed [rad/s] if rolling
         motor_force = min(motor_peak_torque, motor_peak_power / max(spin, 1e-9)) / wheel_radius
         drive_force = 0.0
         for w in range(4):
-            capacity[w] = max(mu[b, w] * fz[b, w], 1e-6)
-            upper[w] = min(motor_force, np.sqrt(max(capacity[w] ** 2 - lateral[b, w] ** 2, 0.0)))
+            capacity = max(mu[b, w] * fz[b, w], 1e-6)
+            capacity_sq[w] = capacity * capacity
+            upper[w] = min(motor_force, np.sqrt(max(capacity_sq[w] - lateral[b, w] ** 2, 0.0)))
+            lower[w] = -upper[w]
             drive_force += base_torques[b, w] / wheel_radius
-        lower = -upper
-        force = min(max(drive_force, lower.sum()), upper.sum())
-        moment_high, x_high = _greedy_moment(lever, lower, upper, force, 1.0)
-        moment_low, x_low = _greedy_moment(lever, lower, upper, force, -1.0)
-        moment = min(max(yaw_moment[b], moment_low), moment_high)
-        tolerance = 1e-9 * (abs(drive_force) + abs(yaw_moment[b]) + upper.sum() + 1.0)
-        feasible[b] = abs(force - drive_force) <= tolerance and abs(moment - yaw_moment[b]) <= tolerance
-        if not _solve_box_qp(capacity ** 2, lever, lower, upper, force, moment, x):
-            # only at a vertex of the achievable set, within rounding: take the LP's vertex
-            x[:] = x_high if moment >= 0.5 * (moment_high + moment_low) else x_low
+        # no bound active: the closed-form weighted least squares is the optimum
+        feasible[b] = _solve_box_qp(capacity_sq, lever, lower, upper, drive_force, yaw_moment[b], 1, x)
+        if not feasible[b]:
+            force = min(max(drive_force, lower.sum()), upper.sum())
+            moment_high, x_high = _greedy_moment(lever, lower, upper, force, 1.0)
+            moment_low, x_low = _greedy_moment(lever, lower, upper, force, -1.0)
+            moment = min(max(yaw_moment[b], moment_low), moment_high)
+            tolerance = 1e-9 * (abs(drive_force) + abs(yaw_moment[b]) + upper.sum() + 1.0)
+            feasible[b] = abs(force - drive_force) <= tolerance and abs(moment - yaw_moment[b]) <= tolerance
+            if not _solve_box_qp(capacity_sq, lever, lower, upper, force, moment, len(_FACES), x):
+                # only at a vertex of the achievable set, within rounding: take the LP's vertex
+                x[:] = x_high if moment >= 0.5 * (moment_high + moment_low) else x_low
+        delivered_force[b] = delivered_moment[b] = 0.0
         for w in range(4):
             torques[b, w] = x[w] * wheel_radius
-        delivered_force[b] = x.sum()
-        delivered_moment[b] = (lever * x).sum()
+            delivered_force[b] += x[w]
+            delivered_moment[b] += lever[w] * x[w]
     return 0
 
 
