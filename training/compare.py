@@ -30,8 +30,10 @@ from training.io import atomic_write, atomic_write_text
 from training.pool import parallel_map
 from training.tables import mean_over_seeds, write_runs_csv
 
-#: headline scenarios: the paper's five conditions, FMVSS 126 at 5.5A on a wet road, the mu jump
-HEADLINE = ("paper_dlc", "paper_step", "paper_sine", "paper_split_dlc", "paper_serpentine", "swd_wet", "mu_jump")
+#: headline scenarios: the paper's five conditions, FMVSS 126 at 5.5A on a wet road, the mu jump,
+#: and ISO 3888-2 at 70 km/h on mu 1.0 (where the uncontrolled car spins; it clears 60 km/h)
+HEADLINE = ("paper_dlc", "paper_step", "paper_sine", "paper_split_dlc", "paper_serpentine", "swd_wet", "mu_jump",
+            "iso3888_2:speed_kph=70")
 DEFAULT_ESTIMATORS = ("oracle", "ckf", "joint")
 DEFAULT_CONTROLLERS = ("none", "dyc-lqr")
 RL_PREFIX = "rl:"  #: controller name prefix of a trained policy: ``rl:<run directory>`` (training.rl)
