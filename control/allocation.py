@@ -154,10 +154,17 @@ def _allocate(base_torques, yaw_moment, fz, mu, lateral, speed, lever, motor_pea
     return 0
 
 
+def yaw_moment_arms(params) -> np.ndarray:
+    """dMz/dFx_i [m] (4,) of the wheels FL, FR, RL, RR: minus/plus the half-track for left/right
+    wheels (straight wheels, ISO axes). A read-only array cached per track pair."""
+    return _arms(float(params.track_front), float(params.track_rear))
+
+
 @functools.lru_cache(maxsize=8)
-def _lever(track_front: float, track_rear: float) -> np.ndarray:
-    """dMz/dFx_i [m] (4,): minus/plus the half-track for left/right wheels."""
-    return np.array(SIDE) * np.array([track_front, track_front, track_rear, track_rear]) / 2
+def _arms(track_front: float, track_rear: float) -> np.ndarray:
+    arms = np.array(SIDE) * np.array([track_front, track_front, track_rear, track_rear]) / 2
+    arms.flags.writeable = False
+    return arms
 
 
 _INPUTS = ("base torques", "yaw moment", "wheel loads", "friction", "lateral forces", "speed")
@@ -185,7 +192,7 @@ def allocate_torques(base_torques: np.ndarray, yaw_moment: np.ndarray, fz: np.nd
         raise ValueError(f"yaw_moment and speed must have shape ({B},) and fz, mu, lateral_forces ({B}, 4); got "
                          + ", ".join(f"{name} {shape}" for name, shape in zip(_INPUTS[1:], shapes)))
     p = params
-    lever = _lever(p.track_front, p.track_rear)
+    lever = yaw_moment_arms(p)
     torques, moment, force = np.empty((B, 4)), np.empty(B), np.empty(B)
     feasible = np.empty(B, dtype=np.bool_)
     bad = _allocate(*inputs, lever, float(p.motor_peak_torque), float(p.motor_peak_power), float(p.wheel_radius),

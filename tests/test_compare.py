@@ -57,3 +57,14 @@ def test_report_is_reproducible_byte_for_byte_and_the_fault_variant_bites(tmp_pa
     clean = float(rows[("paper_sine:duration=1.0", "none")].split(",")[col])
     faulty = float(rows[("paper_sine:duration=1.0+faults", "none")].split(",")[col])
     assert faulty > 1.5 * clean  # gyro spikes and a stuck gyro degrade the yaw-rate estimate
+
+
+def test_control_effort_is_zero_without_control_and_reflects_the_dyc_moment_and_rear_steer():
+    """The step on mu 0.3 at 40 km/h: the uncontrolled car's equal drive torques make no yaw
+    moment; DYC-LQR's differential torques do, and only the 4WS variant steers the rear."""
+    results, _ = run_matrix(["paper_step:duration=7.0"], ["oracle"], ["none", "dyc-lqr", "dyc-lqr-4ws"], seeds=1,
+                            jobs=1, progress=False)
+    effort = {spec.controller: (m["yaw_moment_rms"], m["rear_steer_rms"]) for spec, m in results}
+    assert effort["none"][0] < 1.0 and effort["none"][1] == 0.0
+    assert effort["dyc-lqr"][0] > 50.0 and effort["dyc-lqr"][1] == 0.0
+    assert effort["dyc-lqr-4ws"][1] > 1e-3

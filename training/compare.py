@@ -18,13 +18,14 @@ from pathlib import Path
 import numpy as np
 
 from control import CONTROLLERS, make_controller
+from control.allocation import yaw_moment_arms
 from control.reference import reference_yaw_rate
 from envs.fmvss126 import characterise
-from envs.metrics import cone_hits, mae, path_deviation, rmse, sine_with_dwell_metrics, spin_out
+from envs.metrics import cone_hits, mae, path_deviation, rms, rmse, sine_with_dwell_metrics, spin_out
 from envs.scenarios import SCENARIOS, make_scenario
 from envs.sensors import Fault
 from envs.simulation import Trajectory, simulate
-from envs.vehicle import A_AY, S_DELTA_F, S_PSI, S_R, S_U, S_X, S_Y
+from envs.vehicle import A_AY, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_X, S_Y
 from estimation import ESTIMATORS
 from training.io import atomic_write, atomic_write_text
 from training.pool import parallel_map
@@ -98,6 +99,11 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
     r_ref = reference_yaw_rate(traj.state[:, S_U], traj.state[:, S_DELTA_F], T.mu, params)
     out = {"peak_beta": float(np.max(np.abs(beta))), "yaw_tracking_rms": rmse(traj.state[:, S_R], r_ref),
            "spin_out": float(spin_out(beta))}
+    # control effort: the yaw moment the motors' torques make by driving left and right wheels
+    # differently (straight-wheel arms) [N m], and the rear steer [rad]
+    wheel_forces = traj.state[:, S_TORQUE:S_TORQUE + 4] / params.wheel_radius
+    out.update(yaw_moment_rms=rms(wheel_forces @ yaw_moment_arms(params)),
+               rear_steer_rms=rms(traj.state[:, S_DELTA_R]))
     if scenario.reference_path is not None:
         path = scenario.reference_path
         on_course = (traj.state[:, S_X] >= path[0, 0]) & (traj.state[:, S_X] <= path[-1, 0])
@@ -197,8 +203,9 @@ def markdown_report(table: dict, scenarios: Sequence[str], estimators: Sequence[
              f"`swd_wet`: FMVSS 126 sine with dwell at {SWD_MULTIPLE}A on mu {SWD_MU} from 80 km/h.", "",
              "## Stability", "",
              "| scenario | controller | estimator | peak beta [deg] | yaw-rate RMS err [deg/s] | spin-outs "
-             "| path RMS [m] | cone hits | SWD ratio @1.0 s | SWD ratio @1.75 s | SWD displ. [m] |",
-             "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "| path RMS [m] | cone hits | SWD ratio @1.0 s | SWD ratio @1.75 s | SWD displ. [m] "
+             "| yaw moment RMS [N m] |",
+             "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for s in scenarios:
         for c in controllers:
             for e in estimators:
@@ -207,7 +214,7 @@ def markdown_report(table: dict, scenarios: Sequence[str], estimators: Sequence[
                              f"| {_fmt(m['spin_out'], 1, 1)} | {_fmt(m.get('path_rms'))} | {_fmt(m.get('cone_hits'), 1, 1)} "
                              f"| {_fmt(m.get('swd_ratio_1000'), 100, 0)}{'%' if 'swd_ratio_1000' in m else ''} "
                              f"| {_fmt(m.get('swd_ratio_1750'), 100, 0)}{'%' if 'swd_ratio_1750' in m else ''} "
-                             f"| {_fmt(m.get('swd_displacement'))} |")
+                             f"| {_fmt(m.get('swd_displacement'))} | {_fmt(m['yaw_moment_rms'], 1, 0)} |")
     lines += ["", "## Estimation accuracy (paper Table 2 form, open loop: controller none)" if "none" in controllers
               else "## Estimation accuracy (first controller)", "",
               "| scenario | estimator | RMSE u [m/s] | RMSE v [m/s] | RMSE beta [deg] | MAE beta [deg] "
