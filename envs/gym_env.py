@@ -30,8 +30,9 @@ idx  quantity                                     scale
 readings and a nominal mu of 0.8).
 
 Actions (float32 in [-1, 1]): ``action="yaw_moment"`` (default): [corrective yaw moment x
-3000 N m, rear steer x max rear steer], allocated to the wheels by control/ within motor and
-friction limits (from the estimate); ``"wheel_torques"``: four corrective torques x the motor
+3000 N m, rear steer x max rear steer], allocated to the wheels by control/ (least tyre
+workload for the driver's drive force plus the moment, within motor and friction limits from
+the estimate; an infeasible moment is cut to the largest feasible one); ``"wheel_torques"``: four corrective torques x the motor
 peak torque added to the driver's speed-holding torques. Out-of-range actions are clipped
 and flagged in ``info["action_clipped"]``; NaN/inf actions raise ValueError.
 
