@@ -27,4 +27,4 @@ bench: $(STAMP)
 	$(BIN)/fourwis bench
 
 clean:
-	rm -rf $(VENV) $(OUT) build *.egg-info
+	rm -rf $(VENV) $(OUT) build *.egg-info .numba_cache

@@ -35,6 +35,7 @@ import numba
 import numpy as np
 
 from control.reference import GRAVITY
+from estimation.jit import JIT
 
 SIDE = (-1.0, 1.0, -1.0, 1.0)  #: -1 left wheels, +1 right wheels
 #: the 3^4 = 81 activity patterns (81, 4): each wheel free (0), at its lower (1) or upper (2) bound
@@ -51,7 +52,7 @@ class Allocation(NamedTuple):
     feasible: np.ndarray
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(**JIT)
 def _greedy_moment(lever, lower, upper, force, sign) -> tuple[float, np.ndarray]:
     """Largest (sign = +1) or smallest (-1) sum lever_i x_i over lower <= x <= upper with
     sum x_i = force (assumed within [sum lower, sum upper]): fill the best levers first."""
@@ -65,7 +66,7 @@ def _greedy_moment(lever, lower, upper, force, sign) -> tuple[float, np.ndarray]
     return (lever * x).sum(), x
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(**JIT)
 def _solve_box_qp(capacity_sq, lever, lower, upper, force, moment, faces, x_best) -> bool:
     """min sum x_i^2 / capacity_sq_i s.t. sum x_i = force, sum lever_i x_i = moment,
     lower <= x <= upper, over the first ``faces`` activity patterns of ``_FACES`` (all 81: the
@@ -114,7 +115,7 @@ def _solve_box_qp(capacity_sq, lever, lower, upper, force, moment, faces, x_best
     return best_cost < np.inf
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(**JIT)
 def _allocate(base_torques, yaw_moment, fz, mu, lateral, speed, lever, motor_peak_torque, motor_peak_power,
               wheel_radius, torques, delivered_moment, delivered_force, feasible) -> int:
     """Fills the outputs; returns 0, or 1 + the index of the first non-finite input."""

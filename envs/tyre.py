@@ -35,6 +35,8 @@ from dataclasses import dataclass, fields
 import numba
 import numpy as np
 
+from estimation.jit import JIT
+
 
 @dataclass(frozen=True)
 class TyreParams:
@@ -101,19 +103,19 @@ N_TYRE_COEFFS = len(fields(TyreParams))
 (_NOMINAL_LOAD, _UNLOADED_RADIUS, _PCX1, _PDX1, _PDX2, _PEX1, _PEX2, _PEX3, _PEX4, _PKX1, _PKX2, _PKX3, _RBX1, _RBX2, _RCX1, _REX1, _REX2, _PTX1, _PTX2, _PTX3, _PCY1, _PDY1, _PDY2, _PEY1, _PEY2, _PKY1, _PKY2, _RBY1, _RBY2, _RCY1, _REY1, _REY2, _PTY1, _PTY2) = range(N_TYRE_COEFFS)
 
 
-@numba.njit(cache=True, inline="always", error_model="numpy")
+@numba.njit(inline="always", **JIT)
 def _magic(b: float, c: float, d: float, e: float, x: float) -> float:
     bx = b * x
     return d * math.sin(c * math.atan(bx - e * (bx - math.atan(bx))))
 
 
-@numba.njit(cache=True, inline="always", error_model="numpy")
+@numba.njit(inline="always", **JIT)
 def _weight(b: float, c: float, e: float, x: float) -> float:
     bx = b * x
     return max(math.cos(c * math.atan(bx - e * (bx - math.atan(bx)))), 0.0)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(**JIT)
 def combined_forces(tp: np.ndarray, fz: float, kappa: float, tan_alpha: float,
                     scale_x: float, scale_y: float) -> tuple[float, float]:
     """Tyre forces (Fx, Fy) [N] in the wheel frame for one wheel.
@@ -147,7 +149,7 @@ def combined_forces(tp: np.ndarray, fz: float, kappa: float, tan_alpha: float,
     return gxa * fx0, -gyk * fy0
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(**JIT)
 def relaxation_lengths(tp: np.ndarray, fz: float) -> tuple[float, float]:
     """PAC2002 relaxation lengths (sigma_kappa, sigma_alpha) [m] at load ``fz`` [N]."""
     fz0 = tp[_NOMINAL_LOAD]
@@ -159,7 +161,7 @@ def relaxation_lengths(tp: np.ndarray, fz: float) -> tuple[float, float]:
     return sig_k, sig_a
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(**JIT)
 def _forces_batch(tp, fz, kappa, tan_alpha, scale_x, scale_y, fx, fy):
     for i in range(fz.size):
         fx[i], fy[i] = combined_forces(tp, fz[i], kappa[i], tan_alpha[i], scale_x[i], scale_y[i])

@@ -46,6 +46,7 @@ import numba
 import numpy as np
 
 from envs.tyre import TyreParams, combined_forces, relaxation_lengths
+from estimation.jit import JIT
 
 GRAVITY = 9.80665  #: standard gravity [m/s^2]
 
@@ -220,7 +221,7 @@ A_AX, A_AY, A_FZ, A_FX, A_FY, A_KAPPA, A_ALPHA, A_MU, A_USAGE = 0, 1, 2, 6, 10, 
 MU_MAX = 2.0  #: largest accepted road friction coefficient
 
 
-@numba.njit(cache=True, inline="always", error_model="numpy")
+@numba.njit(inline="always", **JIT)
 def rear_steer_gain(u: float, a: float, b: float, mass: float, c_f: float, c_r: float) -> float:
     """Paper eq. 20, proportional 4WS gain k = delta_r / delta_f for zero steady-state sideslip.
 
@@ -233,7 +234,7 @@ def rear_steer_gain(u: float, a: float, b: float, mass: float, c_f: float, c_r: 
     return (-b + mass * a * u2 / (c_r * wheelbase)) / (a + mass * b * u2 / (c_f * wheelbase))
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(**JIT)
 def _derivative(x, ctrl, mu, p, tp, dx, aux):
     """State derivative of one vehicle; fills ``dx`` (NX,) and diagnostics ``aux`` (NAUX,)."""
     m, iz, a, b = p[P_M], p[P_IZ], p[P_A], p[P_B]
@@ -333,7 +334,7 @@ def _derivative(x, ctrl, mu, p, tp, dx, aux):
     dx[S_DELTA_R] = min(max(rate_r, -p[P_DR_RATE]), p[P_DR_RATE])
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(**JIT)
 def _wheel_mu(x, p, base_mu, rects, mu):
     """Road friction under each wheel from a rectangle table (later rows win)."""
     c, s = math.cos(x[S_PSI]), math.sin(x[S_PSI])
@@ -349,7 +350,7 @@ def _wheel_mu(x, p, base_mu, rects, mu):
         mu[i] = value
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(**JIT)
 def _advance_one(x, ctrl, p, tp, base_mu, rects, mu_given, use_map, dt, n_steps, aux):
     """RK4 over ``n_steps`` steps of ``dt`` for one vehicle, in place. Returns a status code."""
     for j in range(NU):
@@ -389,21 +390,21 @@ def _advance_one(x, ctrl, p, tp, base_mu, rects, mu_given, use_map, dt, n_steps,
     return 0
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(**JIT)
 def _advance_serial(x, ctrl, p, tp, base_mu, rects, mu_given, use_map, dt, n_steps, aux, status):
     for b in range(x.shape[0]):
         status[b] = _advance_one(x[b], ctrl[b], p, tp, base_mu[b], rects[b], mu_given[b], use_map,
                                  dt, n_steps, aux[b])
 
 
-@numba.njit(cache=True, parallel=True, error_model="numpy")
+@numba.njit(parallel=True, **JIT)
 def _advance_parallel(x, ctrl, p, tp, base_mu, rects, mu_given, use_map, dt, n_steps, aux, status):
     for b in numba.prange(x.shape[0]):
         status[b] = _advance_one(x[b], ctrl[b], p, tp, base_mu[b], rects[b], mu_given[b], use_map,
                                  dt, n_steps, aux[b])
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(**JIT)
 def _derivatives_batch(x, ctrl, mu, p, tp, dx, aux):
     for b in range(x.shape[0]):
         _derivative(x[b], ctrl[b], mu[b], p, tp, dx[b], aux[b])

@@ -20,9 +20,10 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
+from estimation.jit import JIT
+
 DROPOUT_VARIANCE = 1e12  #: variance given to a channel without valid data (no information)
 NO_HUBER = math.inf  #: Huber threshold meaning "plain (non-robust) update"
-JIT = dict(cache=True, error_model="numpy")
 
 
 @numba.njit(**JIT)

@@ -18,7 +18,8 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from estimation.ckf import JIT, batch_arrays, broadcast_matrix, ckf_predict, ckf_update, spd_inverse
+from estimation.ckf import batch_arrays, broadcast_matrix, ckf_predict, ckf_update, spd_inverse
+from estimation.jit import JIT
 
 BETA_FLOOR = 0.05
 

@@ -44,9 +44,10 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from estimation.ckf import (DROPOUT_VARIANCE, JIT, NO_HUBER, cholesky, cholesky_solve, cubature_points, matmul,
+from estimation.ckf import (DROPOUT_VARIANCE, NO_HUBER, cholesky, cholesky_solve, cubature_points, matmul,
                             measurement_update, predicted_moments)
 from estimation.federated import fuse, sharing_coefficients
+from estimation.jit import JIT
 from estimation.model import (P_IZ, P_RW, ModelParams, body_forces, dugoff_lambdas, steer_trig, transition,
                               wheel_kinematics, wheel_loads)
 from estimation.types import Estimate

@@ -330,3 +330,26 @@ def test_a_stuck_gyro_is_detected_and_bridged_by_the_model(name):
     sensor_error = rmse(traj.sensors[window, 2], traj.truth.r[window])
     assert sensor_error > 0.1  # the frozen reading is far off while the car keeps turning
     assert rmse(traj.estimate.r[window], traj.truth.r[window]) < 0.1 * sensor_error
+
+
+def test_the_kernel_cache_follows_every_compiled_module(tmp_path):
+    """numba invalidates a cached kernel only when its own file changes; fourwis keys its cache
+    directory on the source of every module with kernels, so editing a module a kernel calls
+    (here: the tyre model) moves to a fresh cache, while editing a module without kernels does not."""
+    import os
+
+    import numba
+
+    from estimation.jit import ROOT, kernel_fingerprint
+
+    for package in ("envs", "estimation", "control"):
+        (tmp_path / package).mkdir()
+    (tmp_path / "envs" / "tyre.py").write_text("import numba\ndef force(): return 1.0\n")
+    (tmp_path / "envs" / "gym_env.py").write_text("import gymnasium\n")
+    before = kernel_fingerprint(tmp_path)
+    (tmp_path / "envs" / "gym_env.py").write_text("import gymnasium  # edited\n")
+    assert kernel_fingerprint(tmp_path) == before
+    (tmp_path / "envs" / "tyre.py").write_text("import numba\ndef force(): return 1.1\n")
+    assert kernel_fingerprint(tmp_path) != before
+    if "NUMBA_CACHE_DIR" not in os.environ:
+        assert numba.config.CACHE_DIR == str(ROOT / ".numba_cache" / kernel_fingerprint())
