@@ -40,7 +40,9 @@ def _load_fit() -> dict:
 class ModelParams:
     """Estimator model parameters (SI). Stiffness C(Fz) = m Fz - n Fz^2 (eq. 17): m1, n1
     longitudinal [N/unit slip per N], m2, n2 lateral [N/rad per N]; eps: Dugoff's speed
-    reduction of friction [s/m]."""
+    reduction of friction [s/m]; mu_scale: Dugoff's friction scale k, the tyre model using
+    k mu on a road of friction mu (fitted to the plant tyre, training/tyre_fit.py: Dugoff
+    saturates more gently than the Magic Formula, so with k = 1 the estimated mu reads high)."""
 
     mass: float
     yaw_inertia: float
@@ -56,6 +58,7 @@ class ModelParams:
     m2: float
     n2: float
     eps: float = 0.0
+    mu_scale: float = 1.0
 
     @classmethod
     def from_vehicle(cls, vehicle, fit: dict | None = None) -> "ModelParams":
@@ -63,7 +66,7 @@ class ModelParams:
         fit = fit or _load_fit()
         return cls(vehicle.mass, vehicle.yaw_inertia, vehicle.cg_to_front, vehicle.cg_to_rear, vehicle.track_front,
                    vehicle.track_rear, vehicle.wheel_radius, vehicle.cg_height, vehicle.wheel_inertia,
-                   fit["m1"], fit["n1"], fit["m2"], fit["n2"])
+                   fit["m1"], fit["n1"], fit["m2"], fit["n2"], mu_scale=fit["mu_scale"])
 
     @property
     def wheelbase(self) -> float:
@@ -76,8 +79,9 @@ class ModelParams:
 
 
 PACKED_FIELDS = ("mass", "yaw_inertia", "cg_to_front", "cg_to_rear", "track_front", "track_rear", "wheel_radius",
-                 "cg_height", "wheel_inertia", "m1", "n1", "m2", "n2", "eps")
-(P_MASS, P_IZ, P_A, P_B, P_TF, P_TR, P_RW, P_H, P_IW, P_M1, P_N1, P_M2, P_N2, P_EPS) = range(len(PACKED_FIELDS))
+                 "cg_height", "wheel_inertia", "m1", "n1", "m2", "n2", "eps", "mu_scale")
+(P_MASS, P_IZ, P_A, P_B, P_TF, P_TR, P_RW, P_H, P_IW, P_M1, P_N1, P_M2, P_N2, P_EPS,
+ P_MU_SCALE) = range(len(PACKED_FIELDS))
 
 
 class Inputs(NamedTuple):
@@ -177,8 +181,9 @@ def body_forces(u, v, r, ax, ay, mu, steer, omega, torque, omega_dot, pk) -> tup
     f_x_sum, f_y_sum, moment = 0.0, 0.0, 0.0
     for w in range(4):
         tan_alpha, slip, cx, cy = tyre_operating_point(u, v, r, fz[w], steer, omega[w], pk, w)
-        _, fy, _ = dugoff(fz[w], slip, tan_alpha, mu[w], cx, cy, u, pk[P_EPS])
-        limit = mu[w] * fz[w]
+        tyre_mu = pk[P_MU_SCALE] * mu[w]
+        _, fy, _ = dugoff(fz[w], slip, tan_alpha, tyre_mu, cx, cy, u, pk[P_EPS])
+        limit = tyre_mu * fz[w]
         fx = min(max((torque[w] - pk[P_IW] * omega_dot[w]) / pk[P_RW], -limit), limit)
         c, s = steer[0, w], steer[1, w]
         f_long, f_lat = fx * c - fy * s, fx * s + fy * c
@@ -195,7 +200,7 @@ def dugoff_lambdas(u, v, r, ax, ay, mu, steer, omega, pk, out) -> None:
     fz = load_tuple(ax, ay, pk)
     for w in range(4):
         tan_alpha, slip, cx, cy = tyre_operating_point(u, v, r, fz[w], steer, omega[w], pk, w)
-        out[w] = dugoff(fz[w], slip, tan_alpha, mu[w], cx, cy, u, 0.0)[2]
+        out[w] = dugoff(fz[w], slip, tan_alpha, pk[P_MU_SCALE] * mu[w], cx, cy, u, 0.0)[2]
 
 
 @numba.njit(**JIT)
