@@ -43,7 +43,11 @@ class StabilityController:
     is shrunk by the deadband) and on sideslip beyond half the mu-dependent bound, so that
     it does not fight sensor noise in normal driving, as production ESC does. Moments that
     turn the car further into the bend (understeer correction) fade out linearly as |beta|
-    approaches the mu-dependent sideslip bound."""
+    approaches the mu-dependent sideslip bound.
+
+    ``last_allocation`` holds the latest :class:`control.allocation.Allocation`: the yaw moment
+    and drive force the wheels delivered and whether the demand was feasible (None before the
+    first call)."""
 
     params: object
     law: str = "lqr"
@@ -59,9 +63,11 @@ class StabilityController:
         else:
             raise ValueError(f"unknown yaw-moment law {self.law!r}; known: ['lqr', 'smc']")
         self._reference = None
+        self.last_allocation: Allocation | None = None
 
     def reset(self) -> None:
         self._reference = None
+        self.last_allocation = None
         if isinstance(self._law, SlidingModeYawController):
             self._law.reset()
 
@@ -83,7 +89,9 @@ class StabilityController:
         fade = np.clip(1.0 - np.abs(beta) / bound, 0.0, 1.0)
         moment = np.where(turning_further, moment * fade, moment)
         moment = np.where(np.abs(u) > ACTIVE_SPEED, moment, 0.0)
-        torques = allocate_for_estimate(base_torques, moment, estimate, self.params, self.friction_ellipse).torques
+        self.last_allocation = allocate_for_estimate(base_torques, moment, estimate, self.params,
+                                                     self.friction_ellipse)
+        torques = self.last_allocation.torques
         rear = rear_steer_feedforward(u, front_steer, self.params) if self.rear_steer else np.zeros_like(u)
         return Command(torques, rear)
 

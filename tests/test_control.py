@@ -90,6 +90,27 @@ def test_4ws_variants_add_the_eq20_rear_steer_and_the_plain_ones_do_not(law):
     np.testing.assert_array_equal(plain.rear_steer, 0.0)
 
 
+def test_the_controller_reports_what_the_wheels_delivered():
+    """A car yawing too little on ice: the LQR asks for a moment the tyres cannot give;
+    ``last_allocation`` flags it and reports the (smaller, same-sign) moment the torques make,
+    while on a dry road the same demand is met."""
+    from envs.simulation import true_estimate
+    from envs.vehicle import NU, S_R, S_U, derivatives, initial_state
+
+    state = initial_state(P, np.array([20.0, 20.0]), 2)
+    mu, front = np.array([[0.1] * 4, [1.0] * 4]), np.array([0.02, 0.02])
+    state[:, S_R] = reference_yaw_rate(state[:, S_U], front, mu, P) - 0.06  # 0.06 rad/s short of the reference
+    estimate = true_estimate(state, derivatives(state, np.zeros((2, NU)), mu, P)[1])
+    controller = make_controller("dyc-lqr", P)
+    assert controller.last_allocation is None
+    command = controller(np.zeros(2), estimate, front, np.zeros((2, 4)))
+    delivered = controller.last_allocation
+    np.testing.assert_array_equal(delivered.torques, command.torques)
+    assert delivered.yaw_moment[0] > 0 and not delivered.feasible[0]  # ice: what the tyres allow
+    assert delivered.feasible[1] and delivered.yaw_moment[1] > delivered.yaw_moment[0]
+    np.testing.assert_allclose(delivered.drive_force, 0.0, atol=1e-6)
+
+
 @pytest.mark.parametrize("name", ["dyc-lqr", "dyc-smc"])
 def test_dyc_makes_the_car_pass_sine_with_dwell_it_fails_without(name):
     A = characterise()
