@@ -20,6 +20,7 @@ from scipy.optimize import minimize_scalar
 
 from envs.tyre import TyreParams, tyre_forces
 from envs.vehicle import VehicleParams
+from estimation.model import dugoff
 from training.io import atomic_write_text
 
 OUTPUT = Path(__file__).resolve().parent.parent / "estimation" / "data" / "dugoff_fit.json"
@@ -54,9 +55,9 @@ def fit_friction_scale(tyre: TyreParams, m2: float, n2: float, reference_load: f
     cy = m2 * fz - n2 * fz**2
 
     def rms_error(k: float) -> float:
-        lam = k * mu * fz / (2.0 * cy * ta)
-        dugoff = cy * ta * np.where(lam < 1.0, (2.0 - lam) * lam, 1.0)
-        return float(np.sqrt(np.mean(((dugoff - fy) / (mu * fz)) ** 2)))
+        # the estimator's own tyre at zero longitudinal slip, Dugoff's speed term off
+        model = np.array([dugoff(f, 0.0, t, k * m, 1.0, c, 0.0, 0.0)[1] for f, t, m, c in zip(fz, ta, mu, cy)])
+        return float(np.sqrt(np.mean(((model - fy) / (mu * fz)) ** 2)))
 
     best = minimize_scalar(rms_error, bounds=(0.5, 2.0), method="bounded", options={"xatol": 1e-5})
     return float(best.x), rms_error(best.x), rms_error(1.0)
