@@ -29,12 +29,12 @@ opposes it: ``Fy = -F(alpha)`` with ``F`` odd and increasing near zero.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, fields
 
 import numba
 import numpy as np
 
+from envs import vecmath
 from estimation.jit import JIT
 
 
@@ -106,65 +106,66 @@ N_TYRE_COEFFS = len(fields(TyreParams))
 @numba.njit(inline="always", **JIT)
 def _magic(b: float, c: float, d: float, e: float, x: float) -> float:
     bx = b * x
-    return d * math.sin(c * math.atan(bx - e * (bx - math.atan(bx))))
+    return d * vecmath.sin(c * vecmath.atan(bx - e * (bx - vecmath.atan(bx))))
 
 
 @numba.njit(inline="always", **JIT)
 def _weight(b: float, c: float, e: float, x: float) -> float:
     bx = b * x
-    return max(math.cos(c * math.atan(bx - e * (bx - math.atan(bx)))), 0.0)
+    return max(vecmath.cos(c * vecmath.atan(bx - e * (bx - vecmath.atan(bx)))), 0.0)
 
 
 @numba.njit(**JIT)
-def combined_forces(tp: np.ndarray, fz: float, kappa: float, tan_alpha: float,
-                    scale_x: float, scale_y: float) -> tuple[float, float]:
-    """Tyre forces (Fx, Fy) [N] in the wheel frame for one wheel.
+def combined_forces(tp: np.ndarray, fz: np.ndarray, kappa: np.ndarray, tan_alpha: np.ndarray,
+                    scale_x: np.ndarray, scale_y: np.ndarray, fx: np.ndarray, fy: np.ndarray) -> None:
+    """Tyre forces (Fx, Fy) [N] in the wheel frame of ``n`` wheels, written to ``fx``, ``fy`` (n,).
 
     ``tp``: TyreParams.as_array(); ``fz`` > 0 [N]; ``kappa`` longitudinal slip [-];
-    ``tan_alpha`` lateral slip (tangent of the slip angle) [-]; ``scale_x/y``: LMUX, LMUY.
+    ``tan_alpha`` lateral slip (tangent of the slip angle) [-]; ``scale_x/y``: LMUX, LMUY; all (n,).
+    One branch-free loop over the wheels (:mod:`envs.vecmath`) that LLVM vectorises. The
+    formula is written in the loop body on purpose: moved into an inlined per-wheel
+    function, the loop was no longer vectorised (measured 3.5x slower, numba 0.68).
     """
     fz0 = tp[_NOMINAL_LOAD]
-    dfz = (fz - fz0) / fz0
-    alpha = math.atan(tan_alpha)
-    # pure longitudinal
-    cx = tp[_PCX1]
-    dx = (tp[_PDX1] + tp[_PDX2] * dfz) * scale_x * fz
-    kx = fz * (tp[_PKX1] + tp[_PKX2] * dfz) * math.exp(tp[_PKX3] * dfz)
-    sgn_k = 1.0 if kappa >= 0.0 else -1.0
-    ex = (tp[_PEX1] + tp[_PEX2] * dfz + tp[_PEX3] * dfz * dfz) * (1.0 - tp[_PEX4] * sgn_k)
-    ex = min(ex, 1.0)
-    fx0 = _magic(kx / (cx * dx), cx, dx, ex, kappa)
-    # pure lateral (odd in alpha)
-    cy = tp[_PCY1]
-    dy = (tp[_PDY1] + tp[_PDY2] * dfz) * scale_y * fz
-    xr = fz / (tp[_PKY2] * fz0)
-    ky = tp[_PKY1] * fz0 * 2.0 * xr / (1.0 + xr * xr)
-    ey = min(tp[_PEY1] + tp[_PEY2] * dfz, 1.0)
-    fy0 = _magic(ky / (cy * dy), cy, dy, ey, alpha)
-    # combined slip weights
-    bxa = tp[_RBX1] / math.sqrt(1.0 + (tp[_RBX2] * kappa) ** 2)
-    gxa = _weight(bxa, tp[_RCX1], tp[_REX1] + tp[_REX2] * dfz, alpha)
-    byk = tp[_RBY1] / math.sqrt(1.0 + (tp[_RBY2] * alpha) ** 2)
-    gyk = _weight(byk, tp[_RCY1], tp[_REY1] + tp[_REY2] * dfz, kappa)
-    return gxa * fx0, -gyk * fy0
+    for i in range(fz.size):
+        dfz = (fz[i] - fz0) / fz0
+        alpha = vecmath.atan(tan_alpha[i])
+        # pure longitudinal
+        cx = tp[_PCX1]
+        dx = (tp[_PDX1] + tp[_PDX2] * dfz) * scale_x[i] * fz[i]
+        kx = fz[i] * (tp[_PKX1] + tp[_PKX2] * dfz) * vecmath.exp(tp[_PKX3] * dfz)
+        sgn_k = 1.0 if kappa[i] >= 0.0 else -1.0
+        ex = (tp[_PEX1] + tp[_PEX2] * dfz + tp[_PEX3] * dfz * dfz) * (1.0 - tp[_PEX4] * sgn_k)
+        ex = min(ex, 1.0)
+        fx0 = _magic(kx / (cx * dx), cx, dx, ex, kappa[i])
+        # pure lateral (odd in alpha)
+        cy = tp[_PCY1]
+        dy = (tp[_PDY1] + tp[_PDY2] * dfz) * scale_y[i] * fz[i]
+        xr = fz[i] / (tp[_PKY2] * fz0)
+        ky = tp[_PKY1] * fz0 * 2.0 * xr / (1.0 + xr * xr)
+        ey = min(tp[_PEY1] + tp[_PEY2] * dfz, 1.0)
+        fy0 = _magic(ky / (cy * dy), cy, dy, ey, alpha)
+        # combined slip weights
+        rbx_kappa = tp[_RBX2] * kappa[i]
+        bxa = tp[_RBX1] / vecmath.sqrt(1.0 + rbx_kappa * rbx_kappa)
+        gxa = _weight(bxa, tp[_RCX1], tp[_REX1] + tp[_REX2] * dfz, alpha)
+        rby_alpha = tp[_RBY2] * alpha
+        byk = tp[_RBY1] / vecmath.sqrt(1.0 + rby_alpha * rby_alpha)
+        gyk = _weight(byk, tp[_RCY1], tp[_REY1] + tp[_REY2] * dfz, kappa[i])
+        fx[i] = gxa * fx0
+        fy[i] = -gyk * fy0
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def relaxation_lengths(tp: np.ndarray, fz: float) -> tuple[float, float]:
     """PAC2002 relaxation lengths (sigma_kappa, sigma_alpha) [m] at load ``fz`` [N]."""
     fz0 = tp[_NOMINAL_LOAD]
     r0 = tp[_UNLOADED_RADIUS]
     dfz = (fz - fz0) / fz0
-    sig_k = fz * (tp[_PTX1] + tp[_PTX2] * dfz) * math.exp(-tp[_PTX3] * dfz) * r0 / fz0
+    sig_k = fz * (tp[_PTX1] + tp[_PTX2] * dfz) * vecmath.exp(-tp[_PTX3] * dfz) * r0 / fz0
     xr = fz / (tp[_PTY2] * fz0)
     sig_a = tp[_PTY1] * 2.0 * xr / (1.0 + xr * xr) * r0
     return sig_k, sig_a
-
-
-@numba.njit(**JIT)
-def _forces_batch(tp, fz, kappa, tan_alpha, scale_x, scale_y, fx, fy):
-    for i in range(fz.size):
-        fx[i], fy[i] = combined_forces(tp, fz[i], kappa[i], tan_alpha[i], scale_x[i], scale_y[i])
 
 
 def tyre_forces(tyre: TyreParams, fz, kappa, tan_alpha, mu_road=1.0, reference_load: float | None = None):
@@ -180,6 +181,6 @@ def tyre_forces(tyre: TyreParams, fz, kappa, tan_alpha, mu_road=1.0, reference_l
     mux_ref, muy_ref = tyre.peak_friction(ref)
     fx = np.empty(fz.size)
     fy = np.empty(fz.size)
-    _forces_batch(tyre.as_array(), fz.ravel(), kappa.ravel(), tan_alpha.ravel(),
+    combined_forces(tyre.as_array(), fz.ravel(), kappa.ravel(), tan_alpha.ravel(),
                   (mu_road / mux_ref).ravel(), (mu_road / muy_ref).ravel(), fx, fy)
     return fx.reshape(fz.shape), fy.reshape(fz.shape)
