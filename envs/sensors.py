@@ -6,7 +6,8 @@ run draws a constant turn-on bias per channel from N(0, bias_std). Default magni
 
 * accelerometers: noise 0.02 m/s^2 std at 500 Hz, bias 0.03 m/s^2 std. Automotive ESC-grade
   MEMS accelerometers list a noise density of ~100-150 ug/sqrt(Hz), i.e. ~0.015-0.023 m/s^2 over
-  a 250 Hz bandwidth; the residual offset after the ESC's zero-point learning is a few mg;
+  a 250 Hz bandwidth, and an offset of a few mg; the estimators learn what of it stays constant
+  during a run in steady driving (estimation/joint.py, ZERO_POINT_*);
 * gyro: noise 0.004 rad/s std (0.23 deg/s) at 500 Hz, bias 0.002 rad/s std (0.1 deg/s): a
   rate noise density of ~0.01 deg/s/sqrt(Hz) and ~0.1 deg/s offset after on-line compensation;
 * wheel speeds: 0.05 rad/s std (active Hall sensor on a 48-tooth tone wheel: period

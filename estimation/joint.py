@@ -28,9 +28,13 @@ mu is held, not drifting, when it is unobservable: with Dugoff's lambda >= 1 (fo
 below mu*Fz/2) dF/dmu = 0. The cubature points of a wide mu prior still straddle lambda = 1,
 so model mismatch would leak into mu: a wheel's mu is therefore updated only while its
 lambda at the current estimate is below 1 (all four while any wheel is), and its random-walk
-variance growth is capped. The four mu share a correlated prior and random walk (correlation
-0.8): a saturating outer wheel informs the lightly loaded inner one, while a split road still
-separates left from right over time.
+variance growth is capped. The four mu share a correlated prior and random walk
+(MU_CORRELATION): a saturating outer wheel informs the lightly loaded inner one, while a split
+road still separates left from right over time.
+
+Every estimator learns the lateral accelerometer's zero point in steady driving
+(ZERO_POINT_*), as production ESC units do, and subtracts it before filtering;
+``zero_point_time_constant=math.inf`` gives the paper's filters on the raw sensors.
 """
 
 from __future__ import annotations
@@ -131,7 +135,7 @@ def tuned_noise(path=None) -> NoiseParams | None:
 
 
 STATE_FIELDS = ("x", "P", "mu", "P_mu", "beta", "beta_mu", "omega_prev", "omega_dot", "inertial_prev", "inertial_repeats",
-                "last_nll")
+                "zero_point", "last_nll")
 #: batches at least this large step on all cores (one vehicle's step is ~15-30 us, far above the
 #: ~5 us thread start-up: measured faster from B = 2 on the 2-core machine of BENCHMARKS.md)
 PARALLEL_MIN_BATCH = 2
@@ -141,6 +145,25 @@ OMEGA_DOT_TIME_CONSTANT = 0.02  #: low-pass of the differentiated wheel speed [s
 #: sensor's white noise (0.02 m/s^2, 0.004 rad/s at 500 Hz) never repeats a value exactly; a
 #: frozen output does (envs.sensors fault "stuck"). 5 samples = 10 ms.
 STUCK_SAMPLES = 5
+#: Zero-point learning of the lateral accelerometer, as production ESC units learn sensor
+#: offsets in steady driving (van Zanten, "Bosch ESP systems: 5 years of experience", SAE
+#: 2000-01-1633). In steady state v_dot = 0, so ay = u r: while the steering has not moved by
+#: more than ZERO_POINT_STEER_TOL [rad] and the yaw rate has stayed within ZERO_POINT_YAW_TOL
+#: [rad/s] of its ZERO_POINT_YAW_LOWPASS [s] low-pass for ZERO_POINT_SETTLE [s], above
+#: ZERO_POINT_MIN_SPEED [m/s], the residual ay - u r low-passes (ZERO_POINT_TIME_CONSTANT [s])
+#: into an offset that every filter subtracts from ay. The residual holds the combination
+#: b_ay - u b_r of the two sensors' biases, which is exactly what drives the drift of the
+#: sideslip integrated from v_dot = ay - u r once the tyres saturate. Measured on paper_step
+#: (mu 0.3, seeds 0-4): joint sideslip RMSE 0.27 -> 0.14 deg (README, "Zero-point learning").
+ZERO_POINT_STEER_TOL = 0.002
+ZERO_POINT_YAW_TOL = 0.02
+ZERO_POINT_YAW_LOWPASS = 0.5
+ZERO_POINT_SETTLE = 1.5
+ZERO_POINT_MIN_SPEED = 3.0
+ZERO_POINT_TIME_CONSTANT = 2.0
+#: columns of the zero-point state: learnt ay offset [m/s^2], steady time [s], steering angle
+#: the steady time counts from [rad], low-passed yaw rate [rad/s]
+ZP_OFFSET, ZP_STEADY, ZP_STEER, ZP_YAW = range(4)
 #: columns of the compiled step's output row
 (O_U, O_V, O_BETA, O_R, O_AX, O_AY), O_MU, O_FZ, O_BETA_STD, O_MU_STD, N_OUT = range(6), 6, 10, 14, 15, 19
 #: status codes of the compiled step
@@ -337,18 +360,41 @@ def _ekf_step(x, P, Q, z, valid, R, f_args, h_args, m_args, x_out, P_out) -> flo
 
 # ---- one estimator step (compiled) -----------------------------------------------------------
 @numba.njit(**JIT)
-def _step_member(kind, pk, dt, huber_c, process_var, sensor_var, mu_var, x, P, mu, P_mu, beta, beta_mu,
-                 omega_prev, omega_dot, inertial_prev, inertial_repeats, values, valid_in, out) -> tuple[int, float]:
-    """One step of one vehicle's estimator of ``kind`` (index into KINDS); state rows are
-    updated in place only on success. Returns (status, innovation NLL) and fills ``out``."""
-    for c in range(values.shape[0]):
-        if valid_in[c] and not math.isfinite(values[c]):
+def _learn_zero_point(zero_point, reading, valid, speed, dt, time_constant) -> None:
+    """Advance the zero-point state (4,) by one reading (see ZERO_POINT_*); ``speed`` [m/s];
+    ``time_constant`` [s] of the offset's low-pass (inf: no learning)."""
+    steer, yaw_rate = reading[7], reading[2]
+    moved = not valid[7] or abs(steer - zero_point[ZP_STEER]) > ZERO_POINT_STEER_TOL
+    if moved:
+        zero_point[ZP_STEER] = steer
+    if valid[2]:
+        zero_point[ZP_YAW] += (yaw_rate - zero_point[ZP_YAW]) * (dt / ZERO_POINT_YAW_LOWPASS)
+    steady = not moved and valid[2] and abs(yaw_rate - zero_point[ZP_YAW]) < ZERO_POINT_YAW_TOL
+    zero_point[ZP_STEADY] = zero_point[ZP_STEADY] + dt if steady else 0.0
+    if zero_point[ZP_STEADY] > ZERO_POINT_SETTLE and speed > ZERO_POINT_MIN_SPEED and valid[1]:
+        residual = reading[1] - speed * yaw_rate
+        zero_point[ZP_OFFSET] += (residual - zero_point[ZP_OFFSET]) * (dt / time_constant)
+
+
+@numba.njit(**JIT)
+def _step_member(kind, pk, dt, huber_c, zero_point_tau, process_var, sensor_var, mu_var, x, P, mu, P_mu, beta, beta_mu,
+                 omega_prev, omega_dot, inertial_prev, inertial_repeats, zero_point, reading, valid_in,
+                 out) -> tuple[int, float]:
+    """One step of one vehicle's estimator of ``kind`` (index into KINDS) on the raw sensor
+    ``reading`` (13,); state rows are updated in place only on success. Returns (status,
+    innovation NLL) and fills ``out``."""
+    for c in range(reading.shape[0]):
+        if valid_in[c] and not math.isfinite(reading[c]):
             return BAD_MEASUREMENT, math.nan
     valid, repeats = valid_in.copy(), inertial_repeats.copy()
     for c in range(3):  # stuck inertial sensors (STUCK_SAMPLES)
-        repeats[c] = repeats[c] + 1.0 if valid_in[c] and values[c] == inertial_prev[c] else 0.0
+        repeats[c] = repeats[c] + 1.0 if valid_in[c] and reading[c] == inertial_prev[c] else 0.0
         if repeats[c] >= STUCK_SAMPLES:
             valid[c] = False
+    zero_point_new = zero_point.copy()
+    _learn_zero_point(zero_point_new, reading, valid, x[I_U], dt, zero_point_tau)
+    values = reading.copy()
+    values[1] -= zero_point_new[ZP_OFFSET]
     robust, federated, joint = kind >= 3, kind >= 2, kind == 4
     # inputs; wheel angular acceleration for eq. 7: differentiated wheel speed, low-passed
     omega, torque, od = values[3:7].copy(), values[9:13].copy(), np.empty(4)
@@ -408,9 +454,10 @@ def _step_member(kind, pk, dt, huber_c, process_var, sensor_var, mu_var, x, P, m
     mu[:], P_mu[:, :], beta_mu[:] = mu_new, P_mu_new, beta_mu_new
     omega_prev[:], omega_dot[:] = omega, od
     inertial_repeats[:] = repeats
+    zero_point[:] = zero_point_new
     for c in range(3):
         if valid_in[c]:
-            inertial_prev[c] = values[c]
+            inertial_prev[c] = reading[c]
     # the estimate
     u, v = x[I_U], x[I_V]
     out[O_U], out[O_V], out[O_R], out[O_AX], out[O_AY] = u, v, x[I_R], x[I_AX], x[I_AY]
@@ -427,31 +474,31 @@ def _step_member(kind, pk, dt, huber_c, process_var, sensor_var, mu_var, x, P, m
 
 
 @numba.njit(inline="always", **JIT)
-def _step_row(j, rows, kind, pk, dt, huber_c, process_var, sensor_var, mu_var, X, P, MU, P_MU, BETA, BETA_MU,
-              OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS, LAST_NLL, values, valid, out, status):
+def _step_row(j, rows, kind, pk, dt, huber_c, zero_point_tau, process_var, sensor_var, mu_var, X, P, MU, P_MU, BETA, BETA_MU,
+              OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS, ZERO_POINT, LAST_NLL, values, valid, out, status):
     i = rows[j]
     q = i if process_var.shape[0] > 1 else 0
-    status[j], nll = _step_member(kind, pk, dt, huber_c, process_var[q], sensor_var[q], mu_var, X[i], P[i], MU[i],
+    status[j], nll = _step_member(kind, pk, dt, huber_c, zero_point_tau, process_var[q], sensor_var[q], mu_var, X[i], P[i], MU[i],
                                   P_MU[i], BETA[i], BETA_MU[i], OMEGA_PREV[i], OMEGA_DOT[i], INERTIAL_PREV[i],
-                                  INERTIAL_REPEATS[i], values[i], valid[i], out[j])
+                                  INERTIAL_REPEATS[i], ZERO_POINT[i], values[i], valid[i], out[j])
     if status[j] == OK:
         LAST_NLL[i] = nll
 
 
 @numba.njit(**JIT)
-def _step_serial(rows, kind, pk, dt, huber_c, process_var, sensor_var, mu_var, X, P, MU, P_MU, BETA, BETA_MU,
-                 OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS, LAST_NLL, values, valid, out, status):
+def _step_serial(rows, kind, pk, dt, huber_c, zero_point_tau, process_var, sensor_var, mu_var, X, P, MU, P_MU, BETA, BETA_MU,
+                 OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS, ZERO_POINT, LAST_NLL, values, valid, out, status):
     for j in range(rows.shape[0]):
-        _step_row(j, rows, kind, pk, dt, huber_c, process_var, sensor_var, mu_var, X, P, MU, P_MU, BETA, BETA_MU,
-                  OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS, LAST_NLL, values, valid, out, status)
+        _step_row(j, rows, kind, pk, dt, huber_c, zero_point_tau, process_var, sensor_var, mu_var, X, P, MU, P_MU, BETA, BETA_MU,
+                  OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS, ZERO_POINT, LAST_NLL, values, valid, out, status)
 
 
 @numba.njit(parallel=True, **JIT)
-def _step_parallel(rows, kind, pk, dt, huber_c, process_var, sensor_var, mu_var, X, P, MU, P_MU, BETA, BETA_MU,
-                   OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS, LAST_NLL, values, valid, out, status):
+def _step_parallel(rows, kind, pk, dt, huber_c, zero_point_tau, process_var, sensor_var, mu_var, X, P, MU, P_MU, BETA, BETA_MU,
+                   OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS, ZERO_POINT, LAST_NLL, values, valid, out, status):
     for j in numba.prange(rows.shape[0]):
-        _step_row(j, rows, kind, pk, dt, huber_c, process_var, sensor_var, mu_var, X, P, MU, P_MU, BETA, BETA_MU,
-                  OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS, LAST_NLL, values, valid, out, status)
+        _step_row(j, rows, kind, pk, dt, huber_c, zero_point_tau, process_var, sensor_var, mu_var, X, P, MU, P_MU, BETA, BETA_MU,
+                  OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS, ZERO_POINT, LAST_NLL, values, valid, out, status)
 
 
 @dataclass
@@ -469,6 +516,9 @@ class StateEstimator:
     noise: NoiseParams = field(default_factory=NoiseParams)
     nominal_mu: float = 0.8
     huber_c: float = HUBER_C
+    #: low-pass time constant [s] of the accelerometer zero-point learning (ZERO_POINT_*);
+    #: math.inf switches the learning off (the paper's filters take the sensors as they are)
+    zero_point_time_constant: float = ZERO_POINT_TIME_CONSTANT
     needs_truth: bool = False
 
     def __post_init__(self) -> None:
@@ -480,6 +530,8 @@ class StateEstimator:
             raise ValueError(f"dt must be > 0, got {self.dt!r}")
         if not self.huber_c > 0:
             raise ValueError(f"huber_c must be > 0, got {self.huber_c!r}")
+        if not self.zero_point_time_constant > 0:
+            raise ValueError(f"zero_point_time_constant must be > 0 [s], got {self.zero_point_time_constant!r}")
         self._kind_code = KINDS.index(self.kind)
         self.set_noise(self.noise)
 
@@ -503,6 +555,8 @@ class StateEstimator:
         P0 = np.broadcast_to(np.diag([0.5, 0.3, 1.0, 1.0, 0.02, 500.0]) ** 2, (B, N_STATE, N_STATE))
         mu0 = np.full((B, 4), self.nominal_mu)
         Pmu0 = np.broadcast_to(_correlated(0.3**2), (B, 4, 4))
+        zero_point0 = np.zeros((B, 4))
+        zero_point0[:, ZP_STEER], zero_point0[:, ZP_YAW] = values[:, 7], values[:, 2]
         if mask is None or not hasattr(self, "x"):
             self.x, self.P = x0, P0.copy()
             self.mu, self.P_mu = mu0, Pmu0.copy()
@@ -512,6 +566,7 @@ class StateEstimator:
             self.omega_dot = np.zeros((B, 4))
             self.inertial_prev = np.full((B, 3), np.nan)
             self.inertial_repeats = np.zeros((B, 3))
+            self.zero_point = zero_point0
         else:
             for name, new in (("x", x0), ("P", P0), ("mu", mu0), ("P_mu", Pmu0), ("omega_prev", values[:, 3:7])):
                 getattr(self, name)[mask] = new[mask]
@@ -520,6 +575,7 @@ class StateEstimator:
             self.omega_dot[mask] = 0.0
             self.inertial_prev[mask] = np.nan
             self.inertial_repeats[mask] = 0.0
+            self.zero_point[mask] = zero_point0[mask]
         self.last_nll = np.zeros(B)
 
     # ---- one step -----------------------------------------------------------------------
@@ -540,7 +596,7 @@ class StateEstimator:
         out, status = np.empty((len(rows), N_OUT)), np.zeros(len(rows), dtype=np.int64)
         kernel = _step_parallel if len(rows) >= PARALLEL_MIN_BATCH else _step_serial
         kernel(rows, self._kind_code, self.params.packed, float(self.dt), float(self.huber_c),
-               self._process_var, self._sensor_var, self._mu_var, *state, values, valid, out, status)
+               float(self.zero_point_time_constant), self._process_var, self._sensor_var, self._mu_var, *state, values, valid, out, status)
         if status.any():
             j = int(np.flatnonzero(status)[0])
             i = int(rows[j])
