@@ -1,6 +1,6 @@
 """Stability control: yaw-rate reference, direct yaw-moment laws (LQR, sliding mode), torque
 allocation and the paper's 4WS law, combined in :class:`StabilityController`. Uses only what
-an estimator provides (an Estimate-like object: u, v, beta, r, mu, fz)."""
+an estimator provides (an Estimate-like object: u, v, beta, r, ay, mu, fz; mu_std if it has one)."""
 
 from __future__ import annotations
 
@@ -17,6 +17,13 @@ CONTROLLERS = ("none", "dyc-lqr", "dyc-smc", "dyc-lqr-4ws", "dyc-smc-4ws")
 ACTIVE_SPEED = 2.0  #: below this speed [m/s] the controller passes the driver's torques through
 YAW_DEADBAND = 0.02  #: |r - r_ref| [rad/s] tolerated without intervention (ESC practice)
 REFERENCE_LAG = 0.15  #: time constant of the yaw-rate reference [s]: the car's own yaw response lag
+MIN_PLANNING_MU = 0.1  #: floor of the friction the controller plans with
+#: default StabilityController.mu_margin. Measured on the headline matrix (DYC-LQR + joint,
+#: peak sideslip [deg] on paper_step / swd_wet / mu_jump / ISO 3888-2 at 70 km/h): margin 0:
+#: 0.7 / 2.1 / 2.0 / 3.5; 1: 0.5 / 1.9 / 1.5 / 3.3; 2: 0.5 / 1.8 / 11.4 / 3.0. Beyond 1 the
+#: planning friction can sink towards MIN_PLANNING_MU after a friction change, and the
+#: controller's counter-moment then unsettles the car (DYC-SMC on mu_jump: 10.3 deg at 1.5).
+MU_MARGIN = 1.0
 
 
 def _deadband(x: np.ndarray, width) -> np.ndarray:
@@ -47,15 +54,24 @@ class StabilityController:
 
     ``last_allocation`` holds the latest :class:`control.allocation.Allocation`: the yaw moment
     and drive force the wheels delivered and whether the demand was feasible (None before the
-    first call)."""
+    first call).
+
+    Cautious friction: the controller plans (reference, sideslip bound, gain schedule,
+    allocation) with the lower confidence bound ``mu - mu_margin * mu_std`` of the estimate
+    (floored at MIN_PLANNING_MU), so a friction the estimator has not yet confirmed is not
+    taken for granted. An estimate without ``mu_std``, or with zero (the oracle, fixed-mu
+    filters), is used as it is. ``mu_margin=0`` plans with the point estimate."""
 
     params: object
     law: str = "lqr"
     rear_steer: bool = False
     dt: float = 0.002
     friction_ellipse: bool = False  #: see :func:`control.allocation.allocate_for_estimate`
+    mu_margin: float = MU_MARGIN  #: standard deviations below mu_hat the controller plans with
 
     def __post_init__(self) -> None:
+        if not (np.isfinite(self.mu_margin) and self.mu_margin >= 0.0):
+            raise ValueError(f"mu_margin must be a finite number >= 0, got {self.mu_margin!r}")
         if self.law == "lqr":
             self._law = LQRYawController(self.params, LQRWeights())
         elif self.law == "smc":
@@ -71,18 +87,27 @@ class StabilityController:
         if isinstance(self._law, SlidingModeYawController):
             self._law.reset()
 
+    def planning_mu(self, estimate) -> np.ndarray:
+        """Per-wheel friction (B, 4) the controller plans with (see the class docstring)."""
+        mu_std = getattr(estimate, "mu_std", None)
+        if mu_std is None or self.mu_margin == 0.0:
+            return np.asarray(estimate.mu, dtype=float)
+        return np.maximum(np.asarray(estimate.mu, dtype=float) - self.mu_margin * np.asarray(mu_std, dtype=float),
+                          MIN_PLANNING_MU)
+
     def __call__(self, t: np.ndarray, estimate, front_steer: np.ndarray, base_torques: np.ndarray) -> Command:
         u, beta, r = estimate.u, estimate.beta, estimate.r
-        steady = reference_yaw_rate(u, front_steer, estimate.mu, self.params)
+        mu = self.planning_mu(estimate)
+        steady = reference_yaw_rate(u, front_steer, mu, self.params)
         # first-order lag: the reference a well-behaved car can follow, not a step it cannot
         if self._reference is None:
             self._reference = steady.copy()
         self._reference = self._reference + (steady - self._reference) * min(self.dt / REFERENCE_LAG, 1.0)
         r_ref = self._reference
-        bound = sideslip_bound(estimate.mu)
+        bound = sideslip_bound(mu)
         shrunk_error = _deadband(r - r_ref, YAW_DEADBAND)
         shrunk_beta = _deadband(beta, 0.5 * bound)
-        moment = self._law(u, shrunk_beta, r_ref + shrunk_error, r_ref, front_steer, self.dt, estimate.mu)
+        moment = self._law(u, shrunk_beta, r_ref + shrunk_error, r_ref, front_steer, self.dt, mu)
         # a moment that turns the car further (understeer correction) is faded out as |beta|
         # approaches its bound: at the friction limit more yaw moment only spins the car
         turning_further = np.sign(moment) == np.sign(r_ref)
@@ -90,7 +115,7 @@ class StabilityController:
         moment = np.where(turning_further, moment * fade, moment)
         moment = np.where(np.abs(u) > ACTIVE_SPEED, moment, 0.0)
         self.last_allocation = allocate_for_estimate(base_torques, moment, estimate, self.params,
-                                                     self.friction_ellipse)
+                                                     self.friction_ellipse, mu)
         torques = self.last_allocation.torques
         rear = rear_steer_feedforward(u, front_steer, self.params) if self.rear_steer else np.zeros_like(u)
         return Command(torques, rear)

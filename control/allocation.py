@@ -205,8 +205,9 @@ def allocate_torques(base_torques: np.ndarray, yaw_moment: np.ndarray, fz: np.nd
 
 
 def allocate_for_estimate(base_torques: np.ndarray, yaw_moment: np.ndarray, estimate, params,
-                          friction_ellipse: bool = False) -> Allocation:
-    """:func:`allocate_torques` fed from an Estimate-like object (u, ay, mu, fz).
+                          friction_ellipse: bool = False, mu: np.ndarray | None = None) -> Allocation:
+    """:func:`allocate_torques` fed from an Estimate-like object (u, ay, mu, fz); ``mu`` (B, 4)
+    replaces the estimate's friction when given.
 
     ``friction_ellipse``: bound each tyre's Fx by what its lateral force leaves, with the
     quasi-static lateral forces Fy_i = Fz_i a_y / g (each tyre carries lateral force in
@@ -220,4 +221,5 @@ def allocate_for_estimate(base_torques: np.ndarray, yaw_moment: np.ndarray, esti
     within 0.1 deg elsewhere). Off, the bound is the friction circle |Fx_i| <= mu_i Fz_i.
     """
     lateral = estimate.fz * (estimate.ay / GRAVITY)[:, None] if friction_ellipse else None
-    return allocate_torques(base_torques, yaw_moment, estimate.fz, estimate.mu, params, lateral, estimate.u)
+    mu = estimate.mu if mu is None else mu
+    return allocate_torques(base_torques, yaw_moment, estimate.fz, mu, params, lateral, estimate.u)

@@ -5,11 +5,13 @@ import math
 import numpy as np
 import pytest
 
-from control import CONTROLLERS, make_controller
+from control import CONTROLLERS, MIN_PLANNING_MU, StabilityController, make_controller
 from control.dyc import LQRYawController, bicycle_matrices
 from control.reference import rear_steer_gain, reference_yaw_rate, sideslip_bound, understeer_gradient
 from envs.fmvss126 import characterise, run_series
+from envs.simulation import simulate
 from envs.vehicle import VehicleParams
+from estimation.types import Estimate
 
 P = VehicleParams()
 
@@ -120,3 +122,23 @@ def test_dyc_makes_the_car_pass_sine_with_dwell_it_fails_without(name):
     assert not open_loop.result.passed_yaw and open_loop.result.spun_out
     assert closed.result.passed and not closed.result.spun_out
     assert closed.peak_sideslip < math.radians(5.0)
+
+
+def test_the_controller_plans_with_the_lower_confidence_bound_of_the_friction():
+    one = np.ones(1)
+    estimate = Estimate(u=20 * one, v=0 * one, beta=0 * one, r=0 * one, ax=0 * one, ay=0 * one,
+                        mu=np.array([[0.8, 0.8, 0.3, 0.3]]), fz=np.full((1, 4), 2000.0), beta_std=0 * one,
+                        mu_std=np.array([[0.1, 0.0, 0.25, 0.0]]))
+    np.testing.assert_allclose(StabilityController(P, mu_margin=1.0).planning_mu(estimate), [[0.7, 0.8, 0.1, 0.3]])
+    assert MIN_PLANNING_MU == 0.1
+    np.testing.assert_array_equal(StabilityController(P, mu_margin=0.0).planning_mu(estimate), estimate.mu)
+    with pytest.raises(ValueError, match="mu_margin"):
+        StabilityController(P, mu_margin=-1.0)
+    # closed loop: after a friction drop the cautious controller holds the sideslip lower
+    peaks = []
+    for margin in (0.0, 1.0):
+        controller = make_controller("dyc-lqr", P)
+        controller.mu_margin = margin
+        traj = simulate("mu_jump", controller=controller, estimator="joint", seed=0)
+        peaks.append(np.abs(traj.truth.beta).max())
+    assert peaks[1] < 0.85 * peaks[0]
