@@ -13,13 +13,14 @@ loops over lanes only; :mod:`envs.vehicle` pads its lanes to a multiple of
 of calls (``math.sqrt`` is one: use :func:`sqrt`), inner loops, ``**`` and ``math.floor``
 (an integer in numba): any of them stopped the vectoriser here.
 
-Accuracy, checked against the C library by ``tests/test_vehicle.py`` over dense grids:
+Accuracy, checked against the C library by ``tests/test_vecmath.py`` over dense grids:
 
 * ``atan``: <= 2 ulp everywhere (including +-inf). Reduction to ``|t| <= tan(pi/8)`` with
   ``atan(x) = pi/2 - atan(1/x)`` and ``atan(t) = pi/4 + atan((t - 1)/(t + 1))``, then
   ``t P(t^2)`` with ``P`` of degree 10: the polynomial through the 11 Chebyshev nodes of
   ``atan(sqrt(s))/sqrt(s)`` on ``s in [0, tan(pi/8)^2]``, computed in 40-digit arithmetic
-  (mpmath); its interpolation error there is below 1e-16.
+  (mpmath); evaluated by Horner's rule in doubles its relative error there is 2.4e-16 (1 ulp)
+  at most (measured on 400,001 points).
 * ``sin``, ``cos``: <= 2 ulp absolute for ``|x| <= 1e5``. Cody-Waite reduction by ``pi/2``
   (the two-part constant of fdlibm's ``__ieee754_rem_pio2``), Taylor series to ``r^15`` and
   ``r^16`` on ``|r| <= pi/4`` (truncation below 7e-17), quadrant selected arithmetically.
