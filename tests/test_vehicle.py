@@ -104,9 +104,9 @@ def test_halving_the_step_changes_a_transient_by_less_than_one_percent():
         assert np.abs(coarse[:, 0, i] - fine[:, 0, i]).max() / scale < 0.01, i
 
 
-def test_batch_equals_single_runs():
+@pytest.mark.parametrize("n", [5, 70])  # one partial block (serial); four blocks and a partial one (parallel)
+def test_batch_equals_single_runs(n):
     rng = np.random.default_rng(3)
-    n = 70  # above the parallel threshold
     state = initial_state(P, rng.uniform(2.0, 40.0, n), n)
     controls = np.zeros((n, NU))
     controls[:, :4] = rng.uniform(-300, 300, (n, 4))
@@ -114,7 +114,7 @@ def test_batch_equals_single_runs():
     controls[:, 5] = rng.uniform(-0.05, 0.05, n)
     roads = [uniform(m) for m in rng.uniform(0.2, 1.0, n)]
     batch = step(state, controls, P, roads, DT, 200)
-    for b in range(0, n, 7):
+    for b in range(0, n, max(1, n // 10)):
         single = step(state[b:b + 1], controls[b:b + 1], P, roads[b], DT, 200)
         np.testing.assert_allclose(batch.state[b], single.state[0], rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(batch.aux[b], single.aux[0], rtol=1e-12, atol=1e-12)
