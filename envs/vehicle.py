@@ -263,11 +263,14 @@ def _block_lanes(n_cars: int) -> int:
 
 
 @numba.njit(**JIT)
-def _fill_wheel_geometry(p, lanes, n_lanes):
-    """Per-wheel constants of each lane: contact position, static load, load transfer per g."""
+def _wheel_scratch(p, n_cars: int) -> np.ndarray:
+    """Lane scratch (N_LANE_ROWS * LANES,) for a block of ``n_cars``, its per-wheel constants
+    filled: contact position (the kernel's one copy of the wheel geometry), static load, load
+    transfer per unit acceleration."""
+    lanes = np.empty(N_LANE_ROWS * LANES)
     m, a, b, h = p[P_M], p[P_A], p[P_B], p[P_H]
     wheelbase = a + b
-    for lane in range(n_lanes):
+    for lane in range(_block_lanes(n_cars)):
         i = lane % 4
         front = i < 2
         side = -1.0 if i % 2 == 0 else 1.0  # left wheels unload in a left turn (ay > 0)
@@ -276,6 +279,7 @@ def _fill_wheel_geometry(p, lanes, n_lanes):
         lanes[L_FZ_STATIC + lane] = m * GRAVITY * (b if front else a) / (2.0 * wheelbase)
         lanes[L_FZ_PER_AX + lane] = (-1.0 if front else 1.0) * m * h / (2.0 * wheelbase)
         lanes[L_FZ_PER_AY + lane] = side * m * h * (b / p[P_TF] if front else a / p[P_TR]) / wheelbase
+    return lanes
 
 
 @numba.njit(**JIT)
@@ -367,8 +371,7 @@ def _tyre_lanes(p, tp, lanes, n_lanes):
 @numba.njit(**JIT)
 def _derivative_block(x, ctrl, mu, p, tp, dx, lanes):
     """State derivatives ``dx (n, NX)`` of a block of ``n <= BLOCK`` cars ``x (n, NX)``,
-    ``ctrl (n, NU)``, ``mu (n, 4)``. ``lanes`` (N_LANE_ROWS * LANES,) is the scratch, its
-    geometry rows filled by _fill_wheel_geometry; afterwards its O_* rows hold the per-wheel
+    ``ctrl (n, NU)``, ``mu (n, 4)``. ``lanes`` is the scratch from _wheel_scratch; afterwards its O_* rows hold the per-wheel
     diagnostics."""
     n_cars = x.shape[0]
     n_lanes = _block_lanes(n_cars)
@@ -449,12 +452,12 @@ def _fill_aux(mu, lanes, aux):
 
 
 @numba.njit(**JIT)
-def _wheel_mu(x, p, base_mu, rects, mu):
-    """Road friction under each wheel from a rectangle table (later rows win)."""
+def _wheel_mu(x, lanes, base_mu, rects, mu):
+    """Road friction under each wheel from a rectangle table (later rows win); the contact
+    positions come from the scratch ``lanes`` of _wheel_scratch."""
     c, s = math.cos(x[S_PSI]), math.sin(x[S_PSI])
     for i in range(4):
-        xi = p[P_A] if i < 2 else -p[P_B]
-        yi = (p[P_TF] if i < 2 else p[P_TR]) * (0.5 if i % 2 == 0 else -0.5)
+        xi, yi = lanes[L_WX + i], lanes[L_WY + i]
         gx = x[S_X] + c * xi - s * yi
         gy = x[S_Y] + s * xi + c * yi
         value = base_mu
@@ -477,9 +480,7 @@ def _advance_block(x, ctrl, p, tp, base_mu, rects, mu_given, use_map, dt, n_step
             if not math.isfinite(ctrl[c, j]):
                 status[c] = 1
                 return
-    n_lanes = _block_lanes(n_cars)
-    lanes = np.empty(N_LANE_ROWS * LANES)
-    _fill_wheel_geometry(p, lanes, n_lanes)
+    lanes = _wheel_scratch(p, n_cars)
     k1 = np.empty((n_cars, NX))
     k2 = np.empty((n_cars, NX))
     k3 = np.empty((n_cars, NX))
@@ -489,7 +490,7 @@ def _advance_block(x, ctrl, p, tp, base_mu, rects, mu_given, use_map, dt, n_step
     for step_index in range(n_steps + 1):
         for c in range(n_cars):
             if use_map:
-                _wheel_mu(x[c], p, base_mu[c], rects[c], mu[c])
+                _wheel_mu(x[c], lanes, base_mu[c], rects[c], mu[c])
             else:
                 mu[c, :] = mu_given[c]
             for i in range(4):
@@ -542,9 +543,7 @@ def _advance_parallel(x, ctrl, p, tp, base_mu, rects, mu_given, use_map, dt, n_s
 def _derivatives_batch(x, ctrl, mu, p, tp, dx, aux):
     for lo in range(0, x.shape[0], BLOCK):
         hi = min(lo + BLOCK, x.shape[0])
-        n_lanes = _block_lanes(hi - lo)
-        lanes = np.empty(N_LANE_ROWS * LANES)
-        _fill_wheel_geometry(p, lanes, n_lanes)
+        lanes = _wheel_scratch(p, hi - lo)
         _derivative_block(x[lo:hi], ctrl[lo:hi], mu[lo:hi], p, tp, dx[lo:hi], lanes)
         _fill_aux(mu[lo:hi], lanes, aux[lo:hi])
 

@@ -137,8 +137,7 @@ def test_the_controller_plans_with_the_lower_confidence_bound_of_the_friction():
     # closed loop: after a friction drop the cautious controller holds the sideslip lower
     peaks = []
     for margin in (0.0, 1.0):
-        controller = make_controller("dyc-lqr", P)
-        controller.mu_margin = margin
+        controller = StabilityController(P, "lqr", mu_margin=margin)  # what make_controller("dyc-lqr") builds
         traj = simulate("mu_jump", controller=controller, estimator="joint", seed=0)
         peaks.append(np.abs(traj.truth.beta).max())
     assert peaks[1] < 0.85 * peaks[0]
