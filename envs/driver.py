@@ -3,12 +3,18 @@
 A driver sees the true pose and speed (it looks at the road and the speedometer); only the
 stability controller is restricted to the estimator's output. Steering outputs are
 steering-wheel angles [rad]; the scenario divides by the steering ratio.
+
+The open-loop profiles and the speed holder are :class:`VectorisedDriver` s: one numpy
+formula (``evaluate``) over a table of their parameters (``row``), which a single driver's
+call runs with one row; :class:`DriverBatch` evaluates a batch of drivers (the closed loop's
+B vehicles) class by class with one ``evaluate`` each, and any other callable one by one.
 """
 
 from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -20,19 +26,42 @@ SWD_FREQUENCY = 0.7  #: FMVSS 126 sine-with-dwell frequency [Hz]
 SWD_DWELL = 0.5  #: FMVSS 126 dwell at the second peak [s]
 
 
+class VectorisedDriver:
+    """A driver given by parameters (:meth:`row`) and one vectorised formula (:meth:`evaluate`)."""
+
+    def row(self) -> tuple[float, ...]:
+        """This driver's parameters, in the column order of :meth:`evaluate`'s table."""
+        raise NotImplementedError
+
+    @staticmethod
+    def evaluate(rows: np.ndarray, t: np.ndarray, states: np.ndarray) -> np.ndarray:
+        """Outputs (n,) of n drivers of this class: parameter rows (n, k), times (n,) [s], plant
+        states (n, NX)."""
+        raise NotImplementedError
+
+    def __call__(self, t: float, state: np.ndarray) -> float:
+        return float(self.evaluate(np.array([self.row()], dtype=float), np.array([t], dtype=float),
+                                   np.asarray(state, dtype=float)[None])[0])
+
+
 @dataclass(frozen=True)
-class Constant:
+class Constant(VectorisedDriver):
     """A fixed steering-wheel angle [rad] from ``start`` [s]."""
 
     angle: float
     start: float = 0.0
 
-    def __call__(self, t: float, state: np.ndarray) -> float:
-        return self.angle if t >= self.start else 0.0
+    def row(self) -> tuple[float, ...]:
+        return self.angle, self.start
+
+    @staticmethod
+    def evaluate(rows: np.ndarray, t: np.ndarray, states: np.ndarray) -> np.ndarray:
+        angle, start = rows.T
+        return np.where(t >= start, angle, 0.0)
 
 
 @dataclass(frozen=True)
-class Step:
+class Step(VectorisedDriver):
     """Step of ``angle`` [rad] at ``start`` [s] with a linear rise over ``rise_time`` [s]
     (ISO 7401 asks for a steering rate of 200-500 deg/s; 0.1 s for 1 rad is ~570 deg/s)."""
 
@@ -40,12 +69,17 @@ class Step:
     start: float
     rise_time: float = 0.1
 
-    def __call__(self, t: float, state: np.ndarray) -> float:
-        return self.angle * min(max((t - self.start) / self.rise_time, 0.0), 1.0)
+    def row(self) -> tuple[float, ...]:
+        return self.angle, self.start, self.rise_time
+
+    @staticmethod
+    def evaluate(rows: np.ndarray, t: np.ndarray, states: np.ndarray) -> np.ndarray:
+        angle, start, rise_time = rows.T
+        return angle * np.clip((t - start) / rise_time, 0.0, 1.0)
 
 
 @dataclass(frozen=True)
-class Sine:
+class Sine(VectorisedDriver):
     """``amplitude * sin(2 pi f (t - start))`` [rad] for ``cycles`` full periods from ``start``."""
 
     amplitude: float
@@ -53,28 +87,36 @@ class Sine:
     start: float = 0.0
     cycles: float = math.inf
 
-    def __call__(self, t: float, state: np.ndarray) -> float:
-        phase = (t - self.start) * self.frequency
-        if phase < 0.0 or phase > self.cycles:
-            return 0.0
-        return self.amplitude * math.sin(2.0 * math.pi * phase)
+    def row(self) -> tuple[float, ...]:
+        return self.amplitude, self.frequency, self.start, self.cycles
+
+    @staticmethod
+    def evaluate(rows: np.ndarray, t: np.ndarray, states: np.ndarray) -> np.ndarray:
+        amplitude, frequency, start, cycles = rows.T
+        phase = (t - start) * frequency
+        return np.where((phase >= 0.0) & (phase <= cycles), amplitude * np.sin(2.0 * math.pi * phase), 0.0)
 
 
 @dataclass(frozen=True)
-class Ramp:
+class Ramp(VectorisedDriver):
     """Slowly increasing steer: ``rate`` [rad/s] from ``start`` up to ``limit`` [rad]."""
 
     rate: float
     start: float = 0.0
     limit: float = math.inf
 
-    def __call__(self, t: float, state: np.ndarray) -> float:
-        value = self.rate * max(t - self.start, 0.0)
-        return math.copysign(min(abs(value), self.limit), self.rate)
+    def row(self) -> tuple[float, ...]:
+        return self.rate, self.start, self.limit
+
+    @staticmethod
+    def evaluate(rows: np.ndarray, t: np.ndarray, states: np.ndarray) -> np.ndarray:
+        rate, start, limit = rows.T
+        value = rate * np.maximum(t - start, 0.0)
+        return np.copysign(np.minimum(np.abs(value), limit), rate)
 
 
 @dataclass(frozen=True)
-class SineWithDwell:
+class SineWithDwell(VectorisedDriver):
     """FMVSS 126 / UN R13-H steering: a 0.7 Hz sine, held for 500 ms at its second peak.
 
     Starts at ``start`` [s] in the direction of ``amplitude``'s sign [rad]: the first peak at
@@ -85,20 +127,18 @@ class SineWithDwell:
     amplitude: float
     start: float = 1.0
 
-    def __call__(self, t: float, state: np.ndarray) -> float:
-        tau = t - self.start
-        omega = 2.0 * math.pi * SWD_FREQUENCY
+    def row(self) -> tuple[float, ...]:
+        return self.amplitude, self.start
+
+    @staticmethod
+    def evaluate(rows: np.ndarray, t: np.ndarray, states: np.ndarray) -> np.ndarray:
+        amplitude, start = rows.T
+        tau = t - start
         three_quarters = 0.75 / SWD_FREQUENCY
-        if tau <= 0.0:
-            return 0.0
-        if tau <= three_quarters:
-            return self.amplitude * math.sin(omega * tau)
-        if tau <= three_quarters + SWD_DWELL:
-            return -self.amplitude
-        tau -= SWD_DWELL
-        if tau <= 1.0 / SWD_FREQUENCY:
-            return self.amplitude * math.sin(omega * tau)
-        return 0.0
+        dwelling = (tau > three_quarters) & (tau <= three_quarters + SWD_DWELL)
+        tau = np.where(tau > three_quarters, tau - SWD_DWELL, tau)  # the last quarter after the dwell
+        sine = amplitude * np.sin(2.0 * math.pi * SWD_FREQUENCY * tau)
+        return np.where(dwelling, -amplitude, np.where((tau > 0.0) & (tau <= 1.0 / SWD_FREQUENCY), sine, 0.0))
 
     @property
     def end(self) -> float:
@@ -197,7 +237,7 @@ class PathFollower:
 
 
 @dataclass(frozen=True)
-class SpeedHold:
+class SpeedHold(VectorisedDriver):
     """Speed-holding longitudinal driver: equal torques on all four wheels [N m].
 
     Proportional control on speed error with a feed-forward of rolling resistance and drag:
@@ -211,12 +251,60 @@ class SpeedHold:
     gain: float = 1.0  #: [1/s]
     coast_after: float = math.inf
 
-    def __call__(self, t: float, state: np.ndarray) -> float:
-        if t >= self.coast_after:
-            return 0.0
+    def row(self) -> tuple[float, ...]:
         p = self.params
-        u = state[S_U]
-        force = (p.mass * self.gain * (self.target_speed - u) + p.rolling_resistance * p.mass * GRAVITY
-                 + 0.5 * p.air_density * p.drag_area * u * abs(u))
-        torque = force * p.wheel_radius / 4.0
-        return min(max(torque, -p.motor_peak_torque), p.motor_peak_torque)
+        return (self.target_speed, self.gain, self.coast_after, p.mass, p.rolling_resistance, p.air_density,
+                p.drag_area, p.wheel_radius, p.motor_peak_torque)
+
+    @staticmethod
+    def evaluate(rows: np.ndarray, t: np.ndarray, states: np.ndarray) -> np.ndarray:
+        target_speed, gain, coast_after, mass, rolling_resistance, air_density, drag_area, radius, peak = rows.T
+        u = states[:, S_U]
+        force = (mass * gain * (target_speed - u) + rolling_resistance * mass * GRAVITY
+                 + 0.5 * air_density * drag_area * u * np.abs(u))
+        torque = np.clip(force * radius / 4.0, -peak, peak)
+        return np.where(t >= coast_after, 0.0, torque)
+
+
+class DriverBatch:
+    """The drivers of B vehicles (steering profiles or speed holders), evaluated together:
+    the :class:`VectorisedDriver` s of one class (and parameter count) as one ``evaluate`` over
+    a (B, k) parameter table kept up to date by :meth:`replace`; any other callable
+    (:class:`PathFollower`, a user's function) one vehicle at a time."""
+
+    def __init__(self, drivers: Sequence[Callable[[float, np.ndarray], float]]):
+        self.drivers = list(drivers)
+        self._tables: dict[tuple[type, int], tuple[np.ndarray, np.ndarray]] = {}  # key: (member mask, rows)
+        self._looped = np.zeros(len(self.drivers), dtype=bool)
+        self.replace(np.arange(len(self.drivers)), self.drivers)
+
+    def replace(self, members: Sequence[int], drivers: Sequence[Callable[[float, np.ndarray], float]]) -> None:
+        """Vehicles ``members`` get the new ``drivers`` (one each, in order)."""
+        for b, driver in zip(members, drivers):
+            self.drivers[b] = driver
+            for mask, _ in self._tables.values():
+                mask[b] = False
+            self._looped[b] = not isinstance(driver, VectorisedDriver)
+            if self._looped[b]:
+                continue
+            row = driver.row()
+            key = (type(driver), len(row))
+            if key not in self._tables:
+                self._tables[key] = (np.zeros(len(self.drivers), dtype=bool), np.zeros((len(self.drivers), len(row))))
+            mask, table = self._tables[key]
+            mask[b], table[b] = True, row
+
+    def __call__(self, t: np.ndarray, states: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        """Outputs (R,) of the drivers of vehicles ``rows`` (R,) (default: all B) from every
+        vehicle's time t (B,) [s] and plant state (B, NX)."""
+        rows = np.arange(len(self.drivers)) if rows is None else rows
+        out = np.zeros(len(rows))
+        for (kind, _), (mask, table) in self._tables.items():
+            selected = mask[rows]
+            if selected.any():
+                r = rows[selected]
+                out[selected] = kind.evaluate(table[r], t[r], states[r])
+        for j in np.flatnonzero(self._looped[rows]):
+            b = rows[j]
+            out[j] = self.drivers[b](t[b], states[b])
+        return out

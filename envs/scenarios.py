@@ -29,7 +29,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from envs import courses
-from envs.driver import Constant, PathFollower, Ramp, Sine, SineWithDwell, SpeedHold, Step
+from envs.driver import Constant, PathFollower, Ramp, Sine, SineWithDwell, SpeedHold, Step, VectorisedDriver
 from envs.road import FrictionMap, PatchMap, as_friction_map, patch, split, uniform
 from envs.vehicle import GRAVITY, VehicleParams, initial_state
 
@@ -235,15 +235,19 @@ def random(speed_kph=None, mu=None, duration=10.0, steering=None, seed=0, rear_s
 
 
 @dataclass(frozen=True)
-class _SumOfSines:
+class _SumOfSines(VectorisedDriver):
     amplitudes: tuple[float, ...]
     frequencies: tuple[float, ...]
     phases: tuple[float, ...]
 
-    def __call__(self, t: float, state: np.ndarray) -> float:
-        ramp = min(t, 1.0)  # fade in over the first second
-        return ramp * sum(a * math.sin(2 * math.pi * f * t + p)
-                          for a, f, p in zip(self.amplitudes, self.frequencies, self.phases))
+    def row(self) -> tuple[float, ...]:
+        return self.amplitudes + self.frequencies + self.phases
+
+    @staticmethod
+    def evaluate(rows: np.ndarray, t: np.ndarray, states: np.ndarray) -> np.ndarray:
+        amplitudes, frequencies, phases = np.split(rows, 3, axis=1)
+        ramp = np.minimum(t, 1.0)  # fade in over the first second
+        return ramp * np.sum(amplitudes * np.sin(2 * math.pi * frequencies * t[:, None] + phases), axis=1)
 
 
 _BUILDERS: dict[str, Callable[..., Scenario]] = {

@@ -15,6 +15,7 @@ from typing import NamedTuple, Protocol
 import numpy as np
 from tqdm import tqdm
 
+from envs.driver import DriverBatch
 from envs.road import RoadTables, contact_points
 from envs.scenarios import Scenario, make_scenario
 from envs.sensors import Fault, SensorModel, SensorParams, SensorReading
@@ -172,7 +173,8 @@ class ClosedLoop:
         self.controller, self.estimator, self.dt = controller, estimator, dt
         self.sensors = SensorModel(sensor_params or SensorParams(), tuple(faults), self.batch_size, rng)
         self.state = np.concatenate([s.initial_state() for s in self.scenarios])
-        self.speed_drivers = [s.speed_driver() for s in self.scenarios]
+        self.steering_drivers = DriverBatch([s.steering for s in self.scenarios])
+        self.speed_drivers = DriverBatch([s.speed_driver() for s in self.scenarios])
         self.k = np.zeros(self.batch_size, dtype=np.int64)
         self._fresh = np.ones(self.batch_size, dtype=bool)  # estimator needs a reset
         self._stale = np.ones(self.batch_size, dtype=bool)  # needs sensing at the current time
@@ -223,8 +225,9 @@ class ClosedLoop:
         self._check_params(scenarios)
         for b, scenario in zip(members, scenarios):
             self.scenarios[b] = scenario
-            self.speed_drivers[b] = scenario.speed_driver()
             self.state[b] = scenario.initial_state()[0]
+        self.steering_drivers.replace(members, [s.steering for s in scenarios])
+        self.speed_drivers.replace(members, [s.speed_driver() for s in scenarios])
         self.sensors.reset_members(mask, rngs)
         self.k[members] = 0
         self._fresh[members] = True
@@ -241,9 +244,8 @@ class ClosedLoop:
         t, state, aux = self.t[rows], self.state[rows], self.aux[rows]
         reading = self.sensors.measure(sensor_truth(state, aux), t, rows)
         truth = true_estimate(state, aux)
-        steering = np.array([self.scenarios[b].steering(t[i], state[i]) for i, b in enumerate(rows)])
-        base = np.array([self.speed_drivers[b](t[i], state[i]) for i, b in enumerate(rows)])
-        base = np.repeat(base[:, None], 4, axis=1)
+        steering = self.steering_drivers(self.t, self.state, rows)
+        base = np.repeat(self.speed_drivers(self.t, self.state, rows)[:, None], 4, axis=1)
         if len(rows) < self.batch_size:  # merge into copies: records handed out earlier stay intact
             old = self._sample
             reading = SensorReading(*(_merged(full, part, rows) for full, part in zip(old.reading, reading)))

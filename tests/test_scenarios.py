@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from envs import simulate
-from envs.driver import SWD_DWELL, SWD_FREQUENCY, SineWithDwell
+from envs.driver import SWD_DWELL, SWD_FREQUENCY, Constant, DriverBatch, Ramp, Sine, SineWithDwell, SpeedHold, Step
 from envs.scenarios import PAPER_SCENARIOS, SCENARIOS, make_scenario
-from envs.vehicle import S_U, GRAVITY
+from envs.vehicle import S_U, GRAVITY, VehicleParams
 
 STATE = np.zeros(26)
 
@@ -54,6 +54,37 @@ def test_sine_with_dwell_profile_matches_the_regulation():
     t = np.arange(0.0, 4.0, 1e-4)
     values = np.array([steer(x, STATE) for x in t])
     assert np.abs(np.diff(values)).max() < math.radians(100.0) * 2 * np.pi * SWD_FREQUENCY * 1e-4 * 1.01
+
+
+def test_a_driver_batch_gives_each_vehicle_its_own_drivers_output():
+    """Mixed classes (vectorised ones grouped, a path follower and a plain function looped),
+    each vehicle at its own time and state, before and after members are replaced, for all
+    vehicles and for a subset."""
+    rng = np.random.default_rng(3)
+    drivers = [Step(0.5, 1.0), SineWithDwell(-1.2, 0.5), Sine(0.3, 0.7, start=0.2), Step(-0.2, 0.3, rise_time=0.5),
+               make_scenario("random", seed=4).steering, make_scenario("paper_dlc").steering,
+               lambda t, state: 0.1 * t + state[S_U], Ramp(0.2, limit=0.3), Constant(0.4, start=2.0)]
+    batch = DriverBatch(drivers)
+    t, states = rng.uniform(0.0, 4.0, len(drivers)), rng.normal(0.0, 3.0, (len(drivers), 26))
+    states[:, S_U] += 15.0
+    np.testing.assert_array_equal(batch(t, states), [d(t[b], states[b]) for b, d in enumerate(drivers)])
+    drivers[2], drivers[5] = Step(1.0, 0.0), Sine(0.1, 2.0)
+    batch.replace([2, 5], [drivers[2], drivers[5]])
+    np.testing.assert_array_equal(batch(t, states), [d(t[b], states[b]) for b, d in enumerate(drivers)])
+    rows = np.array([5, 0, 6])
+    np.testing.assert_array_equal(batch(t, states, rows), [drivers[b](t[b], states[b]) for b in rows])
+
+
+def test_speed_hold_feeds_forward_the_resistance_and_coasts():
+    p = VehicleParams()
+    hold = DriverBatch([SpeedHold(20.0, p), SpeedHold(20.0, p, coast_after=1.0)])
+    states = np.zeros((2, 26))
+    states[:, S_U] = 20.0
+    resistance = p.rolling_resistance * p.mass * GRAVITY + 0.5 * p.air_density * p.drag_area * 20.0**2
+    np.testing.assert_allclose(hold(np.array([2.0, 0.5]), states), resistance * p.wheel_radius / 4.0, rtol=1e-12)
+    assert hold(np.array([2.0, 2.0]), states)[1] == 0.0
+    states[:, S_U] = 0.0  # far below the target: the motors' limit
+    assert hold(np.array([0.0, 0.0]), states)[0] == p.motor_peak_torque
 
 
 @pytest.mark.parametrize("name, kwargs, bad", [
