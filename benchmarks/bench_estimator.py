@@ -67,9 +67,9 @@ def ckf_versus_filterpy() -> tuple[float, float]:
     h_args = (steer_trig(delta), p.packed)
 
     def hx(x: np.ndarray) -> np.ndarray:
-        out = np.empty(7)
-        measure_state_1(x, out, h_args)
-        return out
+        out = np.empty((1, 7))
+        measure_state_1(x.reshape(1, 6), 0, out, h_args)
+        return out[0]
 
     noise = estimator.noise
     ukf = UnscentedKalmanFilter(6, 7, DT, hx, lambda x, dt: state_transition(x, np.full(4, 0.8), inputs, p, dt),

@@ -26,7 +26,7 @@ DROPOUT_VARIANCE = 1e12  #: variance given to a channel without valid data (no i
 NO_HUBER = math.inf  #: Huber threshold meaning "plain (non-robust) update"
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def cholesky(A: np.ndarray, L: np.ndarray) -> bool:
     """Lower Cholesky factor of the symmetrised A, 0.5 (A + A^T), into L; False if it is not
     numerically positive definite (or not finite)."""
@@ -86,7 +86,7 @@ def matmul(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     return C
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def cholesky_solve(L: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
     """out = (L L^T)^-1 b for a lower-triangular L."""
     n = L.shape[0]

@@ -50,7 +50,7 @@ def fuse(xs: np.ndarray, Ps: np.ndarray, x_out: np.ndarray, P_out: np.ndarray, c
     return True
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def sharing_coefficients(confidence: np.ndarray, beta: np.ndarray) -> None:
     """beta (N,): proportional to the confidences, floored at BETA_FLOOR, summing to 1."""
     total = confidence.sum()

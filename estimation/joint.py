@@ -81,7 +81,7 @@ MU_CORRELATION = 0.99
 HUBER_C = 3.0
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def _correlated(variance: float) -> np.ndarray:
     """4x4 covariance with ``variance`` on the diagonal and MU_CORRELATION between wheels."""
     return variance * (MU_CORRELATION + (1.0 - MU_CORRELATION) * np.eye(4))
@@ -170,49 +170,52 @@ ZP_OFFSET, ZP_STEADY, ZP_STEER, ZP_YAW = range(4)
 OK, BAD_MEASUREMENT, FILTER_FAILED = 0, 1, 2
 
 
-# ---- measurement models (compiled, one cubature point at a time) -------------------------------
-@numba.njit(**JIT)
-def measure_state_1(x, out, args) -> None:
+# ---- measurement models (compiled, row k of the points (K, n) into row k of out (K, m)) ----------
+@numba.njit(inline="always", **JIT)
+def measure_state_1(points, k, out, args) -> None:
     """State sub-filter 1: [ax, ay, r, wheel-centre speeds along each wheel (4)]; args = (steer, pk)."""
     steer, pk = args
-    out[0], out[1], out[2] = x[I_AX], x[I_AY], x[I_R]
+    u, v, r = points[k, I_U], points[k, I_V], points[k, I_R]
+    out[k, 0], out[k, 1], out[k, 2] = points[k, I_AX], points[k, I_AY], r
     for w in range(4):
-        out[3 + w] = wheel_kinematics(x[I_U], x[I_V], x[I_R], steer, pk, w)[1]
+        out[k, 3 + w] = wheel_kinematics(u, v, r, steer, pk, w)[1]
 
 
-@numba.njit(**JIT)
-def measure_state_2(x, out, args) -> None:
+@numba.njit(inline="always", **JIT)
+def measure_state_2(points, k, out, args) -> None:
     """State sub-filter 2: [ay, r]."""
-    out[0], out[1] = x[I_AY], x[I_R]
+    out[k, 0], out[k, 1] = points[k, I_AY], points[k, I_R]
 
 
-@numba.njit(**JIT)
-def _mu_prediction(mu, args) -> tuple[float, float, float]:
-    """[ax, ay, r] predicted by the tyre model with friction ``mu`` at the state filter's
-    estimate x (r one step ahead of the previous yaw rate); args = (x, steer, omega, torque,
-    omega_dot, pk, dt)."""
+@numba.njit(inline="always", **JIT)
+def _mu_prediction(points, k, args) -> tuple[float, float, float]:
+    """[ax, ay, r] predicted by the tyre model with friction mu (row k of points) at the state
+    filter's estimate x (r one step ahead of the previous yaw rate); args = (x, steer, omega,
+    torque, omega_dot, pk, dt)."""
     x, steer, omega, torque, omega_dot, pk, dt = args
+    mu = (points[k, 0], points[k, 1], points[k, 2], points[k, 3])
     ax, ay, gamma = body_forces(x[I_U], x[I_V], x[I_R], x[I_AX], x[I_AY], mu, steer, omega, torque, omega_dot, pk)
     r_prev = x[I_R] - dt * x[I_GAMMA] / pk[P_IZ]
     return ax, ay, r_prev + dt * gamma / pk[P_IZ]
 
 
-@numba.njit(**JIT)
-def measure_mu_1(mu, out, args) -> None:
+@numba.njit(inline="always", **JIT)
+def measure_mu_1(points, k, out, args) -> None:
     """mu sub-filter 1: [ax, ay, r]."""
-    out[0], out[1], out[2] = _mu_prediction(mu, args)
+    out[k, 0], out[k, 1], out[k, 2] = _mu_prediction(points, k, args)
 
 
-@numba.njit(**JIT)
-def measure_mu_2(mu, out, args) -> None:
+@numba.njit(inline="always", **JIT)
+def measure_mu_2(points, k, out, args) -> None:
     """mu sub-filter 2: [ay, r]."""
-    _, out[0], out[1] = _mu_prediction(mu, args)
+    _, out[k, 0], out[k, 1] = _mu_prediction(points, k, args)
 
 
-@numba.njit(**JIT)
-def random_walk(mu, out, args) -> None:
+@numba.njit(inline="always", **JIT)
+def random_walk(points, k, out, args) -> None:
     """mu's process model: held (the random walk is in its Q)."""
-    out[:] = mu
+    for i in range(points.shape[1]):
+        out[k, i] = points[k, i]
 
 
 #: model ids of the compiled step (numba cannot cache code that passes functions around)
@@ -227,22 +230,22 @@ def _evaluate(model, points, out, f_args, h_args, m_args) -> None:
     K = points.shape[0]
     if model == TRANSITION:
         for k in range(K):
-            transition(points[k], out[k], f_args)
+            transition(points, k, out, f_args)
     elif model == STATE_1:
         for k in range(K):
-            measure_state_1(points[k], out[k], h_args)
+            measure_state_1(points, k, out, h_args)
     elif model == STATE_2:
         for k in range(K):
-            measure_state_2(points[k], out[k], h_args)
+            measure_state_2(points, k, out, h_args)
     elif model == RANDOM_WALK:
         for k in range(K):
-            random_walk(points[k], out[k], h_args)
+            random_walk(points, k, out, h_args)
     elif model == MU_1:
         for k in range(K):
-            measure_mu_1(points[k], out[k], m_args)
+            measure_mu_1(points, k, out, m_args)
     else:
         for k in range(K):
-            measure_mu_2(points[k], out[k], m_args)
+            measure_mu_2(points, k, out, m_args)
 
 
 @numba.njit(**JIT)
@@ -295,7 +298,7 @@ def _federated(x, P, Q, beta, f_model, z1, valid1, R1, h1_model, z2, valid2, R2,
     return total
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def _diagonal(variances) -> np.ndarray:
     M = np.zeros((variances.shape[0], variances.shape[0]))
     for i in range(variances.shape[0]):

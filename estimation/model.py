@@ -171,7 +171,7 @@ def tyre_operating_point(u, v, r, fz, steer, omega, pk, w) -> tuple[float, float
     return tan_alpha, slip, pk[P_M1] * fz - pk[P_N1] * fz * fz, pk[P_M2] * fz - pk[P_N2] * fz * fz
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def body_forces(u, v, r, ax, ay, mu, steer, omega, torque, omega_dot, pk) -> tuple[float, float, float]:
     """Body accelerations ax, ay [m/s^2] and yaw moment Gamma [N m] from the tyre forces (eq. 4-6,
     corrected). Fx from the wheel's torque balance (eq. 7), limited by the Dugoff friction
@@ -194,7 +194,7 @@ def body_forces(u, v, r, ax, ay, mu, steer, omega, torque, omega_dot, pk) -> tup
     return f_x_sum / pk[P_MASS], f_y_sum / pk[P_MASS], moment
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def dugoff_lambdas(u, v, r, ax, ay, mu, steer, omega, pk, out) -> None:
     """Each wheel's Dugoff lambda (4,) at the given state: below 1 its force depends on mu."""
     fz = load_tuple(ax, ay, pk)
@@ -203,19 +203,20 @@ def dugoff_lambdas(u, v, r, ax, ay, mu, steer, omega, pk, out) -> None:
         out[w] = dugoff(fz[w], slip, tan_alpha, pk[P_MU_SCALE] * mu[w], cx, cy, u, 0.0)[2]
 
 
-@numba.njit(**JIT)
-def transition(x, out, args) -> None:
-    """Discrete process model for x_s = [u, v, ax, ay, r, Gamma] (6,), paper eq. 1-3:
-    u+ = u + dt (ax + v r), v+ = v + dt (ay - u r), r+ = r + dt Gamma / Iz (Euler at the 2 ms
-    step); ax, ay, Gamma are algebraic: recomputed from the tyre model at the new state.
-    ax, ay here are the body's specific forces (what an accelerometer reads without roll/pitch).
-    args = (mu, steer_trig(delta), omega, torque, omega_dot, packed params, dt)."""
+@numba.njit(inline="always", **JIT)
+def transition(points, k, out, args) -> None:
+    """Discrete process model for x_s = [u, v, ax, ay, r, Gamma], paper eq. 1-3, from row k of
+    points (K, 6) into row k of out (K, 6) (rows, not row views: a view per point costs a
+    reference count): u+ = u + dt (ax + v r), v+ = v + dt (ay - u r), r+ = r + dt Gamma / Iz
+    (Euler at the 2 ms step); ax, ay, Gamma are algebraic: recomputed from the tyre model at
+    the new state. ax, ay here are the body's specific forces (what an accelerometer reads
+    without roll/pitch). args = (mu, steer_trig(delta), omega, torque, omega_dot, packed params, dt)."""
     mu, steer, omega, torque, omega_dot, pk, dt = args
-    u, v, ax, ay, r, gamma = x[0], x[1], x[2], x[3], x[4], x[5]
-    out[0] = u + dt * (ax + v * r)
-    out[1] = v + dt * (ay - u * r)
-    out[4] = r + dt * gamma / pk[P_IZ]
-    out[2], out[3], out[5] = body_forces(out[0], out[1], out[4], ax, ay, mu, steer, omega, torque, omega_dot, pk)
+    u, v, ax, ay, r, gamma = points[k, 0], points[k, 1], points[k, 2], points[k, 3], points[k, 4], points[k, 5]
+    u_new, v_new, r_new = u + dt * (ax + v * r), v + dt * (ay - u * r), r + dt * gamma / pk[P_IZ]
+    out[k, 0], out[k, 1], out[k, 4] = u_new, v_new, r_new
+    out[k, 2], out[k, 3], out[k, 5] = body_forces(u_new, v_new, r_new, ax, ay, mu, steer, omega, torque, omega_dot,
+                                                  pk)
 
 
 # ---- Python entry points -------------------------------------------------------------------
@@ -236,8 +237,8 @@ def normal_loads(ax, ay, p: ModelParams) -> np.ndarray:
 
 def state_transition(x: np.ndarray, mu: np.ndarray, inputs: Inputs, p: ModelParams, dt: float) -> np.ndarray:
     """:func:`transition` of one state x (6,) with mu (4,) and ``inputs``; returns the new state."""
-    out = np.empty(6)
+    out = np.empty((1, 6))
     mu, delta, omega, torque, omega_dot = (np.ascontiguousarray(q, dtype=np.float64) for q in (mu, *inputs))
-    transition(np.ascontiguousarray(x, dtype=np.float64), out,
+    transition(np.ascontiguousarray(x, dtype=np.float64).reshape(1, 6), 0, out,
                (mu, steer_trig(delta), omega, torque, omega_dot, p.packed, float(dt)))
-    return out
+    return out[0]
