@@ -4,10 +4,10 @@ A driver sees the true pose and speed (it looks at the road and the speedometer)
 stability controller is restricted to the estimator's output. Steering outputs are
 steering-wheel angles [rad]; the scenario divides by the steering ratio.
 
-The open-loop profiles and the speed holder are :class:`VectorisedDriver` s: one numpy
-formula (``evaluate``) over a table of their parameters (``row``), which a single driver's
-call runs with one row; :class:`DriverBatch` evaluates a batch of drivers (the closed loop's
-B vehicles) class by class with one ``evaluate`` each, and any other callable one by one.
+The open-loop profiles and the speed holder are :class:`VectorisedDriver` s: a compiled
+kernel over a table of their parameters (``row``), which a single driver's call runs with one
+row; :class:`DriverBatch` evaluates a batch of drivers (the closed loop's B vehicles) with one
+kernel call per class, and any other callable one by one.
 """
 
 from __future__ import annotations
@@ -17,31 +17,83 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 from scipy.linalg import expm
 
 from envs.vehicle import GRAVITY, S_PSI, S_R, S_U, S_V, S_X, S_Y, VehicleParams
+from estimation.jit import JIT
 
 SWD_FREQUENCY = 0.7  #: FMVSS 126 sine-with-dwell frequency [Hz]
 SWD_DWELL = 0.5  #: FMVSS 126 dwell at the second peak [s]
 
 
 class VectorisedDriver:
-    """A driver given by parameters (:meth:`row`) and one vectorised formula (:meth:`evaluate`)."""
+    """A driver given by its parameters (:meth:`row`) and its class's compiled ``kernel``:
+    ``kernel(table (B, k), members (M,) int64, t (B,) [s], states (B, NX), out (B,))`` writes
+    the output of the drivers b in ``members``, whose parameters are ``table[b]``, at time
+    ``t[b]`` and plant state ``states[b]`` into ``out[b]``."""
+
+    kernel: Callable[..., None]
 
     def row(self) -> tuple[float, ...]:
-        """This driver's parameters, in the column order of :meth:`evaluate`'s table."""
-        raise NotImplementedError
-
-    @staticmethod
-    def evaluate(rows: np.ndarray, t: np.ndarray, states: np.ndarray) -> np.ndarray:
-        """Outputs (n,) of n drivers of this class: parameter rows (n, k), times (n,) [s], plant
-        states (n, NX)."""
+        """This driver's parameters, in the column order of its kernel's table."""
         raise NotImplementedError
 
     def __call__(self, t: float, state: np.ndarray) -> float:
-        return float(self.evaluate(np.array([self.row()], dtype=float), np.array([t], dtype=float),
-                                   np.asarray(state, dtype=float)[None])[0])
+        out = np.zeros(1)
+        self.kernel(np.array([self.row()], dtype=np.float64), np.zeros(1, dtype=np.int64),
+                    np.array([t], dtype=np.float64), np.ascontiguousarray(state, dtype=np.float64)[None], out)
+        return float(out[0])
+
+
+@numba.njit(**JIT)
+def _constant(table, members, t, states, out):
+    for b in members:
+        out[b] = table[b, 0] if t[b] >= table[b, 1] else 0.0
+
+
+@numba.njit(**JIT)
+def _step(table, members, t, states, out):
+    for b in members:
+        out[b] = table[b, 0] * min(max((t[b] - table[b, 1]) / table[b, 2], 0.0), 1.0)
+
+
+@numba.njit(**JIT)
+def _sine(table, members, t, states, out):
+    for b in members:
+        phase = (t[b] - table[b, 2]) * table[b, 1]
+        out[b] = 0.0 if phase < 0.0 or phase > table[b, 3] else table[b, 0] * math.sin(2.0 * math.pi * phase)
+
+
+@numba.njit(**JIT)
+def _ramp(table, members, t, states, out):
+    for b in members:
+        rate = table[b, 0]
+        out[b] = math.copysign(min(abs(rate * max(t[b] - table[b, 1], 0.0)), table[b, 2]), rate)
+
+
+@numba.njit(**JIT)
+def _sine_with_dwell(table, members, t, states, out):
+    omega, three_quarters = 2.0 * math.pi * SWD_FREQUENCY, 0.75 / SWD_FREQUENCY
+    for b in members:
+        amplitude, tau = table[b, 0], t[b] - table[b, 1]
+        if tau > three_quarters + SWD_DWELL:
+            tau -= SWD_DWELL  # the last quarter cycle, after the dwell
+        elif tau > three_quarters:
+            out[b] = -amplitude
+            continue
+        out[b] = amplitude * math.sin(omega * tau) if 0.0 < tau <= 1.0 / SWD_FREQUENCY else 0.0
+
+
+@numba.njit(**JIT)
+def _speed_hold(table, members, t, states, out):
+    for b in members:
+        target_speed, gain, coast_after, mass, rolling_resistance, air_density, drag_area, radius, peak = table[b]
+        u = states[b, S_U]
+        force = (mass * gain * (target_speed - u) + rolling_resistance * mass * GRAVITY
+                 + 0.5 * air_density * drag_area * u * abs(u))
+        out[b] = 0.0 if t[b] >= coast_after else min(max(force * radius / 4.0, -peak), peak)
 
 
 @dataclass(frozen=True)
@@ -51,13 +103,10 @@ class Constant(VectorisedDriver):
     angle: float
     start: float = 0.0
 
+    kernel = staticmethod(_constant)
+
     def row(self) -> tuple[float, ...]:
         return self.angle, self.start
-
-    @staticmethod
-    def evaluate(rows: np.ndarray, t: np.ndarray, states: np.ndarray) -> np.ndarray:
-        angle, start = rows.T
-        return np.where(t >= start, angle, 0.0)
 
 
 @dataclass(frozen=True)
@@ -69,13 +118,10 @@ class Step(VectorisedDriver):
     start: float
     rise_time: float = 0.1
 
+    kernel = staticmethod(_step)
+
     def row(self) -> tuple[float, ...]:
         return self.angle, self.start, self.rise_time
-
-    @staticmethod
-    def evaluate(rows: np.ndarray, t: np.ndarray, states: np.ndarray) -> np.ndarray:
-        angle, start, rise_time = rows.T
-        return angle * np.clip((t - start) / rise_time, 0.0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -87,14 +133,10 @@ class Sine(VectorisedDriver):
     start: float = 0.0
     cycles: float = math.inf
 
+    kernel = staticmethod(_sine)
+
     def row(self) -> tuple[float, ...]:
         return self.amplitude, self.frequency, self.start, self.cycles
-
-    @staticmethod
-    def evaluate(rows: np.ndarray, t: np.ndarray, states: np.ndarray) -> np.ndarray:
-        amplitude, frequency, start, cycles = rows.T
-        phase = (t - start) * frequency
-        return np.where((phase >= 0.0) & (phase <= cycles), amplitude * np.sin(2.0 * math.pi * phase), 0.0)
 
 
 @dataclass(frozen=True)
@@ -105,14 +147,10 @@ class Ramp(VectorisedDriver):
     start: float = 0.0
     limit: float = math.inf
 
+    kernel = staticmethod(_ramp)
+
     def row(self) -> tuple[float, ...]:
         return self.rate, self.start, self.limit
-
-    @staticmethod
-    def evaluate(rows: np.ndarray, t: np.ndarray, states: np.ndarray) -> np.ndarray:
-        rate, start, limit = rows.T
-        value = rate * np.maximum(t - start, 0.0)
-        return np.copysign(np.minimum(np.abs(value), limit), rate)
 
 
 @dataclass(frozen=True)
@@ -127,18 +165,10 @@ class SineWithDwell(VectorisedDriver):
     amplitude: float
     start: float = 1.0
 
+    kernel = staticmethod(_sine_with_dwell)
+
     def row(self) -> tuple[float, ...]:
         return self.amplitude, self.start
-
-    @staticmethod
-    def evaluate(rows: np.ndarray, t: np.ndarray, states: np.ndarray) -> np.ndarray:
-        amplitude, start = rows.T
-        tau = t - start
-        three_quarters = 0.75 / SWD_FREQUENCY
-        dwelling = (tau > three_quarters) & (tau <= three_quarters + SWD_DWELL)
-        tau = np.where(tau > three_quarters, tau - SWD_DWELL, tau)  # the last quarter after the dwell
-        sine = amplitude * np.sin(2.0 * math.pi * SWD_FREQUENCY * tau)
-        return np.where(dwelling, -amplitude, np.where((tau > 0.0) & (tau <= 1.0 / SWD_FREQUENCY), sine, 0.0))
 
     @property
     def end(self) -> float:
@@ -251,60 +281,49 @@ class SpeedHold(VectorisedDriver):
     gain: float = 1.0  #: [1/s]
     coast_after: float = math.inf
 
+    kernel = staticmethod(_speed_hold)
+
     def row(self) -> tuple[float, ...]:
         p = self.params
         return (self.target_speed, self.gain, self.coast_after, p.mass, p.rolling_resistance, p.air_density,
                 p.drag_area, p.wheel_radius, p.motor_peak_torque)
 
-    @staticmethod
-    def evaluate(rows: np.ndarray, t: np.ndarray, states: np.ndarray) -> np.ndarray:
-        target_speed, gain, coast_after, mass, rolling_resistance, air_density, drag_area, radius, peak = rows.T
-        u = states[:, S_U]
-        force = (mass * gain * (target_speed - u) + rolling_resistance * mass * GRAVITY
-                 + 0.5 * air_density * drag_area * u * np.abs(u))
-        torque = np.clip(force * radius / 4.0, -peak, peak)
-        return np.where(t >= coast_after, 0.0, torque)
-
 
 class DriverBatch:
-    """The drivers of B vehicles (steering profiles or speed holders), evaluated together:
-    the :class:`VectorisedDriver` s of one class (and parameter count) as one ``evaluate`` over
-    a (B, k) parameter table kept up to date by :meth:`replace`; any other callable
+    """The drivers of B vehicles (steering profiles or speed holders), evaluated together: the
+    :class:`VectorisedDriver` s of one class (and parameter count) by one kernel call over a
+    (B, k) parameter table that :meth:`replace` keeps up to date; any other callable
     (:class:`PathFollower`, a user's function) one vehicle at a time."""
 
     def __init__(self, drivers: Sequence[Callable[[float, np.ndarray], float]]):
         self.drivers = list(drivers)
-        self._tables: dict[tuple[type, int], tuple[np.ndarray, np.ndarray]] = {}  # key: (member mask, rows)
-        self._looped = np.zeros(len(self.drivers), dtype=bool)
-        self.replace(np.arange(len(self.drivers)), self.drivers)
+        self._keys: list[tuple[type, int] | None] = [None] * len(self.drivers)  # None: called one by one
+        self._tables: dict[tuple[type, int], np.ndarray] = {}
+        self.replace(range(len(self.drivers)), self.drivers)
 
     def replace(self, members: Sequence[int], drivers: Sequence[Callable[[float, np.ndarray], float]]) -> None:
         """Vehicles ``members`` get the new ``drivers`` (one each, in order)."""
         for b, driver in zip(members, drivers):
             self.drivers[b] = driver
-            for mask, _ in self._tables.values():
-                mask[b] = False
-            self._looped[b] = not isinstance(driver, VectorisedDriver)
-            if self._looped[b]:
-                continue
-            row = driver.row()
-            key = (type(driver), len(row))
-            if key not in self._tables:
-                self._tables[key] = (np.zeros(len(self.drivers), dtype=bool), np.zeros((len(self.drivers), len(row))))
-            mask, table = self._tables[key]
-            mask[b], table[b] = True, row
+            self._keys[b] = None
+            if isinstance(driver, VectorisedDriver):
+                row = driver.row()
+                self._keys[b] = key = (type(driver), len(row))
+                if key not in self._tables:
+                    self._tables[key] = np.zeros((len(self.drivers), len(row)))
+                self._tables[key][b] = row
+        self._members = {key: np.array([b for b, k in enumerate(self._keys) if k == key], dtype=np.int64)
+                         for key in self._tables}
+        self._looped = np.array([b for b, k in enumerate(self._keys) if k is None], dtype=np.int64)
 
     def __call__(self, t: np.ndarray, states: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         """Outputs (R,) of the drivers of vehicles ``rows`` (R,) (default: all B) from every
-        vehicle's time t (B,) [s] and plant state (B, NX)."""
-        rows = np.arange(len(self.drivers)) if rows is None else rows
-        out = np.zeros(len(rows))
-        for (kind, _), (mask, table) in self._tables.items():
-            selected = mask[rows]
-            if selected.any():
-                r = rows[selected]
-                out[selected] = kind.evaluate(table[r], t[r], states[r])
-        for j in np.flatnonzero(self._looped[rows]):
-            b = rows[j]
-            out[j] = self.drivers[b](t[b], states[b])
-        return out
+        vehicle's time t (B,) [s] and plant state (B, NX) (float64, C-contiguous)."""
+        out = np.zeros(len(self.drivers))
+        for key, members in self._members.items():
+            if len(members):
+                key[0].kernel(self._tables[key], members, t, states, out)
+        if len(self._looped):
+            for b in self._looped if rows is None else np.intersect1d(self._looped, rows):
+                out[b] = self.drivers[b](t[b], states[b])
+        return out if rows is None else out[rows]

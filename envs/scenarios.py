@@ -26,12 +26,14 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
+import numba
 import numpy as np
 
 from envs import courses
 from envs.driver import Constant, PathFollower, Ramp, Sine, SineWithDwell, SpeedHold, Step, VectorisedDriver
 from envs.road import FrictionMap, PatchMap, as_friction_map, patch, split, uniform
 from envs.vehicle import GRAVITY, VehicleParams, initial_state
+from estimation.jit import JIT
 
 Steering = Callable[[float, np.ndarray], float]
 
@@ -234,20 +236,26 @@ def random(speed_kph=None, mu=None, duration=10.0, steering=None, seed=0, rear_s
                     rear_steer_feedforward=rear_steer_feedforward, params=params)
 
 
+@numba.njit(**JIT)
+def _sum_of_sines(table, members, t, states, out):
+    n = table.shape[1] // 3
+    for b in members:
+        total = 0.0
+        for i in range(n):
+            total += table[b, i] * math.sin(2 * math.pi * table[b, n + i] * t[b] + table[b, 2 * n + i])
+        out[b] = min(t[b], 1.0) * total  # faded in over the first second
+
+
 @dataclass(frozen=True)
 class _SumOfSines(VectorisedDriver):
     amplitudes: tuple[float, ...]
     frequencies: tuple[float, ...]
     phases: tuple[float, ...]
 
+    kernel = staticmethod(_sum_of_sines)
+
     def row(self) -> tuple[float, ...]:
         return self.amplitudes + self.frequencies + self.phases
-
-    @staticmethod
-    def evaluate(rows: np.ndarray, t: np.ndarray, states: np.ndarray) -> np.ndarray:
-        amplitudes, frequencies, phases = np.split(rows, 3, axis=1)
-        ramp = np.minimum(t, 1.0)  # fade in over the first second
-        return ramp * np.sum(amplitudes * np.sin(2 * math.pi * frequencies * t[:, None] + phases), axis=1)
 
 
 _BUILDERS: dict[str, Callable[..., Scenario]] = {

@@ -244,8 +244,9 @@ class ClosedLoop:
         t, state, aux = self.t[rows], self.state[rows], self.aux[rows]
         reading = self.sensors.measure(sensor_truth(state, aux), t, rows)
         truth = true_estimate(state, aux)
-        steering = self.steering_drivers(self.t, self.state, rows)
-        base = np.repeat(self.speed_drivers(self.t, self.state, rows)[:, None], 4, axis=1)
+        part = None if len(rows) == self.batch_size else rows
+        steering = self.steering_drivers(self.t, self.state, part)
+        base = np.repeat(self.speed_drivers(self.t, self.state, part)[:, None], 4, axis=1)
         if len(rows) < self.batch_size:  # merge into copies: records handed out earlier stay intact
             old = self._sample
             reading = SensorReading(*(_merged(full, part, rows) for full, part in zip(old.reading, reading)))
