@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from envs import simulate
-from envs.scenarios import make_scenario
+from envs.scenarios import PAPER_SCENARIOS, make_scenario
 from envs.sensors import CHANNELS, Fault, SensorParams
-from envs.vehicle import VehicleParams
+from envs.vehicle import A_USAGE, VehicleParams
 from estimation import ESTIMATORS, make_estimator
 from estimation.joint import ZERO_POINT_TIME_CONSTANT, ZP_OFFSET
 from estimation.ckf import ckf_predict, ckf_update
@@ -322,6 +322,29 @@ def test_joint_estimator_follows_a_friction_drop_and_the_dyc_stays_stable():
     last = joint.t >= joint.t[-1] - 2.0
     assert abs(joint.estimate.mu[last].mean() - 0.3) < 0.15
     assert np.all(joint.truth.mu[last] == pytest.approx(0.3))
+
+
+@pytest.mark.parametrize("scenario", PAPER_SCENARIOS)
+def test_joint_meets_the_papers_accuracy_targets_on_its_scenarios(scenario):
+    """Issue 4 on the mismatched plant with data-sheet sensor noise (seed 0): joint's sideslip
+    RMSE <= 0.2 deg and below ekf's and ckf's (measured 0.008 / 0.122 / 0.177 / 0.005 / 0.120
+    deg in PAPER_SCENARIOS order). mu: from 1 s after the first instant a tyre of the truth
+    uses more than half its grip (Dugoff's mu-sensitive regime), the per-wheel error averages
+    <= 0.05 (measured step 0.024, sine 0.022, slalom 0.035; single samples reach 0.08-0.15 on
+    the sine and the slalom, so a per-sample bound of 0.05 does not hold); where no tyre ever
+    does (both lane changes), mu_hat is held at its prior."""
+    runs = {name: simulate(scenario, estimator=name, seed=0) for name in ("ekf", "ckf", "joint")}
+    beta = {name: np.degrees(rmse(traj.estimate.beta, traj.truth.beta)) for name, traj in runs.items()}
+    assert beta["joint"] <= 0.2
+    assert beta["joint"] < min(beta["ekf"], beta["ckf"])
+    joint = runs["joint"]
+    observable = np.flatnonzero(joint.aux[:, A_USAGE:A_USAGE + 4].max(axis=1) > 0.5)
+    if len(observable) == 0:
+        assert np.all(joint.estimate.mu == joint.estimate.mu[0])
+        return
+    after = joint.t >= joint.t[observable[0]] + 1.0
+    assert after.sum() > 500  # seconds of observable driving are left to judge
+    assert np.mean(np.abs(joint.estimate.mu[after] - joint.truth.mu[after])) <= 0.05
 
 
 @pytest.mark.parametrize("seed", [11, 12])

@@ -120,3 +120,10 @@ def test_tuning_criteria_likelihood_and_truth_and_a_bad_name():
     assert np.isfinite(truth[0]) and truth[0] != nll[0]
     with pytest.raises(ValueError, match="likelihood9"):
         replay_cost(X[:1], traj, criterion="likelihood9")
+
+
+def test_mu_noise_scan_rejects_a_bad_candidate_by_value():
+    from training.tune import mu_noise_scan
+
+    with pytest.raises(ValueError, match="-0.5"):
+        mu_noise_scan(grid=(0.3, -0.5), seeds=(2000,), progress=False)

@@ -116,8 +116,13 @@ def _estimate(args: argparse.Namespace) -> int:
 
 
 def _tune(args: argparse.Namespace) -> int:
-    from training.tune import OUTPUT, tune
+    from training.tune import OUTPUT, mu_noise_scan, tune
 
+    if args.mu_noise:
+        errors = mu_noise_scan()
+        print("| mu_accel_std [m/s^2] | mean abs mu error, last half |\n|---:|---:|")
+        print("\n".join(f"| {g:g} | {e:.3f} |" for g, e in errors.items()))
+        return 0
     try:
         data = tune(args.agents, args.iterations, args.seed, Path(args.out) if args.out else OUTPUT, args.optimizer,
                     args.duration, criterion=args.criterion)
@@ -214,6 +219,8 @@ def build_parser() -> argparse.ArgumentParser:
     tune.add_argument("--optimizer", choices=METHODS, default="alo",
                       help="alo: the paper's antlion optimizer; cmaes: CMA-ES; random: random search")
     tune.add_argument("--out", help="output JSON (default: estimation/data/tuned_noise.json)")
+    tune.add_argument("--mu-noise", action="store_true",
+                      help="instead: scan the joint estimator's mu_accel_std on held-out random scenarios (prints a table)")
     tune.set_defaults(func=_tune)
     swd = sub.add_parser("swd", help="FMVSS 126 sine-with-dwell series: the regulation's table")
     swd.add_argument("--mu", type=float, nargs="+", default=[1.0, 0.5, 0.3], help="road friction values")

@@ -29,6 +29,8 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import NamedTuple
 
@@ -37,9 +39,10 @@ import numpy as np
 from envs.scenarios import make_scenario
 from envs.sensors import SensorReading
 from envs.simulation import Trajectory, simulate
-from estimation import NoiseParams, make_estimator
+from estimation import NoiseParams, make_estimator, tuned_noise
 from estimation.optimizers import minimize
 from training.io import atomic_write_text
+from training.pool import parallel_map
 
 OUTPUT = Path(__file__).resolve().parent.parent / "estimation" / "data" / "tuned_noise.json"
 BOUNDS = [(-1.5, 1.5)] * 4  #: log10 factors on (process, accelerometer, gyro, wheel-speed) noise
@@ -108,6 +111,31 @@ def replay_cost(log10_factors: np.ndarray, traj: Trajectory, kind: str = "alo-fk
     cost = (error(run.beta, traj.truth.beta) / math.radians(0.1) + error(run.r, traj.truth.r) / 0.01
             + error(run.u, traj.truth.u) / 0.05)
     return np.where(np.isfinite(cost), cost, math.inf)
+
+
+MU_NOISE_SEEDS = tuple(range(2000, 2024))  #: random scenarios of the mu-noise scan (used by no report)
+MU_NOISE_GRID = (0.15, 0.3, 0.45, 0.6, 0.9, 1.2)  #: candidate mu_accel_std [m/s^2]
+
+
+def _mu_error(job: tuple[int, float]) -> float:
+    seed, mu_accel_std = job
+    scenario = make_scenario("random", seed=seed, duration=10.0)
+    noise = replace(tuned_noise() or NoiseParams(), mu_accel_std=mu_accel_std)
+    traj = simulate(scenario, estimator=make_estimator("joint", scenario.vehicle_params, noise=noise), seed=seed)
+    half = traj.t > traj.t[-1] / 2
+    return float(np.mean(np.abs(traj.estimate.mu[half] - traj.truth.mu[half])))
+
+
+def mu_noise_scan(grid: Sequence[float] = MU_NOISE_GRID, seeds: Sequence[int] = MU_NOISE_SEEDS,
+                  jobs: int | None = None, progress: bool = True) -> dict[float, float]:
+    """The joint estimator's mean |mu_hat - mu| over the last half of open-loop random scenarios
+    ``seeds`` (10 s, sensor noise seeded alike) for each mu_accel_std of ``grid`` (the rest of
+    the noise as shipped): the scan behind NoiseParams.mu_accel_std."""
+    if not grid or not all(math.isfinite(g) and g > 0 for g in grid):
+        raise ValueError(f"mu_accel_std candidates must be finite and > 0, got {list(grid)!r}")
+    jobs_list = [(seed, float(g)) for g in grid for seed in seeds]
+    errors = list(parallel_map(_mu_error, jobs_list, jobs, "mu-noise scan", progress))
+    return {float(g): float(np.mean(errors[i * len(seeds):(i + 1) * len(seeds)])) for i, g in enumerate(grid)}
 
 
 def tune(n_agents: int = 30, iterations: int = 100, seed: int = 0, out: Path = OUTPUT, optimizer: str = "alo",
