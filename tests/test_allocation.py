@@ -40,8 +40,10 @@ def test_feasible_demands_are_met_exactly_at_the_least_workload_scipy_finds():
         assert forces[b].sum() == pytest.approx(drive, abs=1e-6)
         assert LEVER @ forces[b] == pytest.approx(moment[b], abs=1e-6)
         # the same QP in workload-normalised forces y = Fx / (mu Fz), which SLSQP handles well
+        # (scipy 1.17's SLSQP needs more than its default 100 iterations on some of these)
         reference = minimize(lambda y: y @ y, np.zeros(4), jac=lambda y: 2 * y, method="SLSQP",
-                             bounds=list(zip(-limits[b] / cap, limits[b] / cap)), options={"ftol": 1e-13},
+                             bounds=list(zip(-limits[b] / cap, limits[b] / cap)),
+                             options={"ftol": 1e-13, "maxiter": 1000},
                              constraints=[{"type": "eq", "fun": lambda y: [(cap @ y - drive) / 1e3,
                                                                            (LEVER * cap @ y - moment[b]) / 1e3]}])
         assert reference.success, reference.message
