@@ -31,6 +31,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
+import numba
 import numpy as np
 
 #: Channel order of every reading (13 channels).
@@ -110,6 +111,29 @@ class SensorReading(NamedTuple):
 
 
 NOISE_BLOCK = 256  #: samples of noise each vehicle draws from its generator at a time
+_DONE, _BLOCK_USED_UP = -1, -2  #: statuses of _noisy_readings (>= 0: a non-finite channel)
+
+
+@numba.njit(cache=True)
+def _noisy_readings(truth: np.ndarray, rows: np.ndarray, bias: np.ndarray, normal: np.ndarray, noise: np.ndarray,
+                    cursor: np.ndarray, values: np.ndarray) -> int:
+    """values[i] = truth[i] + bias[rows[i]] + normal[rows[i], cursor[rows[i]]] * noise, advancing each
+    row's noise cursor: truth, values (M, 13); bias (B, 13); normal (B, NOISE_BLOCK, 13); cursor (B,).
+    Returns _DONE; or, writing nothing, the first channel of a non-finite truth value, or
+    _BLOCK_USED_UP when a row's noise block is exhausted (refill and call again)."""
+    for i in range(truth.shape[0]):
+        for c in range(truth.shape[1]):
+            if not np.isfinite(truth[i, c]):
+                return c
+        if cursor[rows[i]] >= NOISE_BLOCK:
+            return _BLOCK_USED_UP
+    for i in range(truth.shape[0]):
+        b = rows[i]
+        k = cursor[b]
+        for c in range(truth.shape[1]):
+            values[i, c] = truth[i, c] + bias[b, c] + normal[b, k, c] * noise[c]
+        cursor[b] = k + 1
+    return _DONE
 
 
 class SensorModel:
@@ -129,6 +153,7 @@ class SensorModel:
         self.params = params
         self.faults = tuple(faults)
         self.batch_size = batch_size
+        self._all_rows = np.arange(batch_size)
         self._noise = np.asarray(params.noise_std, dtype=float)
         self._bias_std = np.asarray(params.bias_std, dtype=float)
         n = len(CHANNELS)
@@ -167,22 +192,23 @@ class SensorModel:
         """Readings of the true quantities ``truth`` (M, 13) in :data:`CHANNELS` order at time ``t``
         [s] (scalar, or (M,) when the vehicles' clocks differ) for the vehicles ``members`` (M,)
         indices (all B vehicles if None). Each vehicle's stream advances by one sample."""
-        rows = np.arange(self.batch_size) if members is None else np.asarray(members, dtype=np.int64)
-        truth = np.asarray(truth, dtype=float)
+        rows = self._all_rows if members is None else np.ascontiguousarray(members, dtype=np.int64)
+        truth = np.ascontiguousarray(truth, dtype=np.float64)
         if truth.shape != (len(rows), len(CHANNELS)):
             raise ValueError(f"sensor truth must have shape {(len(rows), len(CHANNELS))}, got {truth.shape}")
-        if not np.all(np.isfinite(truth)):
-            bad = CHANNELS[int(np.argwhere(~np.isfinite(truth))[0, 1])]
-            raise ValueError(f"non-finite true value on sensor channel {bad!r}")
-        for b in rows[self._cursor[rows] >= NOISE_BLOCK]:
-            self._refill(b)
-        cursor = self._cursor[rows]
-        normal, uniform = self._normal[rows, cursor], self._uniform[rows, cursor] if self.faults else None
-        self._cursor[rows] = cursor + 1
         t = np.full(len(rows), t, dtype=float) if np.ndim(t) == 0 else np.asarray(t, dtype=float)
         if t.shape != (len(rows),):
             raise ValueError(f"time must be a scalar or have shape ({len(rows)},), got {t.shape}")
-        values = truth + self.bias[rows] + normal * self._noise
+        uniform = self._uniform[rows, self._cursor[rows] % NOISE_BLOCK] if self.faults else None
+        values = np.empty(truth.shape)
+        status = _noisy_readings(truth, rows, self.bias, self._normal, self._noise, self._cursor, values)
+        if status == _BLOCK_USED_UP:
+            for b in rows[self._cursor[rows] >= NOISE_BLOCK]:
+                self._refill(b)
+            uniform = self._uniform[rows, self._cursor[rows]] if self.faults else None
+            status = _noisy_readings(truth, rows, self.bias, self._normal, self._noise, self._cursor, values)
+        if status >= 0:
+            raise ValueError(f"non-finite true value on sensor channel {CHANNELS[status]!r}")
         valid = np.ones(truth.shape, dtype=bool)
         if self.faults:
             self._inject_faults(rows, t, values, valid, uniform)

@@ -625,7 +625,7 @@ def step(state: np.ndarray, controls: np.ndarray, params: VehicleParams, road, d
     kernel = _advance_parallel if batch >= PARALLEL_MIN_BATCH else _advance_serial
     kernel(out, controls, params.kernel_array, params.kernel_tyre_array, tables.base_mu, tables.rects,
            tables.mu_given, tables.use_map, float(dt), int(n_steps), aux, status)
-    if status.any():
+    if np.count_nonzero(status):
         b = int(np.flatnonzero(status)[0])
         code = int(status[b])
         if code == 1:
