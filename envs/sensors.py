@@ -199,19 +199,17 @@ class SensorModel:
         t = np.full(len(rows), t, dtype=float) if np.ndim(t) == 0 else np.asarray(t, dtype=float)
         if t.shape != (len(rows),):
             raise ValueError(f"time must be a scalar or have shape ({len(rows)},), got {t.shape}")
-        uniform = self._uniform[rows, self._cursor[rows] % NOISE_BLOCK] if self.faults else None
         values = np.empty(truth.shape)
         status = _noisy_readings(truth, rows, self.bias, self._normal, self._noise, self._cursor, values)
         if status == _BLOCK_USED_UP:
             for b in rows[self._cursor[rows] >= NOISE_BLOCK]:
                 self._refill(b)
-            uniform = self._uniform[rows, self._cursor[rows]] if self.faults else None
             status = _noisy_readings(truth, rows, self.bias, self._normal, self._noise, self._cursor, values)
         if status >= 0:
             raise ValueError(f"non-finite true value on sensor channel {CHANNELS[status]!r}")
         valid = np.ones(truth.shape, dtype=bool)
-        if self.faults:
-            self._inject_faults(rows, t, values, valid, uniform)
+        if self.faults:  # the fault draws of the sample just taken (the cursor has moved past it)
+            self._inject_faults(rows, t, values, valid, self._uniform[rows, self._cursor[rows] - 1])
         return SensorReading(values, valid, t)
 
     def _inject_faults(self, rows: np.ndarray, t: np.ndarray, values: np.ndarray, valid: np.ndarray,
