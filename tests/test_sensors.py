@@ -27,6 +27,24 @@ def test_same_seed_same_stream_different_seed_different_stream():
     assert not np.array_equal(a, c)
 
 
+def test_a_reading_is_truth_plus_bias_plus_the_vehicles_own_draws_across_block_refills():
+    """One car's stream, redrawn from its generator: a bias draw, then blocks of NOISE_BLOCK
+    normal and uniform draws; the compiled noise step must follow it sample for sample."""
+    from envs.sensors import NOISE_BLOCK
+
+    params = SensorParams()
+    n = 2 * NOISE_BLOCK + 10
+    values, _, truth, _ = run(seed=11, n=n, batch=1, params=params)
+    rng = np.random.default_rng(11)
+    bias = rng.standard_normal(len(CHANNELS)) * np.array(params.bias_std)
+    normal = []
+    for _ in range(3):
+        normal.append(rng.standard_normal((NOISE_BLOCK, len(CHANNELS))))
+        rng.random((NOISE_BLOCK, 2))
+    expected = truth[0] + bias + np.concatenate(normal)[:n] * np.array(params.noise_std)
+    np.testing.assert_array_equal(values[:, 0], expected)
+
+
 def test_noise_and_bias_have_the_configured_statistics():
     params = SensorParams()
     values, valid, truth, model = run(n=20000, batch=1)
