@@ -34,6 +34,8 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
+from estimation.jit import JIT
+
 #: Channel order of every reading (13 channels).
 CHANNELS = ("ax", "ay", "yaw_rate", "omega_fl", "omega_fr", "omega_rl", "omega_rr", "delta_f", "delta_r",
             "torque_fl", "torque_fr", "torque_rl", "torque_rr")
@@ -114,7 +116,7 @@ NOISE_BLOCK = 256  #: samples of noise each vehicle draws from its generator at 
 _DONE, _BLOCK_USED_UP = -1, -2  #: statuses of _noisy_readings (>= 0: a non-finite channel)
 
 
-@numba.njit(cache=True)
+@numba.njit(**JIT)
 def _noisy_readings(truth: np.ndarray, rows: np.ndarray, bias: np.ndarray, normal: np.ndarray, noise: np.ndarray,
                     cursor: np.ndarray, values: np.ndarray) -> int:
     """values[i] = truth[i] + bias[rows[i]] + normal[rows[i], cursor[rows[i]]] * noise, advancing each
@@ -192,7 +194,14 @@ class SensorModel:
         """Readings of the true quantities ``truth`` (M, 13) in :data:`CHANNELS` order at time ``t``
         [s] (scalar, or (M,) when the vehicles' clocks differ) for the vehicles ``members`` (M,)
         indices (all B vehicles if None). Each vehicle's stream advances by one sample."""
-        rows = self._all_rows if members is None else np.ascontiguousarray(members, dtype=np.int64)
+        if members is None:
+            rows = self._all_rows
+        else:  # checked here: the compiled step indexes without bounds checks
+            rows = np.ascontiguousarray(members, dtype=np.int64)
+            if rows.ndim != 1 or (len(rows) and not (0 <= rows.min() and rows.max() < self.batch_size)) \
+                    or len(np.unique(rows)) != len(rows):
+                raise ValueError(f"members must be distinct indices into the batch of {self.batch_size}, "
+                                 f"got {members!r}")
         truth = np.ascontiguousarray(truth, dtype=np.float64)
         if truth.shape != (len(rows), len(CHANNELS)):
             raise ValueError(f"sensor truth must have shape {(len(rows), len(CHANNELS))}, got {truth.shape}")

@@ -176,7 +176,6 @@ class ClosedLoop:
         self.steering_drivers = DriverBatch([s.steering for s in self.scenarios])
         self.speed_drivers = DriverBatch([s.speed_driver() for s in self.scenarios])
         self.k = np.zeros(self.batch_size, dtype=np.int64)
-        self._all_rows = np.arange(self.batch_size)
         self._fresh = np.ones(self.batch_size, dtype=bool)  # estimator needs a reset
         self._stale = np.ones(self.batch_size, dtype=bool)  # needs sensing at the current time
         self._sample: Sample | None = None
@@ -244,7 +243,7 @@ class ClosedLoop:
             return self._sample
         now = self.t
         if n_stale == self.batch_size:
-            rows, part, t, state, aux = self._all_rows, None, now, self.state, self.aux
+            part, t, state, aux = None, now, self.state, self.aux
         else:
             rows = part = np.flatnonzero(self._stale)
             t, state, aux = now[rows], self.state[rows], self.aux[rows]

@@ -104,7 +104,8 @@ class NoiseParams:
     #: 0.15-1.2 by ``fourwis tune --mu-noise`` on 24 random scenarios that no report uses
     #: (mean |mu_hat - mu| over the last half: 0.143 at the earlier hand-set 0.3, 0.137 at 0.6,
     #: the grid's best; a shallow optimum). It was first noticed on the paper's scenarios,
-    #: where 0.3 -> 0.6 cut the mu error on the sine / slalom from 0.10 / 0.10 to 0.02 / 0.03:
+    #: where 0.3 -> 0.6 cut the mu error on the sine / slalom from 0.09 / 0.10 to 0.02 / 0.04
+    #: (last half, sensor seed 0):
     #: with the smaller value the filter over-trusts a model whose error is correlated in time
     #: and reads mu high (README, "Friction model error").
     mu_accel_std: float = 0.6

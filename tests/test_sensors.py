@@ -115,3 +115,12 @@ def test_bad_truth_raises_naming_the_channel():
         model.measure(np.zeros((2, len(CHANNELS))), 0.0)
     with pytest.raises(ValueError, match="noise_std"):
         SensorParams(noise_std=(1.0,) * 12)
+
+
+@pytest.mark.parametrize("members", [[7], [2], [-1], [0, 0]])
+def test_bad_members_raise_instead_of_reading_outside_the_batch(members):
+    model = SensorModel(SensorParams(), (), 2, np.random.default_rng(0))
+    before = model._cursor.copy()
+    with pytest.raises(ValueError, match="members"):
+        model.measure(np.zeros((len(members), len(CHANNELS))), 0.0, members)
+    np.testing.assert_array_equal(model._cursor, before)  # no stream advanced
