@@ -35,6 +35,7 @@ import numba
 import numpy as np
 
 from estimation.jit import JIT
+from estimation.types import member_rows
 
 #: Channel order of every reading (13 channels).
 CHANNELS = ("ax", "ay", "yaw_rate", "omega_fl", "omega_fr", "omega_rl", "omega_rr", "delta_f", "delta_r",
@@ -155,7 +156,6 @@ class SensorModel:
         self.params = params
         self.faults = tuple(faults)
         self.batch_size = batch_size
-        self._all_rows = np.arange(batch_size)
         self._noise = np.asarray(params.noise_std, dtype=float)
         self._bias_std = np.asarray(params.bias_std, dtype=float)
         n = len(CHANNELS)
@@ -194,14 +194,7 @@ class SensorModel:
         """Readings of the true quantities ``truth`` (M, 13) in :data:`CHANNELS` order at time ``t``
         [s] (scalar, or (M,) when the vehicles' clocks differ) for the vehicles ``members`` (M,)
         indices (all B vehicles if None). Each vehicle's stream advances by one sample."""
-        if members is None:
-            rows = self._all_rows
-        else:  # checked here: the compiled step indexes without bounds checks
-            rows = np.ascontiguousarray(members, dtype=np.int64)
-            if rows.ndim != 1 or (len(rows) and not (0 <= rows.min() and rows.max() < self.batch_size)) \
-                    or len(np.unique(rows)) != len(rows):
-                raise ValueError(f"members must be distinct indices into the batch of {self.batch_size}, "
-                                 f"got {members!r}")
+        rows = member_rows(members, self.batch_size)
         truth = np.ascontiguousarray(truth, dtype=np.float64)
         if truth.shape != (len(rows), len(CHANNELS)):
             raise ValueError(f"sensor truth must have shape {(len(rows), len(CHANNELS))}, got {truth.shape}")

@@ -42,7 +42,6 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass, field, replace
-from functools import lru_cache
 from importlib import resources
 from pathlib import Path
 
@@ -55,7 +54,7 @@ from estimation.federated import fuse, sharing_coefficients
 from estimation.jit import JIT
 from estimation.model import (P_IZ, P_RW, ModelParams, body_forces, dugoff_lambdas, steer_trig, transition,
                               wheel_kinematics, wheel_loads)
-from estimation.types import Estimate
+from estimation.types import Estimate, member_rows
 
 N_STATE = 6
 I_U, I_V, I_AX, I_AY, I_R, I_GAMMA = range(N_STATE)
@@ -514,13 +513,6 @@ def _step_parallel(rows, kind, pk, dt, huber_c, zero_point_tau, process_var, sen
                   OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS, ZERO_POINT, LAST_NLL, values, valid, out, status)
 
 
-@lru_cache(maxsize=8)
-def _all_rows(batch_size: int) -> np.ndarray:
-    """Indices 0..batch_size-1 (the rows of a full step), built once per batch size; never
-    written to (kept writeable: a read-only array would be a second type for numba to compile)."""
-    return np.arange(batch_size)
-
-
 @dataclass
 class StateEstimator:
     """Batched estimator of ``kind`` (see module doc) for model ``params`` at step ``dt`` [s].
@@ -609,12 +601,7 @@ class StateEstimator:
             raise ValueError(f"sensor reading must have shape {(B, 13)}, got {values.shape} / {valid.shape}")
         if self._process_var.shape[0] not in (1, B):
             raise ValueError(f"per-member noise for {self._process_var.shape[0]} members, the batch has {B}")
-        if members is None:
-            rows = _all_rows(B)
-        else:
-            rows = np.asarray(members, dtype=np.int64)
-            if rows.ndim != 1 or (len(rows) and not (0 <= rows.min() and rows.max() < B)):
-                raise ValueError(f"members must be indices into the batch of {B}, got {members!r}")
+        rows = member_rows(members, B)
         state = [getattr(self, name) for name in STATE_FIELDS]
         out, status = np.empty((len(rows), N_OUT)), np.zeros(len(rows), dtype=np.int64)
         kernel = _step_parallel if len(rows) >= PARALLEL_MIN_BATCH else _step_serial

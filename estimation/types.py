@@ -1,7 +1,9 @@
-"""Types shared by every estimator: what goes out of a step."""
+"""Types shared by every estimator: what goes out of a step, and which rows of a batch a
+step works on."""
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
@@ -29,3 +31,22 @@ class Estimate(NamedTuple):
     fz: np.ndarray
     beta_std: np.ndarray
     mu_std: np.ndarray
+
+
+@lru_cache(maxsize=8)
+def _all_rows(batch_size: int) -> np.ndarray:
+    return np.arange(batch_size)
+
+
+def member_rows(members, batch_size: int) -> np.ndarray:
+    """The rows (M,) int64 a batched step works on: all ``batch_size`` rows for None (one cached
+    array per batch size, never to be written; kept writeable, as a read-only array would be a
+    second type for numba to compile), else ``members`` checked to be distinct indices into the
+    batch, since the compiled steps index without bounds checks (ValueError naming them)."""
+    if members is None:
+        return _all_rows(batch_size)
+    rows = np.ascontiguousarray(members, dtype=np.int64)
+    if rows.ndim != 1 or (len(rows) and not (0 <= rows.min() and rows.max() < batch_size)) \
+            or len(np.unique(rows)) != len(rows):
+        raise ValueError(f"members must be distinct indices into the batch of {batch_size}, got {members!r}")
+    return rows

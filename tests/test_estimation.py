@@ -418,3 +418,18 @@ def test_zero_point_learning_finds_an_accelerometer_offset_in_steady_driving_onl
     sine = make_estimator("joint", VehicleParams())
     simulate("paper_sine", estimator=sine, seed=0, sensor_params=sensors, faults=offset)
     assert sine.zero_point[0, ZP_OFFSET] == 0.0  # the steering never rests for ZERO_POINT_SETTLE
+
+
+@pytest.mark.parametrize("members", [[3], [-1], [1, 1]])
+def test_a_step_on_bad_members_raises_and_leaves_the_filters_alone(members):
+    from envs.sensors import SensorReading
+
+    est = make_estimator("joint", VehicleParams())
+    values = np.zeros((3, len(CHANNELS)))
+    values[:, 3:7] = 20.0 / VehicleParams().wheel_radius
+    reading = SensorReading(values, np.ones_like(values, dtype=bool), np.zeros(3))
+    est.reset(reading, np.full(3, 20.0))
+    before = est.x.copy()
+    with pytest.raises(ValueError, match="members"):
+        est.step(reading, members=np.array(members))
+    np.testing.assert_array_equal(est.x, before)
