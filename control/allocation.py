@@ -35,7 +35,7 @@ import numba
 import numpy as np
 
 from control.reference import GRAVITY
-from estimation.jit import JIT
+from estimation.jit import JIT, scratch
 
 SIDE = (-1.0, 1.0, -1.0, 1.0)  #: -1 left wheels, +1 right wheels
 #: the 3^4 = 81 activity patterns (81, 4): each wheel free (0), at its lower (1) or upper (2) bound
@@ -71,9 +71,14 @@ def _solve_box_qp(capacity_sq, lever, lower, upper, force, moment, faces, x_best
     """min sum x_i^2 / capacity_sq_i s.t. sum x_i = force, sum lever_i x_i = moment,
     lower <= x <= upper, over the first ``faces`` activity patterns of ``_FACES`` (all 81: the
     exact optimum; 1: only the all-free closed form); False if none of them is feasible."""
-    scale_f = np.abs(lower).sum() + np.abs(upper).sum() + abs(force) + 1.0
-    scale_m = scale_f * (np.abs(lever).max() + 1.0)
-    x = np.empty(4)
+    abs_lower = abs_upper = 0.0
+    for w in range(4):
+        abs_lower += abs(lower[w])
+    for w in range(4):
+        abs_upper += abs(upper[w])
+    scale_f = abs_lower + abs_upper + abs(force) + 1.0
+    scale_m = scale_f * (max(abs(lever[0]), abs(lever[1]), abs(lever[2]), abs(lever[3])) + 1.0)
+    x = scratch((4,))
     best_cost = np.inf
     for face in range(faces):
         f_rest, m_rest = force, moment
@@ -107,7 +112,10 @@ def _solve_box_qp(capacity_sq, lever, lower, upper, force, moment, faces, x_best
             cost += x[w] ** 2 / capacity_sq[w]
         if not ok or cost >= best_cost:
             continue
-        if abs(x.sum() - force) > 1e-9 * scale_f or abs((lever * x).sum() - moment) > 1e-9 * scale_m:
+        moment_x = 0.0
+        for w in range(4):
+            moment_x += lever[w] * x[w]
+        if abs(x.sum() - force) > 1e-9 * scale_f or abs(moment_x - moment) > 1e-9 * scale_m:
             continue
         best_cost = cost
         for w in range(4):
@@ -123,8 +131,7 @@ def _allocate(base_torques, yaw_moment, fz, mu, lateral, speed, lever, motor_pea
                                speed.sum())):
         if not np.isfinite(value):
             return 1 + i
-    upper, lower, x = np.empty(4), np.empty(4), np.empty(4)
-    capacity_sq = np.empty(4)
+    upper, lower, x, capacity_sq = scratch((4,)), scratch((4,)), scratch((4,)), scratch((4,))
     for b in range(base_torques.shape[0]):
         spin = abs(speed[b]) / wheel_radius  # wheel speed [rad/s] if rolling
         motor_force = min(motor_peak_torque, motor_peak_power / max(spin, 1e-9)) / wheel_radius

@@ -20,7 +20,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from estimation.jit import JIT
+from estimation.jit import JIT, scratch
 
 DROPOUT_VARIANCE = 1e12  #: variance given to a channel without valid data (no information)
 NO_HUBER = math.inf  #: Huber threshold meaning "plain (non-robust) update"
@@ -75,15 +75,14 @@ def covariance_sqrt(P: np.ndarray, S: np.ndarray) -> bool:
 
 
 @numba.njit(**JIT)
-def matmul(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """A @ B for small matrices (plain loops: numba's BLAS call cannot be cached)."""
-    C = np.zeros((A.shape[0], B.shape[1]))
+def matmul(A: np.ndarray, B: np.ndarray, out: np.ndarray) -> None:
+    """out = A @ B for small matrices (plain loops: numba's BLAS call cannot be cached)."""
+    out[:, :] = 0.0
     for i in range(A.shape[0]):
         for k in range(A.shape[1]):
             a = A[i, k]
             for j in range(B.shape[1]):
-                C[i, j] += a * B[k, j]
-    return C
+                out[i, j] += a * B[k, j]
 
 
 @numba.njit(inline="always", **JIT)
@@ -107,10 +106,11 @@ def spd_inverse(A: np.ndarray, out: np.ndarray) -> bool:
     """Inverse of a symmetric positive definite A into out, through its (jittered if need be)
     Cholesky factor S: A^-1 = S^-T S^-1. False if A is not finite."""
     n = A.shape[0]
-    S = np.empty((n, n))
+    S = scratch((n, n))
     if not covariance_sqrt(A, S):
         return False
-    S_inv = np.zeros((n, n))  # inverse of the lower-triangular S, column by column
+    S_inv = scratch((n, n))  # inverse of the lower-triangular S, column by column
+    S_inv[:, :] = 0.0
     for c in range(n):
         for i in range(c, n):
             t = 1.0 if i == c else 0.0
@@ -131,7 +131,7 @@ def spd_inverse(A: np.ndarray, out: np.ndarray) -> bool:
 def cubature_points(x: np.ndarray, P: np.ndarray, points: np.ndarray) -> bool:
     """The 2n third-degree spherical-radial points x +/- sqrt(n) S e_j into points (2n, n)."""
     n = x.shape[0]
-    S = np.empty((n, n))
+    S = scratch((n, n))
     if not covariance_sqrt(P, S):
         return False
     c = math.sqrt(n)
@@ -176,13 +176,13 @@ def measurement_update(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nu, 
     the paper's printed indices slip) and the update redone."""
     K, n = points.shape
     m = z.shape[0]
-    z_mean = np.empty(m)
+    z_mean = scratch((m,))
     for i in range(m):
         t = 0.0
         for k in range(K):
             t += Z[k, i]
         z_mean[i] = t / K
-    Pzz = np.empty((m, m))
+    Pzz = scratch((m, m))
     for i in range(m):
         for j in range(i, m):
             t = 0.0
@@ -190,14 +190,14 @@ def measurement_update(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nu, 
                 t += (Z[k, i] - z_mean[i]) * (Z[k, j] - z_mean[j])
             Pzz[i, j] = t / K
             Pzz[j, i] = t / K
-    Pxz = np.empty((n, m))
+    Pxz = scratch((n, m))
     for i in range(n):
         for j in range(m):
             t = 0.0
             for k in range(K):
                 t += (points[k, i] - x[i]) * (Z[k, j] - z_mean[j])
             Pxz[i, j] = t / K
-    Rv = np.empty((m, m))
+    Rv = scratch((m, m))
     m_valid = 0
     for i in range(m):
         nu[i] = z[i] - z_mean[i] if valid[i] else 0.0
@@ -217,10 +217,10 @@ def measurement_update(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nu, 
     for i in range(m):
         for j in range(m):
             S[i, j] = Pzz[i, j] + 0.5 * (Rv[i, j] + Rv[j, i])
-    L = np.empty((m, m))
+    L = scratch((m, m))
     if not cholesky(S, L):
         return math.nan
-    gain = np.empty((n, m))  # K = Pxz S^-1, row by row
+    gain = scratch((n, m))  # K = Pxz S^-1, row by row
     for i in range(n):
         cholesky_solve(L, Pxz[i], gain[i])
     for i in range(n):
@@ -228,7 +228,7 @@ def measurement_update(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nu, 
         for j in range(m):
             t += gain[i, j] * nu[j]
         x_out[i] = t
-    KS = np.empty((n, m))
+    KS = scratch((n, m))
     for i in range(n):
         for j in range(m):
             t = 0.0
@@ -243,7 +243,7 @@ def measurement_update(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nu, 
             value = 0.5 * (P[i, j] + P[j, i]) - t
             P_out[i, j] = value
             P_out[j, i] = value
-    white = np.empty(m)  # L^-1 nu: maha = |white|^2
+    white = scratch((m,))  # L^-1 nu: maha = |white|^2
     log_det = 0.0
     for i in range(m):
         t = nu[i]

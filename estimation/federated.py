@@ -19,7 +19,7 @@ import numba
 import numpy as np
 
 from estimation.ckf import batch_arrays, broadcast_matrix, ckf_predict, ckf_update, spd_inverse
-from estimation.jit import JIT
+from estimation.jit import JIT, scratch
 
 BETA_FLOOR = 0.05
 
@@ -29,9 +29,9 @@ def fuse(xs: np.ndarray, Ps: np.ndarray, x_out: np.ndarray, P_out: np.ndarray, c
     """Information-weighted fusion of N estimates xs (N, n), Ps (N, n, n):
     P_g = (sum P_i^-1)^-1, x_g = P_g sum P_i^-1 x_i; confidence (N,) = trace(P_i^-1)."""
     N, n = xs.shape
-    info_sum = np.zeros((n, n))
-    weighted = np.zeros(n)
-    info = np.empty((n, n))
+    info_sum, weighted, info = scratch((n, n)), scratch((n,)), scratch((n, n))
+    info_sum[:, :] = 0.0
+    weighted[:] = 0.0
     for s in range(N):
         if not spd_inverse(Ps[s], info):
             return False

@@ -51,8 +51,8 @@ import numpy as np
 from estimation.ckf import (DROPOUT_VARIANCE, NO_HUBER, cholesky, cholesky_solve, cubature_points, matmul,
                             measurement_update, predicted_moments)
 from estimation.federated import fuse, sharing_coefficients
-from estimation.jit import JIT
-from estimation.model import (P_IZ, P_RW, ModelParams, body_forces, dugoff_lambdas, steer_trig, transition,
+from estimation.jit import JIT, scratch
+from estimation.model import (P_IZ, P_RW, ModelParams, body_forces, dugoff_lambdas, fill_steer_trig, transition,
                               wheel_kinematics, wheel_loads)
 from estimation.types import Estimate, member_rows
 
@@ -82,9 +82,18 @@ HUBER_C = 3.0
 
 
 @numba.njit(inline="always", **JIT)
+def _fill_correlated(variance: float, out: np.ndarray) -> None:
+    """out (4, 4): ``variance`` on the diagonal and MU_CORRELATION between wheels."""
+    for i in range(4):
+        for j in range(4):
+            out[i, j] = variance * (MU_CORRELATION + (1.0 - MU_CORRELATION) * (1.0 if i == j else 0.0))
+
+
 def _correlated(variance: float) -> np.ndarray:
-    """4x4 covariance with ``variance`` on the diagonal and MU_CORRELATION between wheels."""
-    return variance * (MU_CORRELATION + (1.0 - MU_CORRELATION) * np.eye(4))
+    """:func:`_fill_correlated` as a new array."""
+    out = np.empty((4, 4))
+    _fill_correlated(variance, out)
+    return out
 
 
 @dataclass(frozen=True)
@@ -261,7 +270,7 @@ def _evaluate(model, points, out, f_args, h_args, m_args) -> None:
 def _ckf_predict(x, P, Q, model, f_args, h_args, m_args, x_out, P_out) -> bool:
     """CKF time update through ``model``; False if P is not finite."""
     n = x.shape[0]
-    points, moved = np.empty((2 * n, n)), np.empty((2 * n, n))
+    points, moved = scratch((2 * n, n)), scratch((2 * n, n))
     if not cubature_points(x, P, points):
         return False
     _evaluate(model, points, moved, f_args, h_args, m_args)
@@ -273,12 +282,12 @@ def _ckf_predict(x, P, Q, model, f_args, h_args, m_args, x_out, P_out) -> bool:
 def _ckf_update(x, P, z, valid, R, huber_c, model, f_args, h_args, m_args, x_out, P_out) -> float:
     """CKF measurement update through ``model``; returns the innovation NLL (NaN on failure)."""
     n, m = x.shape[0], z.shape[0]
-    points, Z = np.empty((2 * n, n)), np.empty((2 * n, m))
+    points, Z = scratch((2 * n, n)), scratch((2 * n, m))
     if not cubature_points(x, P, points):
         return math.nan
     _evaluate(model, points, Z, f_args, h_args, m_args)
-    return measurement_update(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, np.empty(m), np.empty((m, m)),
-                              np.empty(m))
+    return measurement_update(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, scratch((m,)), scratch((m, m)),
+                              scratch((m,)))
 
 
 @numba.njit(**JIT)
@@ -287,11 +296,15 @@ def _federated(x, P, Q, beta, f_model, z1, valid1, R1, h1_model, z2, valid2, R2,
     """One federated cycle (estimation/federated.py) with two sub-filters; returns the summed
     innovation NLL (NaN on failure)."""
     n = x.shape[0]
-    xs, Ps = np.empty((2, n)), np.empty((2, n, n))
-    x_pred, P_pred = np.empty(n), np.empty((n, n))
+    xs, Ps = scratch((2, n)), scratch((2, n, n))
+    x_pred, P_pred = scratch((n,)), scratch((n, n))
+    P_shared, Q_shared = scratch((n, n)), scratch((n, n))
     total = 0.0
     for s in range(2):
-        if not _ckf_predict(x, P / beta[s], Q / beta[s], f_model, f_args, h_args, m_args, x_pred, P_pred):
+        for i in range(n):
+            for j in range(n):
+                P_shared[i, j], Q_shared[i, j] = P[i, j] / beta[s], Q[i, j] / beta[s]
+        if not _ckf_predict(x, P_shared, Q_shared, f_model, f_args, h_args, m_args, x_pred, P_pred):
             return math.nan
         if s == 0:
             nll = _ckf_update(x_pred, P_pred, z1, valid1, R1, huber_c, h1_model, f_args, h_args, m_args, xs[0], Ps[0])
@@ -300,7 +313,7 @@ def _federated(x, P, Q, beta, f_model, z1, valid1, R1, h1_model, z2, valid2, R2,
         if not math.isfinite(nll):
             return math.nan
         total += nll
-    confidence = np.empty(2)
+    confidence = scratch((2,))
     if not fuse(xs, Ps, x_out, P_out, confidence):
         return math.nan
     sharing_coefficients(confidence, beta_out)
@@ -308,31 +321,38 @@ def _federated(x, P, Q, beta, f_model, z1, valid1, R1, h1_model, z2, valid2, R2,
 
 
 @numba.njit(inline="always", **JIT)
-def _diagonal(variances) -> np.ndarray:
-    M = np.zeros((variances.shape[0], variances.shape[0]))
-    for i in range(variances.shape[0]):
-        M[i, i] = variances[i]
-    return M
+def _fill_diagonal(out, variances) -> None:
+    """out (m, m): the diagonal matrix of ``variances`` (m,) (an array or a tuple)."""
+    out[:, :] = 0.0
+    for i in range(len(variances)):
+        out[i, i] = variances[i]
 
 
 @numba.njit(**JIT)
-def _finite_difference_jacobian(model, x, eps, m, f_args, h_args, m_args) -> tuple[np.ndarray, np.ndarray]:
-    """model(x) (m,) and its central-difference Jacobian (m, n) with steps eps (n,)."""
-    n = x.shape[0]
-    probes = np.empty((2 * n + 1, n))  # x, then x + eps_k e_k, then x - eps_k e_k
+def _finite_difference_jacobian(model, x, eps, centre, J, f_args, h_args, m_args) -> None:
+    """model(x) into centre (m,) and its central-difference Jacobian into J (m, n), steps eps (n,)."""
+    n, m = x.shape[0], centre.shape[0]
+    probes = scratch((2 * n + 1, n))  # x, then x + eps_k e_k, then x - eps_k e_k
     for k in range(2 * n + 1):
         probes[k] = x
     for k in range(n):
         probes[1 + k, k] += eps[k]
         probes[1 + n + k, k] -= eps[k]
-    values = np.empty((2 * n + 1, m))
+    values = scratch((2 * n + 1, m))
     _evaluate(model, probes, values, f_args, h_args, m_args)
-    J = np.empty((m, n))
     for k in range(n):
         for i in range(m):
             J[i, k] = (values[1 + k, i] - values[1 + n + k, i]) / (2.0 * eps[k])
-    centre = values[0].copy()
-    return centre, J
+    centre[:] = values[0]
+
+
+@numba.njit(inline="always", **JIT)
+def _dot(a, b) -> float:
+    """sum_i a_i b_i in index order."""
+    t = 0.0
+    for i in range(a.shape[0]):
+        t += a[i] * b[i]
+    return t
 
 
 @numba.njit(**JIT)
@@ -340,34 +360,49 @@ def _ekf_step(x, P, Q, z, valid, R, f_args, h_args, m_args, x_out, P_out) -> flo
     """EKF on the same model (central-difference Jacobians, Joseph-form update); returns
     0.5 nu^T S^-1 nu (NaN if S is not positive definite)."""
     n, m = x.shape[0], z.shape[0]
-    eps = np.empty(n)
+    eps = scratch((n,))
     for k in range(n):
         eps[k] = 1e-4 * max(abs(x[k]), 1e-2)
-    x_pred, F = _finite_difference_jacobian(TRANSITION, x, eps, n, f_args, h_args, m_args)
-    P_pred = matmul(matmul(F, P), F.T) + Q
-    z_pred, H = _finite_difference_jacobian(STATE_1, x_pred, eps, m, f_args, h_args, m_args)
-    Rv = R.copy()
-    nu = np.empty(m)
+    x_pred, F, FP, P_pred = scratch((n,)), scratch((n, n)), scratch((n, n)), scratch((n, n))
+    _finite_difference_jacobian(TRANSITION, x, eps, x_pred, F, f_args, h_args, m_args)
+    matmul(F, P, FP)
+    matmul(FP, F.T, P_pred)
+    P_pred += Q
+    z_pred, H = scratch((m,)), scratch((m, n))
+    _finite_difference_jacobian(STATE_1, x_pred, eps, z_pred, H, f_args, h_args, m_args)
+    Rv, nu = scratch((m, m)), scratch((m,))
+    Rv[:, :] = R
     for i in range(m):
         nu[i] = z[i] - z_pred[i] if valid[i] else 0.0
         if not valid[i]:
             Rv[i, i] = DROPOUT_VARIANCE
-    PHt = matmul(P_pred, H.T)
-    S = matmul(H, PHt) + Rv
-    L = np.empty((m, m))
+    PHt, S, L = scratch((n, m)), scratch((m, m)), scratch((m, m))
+    matmul(P_pred, H.T, PHt)
+    matmul(H, PHt, S)
+    S += Rv
     if not cholesky(S, L):
         return math.nan
-    K = np.empty((n, m))
+    K = scratch((n, m))
     for i in range(n):
-        cholesky_solve(L, PHt[i].copy(), K[i])
+        cholesky_solve(L, PHt[i], K[i])
     for i in range(n):
-        x_out[i] = x_pred[i] + np.sum(K[i] * nu)
-    I_KH = np.eye(n) - matmul(K, H)
-    P_new = matmul(matmul(I_KH, P_pred), I_KH.T) + matmul(matmul(K, Rv), K.T)
-    P_out[:, :] = 0.5 * (P_new + P_new.T)
-    white = np.empty(m)
+        x_out[i] = x_pred[i] + _dot(K[i], nu)
+    I_KH, A, P_new, KR, KRK = scratch((n, n)), scratch((n, n)), scratch((n, n)), scratch((n, m)), scratch((n, n))
+    matmul(K, H, I_KH)
+    for i in range(n):
+        for j in range(n):
+            I_KH[i, j] = (1.0 if i == j else 0.0) - I_KH[i, j]
+    matmul(I_KH, P_pred, A)
+    matmul(A, I_KH.T, P_new)
+    matmul(K, Rv, KR)
+    matmul(KR, K.T, KRK)
+    P_new += KRK
+    for i in range(n):
+        for j in range(n):
+            P_out[i, j] = 0.5 * (P_new[i, j] + P_new[j, i])
+    white = scratch((m,))
     cholesky_solve(L, nu, white)
-    return 0.5 * np.sum(nu * white)
+    return 0.5 * _dot(nu, white)
 
 
 # ---- one estimator step (compiled) -----------------------------------------------------------
@@ -398,38 +433,45 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, process_var, sensor_var,
     for c in range(reading.shape[0]):
         if valid_in[c] and not math.isfinite(reading[c]):
             return BAD_MEASUREMENT, math.nan
-    valid, repeats = valid_in.copy(), inertial_repeats.copy()
+    valid, repeats = scratch((13,), np.bool_), scratch((3,))
+    valid[:], repeats[:] = valid_in, inertial_repeats
     for c in range(3):  # stuck inertial sensors (STUCK_SAMPLES)
         repeats[c] = repeats[c] + 1.0 if valid_in[c] and reading[c] == inertial_prev[c] else 0.0
         if repeats[c] >= STUCK_SAMPLES:
             valid[c] = False
-    zero_point_new = zero_point.copy()
+    zero_point_new = scratch((4,))
+    zero_point_new[:] = zero_point
     _learn_zero_point(zero_point_new, reading, valid, x[I_U], dt, zero_point_tau)
-    values = reading.copy()
+    values = scratch((13,))
+    values[:] = reading
     values[1] -= zero_point_new[ZP_OFFSET]
     robust, federated, joint = kind >= 3, kind >= 2, kind == 4
     # inputs; wheel angular acceleration for eq. 7: differentiated wheel speed, low-passed
-    omega, torque, od = values[3:7].copy(), values[9:13].copy(), np.empty(4)
+    omega, torque, od = values[3:7], values[9:13], scratch((4,))
     for w in range(4):
         od[w] = omega_dot[w] + ((omega[w] - omega_prev[w]) / dt - omega_dot[w]) * (dt / OMEGA_DOT_TIME_CONSTANT)
-    steer = steer_trig(np.array([values[7], values[7], values[8], values[8]]))
+    steer = scratch((3, 4))
+    fill_steer_trig((values[7], values[7], values[8], values[8]), steer)
     accel_var, gyro_var, wheel_var = sensor_var[0], sensor_var[1], sensor_var[2]
     f_args = (mu, steer, omega, torque, od, pk, dt)
     h_args = (steer, pk)
-    z1 = np.empty(7)
+    z1 = scratch((7,))
     z1[:3] = values[:3]
-    z1[3:] = values[3:7] * pk[P_RW]
-    valid1, z2, valid2 = valid[:7].copy(), values[1:3].copy(), valid[1:3].copy()
-    R1 = _diagonal(np.array([accel_var, accel_var, gyro_var, wheel_var, wheel_var, wheel_var, wheel_var]))
-    R2 = _diagonal(np.array([accel_var, gyro_var]))
-    Q = _diagonal(process_var)
-    x_new, P_new, beta_new = np.empty(6), np.empty((6, 6)), beta.copy()
+    for w in range(4):
+        z1[3 + w] = values[3 + w] * pk[P_RW]
+    valid1, z2, valid2 = valid[:7], values[1:3], valid[1:3]
+    R1, R2, Q = scratch((7, 7)), scratch((2, 2)), scratch((6, 6))
+    _fill_diagonal(R1, (accel_var, accel_var, gyro_var, wheel_var, wheel_var, wheel_var, wheel_var))
+    _fill_diagonal(R2, (accel_var, gyro_var))
+    _fill_diagonal(Q, process_var)
+    x_new, P_new, beta_new = scratch((6,)), scratch((6, 6)), scratch((2,))
+    beta_new[:] = beta
     m_args = (x, steer, omega, torque, od, pk, dt)  # the mu measurements, unused by the state filter
     if federated:
         nll = _federated(x, P, Q, beta, TRANSITION, z1, valid1, R1, STATE_1, z2, valid2, R2, STATE_2,
                          huber_c if robust else NO_HUBER, f_args, h_args, m_args, x_new, P_new, beta_new)
     elif kind == 1:
-        x_pred, P_pred = np.empty(6), np.empty((6, 6))
+        x_pred, P_pred = scratch((6,)), scratch((6, 6))
         if not _ckf_predict(x, P, Q, TRANSITION, f_args, h_args, m_args, x_pred, P_pred):
             return FILTER_FAILED, math.nan
         nll = _ckf_update(x_pred, P_pred, z1, valid1, R1, NO_HUBER, STATE_1, f_args, h_args, m_args, x_new, P_new)
@@ -437,25 +479,27 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, process_var, sensor_var,
         nll = _ekf_step(x, P, Q, z1, valid1, R1, f_args, h_args, m_args, x_new, P_new)
     if not math.isfinite(nll):
         return FILTER_FAILED, math.nan
-    mu_new, P_mu_new, beta_mu_new = mu.copy(), P_mu.copy(), beta_mu.copy()
+    mu_new, P_mu_new, beta_mu_new = scratch((4,)), scratch((4, 4)), scratch((2,))
+    mu_new[:], P_mu_new[:, :], beta_mu_new[:] = mu, P_mu, beta_mu
     if joint:
-        walk = _correlated(mu_var[0])
+        walk, R1_mu, R2_mu = scratch((4, 4)), scratch((3, 3)), scratch((2, 2))
+        _fill_correlated(mu_var[0], walk)
+        _fill_diagonal(R1_mu, (mu_var[1], mu_var[1], gyro_var))
+        _fill_diagonal(R2_mu, (mu_var[1], gyro_var))
         m_args = (x_new, steer, omega, torque, od, pk, dt)
-        mu_fused, P_fused = np.empty(4), np.empty((4, 4))
-        nll_mu = _federated(mu, P_mu, walk, beta_mu, RANDOM_WALK, values[:3].copy(), valid[:3].copy(),
-                            _diagonal(np.array([mu_var[1], mu_var[1], gyro_var])), MU_1, z2, valid2,
-                            _diagonal(np.array([mu_var[1], gyro_var])), MU_2, huber_c, f_args, h_args, m_args,
-                            mu_fused, P_fused, beta_mu_new)
+        mu_fused, P_fused = scratch((4,)), scratch((4, 4))
+        nll_mu = _federated(mu, P_mu, walk, beta_mu, RANDOM_WALK, values[:3], valid[:3], R1_mu, MU_1, z2, valid2,
+                            R2_mu, MU_2, huber_c, f_args, h_args, m_args, mu_fused, P_fused, beta_mu_new)
         if not math.isfinite(nll_mu):
             return FILTER_FAILED, math.nan
         # hold mu where the tyres are far from saturation (Dugoff lambda >= EXCITATION_LAMBDA)
-        lam = np.empty(4)
+        lam = scratch((4,))
         dugoff_lambdas(x_new[I_U], x_new[I_V], x_new[I_R], x_new[I_AX], x_new[I_AY], mu, steer, omega, pk, lam)
         if lam.min() < EXCITATION_LAMBDA:
             for w in range(4):
                 mu_new[w] = min(max(mu_fused[w], MU_BOUNDS[0]), MU_BOUNDS[1])
         # cap the random walk's growth where mu is unobservable
-        scale = np.empty(4)
+        scale = scratch((4,))
         for w in range(4):
             scale[w] = math.sqrt(min(P_fused[w, w], mu_var[2]) / max(P_fused[w, w], 1e-300))
         for i in range(4):

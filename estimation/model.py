@@ -124,13 +124,19 @@ def wheel_loads(ax: float, ay: float, pk: np.ndarray, fz: np.ndarray) -> None:
     fz[0], fz[1], fz[2], fz[3] = load_tuple(ax, ay, pk)
 
 
-@numba.njit(**JIT)
-def steer_trig(delta: np.ndarray) -> np.ndarray:
-    """cos, sin and tan of the four road-wheel steer angles delta (4,) [rad], shape (3, 4):
-    computed once per step, shared by every cubature point."""
-    trig = np.empty((3, 4))
+@numba.njit(inline="always", **JIT)
+def fill_steer_trig(delta, trig: np.ndarray) -> None:
+    """cos, sin and tan of the four road-wheel steer angles delta (4,) [rad] (array or tuple)
+    into the rows of trig (3, 4): computed once per step, shared by every cubature point."""
     for w in range(4):
         trig[0, w], trig[1, w], trig[2, w] = math.cos(delta[w]), math.sin(delta[w]), math.tan(delta[w])
+
+
+@numba.njit(**JIT)
+def steer_trig(delta: np.ndarray) -> np.ndarray:
+    """:func:`fill_steer_trig` of delta (4,) [rad] as a new (3, 4) array."""
+    trig = np.empty((3, 4))
+    fill_steer_trig(delta, trig)
     return trig
 
 

@@ -398,6 +398,47 @@ def test_the_kernel_cache_follows_every_compiled_module(tmp_path):
         assert numba.config.CACHE_DIR == str(ROOT / ".numba_cache" / kernel_fingerprint())
 
 
+def test_scratch_arrays_live_on_the_stack_and_large_ones_on_the_heap(heap_allocations):
+    import numba
+
+    from estimation.jit import SCRATCH_BYTES, scratch
+
+    @numba.njit
+    def fill(rows, cols):
+        a, flags = scratch((rows, cols)), scratch((rows,), np.bool_)
+        for i in range(rows):
+            flags[i] = i % 2 == 0
+            for j in range(cols):
+                a[i, j] = 10.0 * i + j
+        return a.copy(), flags.copy()  # copies: a scratch array must not leave its function
+
+    small, large = (2, 3), (SCRATCH_BYTES // 8, 2)
+    for shape in (small, large):
+        a, flags = fill(*shape)
+        np.testing.assert_array_equal(a, 10.0 * np.arange(shape[0])[:, None] + np.arange(shape[1]))
+        np.testing.assert_array_equal(flags, np.arange(shape[0]) % 2 == 0)
+    assert heap_allocations(lambda: fill(*small)) == 2  # the two copies
+    assert heap_allocations(lambda: fill(*large)) == 3  # and the matrix
+
+
+@pytest.mark.parametrize("name", ESTIMATORS[1:])
+def test_an_estimator_step_allocates_nothing_per_vehicle(name, heap_allocations):
+    """The compiled step keeps its work arrays on the stack: a step of 64 vehicles makes as
+    many heap allocations (the Python entry's output arrays) as a step of one."""
+    from envs.sensors import SensorReading
+
+    counts = []
+    for batch in (1, 64):
+        est = make_estimator(name, VehicleParams())
+        values = np.zeros((batch, len(CHANNELS)))
+        values[:, 3:7] = 20.0 / VehicleParams().wheel_radius
+        reading = SensorReading(values, np.ones_like(values, dtype=bool), np.zeros(batch))
+        est.reset(reading, np.full(batch, 20.0))
+        est.step(reading)
+        counts.append(heap_allocations(lambda: est.step(reading)))
+    assert counts[0] == counts[1]
+
+
 def test_zero_point_learning_finds_an_accelerometer_offset_in_steady_driving_only():
     """A 0.2 m/s^2 lateral accelerometer offset (perfect gyro): learnt on a 10 s straight to
     within 0.01, never while the steering moves, and it cuts the sideslip error once

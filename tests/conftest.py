@@ -1,0 +1,19 @@
+"""Fixtures shared by the test modules."""
+
+import pytest
+
+
+@pytest.fixture
+def heap_allocations():
+    """``count(fn)``: numba heap allocations made while ``fn()`` runs (numba's runtime
+    statistics, switched on for the rest of the session)."""
+    from numba.core.runtime import _nrt_python, rtsys
+
+    _nrt_python.memsys_enable_stats()
+
+    def count(fn) -> int:
+        before = rtsys.get_allocation_stats().alloc
+        fn()
+        return rtsys.get_allocation_stats().alloc - before
+
+    return count
