@@ -53,7 +53,7 @@ from estimation.ckf import (DROPOUT_VARIANCE, NO_HUBER, cholesky, cholesky_solve
 from estimation.federated import fuse, sharing_coefficients
 from estimation.jit import JIT, scratch
 from estimation.model import (P_IZ, P_RW, ModelParams, body_forces, dugoff_lambdas, fill_steer_trig, transition,
-                              wheel_kinematics, wheel_loads)
+                              wheel_kinematics, wheel_loads, wheel_trig)
 from estimation.types import Estimate, member_rows
 
 N_STATE = 6
@@ -188,7 +188,7 @@ ZP_OFFSET, ZP_STEADY, ZP_STEER, ZP_YAW = range(4)
 OK, BAD_MEASUREMENT, FILTER_FAILED = 0, 1, 2
 
 
-# ---- measurement models (compiled, row k of the points (K, n) into row k of out (K, m)) ----------
+# ---- measurement models (compiled; the state ones map row k of the points (K, n) to row k of out (K, m)) --
 @numba.njit(inline="always", **JIT)
 def measure_state_1(points, k, out, args) -> None:
     """State sub-filter 1: [ax, ay, r, wheel-centre speeds along each wheel (4)]; args = (steer, pk)."""
@@ -196,7 +196,7 @@ def measure_state_1(points, k, out, args) -> None:
     u, v, r = points[k, I_U], points[k, I_V], points[k, I_R]
     out[k, 0], out[k, 1], out[k, 2] = points[k, I_AX], points[k, I_AY], r
     for w in range(4):
-        out[k, 3 + w] = wheel_kinematics(u, v, r, steer, pk, w)[1]
+        out[k, 3 + w] = wheel_kinematics(u, v, r, wheel_trig(steer, w), pk, w)[1]
 
 
 @numba.njit(inline="always", **JIT)
@@ -206,27 +206,21 @@ def measure_state_2(points, k, out, args) -> None:
 
 
 @numba.njit(inline="always", **JIT)
-def _mu_prediction(points, k, args) -> tuple[float, float, float]:
-    """[ax, ay, r] predicted by the tyre model with friction mu (row k of points) at the state
-    filter's estimate x (r one step ahead of the previous yaw rate); args = (x, steer, omega,
-    torque, omega_dot, pk, dt)."""
+def _mu_predictions(points, args, out) -> None:
+    """[ax, ay, r] predicted by the tyre model with the friction of each row of points (K, 4)
+    at the state filter's estimate x (r one step ahead of the previous yaw rate), into the
+    rows of out (3, K); args = (x, steer, omega, torque, omega_dot, pk, dt)."""
     x, steer, omega, torque, omega_dot, pk, dt = args
-    mu = (points[k, 0], points[k, 1], points[k, 2], points[k, 3])
-    ax, ay, gamma = body_forces(x[I_U], x[I_V], x[I_R], x[I_AX], x[I_AY], mu, steer, omega, torque, omega_dot, pk)
+    K = points.shape[0]
+    state, mu = scratch((5, K)), scratch((4, K))
+    for k in range(K):
+        state[0, k], state[1, k], state[2, k], state[3, k], state[4, k] = x[I_U], x[I_V], x[I_R], x[I_AX], x[I_AY]
+        for w in range(4):
+            mu[w, k] = points[k, w]
+    body_forces(state, mu, steer, omega, torque, omega_dot, pk, out)
     r_prev = x[I_R] - dt * x[I_GAMMA] / pk[P_IZ]
-    return ax, ay, r_prev + dt * gamma / pk[P_IZ]
-
-
-@numba.njit(inline="always", **JIT)
-def measure_mu_1(points, k, out, args) -> None:
-    """mu sub-filter 1: [ax, ay, r]."""
-    out[k, 0], out[k, 1], out[k, 2] = _mu_prediction(points, k, args)
-
-
-@numba.njit(inline="always", **JIT)
-def measure_mu_2(points, k, out, args) -> None:
-    """mu sub-filter 2: [ay, r]."""
-    _, out[k, 0], out[k, 1] = _mu_prediction(points, k, args)
+    for k in range(K):
+        out[2, k] = r_prev + dt * out[2, k] / pk[P_IZ]
 
 
 @numba.njit(inline="always", **JIT)
@@ -247,8 +241,7 @@ def _evaluate(model, points, out, f_args, h_args, m_args) -> None:
     (one dispatch per point set, not per point)."""
     K = points.shape[0]
     if model == TRANSITION:
-        for k in range(K):
-            transition(points, k, out, f_args)
+        transition(points, out, f_args)
     elif model == STATE_1:
         for k in range(K):
             measure_state_1(points, k, out, h_args)
@@ -258,12 +251,13 @@ def _evaluate(model, points, out, f_args, h_args, m_args) -> None:
     elif model == RANDOM_WALK:
         for k in range(K):
             random_walk(points, k, out, h_args)
-    elif model == MU_1:
+    else:  # the mu sub-filters' measurements: [ax, ay, r] (MU_1) or [ay, r] (MU_2)
+        predicted = scratch((3, K))
+        _mu_predictions(points, m_args, predicted)
+        first = 0 if model == MU_1 else 1
         for k in range(K):
-            measure_mu_1(points, k, out, m_args)
-    else:
-        for k in range(K):
-            measure_mu_2(points, k, out, m_args)
+            for i in range(first, 3):
+                out[k, i - first] = predicted[i, k]
 
 
 @numba.njit(**JIT)

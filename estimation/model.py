@@ -25,8 +25,9 @@ from typing import NamedTuple
 
 import numba
 import numpy as np
+from numba.np.unsafe.ndarray import to_fixed_tuple
 
-from estimation.ckf import JIT
+from estimation.jit import JIT, scratch
 
 GRAVITY = 9.81  #: [m/s^2]
 MIN_SPEED = 1.0  #: denominator floor for slip quantities [m/s]
@@ -82,6 +83,7 @@ PACKED_FIELDS = ("mass", "yaw_inertia", "cg_to_front", "cg_to_rear", "track_fron
                  "cg_height", "wheel_inertia", "m1", "n1", "m2", "n2", "eps", "mu_scale")
 (P_MASS, P_IZ, P_A, P_B, P_TF, P_TR, P_RW, P_H, P_IW, P_M1, P_N1, P_M2, P_N2, P_EPS,
  P_MU_SCALE) = range(len(PACKED_FIELDS))
+N_PARAMS = len(PACKED_FIELDS)
 
 
 class Inputs(NamedTuple):
@@ -103,19 +105,27 @@ def wheel_position(pk: np.ndarray, w: int) -> tuple[float, float]:
 
 
 @numba.njit(inline="always", **JIT)
-def load_tuple(ax: float, ay: float, pk: np.ndarray) -> tuple[float, float, float, float]:
-    """Quasi-static wheel loads (FL, FR, RL, RR) [N] from body accelerations ax, ay [m/s^2]:
-    static share plus longitudinal (m ax h / L) and lateral (m ay h / t, split by axle static
-    share) transfer; floored at 5% of the static load."""
+def wheel_load(ax: float, ay: float, pk: np.ndarray, w: int) -> float:
+    """Quasi-static load [N] of wheel w (FL, FR, RL, RR) from body accelerations ax, ay
+    [m/s^2]: static share plus longitudinal (m ax h / L) and lateral (m ay h / t, split by axle
+    static share) transfer; floored at 5% of the static load."""
     m, a, b, h = pk[P_MASS], pk[P_A], pk[P_B], pk[P_H]
     L = a + b
-    front = m * GRAVITY * b / L - m * ax * h / L
-    rear = m * GRAVITY * a / L + m * ax * h / L
-    d_front = m * ay * h * (b / L) / pk[P_TF]
-    d_rear = m * ay * h * (a / L) / pk[P_TR]
-    floor_front, floor_rear = 0.05 * m * GRAVITY * b / (2 * L), 0.05 * m * GRAVITY * a / (2 * L)
-    return (max(front / 2 - d_front, floor_front), max(front / 2 + d_front, floor_front),
-            max(rear / 2 - d_rear, floor_rear), max(rear / 2 + d_rear, floor_rear))
+    if w < 2:
+        axle = m * GRAVITY * b / L - m * ax * h / L
+        transfer = m * ay * h * (b / L) / pk[P_TF]
+        floor = 0.05 * m * GRAVITY * b / (2 * L)
+    else:
+        axle = m * GRAVITY * a / L + m * ax * h / L
+        transfer = m * ay * h * (a / L) / pk[P_TR]
+        floor = 0.05 * m * GRAVITY * a / (2 * L)
+    return max(axle / 2 - transfer if w % 2 == 0 else axle / 2 + transfer, floor)
+
+
+@numba.njit(inline="always", **JIT)
+def load_tuple(ax: float, ay: float, pk: np.ndarray) -> tuple[float, float, float, float]:
+    """The four wheels' :func:`wheel_load` [N] (FL, FR, RL, RR)."""
+    return wheel_load(ax, ay, pk, 0), wheel_load(ax, ay, pk, 1), wheel_load(ax, ay, pk, 2), wheel_load(ax, ay, pk, 3)
 
 
 @numba.njit(**JIT)
@@ -141,17 +151,25 @@ def steer_trig(delta: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(inline="always", **JIT)
-def wheel_kinematics(u: float, v: float, r: float, steer: np.ndarray, pk: np.ndarray, w: int) -> tuple[float, float]:
+def wheel_trig(steer: np.ndarray, w: int) -> tuple[float, float, float]:
+    """cos, sin, tan of wheel w's steer angle from :func:`steer_trig`'s (3, 4) table. The tyre
+    functions take this tuple, not the table: an array handed to an inlined function inside
+    a loop keeps the compiler from vectorising the loop."""
+    return steer[0, w], steer[1, w], steer[2, w]
+
+
+@numba.njit(inline="always", **JIT)
+def wheel_kinematics(u: float, v: float, r: float, trig: tuple, pk: np.ndarray, w: int) -> tuple[float, float]:
     """Wheel w's tan(slip angle) and wheel-centre speed along its heading [m/s] (eq. 11-14,
     standard form: alpha_i = delta_i - atan((v + x_i r) / (u - y_i r)), the longitudinal speed
     floored at MIN_SPEED), with tan(alpha) = (tan delta - q) / (1 + q tan delta),
-    q = (v + x_i r) / (u - y_i r): no inverse trigonometry per point. ``steer``: :func:`steer_trig`."""
+    q = (v + x_i r) / (u - y_i r): no inverse trigonometry per point. ``trig``: :func:`wheel_trig`."""
     x_w, y_w = wheel_position(pk, w)
     vx = u - r * y_w
     vy = v + r * x_w
     q = vy / max(abs(vx), MIN_SPEED)
-    tan_d = steer[2, w]
-    return (tan_d - q) / (1.0 + q * tan_d), vx * steer[0, w] + vy * steer[1, w]
+    cos_d, sin_d, tan_d = trig
+    return (tan_d - q) / (1.0 + q * tan_d), vx * cos_d + vy * sin_d
 
 
 @numba.njit(inline="always", **JIT)
@@ -169,35 +187,50 @@ def dugoff(fz: float, slip: float, tan_alpha: float, mu: float, cx: float, cy: f
 
 
 @numba.njit(inline="always", **JIT)
-def tyre_operating_point(u, v, r, fz, steer, omega, pk, w) -> tuple[float, float, float, float]:
-    """Wheel w's tan(slip angle), longitudinal slip and stiffnesses Cx, Cy (eq. 17) at load fz."""
-    tan_alpha, along = wheel_kinematics(u, v, r, steer, pk, w)
+def tyre_operating_point(u, v, r, fz, trig, omega, pk, w) -> tuple[float, float, float, float]:
+    """Wheel w's tan(slip angle), longitudinal slip and stiffnesses Cx, Cy (eq. 17) at load fz;
+    ``trig``: :func:`wheel_trig`, ``omega``: its speed [rad/s]."""
+    tan_alpha, along = wheel_kinematics(u, v, r, trig, pk, w)
     wheel_speed = omega * pk[P_RW]
     slip = (wheel_speed - along) / max(abs(wheel_speed), abs(along), MIN_SPEED)
     return tan_alpha, slip, pk[P_M1] * fz - pk[P_N1] * fz * fz, pk[P_M2] * fz - pk[P_N2] * fz * fz
 
 
 @numba.njit(inline="always", **JIT)
-def body_forces(u, v, r, ax, ay, mu, steer, omega, torque, omega_dot, pk) -> tuple[float, float, float]:
+def body_forces(state, mu, steer, omega, torque, omega_dot, pk, out) -> None:
     """Body accelerations ax, ay [m/s^2] and yaw moment Gamma [N m] from the tyre forces (eq. 4-6,
-    corrected). Fx from the wheel's torque balance (eq. 7), limited by the Dugoff friction
-    ellipse; Fy from Dugoff with the slip angle and mu (4,). Loads from the (previous) ax, ay;
-    ``steer``: :func:`steer_trig` of the steer angles."""
-    fz = load_tuple(ax, ay, pk)
-    f_x_sum, f_y_sum, moment = 0.0, 0.0, 0.0
+    corrected) for K model evaluations at once: ``state`` (5, K) rows u, v, r, ax, ay and
+    ``mu`` (4, K) per wheel; writes the rows of out (3, K). Fx from the wheel's torque balance
+    (eq. 7), limited by the Dugoff friction ellipse; Fy from Dugoff with the slip angle and mu.
+    Loads from the (previous) ax, ay; ``steer``: :func:`steer_trig` of the steer angles.
+
+    Wheel by wheel over all K evaluations (the K loop innermost and branch-free, so the
+    compiler runs it in SIMD lanes), each evaluation summing its wheels in order FL, FR, RL,
+    RR. Callers pass stack arrays (:func:`estimation.jit.scratch`): the compiler then knows
+    they do not overlap, which it needs before it vectorises."""
+    K = state.shape[1]
+    params = to_fixed_tuple(pk, N_PARAMS)  # a value, not an array, inside the loop (see wheel_trig)
+    out[:, :] = 0.0
     for w in range(4):
-        tan_alpha, slip, cx, cy = tyre_operating_point(u, v, r, fz[w], steer, omega[w], pk, w)
-        tyre_mu = pk[P_MU_SCALE] * mu[w]
-        _, fy, _ = dugoff(fz[w], slip, tan_alpha, tyre_mu, cx, cy, u, pk[P_EPS])
-        limit = tyre_mu * fz[w]
-        fx = min(max((torque[w] - pk[P_IW] * omega_dot[w]) / pk[P_RW], -limit), limit)
-        c, s = steer[0, w], steer[1, w]
-        f_long, f_lat = fx * c - fy * s, fx * s + fy * c
-        x_w, y_w = wheel_position(pk, w)
-        f_x_sum += f_long
-        f_y_sum += f_lat
-        moment += x_w * f_lat - y_w * f_long
-    return f_x_sum / pk[P_MASS], f_y_sum / pk[P_MASS], moment
+        x_w, y_w = wheel_position(params, w)
+        drive = (torque[w] - params[P_IW] * omega_dot[w]) / params[P_RW]
+        trig, spin = wheel_trig(steer, w), omega[w]
+        c, s = trig[0], trig[1]
+        for k in range(K):
+            u, v, r = state[0, k], state[1, k], state[2, k]
+            fz = wheel_load(state[3, k], state[4, k], params, w)
+            tan_alpha, slip, cx, cy = tyre_operating_point(u, v, r, fz, trig, spin, params, w)
+            tyre_mu = params[P_MU_SCALE] * mu[w, k]
+            _, fy, _ = dugoff(fz, slip, tan_alpha, tyre_mu, cx, cy, u, params[P_EPS])
+            limit = tyre_mu * fz
+            fx = min(max(drive, -limit), limit)
+            f_long, f_lat = fx * c - fy * s, fx * s + fy * c
+            out[0, k] += f_long
+            out[1, k] += f_lat
+            out[2, k] += x_w * f_lat - y_w * f_long
+    for k in range(K):
+        out[0, k] /= params[P_MASS]
+        out[1, k] /= params[P_MASS]
 
 
 @numba.njit(inline="always", **JIT)
@@ -205,24 +238,31 @@ def dugoff_lambdas(u, v, r, ax, ay, mu, steer, omega, pk, out) -> None:
     """Each wheel's Dugoff lambda (4,) at the given state: below 1 its force depends on mu."""
     fz = load_tuple(ax, ay, pk)
     for w in range(4):
-        tan_alpha, slip, cx, cy = tyre_operating_point(u, v, r, fz[w], steer, omega[w], pk, w)
+        tan_alpha, slip, cx, cy = tyre_operating_point(u, v, r, fz[w], wheel_trig(steer, w), omega[w], pk, w)
         out[w] = dugoff(fz[w], slip, tan_alpha, pk[P_MU_SCALE] * mu[w], cx, cy, u, 0.0)[2]
 
 
 @numba.njit(inline="always", **JIT)
-def transition(points, k, out, args) -> None:
-    """Discrete process model for x_s = [u, v, ax, ay, r, Gamma], paper eq. 1-3, from row k of
-    points (K, 6) into row k of out (K, 6) (rows, not row views: a view per point costs a
-    reference count): u+ = u + dt (ax + v r), v+ = v + dt (ay - u r), r+ = r + dt Gamma / Iz
-    (Euler at the 2 ms step); ax, ay, Gamma are algebraic: recomputed from the tyre model at
-    the new state. ax, ay here are the body's specific forces (what an accelerometer reads
-    without roll/pitch). args = (mu, steer_trig(delta), omega, torque, omega_dot, packed params, dt)."""
+def transition(points, out, args) -> None:
+    """Discrete process model for x_s = [u, v, ax, ay, r, Gamma], paper eq. 1-3, from each row
+    of points (K, 6) into the same row of out (K, 6): u+ = u + dt (ax + v r),
+    v+ = v + dt (ay - u r), r+ = r + dt Gamma / Iz (Euler at the 2 ms step); ax, ay, Gamma are
+    algebraic: recomputed from the tyre model at the new state. ax, ay here are the body's
+    specific forces (what an accelerometer reads without roll/pitch).
+    args = (mu (4,), steer_trig(delta), omega, torque, omega_dot, packed params, dt)."""
     mu, steer, omega, torque, omega_dot, pk, dt = args
-    u, v, ax, ay, r, gamma = points[k, 0], points[k, 1], points[k, 2], points[k, 3], points[k, 4], points[k, 5]
-    u_new, v_new, r_new = u + dt * (ax + v * r), v + dt * (ay - u * r), r + dt * gamma / pk[P_IZ]
-    out[k, 0], out[k, 1], out[k, 4] = u_new, v_new, r_new
-    out[k, 2], out[k, 3], out[k, 5] = body_forces(u_new, v_new, r_new, ax, ay, mu, steer, omega, torque, omega_dot,
-                                                  pk)
+    K = points.shape[0]
+    state, mu_lanes, forces = scratch((5, K)), scratch((4, K)), scratch((3, K))
+    for k in range(K):
+        u, v, ax, ay, r, gamma = points[k, 0], points[k, 1], points[k, 2], points[k, 3], points[k, 4], points[k, 5]
+        u_new, v_new, r_new = u + dt * (ax + v * r), v + dt * (ay - u * r), r + dt * gamma / pk[P_IZ]
+        out[k, 0], out[k, 1], out[k, 4] = u_new, v_new, r_new
+        state[0, k], state[1, k], state[2, k], state[3, k], state[4, k] = u_new, v_new, r_new, ax, ay
+        for w in range(4):
+            mu_lanes[w, k] = mu[w]
+    body_forces(state, mu_lanes, steer, omega, torque, omega_dot, pk, forces)
+    for k in range(K):
+        out[k, 2], out[k, 3], out[k, 5] = forces[0, k], forces[1, k], forces[2, k]
 
 
 # ---- Python entry points -------------------------------------------------------------------
@@ -241,10 +281,15 @@ def normal_loads(ax, ay, p: ModelParams) -> np.ndarray:
     return out
 
 
+@numba.njit(**JIT)
+def _transition_rows(points, out, args):
+    transition(points, out, args)
+
+
 def state_transition(x: np.ndarray, mu: np.ndarray, inputs: Inputs, p: ModelParams, dt: float) -> np.ndarray:
     """:func:`transition` of one state x (6,) with mu (4,) and ``inputs``; returns the new state."""
     out = np.empty((1, 6))
     mu, delta, omega, torque, omega_dot = (np.ascontiguousarray(q, dtype=np.float64) for q in (mu, *inputs))
-    transition(np.ascontiguousarray(x, dtype=np.float64).reshape(1, 6), 0, out,
-               (mu, steer_trig(delta), omega, torque, omega_dot, p.packed, float(dt)))
+    _transition_rows(np.ascontiguousarray(x, dtype=np.float64).reshape(1, 6), out,
+                     (mu, steer_trig(delta), omega, torque, omega_dot, p.packed, float(dt)))
     return out[0]

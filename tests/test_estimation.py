@@ -283,7 +283,7 @@ def test_dugoff_at_the_true_state_matches_the_plant_force_near_saturation(scenar
         wheel_loads(A[k, A_AX], A[k, A_AY], pk, fz)
         steer = steer_trig(np.array([S[k, S_DELTA_F]] * 2 + [S[k, S_DELTA_R]] * 2))
         for w in np.flatnonzero(A[k, A_USAGE:A_USAGE + 4] > 0.5):
-            tan_alpha, slip, cx, cy = tyre_operating_point(S[k, S_U], S[k, S_V], S[k, S_R], fz[w], steer,
+            tan_alpha, slip, cx, cy = tyre_operating_point(S[k, S_U], S[k, S_V], S[k, S_R], fz[w], tuple(steer[:, w]),
                                                            S[k, S_OMEGA + w], pk, w)
             fy = dugoff(fz[w], slip, tan_alpha, PARAMS.mu_scale * A[k, A_MU + w], cx, cy, S[k, S_U], 0.0)[1]
             errors.append((fy - A[k, A_FY + w]) / (A[k, A_MU + w] * A[k, A_FZ + w]))
