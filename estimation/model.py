@@ -2,10 +2,11 @@
 load-dependent stiffness (eq. 17), quasi-static normal loads. Simpler than, and different
 from, the truth plant (PAC2002 tyres with relaxation, wheel dynamics, lags): no inverse crime.
 
-The physics is compiled (numba) and evaluated one point at a time, as the filters' compiled
-steps need it; parameters travel as the packed array :attr:`ModelParams.packed`.
-:func:`normal_loads` and :func:`state_transition` are the Python entry points. Corrections to the paper (standard textbook forms, Rajamani 2012 ch. 13; Dugoff,
-Fancher & Segel 1970):
+The physics is compiled (numba): the tyre functions work on scalars, and :func:`body_forces`
+/ :func:`transition` evaluate them for all of a filter's cubature points at once, in SIMD
+lanes; parameters travel as the packed array :attr:`ModelParams.packed`.
+:func:`normal_loads` and :func:`state_transition` are the Python entry points. Corrections to
+the paper (standard textbook forms, Rajamani 2012 ch. 13; Dugoff, Fancher & Segel 1970):
 
 * eq. 4-6: each wheel's force is rotated by its own steer angle and the moment arms are
   +/- t/2 laterally and +a / -b longitudinally with the signs of ISO 8855 (the paper's rear-
