@@ -76,7 +76,8 @@ def covariance_sqrt(P: np.ndarray, S: np.ndarray) -> bool:
 
 @numba.njit(**JIT)
 def matmul(A: np.ndarray, B: np.ndarray, out: np.ndarray) -> None:
-    """out = A @ B for small matrices (plain loops: numba's BLAS call cannot be cached)."""
+    """out = A @ B for small matrices (plain loops: numba's BLAS call cannot be cached); out
+    must not overlap A or B."""
     out[:, :] = 0.0
     for i in range(A.shape[0]):
         for k in range(A.shape[1]):

@@ -34,7 +34,7 @@ import numpy as np
 from llvmlite import ir
 from numba import types
 from numba.core import cgutils
-from numba.extending import intrinsic
+from numba.extending import intrinsic, overload
 from numba.np.arrayobj import make_array, populate_array
 
 #: options of every fourwis kernel: cached on disk, NumPy's floating-point error semantics
@@ -61,8 +61,38 @@ if not numba.config.CACHE_DIR:
     numba.config.CACHE_DIR = str(ROOT / ".numba_cache" / kernel_fingerprint())
 
 
-#: bytes of stack reserved by each :func:`scratch` call site (larger requests go to the heap)
-SCRATCH_BYTES = 2048
+#: bytes of stack reserved by each compiled :func:`scratch` call site (larger requests go to
+#: the heap); the estimator's largest work array is 13 x 7 doubles (728 bytes)
+SCRATCH_BYTES = 1024
+
+
+def scratch(shape: tuple[int, ...], dtype=np.float64) -> np.ndarray:
+    """Uninitialised work array of ``shape`` (a tuple) for compiled kernels: in compiled code
+    it lives on the caller's stack (a heap array if it needs more than SCRATCH_BYTES); called
+    from Python, or with NUMBA_DISABLE_JIT, it is a plain ``np.empty``.
+
+    Only for arrays that do not outlive the compiled function that creates them: never return
+    one, store it, or keep one across iterations of a loop (each call site owns one buffer)."""
+    return np.empty(shape, dtype)
+
+
+@overload(scratch, inline="always", jit_options=JIT)
+def _scratch_compiled(shape, dtype=np.float64):
+    """The compiled :func:`scratch`, inlined so that its stack bytes are the caller's."""
+    if isinstance(dtype, (types.Omitted, types.NoneType)) or dtype is np.float64:
+        def stack_or_heap_float(shape, dtype=np.float64):
+            if _nbytes(shape, np.float64) <= SCRATCH_BYTES:
+                return _stack_array(shape, np.float64)
+            return np.empty(shape, np.float64)
+
+        return stack_or_heap_float
+
+    def stack_or_heap(shape, dtype=np.float64):
+        if _nbytes(shape, dtype) <= SCRATCH_BYTES:
+            return _stack_array(shape, dtype)
+        return np.empty(shape, dtype)
+
+    return stack_or_heap
 
 
 @intrinsic
@@ -95,27 +125,16 @@ def _stack_array(typingctx, shape, dtype):
 
 
 @intrinsic
-def _itemsize(typingctx, dtype):
-    """Bytes per element of the NumPy scalar type ``dtype``, a compile-time constant."""
-    if not isinstance(dtype, types.NumberClass):
+def _nbytes(typingctx, shape, dtype):
+    """Bytes of an array of ``shape`` (a tuple of ints) and NumPy scalar type ``dtype``."""
+    if not (isinstance(shape, types.UniTuple) and isinstance(shape.dtype, types.Integer)
+            and isinstance(dtype, types.NumberClass)):
         return None
 
     def codegen(context, builder, signature, args):
-        return context.get_constant(types.intp, context.get_abi_sizeof(context.get_data_type(dtype.dtype)))
+        size = context.get_constant(types.intp, context.get_abi_sizeof(context.get_data_type(dtype.dtype)))
+        for extent in cgutils.unpack_tuple(builder, args[0], shape.count):
+            size = builder.mul(size, context.cast(builder, extent, shape.dtype, types.intp))
+        return size
 
-    return types.intp(dtype), codegen
-
-
-@numba.njit(inline="always", **JIT)
-def scratch(shape, dtype=np.float64):
-    """Uninitialised work array of ``shape`` (tuple) on the caller's stack, or on the heap if
-    it needs more than SCRATCH_BYTES. Only for arrays that do not outlive the function that
-    creates them: never return one, store it, or keep one across iterations of a loop (each
-    call site owns one buffer). Functions that call it must be compiled, not called from
-    Python with the array as a result."""
-    size = _itemsize(dtype)
-    for extent in shape:
-        size *= extent
-    if size <= SCRATCH_BYTES:
-        return _stack_array(shape, dtype)
-    return np.empty(shape, dtype)
+    return types.intp(shape, dtype), codegen

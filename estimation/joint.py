@@ -188,7 +188,7 @@ ZP_OFFSET, ZP_STEADY, ZP_STEER, ZP_YAW = range(4)
 OK, BAD_MEASUREMENT, FILTER_FAILED = 0, 1, 2
 
 
-# ---- measurement models (compiled; the state ones map row k of the points (K, n) to row k of out (K, m)) --
+# ---- measurement models (compiled, from the points (K, n) into out (K, m), row by row) -------------
 @numba.njit(inline="always", **JIT)
 def measure_state_1(points, k, out, args) -> None:
     """State sub-filter 1: [ax, ay, r, wheel-centre speeds along each wheel (4)]; args = (steer, pk)."""
@@ -206,7 +206,7 @@ def measure_state_2(points, k, out, args) -> None:
 
 
 @numba.njit(inline="always", **JIT)
-def _mu_predictions(points, args, out) -> None:
+def _mu_predictions(points: np.ndarray, args: tuple, out: np.ndarray) -> None:
     """[ax, ay, r] predicted by the tyre model with the friction of each row of points (K, 4)
     at the state filter's estimate x (r one step ahead of the previous yaw rate), into the
     rows of out (3, K); args = (x, steer, omega, torque, omega_dot, pk, dt)."""
@@ -315,7 +315,7 @@ def _federated(x, P, Q, beta, f_model, z1, valid1, R1, h1_model, z2, valid2, R2,
 
 
 @numba.njit(inline="always", **JIT)
-def _fill_diagonal(out, variances) -> None:
+def _fill_diagonal(variances, out: np.ndarray) -> None:
     """out (m, m): the diagonal matrix of ``variances`` (m,) (an array or a tuple)."""
     out[:, :] = 0.0
     for i in range(len(variances)):
@@ -341,7 +341,7 @@ def _finite_difference_jacobian(model, x, eps, centre, J, f_args, h_args, m_args
 
 
 @numba.njit(inline="always", **JIT)
-def _dot(a, b) -> float:
+def _dot(a: np.ndarray, b: np.ndarray) -> float:
     """sum_i a_i b_i in index order."""
     t = 0.0
     for i in range(a.shape[0]):
@@ -381,13 +381,13 @@ def _ekf_step(x, P, Q, z, valid, R, f_args, h_args, m_args, x_out, P_out) -> flo
         cholesky_solve(L, PHt[i], K[i])
     for i in range(n):
         x_out[i] = x_pred[i] + _dot(K[i], nu)
-    I_KH, A, P_new, KR, KRK = scratch((n, n)), scratch((n, n)), scratch((n, n)), scratch((n, m)), scratch((n, n))
+    I_KH, I_KH_P, P_new, KR, KRK = scratch((n, n)), scratch((n, n)), scratch((n, n)), scratch((n, m)), scratch((n, n))
     matmul(K, H, I_KH)
     for i in range(n):
         for j in range(n):
             I_KH[i, j] = (1.0 if i == j else 0.0) - I_KH[i, j]
-    matmul(I_KH, P_pred, A)
-    matmul(A, I_KH.T, P_new)
+    matmul(I_KH, P_pred, I_KH_P)
+    matmul(I_KH_P, I_KH.T, P_new)
     matmul(K, Rv, KR)
     matmul(KR, K.T, KRK)
     P_new += KRK
@@ -427,7 +427,8 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, process_var, sensor_var,
     for c in range(reading.shape[0]):
         if valid_in[c] and not math.isfinite(reading[c]):
             return BAD_MEASUREMENT, math.nan
-    valid, repeats = scratch((13,), np.bool_), scratch((3,))
+    channels = reading.shape[0]
+    valid, repeats = scratch((channels,), np.bool_), scratch((3,))
     valid[:], repeats[:] = valid_in, inertial_repeats
     for c in range(3):  # stuck inertial sensors (STUCK_SAMPLES)
         repeats[c] = repeats[c] + 1.0 if valid_in[c] and reading[c] == inertial_prev[c] else 0.0
@@ -436,7 +437,7 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, process_var, sensor_var,
     zero_point_new = scratch((4,))
     zero_point_new[:] = zero_point
     _learn_zero_point(zero_point_new, reading, valid, x[I_U], dt, zero_point_tau)
-    values = scratch((13,))
+    values = scratch((channels,))
     values[:] = reading
     values[1] -= zero_point_new[ZP_OFFSET]
     robust, federated, joint = kind >= 3, kind >= 2, kind == 4
@@ -455,9 +456,9 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, process_var, sensor_var,
         z1[3 + w] = values[3 + w] * pk[P_RW]
     valid1, z2, valid2 = valid[:7], values[1:3], valid[1:3]
     R1, R2, Q = scratch((7, 7)), scratch((2, 2)), scratch((6, 6))
-    _fill_diagonal(R1, (accel_var, accel_var, gyro_var, wheel_var, wheel_var, wheel_var, wheel_var))
-    _fill_diagonal(R2, (accel_var, gyro_var))
-    _fill_diagonal(Q, process_var)
+    _fill_diagonal((accel_var, accel_var, gyro_var, wheel_var, wheel_var, wheel_var, wheel_var), R1)
+    _fill_diagonal((accel_var, gyro_var), R2)
+    _fill_diagonal(process_var, Q)
     x_new, P_new, beta_new = scratch((6,)), scratch((6, 6)), scratch((2,))
     beta_new[:] = beta
     m_args = (x, steer, omega, torque, od, pk, dt)  # the mu measurements, unused by the state filter
@@ -478,8 +479,8 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, process_var, sensor_var,
     if joint:
         walk, R1_mu, R2_mu = scratch((4, 4)), scratch((3, 3)), scratch((2, 2))
         _fill_correlated(mu_var[0], walk)
-        _fill_diagonal(R1_mu, (mu_var[1], mu_var[1], gyro_var))
-        _fill_diagonal(R2_mu, (mu_var[1], gyro_var))
+        _fill_diagonal((mu_var[1], mu_var[1], gyro_var), R1_mu)
+        _fill_diagonal((mu_var[1], gyro_var), R2_mu)
         m_args = (x_new, steer, omega, torque, od, pk, dt)
         mu_fused, P_fused = scratch((4,)), scratch((4, 4))
         nll_mu = _federated(mu, P_mu, walk, beta_mu, RANDOM_WALK, values[:3], valid[:3], R1_mu, MU_1, z2, valid2,

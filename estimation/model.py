@@ -98,15 +98,16 @@ class Inputs(NamedTuple):
 
 
 @numba.njit(inline="always", **JIT)
-def wheel_position(pk: np.ndarray, w: int) -> tuple[float, float]:
-    """Wheel w's (FL, FR, RL, RR) position from the CG [m]: +a / -b forward, +/- t/2 left."""
+def wheel_position(pk, w: int) -> tuple[float, float]:
+    """Wheel w's (FL, FR, RL, RR) position from the CG [m]: +a / -b forward, +/- t/2 left.
+    ``pk``: the packed parameters, as the array or as a tuple (the tyre functions take either)."""
     x = pk[P_A] if w < 2 else -pk[P_B]
     half = 0.5 * (pk[P_TF] if w < 2 else pk[P_TR])
     return x, half if w % 2 == 0 else -half
 
 
 @numba.njit(inline="always", **JIT)
-def wheel_load(ax: float, ay: float, pk: np.ndarray, w: int) -> float:
+def wheel_load(ax: float, ay: float, pk, w: int) -> float:
     """Quasi-static load [N] of wheel w (FL, FR, RL, RR) from body accelerations ax, ay
     [m/s^2]: static share plus longitudinal (m ax h / L) and lateral (m ay h / t, split by axle
     static share) transfer; floored at 5% of the static load."""
@@ -160,7 +161,7 @@ def wheel_trig(steer: np.ndarray, w: int) -> tuple[float, float, float]:
 
 
 @numba.njit(inline="always", **JIT)
-def wheel_kinematics(u: float, v: float, r: float, trig: tuple, pk: np.ndarray, w: int) -> tuple[float, float]:
+def wheel_kinematics(u: float, v: float, r: float, trig: tuple, pk, w: int) -> tuple[float, float]:
     """Wheel w's tan(slip angle) and wheel-centre speed along its heading [m/s] (eq. 11-14,
     standard form: alpha_i = delta_i - atan((v + x_i r) / (u - y_i r)), the longitudinal speed
     floored at MIN_SPEED), with tan(alpha) = (tan delta - q) / (1 + q tan delta),
@@ -198,7 +199,8 @@ def tyre_operating_point(u, v, r, fz, trig, omega, pk, w) -> tuple[float, float,
 
 
 @numba.njit(inline="always", **JIT)
-def body_forces(state, mu, steer, omega, torque, omega_dot, pk, out) -> None:
+def body_forces(state: np.ndarray, mu: np.ndarray, steer: np.ndarray, omega: np.ndarray, torque: np.ndarray,
+                omega_dot: np.ndarray, pk: np.ndarray, out: np.ndarray) -> None:
     """Body accelerations ax, ay [m/s^2] and yaw moment Gamma [N m] from the tyre forces (eq. 4-6,
     corrected) for K model evaluations at once: ``state`` (5, K) rows u, v, r, ax, ay and
     ``mu`` (4, K) per wheel; writes the rows of out (3, K). Fx from the wheel's torque balance
@@ -244,7 +246,7 @@ def dugoff_lambdas(u, v, r, ax, ay, mu, steer, omega, pk, out) -> None:
 
 
 @numba.njit(inline="always", **JIT)
-def transition(points, out, args) -> None:
+def transition(points: np.ndarray, out: np.ndarray, args: tuple) -> None:
     """Discrete process model for x_s = [u, v, ax, ay, r, Gamma], paper eq. 1-3, from each row
     of points (K, 6) into the same row of out (K, 6): u+ = u + dt (ax + v r),
     v+ = v + dt (ay - u r), r+ = r + dt Gamma / Iz (Euler at the 2 ms step); ax, ay, Gamma are
@@ -282,15 +284,10 @@ def normal_loads(ax, ay, p: ModelParams) -> np.ndarray:
     return out
 
 
-@numba.njit(**JIT)
-def _transition_rows(points, out, args):
-    transition(points, out, args)
-
-
 def state_transition(x: np.ndarray, mu: np.ndarray, inputs: Inputs, p: ModelParams, dt: float) -> np.ndarray:
     """:func:`transition` of one state x (6,) with mu (4,) and ``inputs``; returns the new state."""
     out = np.empty((1, 6))
     mu, delta, omega, torque, omega_dot = (np.ascontiguousarray(q, dtype=np.float64) for q in (mu, *inputs))
-    _transition_rows(np.ascontiguousarray(x, dtype=np.float64).reshape(1, 6), out,
-                     (mu, steer_trig(delta), omega, torque, omega_dot, p.packed, float(dt)))
+    transition(np.ascontiguousarray(x, dtype=np.float64).reshape(1, 6), out,
+               (mu, steer_trig(delta), omega, torque, omega_dot, p.packed, float(dt)))
     return out[0]

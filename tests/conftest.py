@@ -6,9 +6,10 @@ import pytest
 @pytest.fixture
 def heap_allocations():
     """``count(fn)``: numba heap allocations made while ``fn()`` runs (numba's runtime
-    statistics, switched on for the rest of the session)."""
+    statistics, switched on for the test)."""
     from numba.core.runtime import _nrt_python, rtsys
 
+    was_on = _nrt_python.memsys_stats_enabled()
     _nrt_python.memsys_enable_stats()
 
     def count(fn) -> int:
@@ -16,4 +17,6 @@ def heap_allocations():
         fn()
         return rtsys.get_allocation_stats().alloc - before
 
-    return count
+    yield count
+    if not was_on:
+        _nrt_python.memsys_disable_stats()

@@ -419,6 +419,8 @@ def test_scratch_arrays_live_on_the_stack_and_large_ones_on_the_heap(heap_alloca
         np.testing.assert_array_equal(flags, np.arange(shape[0]) % 2 == 0)
     assert heap_allocations(lambda: fill(*small)) == 2  # the two copies
     assert heap_allocations(lambda: fill(*large)) == 3  # and the matrix
+    from_python = scratch((3, 2), np.bool_)  # outside compiled code: an ordinary array
+    assert isinstance(from_python, np.ndarray) and from_python.shape == (3, 2) and from_python.dtype == np.bool_
 
 
 @pytest.mark.parametrize("name", ESTIMATORS[1:])
