@@ -53,17 +53,27 @@ class Allocation(NamedTuple):
 
 
 @numba.njit(**JIT)
-def _greedy_moment(lever, lower, upper, force, sign) -> tuple[float, np.ndarray]:
+def _greedy_moment(lever, lower, upper, force, sign, x) -> float:
     """Largest (sign = +1) or smallest (-1) sum lever_i x_i over lower <= x <= upper with
-    sum x_i = force (assumed within [sum lower, sum upper]): fill the best levers first."""
-    x = lower.copy()
+    sum x_i = force (assumed within [sum lower, sum upper]): fill the best levers first.
+    Writes that x (4,) and returns its sum lever_i x_i."""
+    order = scratch((4,), np.int64)  # wheels by -sign lever_i, ties in wheel order (a stable sort)
+    for i in range(4):
+        k, j = i, i
+        while j > 0 and -sign * lever[k] < -sign * lever[order[j - 1]]:
+            order[j] = order[j - 1]
+            j -= 1
+        order[j] = k
+    x[:] = lower
     remaining = force - lower.sum()
-    order = np.argsort(-sign * lever)
     for w in order:
         step = min(max(remaining, 0.0), upper[w] - lower[w])
         x[w] += step
         remaining -= step
-    return (lever * x).sum(), x
+    moment = 0.0
+    for w in range(4):
+        moment += lever[w] * x[w]
+    return moment
 
 
 @numba.njit(**JIT)
@@ -146,8 +156,9 @@ def _allocate(base_torques, yaw_moment, fz, mu, lateral, speed, lever, motor_pea
         feasible[b] = _solve_box_qp(capacity_sq, lever, lower, upper, drive_force, yaw_moment[b], 1, x)
         if not feasible[b]:
             force = min(max(drive_force, lower.sum()), upper.sum())
-            moment_high, x_high = _greedy_moment(lever, lower, upper, force, 1.0)
-            moment_low, x_low = _greedy_moment(lever, lower, upper, force, -1.0)
+            x_high, x_low = scratch((4,)), scratch((4,))
+            moment_high = _greedy_moment(lever, lower, upper, force, 1.0, x_high)
+            moment_low = _greedy_moment(lever, lower, upper, force, -1.0, x_low)
             moment = min(max(yaw_moment[b], moment_low), moment_high)
             tolerance = 1e-9 * (abs(drive_force) + abs(yaw_moment[b]) + upper.sum() + 1.0)
             feasible[b] = abs(force - drive_force) <= tolerance and abs(moment - yaw_moment[b]) <= tolerance
