@@ -35,6 +35,7 @@ import numba
 import numpy as np
 
 from control.reference import GRAVITY
+from estimation.ckf import dot
 from estimation.jit import JIT, scratch
 
 SIDE = (-1.0, 1.0, -1.0, 1.0)  #: -1 left wheels, +1 right wheels
@@ -70,10 +71,7 @@ def _greedy_moment(lever, lower, upper, force, sign, x) -> float:
         step = min(max(remaining, 0.0), upper[w] - lower[w])
         x[w] += step
         remaining -= step
-    moment = 0.0
-    for w in range(4):
-        moment += lever[w] * x[w]
-    return moment
+    return dot(lever, x)
 
 
 @numba.njit(**JIT)
@@ -81,10 +79,9 @@ def _solve_box_qp(capacity_sq, lever, lower, upper, force, moment, faces, x_best
     """min sum x_i^2 / capacity_sq_i s.t. sum x_i = force, sum lever_i x_i = moment,
     lower <= x <= upper, over the first ``faces`` activity patterns of ``_FACES`` (all 81: the
     exact optimum; 1: only the all-free closed form); False if none of them is feasible."""
-    abs_lower = abs_upper = 0.0
+    abs_lower = abs_upper = 0.0  # (np.abs(...).sum() without the temporaries)
     for w in range(4):
         abs_lower += abs(lower[w])
-    for w in range(4):
         abs_upper += abs(upper[w])
     scale_f = abs_lower + abs_upper + abs(force) + 1.0
     scale_m = scale_f * (max(abs(lever[0]), abs(lever[1]), abs(lever[2]), abs(lever[3])) + 1.0)
@@ -122,10 +119,7 @@ def _solve_box_qp(capacity_sq, lever, lower, upper, force, moment, faces, x_best
             cost += x[w] ** 2 / capacity_sq[w]
         if not ok or cost >= best_cost:
             continue
-        moment_x = 0.0
-        for w in range(4):
-            moment_x += lever[w] * x[w]
-        if abs(x.sum() - force) > 1e-9 * scale_f or abs(moment_x - moment) > 1e-9 * scale_m:
+        if abs(x.sum() - force) > 1e-9 * scale_f or abs(dot(lever, x) - moment) > 1e-9 * scale_m:
             continue
         best_cost = cost
         for w in range(4):

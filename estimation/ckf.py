@@ -74,6 +74,16 @@ def covariance_sqrt(P: np.ndarray, S: np.ndarray) -> bool:
     return False
 
 
+@numba.njit(inline="always", **JIT)
+def dot(a: np.ndarray, b: np.ndarray) -> float:
+    """sum_i a_i b_i, summed in index order (as numba's ``(a * b).sum()``, without the
+    temporary array)."""
+    t = 0.0
+    for i in range(a.shape[0]):
+        t += a[i] * b[i]
+    return t
+
+
 @numba.njit(**JIT)
 def matmul(A: np.ndarray, B: np.ndarray, out: np.ndarray) -> None:
     """out = A @ B for small matrices (plain loops: numba's BLAS call cannot be cached); out

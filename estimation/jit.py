@@ -35,6 +35,7 @@ from llvmlite import ir
 from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic, overload
+from numba.np import numpy_support
 from numba.np.arrayobj import make_array, populate_array
 
 #: options of every fourwis kernel: cached on disk, NumPy's floating-point error semantics
@@ -79,18 +80,13 @@ def scratch(shape: tuple[int, ...], dtype=np.float64) -> np.ndarray:
 @overload(scratch, inline="always", jit_options=JIT)
 def _scratch_compiled(shape, dtype=np.float64):
     """The compiled :func:`scratch`, inlined so that its stack bytes are the caller's."""
-    if isinstance(dtype, (types.Omitted, types.NoneType)) or dtype is np.float64:
-        def stack_or_heap_float(shape, dtype=np.float64):
-            if _nbytes(shape, np.float64) <= SCRATCH_BYTES:
-                return _stack_array(shape, np.float64)
-            return np.empty(shape, np.float64)
-
-        return stack_or_heap_float
+    # the element type as a compile-time constant (dtype left out: float64)
+    element = numpy_support.as_dtype(dtype.dtype).type if isinstance(dtype, types.NumberClass) else np.float64
 
     def stack_or_heap(shape, dtype=np.float64):
-        if _nbytes(shape, dtype) <= SCRATCH_BYTES:
-            return _stack_array(shape, dtype)
-        return np.empty(shape, dtype)
+        if _nbytes(shape, element) <= SCRATCH_BYTES:
+            return _stack_array(shape, element)
+        return np.empty(shape, element)
 
     return stack_or_heap
 

@@ -48,7 +48,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from estimation.ckf import (DROPOUT_VARIANCE, NO_HUBER, cholesky, cholesky_solve, cubature_points, matmul,
+from estimation.ckf import (DROPOUT_VARIANCE, NO_HUBER, cholesky, cholesky_solve, cubature_points, dot, matmul,
                             measurement_update, predicted_moments)
 from estimation.federated import fuse, sharing_coefficients
 from estimation.jit import JIT, scratch
@@ -340,15 +340,6 @@ def _finite_difference_jacobian(model, x, eps, centre, J, f_args, h_args, m_args
     centre[:] = values[0]
 
 
-@numba.njit(inline="always", **JIT)
-def _dot(a: np.ndarray, b: np.ndarray) -> float:
-    """sum_i a_i b_i in index order."""
-    t = 0.0
-    for i in range(a.shape[0]):
-        t += a[i] * b[i]
-    return t
-
-
 @numba.njit(**JIT)
 def _ekf_step(x, P, Q, z, valid, R, f_args, h_args, m_args, x_out, P_out) -> float:
     """EKF on the same model (central-difference Jacobians, Joseph-form update); returns
@@ -380,7 +371,7 @@ def _ekf_step(x, P, Q, z, valid, R, f_args, h_args, m_args, x_out, P_out) -> flo
     for i in range(n):
         cholesky_solve(L, PHt[i], K[i])
     for i in range(n):
-        x_out[i] = x_pred[i] + _dot(K[i], nu)
+        x_out[i] = x_pred[i] + dot(K[i], nu)
     I_KH, I_KH_P, P_new, KR, KRK = scratch((n, n)), scratch((n, n)), scratch((n, n)), scratch((n, m)), scratch((n, n))
     matmul(K, H, I_KH)
     for i in range(n):
@@ -396,7 +387,7 @@ def _ekf_step(x, P, Q, z, valid, R, f_args, h_args, m_args, x_out, P_out) -> flo
             P_out[i, j] = 0.5 * (P_new[i, j] + P_new[j, i])
     white = scratch((m,))
     cholesky_solve(L, nu, white)
-    return 0.5 * _dot(nu, white)
+    return 0.5 * dot(nu, white)
 
 
 # ---- one estimator step (compiled) -----------------------------------------------------------
