@@ -25,8 +25,9 @@ Accuracy, checked against the C library by ``tests/test_vecmath.py`` over dense 
   (the two-part constant of fdlibm's ``__ieee754_rem_pio2``), Taylor series to ``r^15`` and
   ``r^16`` on ``|r| <= pi/4`` (truncation below 7e-17), quadrant selected arithmetically.
 * ``sqrt``: LLVM's ``llvm.sqrt`` intrinsic, correctly rounded like the C library's (so
-  bit-identical to ``math.sqrt``); numba compiles ``math.sqrt`` to a call of the C function,
-  which the loop vectoriser refuses ("call instruction cannot be vectorized").
+  bit-identical to ``math.sqrt``, which it is when called from Python); numba compiles
+  ``math.sqrt`` to a call of the C function, which the loop vectoriser refuses ("call
+  instruction cannot be vectorized").
 * ``exp``: <= 2e-14 relative for ``|z| <= 16``, degrading beyond (3e-8 at 64):
   Taylor series to ``w^12`` of ``exp(w)``, ``w = z / 64``, squared six times. The plant
   calls it for load-sensitivity factors ``exp(c dfz)`` with ``|c dfz| < 1``.
@@ -39,7 +40,7 @@ import math
 import numba
 import numpy as np
 from numba import types
-from numba.extending import intrinsic
+from numba.extending import intrinsic, overload
 
 from estimation.jit import JIT
 
@@ -136,9 +137,22 @@ def exp(z: float) -> float:
     return p * p
 
 
+def sqrt(x: float) -> float:
+    """Square root of a float: in compiled code the ``llvm.sqrt`` intrinsic (see the module
+    docstring); from Python, and under NUMBA_DISABLE_JIT, ``math.sqrt`` (bit-identical)."""
+    return math.sqrt(x)
+
+
+@overload(sqrt, inline="always", jit_options=JIT)
+def _sqrt_compiled(x):
+    if isinstance(x, types.Float):
+        return lambda x: _llvm_sqrt(x)
+    return None
+
+
 @intrinsic
-def sqrt(typingctx, x):
-    """Square root of a float, as the ``llvm.sqrt`` intrinsic (see the module docstring)."""
+def _llvm_sqrt(typingctx, x):
+    """The ``llvm.sqrt`` intrinsic of a float."""
     if not isinstance(x, types.Float):
         return None
 

@@ -37,6 +37,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic, overload
 from numba.np import numpy_support
 from numba.np.arrayobj import make_array, populate_array
+from numba.np.unsafe.ndarray import to_fixed_tuple
 
 #: options of every fourwis kernel: cached on disk, NumPy's floating-point error semantics
 #: (division by zero gives inf/nan instead of raising, as in vectorised NumPy code)
@@ -89,6 +90,22 @@ def _scratch_compiled(shape, dtype=np.float64):
         return np.empty(shape, element)
 
     return stack_or_heap
+
+
+def fixed_tuple(array: np.ndarray, n: int) -> tuple:
+    """The first ``n`` elements of the 1-D ``array`` as a tuple. In compiled code ``n`` must be
+    a compile-time constant and the tuple is a value (numba's ``to_fixed_tuple``): unlike an
+    array, it can be handed to inlined functions inside a loop that the compiler should run in
+    SIMD lanes. From Python, and under NUMBA_DISABLE_JIT, a plain tuple."""
+    return tuple(array[:n])
+
+
+@overload(fixed_tuple, inline="always", prefer_literal=True, jit_options=JIT)
+def _fixed_tuple_compiled(array, n):
+    if not isinstance(n, types.IntegerLiteral):
+        return None
+    size = n.literal_value
+    return lambda array, n: to_fixed_tuple(array, size)
 
 
 @intrinsic

@@ -26,9 +26,8 @@ from typing import NamedTuple
 
 import numba
 import numpy as np
-from numba.np.unsafe.ndarray import to_fixed_tuple
 
-from estimation.jit import JIT, scratch
+from estimation.jit import JIT, fixed_tuple, scratch
 
 GRAVITY = 9.81  #: [m/s^2]
 MIN_SPEED = 1.0  #: denominator floor for slip quantities [m/s]
@@ -212,7 +211,7 @@ def body_forces(state: np.ndarray, mu: np.ndarray, steer: np.ndarray, omega: np.
     RR. Callers pass stack arrays (:func:`estimation.jit.scratch`): the compiler then knows
     they do not overlap, which it needs before it vectorises."""
     K = state.shape[1]
-    params = to_fixed_tuple(pk, N_PARAMS)  # a value, not an array, inside the loop (see wheel_trig)
+    params = fixed_tuple(pk, N_PARAMS)  # a value, not an array, inside the loop (see wheel_trig)
     out[:, :] = 0.0
     for w in range(4):
         x_w, y_w = wheel_position(params, w)
