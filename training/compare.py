@@ -251,18 +251,19 @@ def plot_report(table: dict, trajectories: dict, scenarios, estimators, controll
     paths.append(atomic_write(out / "peak_sideslip.png", lambda p: fig.savefig(p, format="png", dpi=110)))
     plt.close(fig)
 
-    fig, axes = plt.subplots(1, len(controllers), figsize=(1.6 + 1.3 * len(scenarios) * len(controllers), 0.9 + 0.5
-                                                                 * len(estimators)), squeeze=False)
-    for ax, c in zip(axes[0], controllers):
+    # one heat map per controller, stacked, sharing the scenario axis
+    fig, axes = plt.subplots(len(controllers), 1, figsize=(max(6.0, 2.0 + 1.1 * len(scenarios)),
+                                                            1.4 + len(controllers) * (0.6 + 0.3 * len(estimators))),
+                             squeeze=False, sharex=True, layout="constrained")
+    for ax, c in zip(axes[:, 0], controllers):
         rate = np.array([[table[(s, e, c)]["stable"] for s in scenarios] for e in estimators])
         ax.imshow(rate, vmin=0.0, vmax=1.0, cmap="RdYlGn", aspect="auto")
         for (i, j), value in np.ndenumerate(rate):
-            ax.text(j, i, f"{100 * value:.0f}%", ha="center", va="center", fontsize=7)
-        ax.set_xticks(range(len(scenarios)), scenarios, rotation=30, ha="right", fontsize=7)
-        ax.set_yticks(range(len(estimators)), estimators, fontsize=7)
-        ax.set_title(f"{c}: pass rate", fontsize=8)
-    fig.suptitle("runs without spin-out (and passing FMVSS 126 on sine with dwell), over seeds", fontsize=8)
-    fig.tight_layout()
+            ax.text(j, i, f"{100 * value:.0f}%", ha="center", va="center", fontsize=8)
+        ax.set_yticks(range(len(estimators)), estimators, fontsize=8)
+        ax.set_title(f"controller {c}", fontsize=9)
+    axes[-1, 0].set_xticks(range(len(scenarios)), scenarios, rotation=30, ha="right", fontsize=8)
+    fig.suptitle("pass rate over seeds: runs without spin-out (and passing FMVSS 126 on sine with dwell)", fontsize=9)
     paths.append(atomic_write(out / "pass_rate.png", lambda p: fig.savefig(p, format="png", dpi=110)))
     plt.close(fig)
 
@@ -273,13 +274,15 @@ def plot_report(table: dict, trajectories: dict, scenarios, estimators, controll
                 traj = trajectories.get((s, e, c))
                 if traj is None:
                     continue
-                label = f"{c} / {e}"
-                axes[0].plot(traj.t, np.degrees(traj.state[:, S_R]), label=label)
-                axes[1].plot(traj.t, np.degrees(traj.truth.beta), label=label)
-                beta = np.degrees(traj.truth.beta)
-                axes[3].plot(beta, np.gradient(beta, traj.t), lw=0.8, label=label)
-                if c == controllers[-1]:
-                    axes[2].plot(traj.t, traj.estimate.mu.mean(axis=1), label=f"{e} estimate")
+                color = None
+                if not (c == "none" and e != estimators[0]):  # without a controller the estimate does not act
+                    label = "no control" if c == "none" else f"{c} / {e}"
+                    beta = np.degrees(traj.truth.beta)
+                    color = axes[0].plot(traj.t, np.degrees(traj.state[:, S_R]), label=label)[0].get_color()
+                    axes[1].plot(traj.t, beta, label=label, color=color)
+                    axes[3].plot(beta, np.gradient(beta, traj.t), lw=0.8, label=label, color=color)
+                if c == controllers[-1]:  # in the colour of that run
+                    axes[2].plot(traj.t, traj.estimate.mu.mean(axis=1), label=f"{e} estimate", color=color)
         first = next((t for k, t in trajectories.items() if k[0] == s), None)
         if first is not None:
             axes[2].plot(first.t, first.truth.mu.mean(axis=1), "k--", label="truth")
