@@ -72,7 +72,7 @@ from envs.scenarios import SCENARIOS, Scenario, make_scenario
 from envs.sensors import Fault
 from envs.simulation import DT, ClosedLoop
 from envs.vehicle import A_AY, S_R, S_X, S_Y
-from estimation import ESTIMATORS
+from estimation import check_estimator_name
 from estimation.types import Estimate
 
 MAX_YAW_MOMENT = 3000.0  #: yaw-moment action scale [N m]
@@ -104,8 +104,7 @@ class EnvConfig:
     def __post_init__(self) -> None:
         if self.scenario not in SCENARIOS:
             raise ValueError(f"unknown scenario {self.scenario!r}; known: {sorted(SCENARIOS)}")
-        if self.estimator not in ESTIMATORS:
-            raise ValueError(f"unknown estimator {self.estimator!r}; known: {list(ESTIMATORS)}")
+        check_estimator_name(self.estimator)
         if self.observation not in OBSERVATIONS:
             raise ValueError(f"unknown observation {self.observation!r}; known: {list(OBSERVATIONS)}")
         if self.action not in ACTIONS:

@@ -6,25 +6,41 @@ from __future__ import annotations
 from estimation.joint import KINDS, NoiseParams, StateEstimator, tuned_noise
 from estimation.model import ModelParams
 from estimation.online import OnlineTuner
-from estimation.oracle import Oracle
+from estimation.oracle import TRUE_SUFFIX, TRUTH_GROUPS, Oracle, PartialOracle, parse_truth_groups
 from estimation.types import Estimate
 
 ESTIMATORS = ("oracle",) + KINDS  #: names accepted by make_estimator; "joint" is the paper's full system
+
+
+def check_estimator_name(name: str) -> str:
+    """``name`` if make_estimator accepts it: one of :data:`ESTIMATORS`, optionally followed by
+    ``+true-<group>[-<group>...]`` (:data:`TRUTH_GROUPS`); else ValueError naming it."""
+    base, sep, groups = str(name).partition(TRUE_SUFFIX)
+    if base not in ESTIMATORS:
+        raise ValueError(f"unknown estimator {name!r}; known: {list(ESTIMATORS)}, each optionally with "
+                         f"'{TRUE_SUFFIX}<group>[-<group>...]', groups {list(TRUTH_GROUPS)}")
+    if sep:
+        parse_truth_groups(groups)
+    return name
 
 
 def make_estimator(name: str, params, dt: float = 0.002, noise: NoiseParams | None = None, **kwargs):
     """Build the estimator ``name`` (see :data:`ESTIMATORS`) for vehicle ``params`` (duck-typed
     VehicleParams) at step ``dt`` [s]. ``alo-fkf`` and ``joint`` (the paper's antlion-tuned
     filters) use the ALO-tuned noise shipped in estimation/data/tuned_noise.json (``fourwis
-    tune`` rewrites it; without the file they run the hand-set noise); ``noise`` overrides it."""
+    tune`` rewrites it; without the file they run the hand-set noise); ``noise`` overrides it.
+    ``<name>+true-<group>[-<group>...]`` (e.g. ``joint+true-mu``) reports the truth for those
+    groups (:class:`PartialOracle`, :data:`TRUTH_GROUPS`): which estimated quantity a
+    closed-loop loss comes from."""
+    base, sep, groups = check_estimator_name(name).partition(TRUE_SUFFIX)
+    if sep:
+        return PartialOracle(make_estimator(base, params, dt, noise, **kwargs), parse_truth_groups(groups))
     if name == "oracle":
         return Oracle()
-    if name not in KINDS:
-        raise ValueError(f"unknown estimator {name!r}; known: {list(ESTIMATORS)}")
     if noise is None:
         noise = (tuned_noise() if name in ("alo-fkf", "joint") else None) or NoiseParams()
     return StateEstimator(ModelParams.from_vehicle(params), kind=name, dt=dt, noise=noise, **kwargs)
 
 
-__all__ = ["ESTIMATORS", "Estimate", "ModelParams", "NoiseParams", "OnlineTuner", "StateEstimator",
-           "make_estimator", "tuned_noise"]
+__all__ = ["ESTIMATORS", "TRUTH_GROUPS", "Estimate", "ModelParams", "NoiseParams", "OnlineTuner", "PartialOracle",
+           "StateEstimator", "check_estimator_name", "make_estimator", "tuned_noise"]

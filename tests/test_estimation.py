@@ -264,6 +264,23 @@ def test_estimator_is_deterministic_under_a_seed_and_names_are_checked():
         make_estimator("kalman9000", VehicleParams())
 
 
+def test_a_partial_oracle_reports_the_true_groups_and_the_estimators_own_rest():
+    """joint+true-mu-fz: friction and loads from the truth (their sigma zero), everything else
+    exactly the joint estimator's (it never sees the truth); bad names name the bad part."""
+    scenario = make_scenario("mu_jump", duration=3.0)
+    plain = simulate(scenario, estimator="joint", seed=2)
+    part = simulate(scenario, estimator="joint+true-mu-fz", seed=2)
+    np.testing.assert_array_equal(part.estimate.mu, part.truth.mu)
+    np.testing.assert_array_equal(part.estimate.fz, part.truth.fz)
+    assert not part.estimate.mu_std.any() and plain.estimate.mu_std.all()
+    assert np.abs(plain.estimate.mu - plain.truth.mu).max() > 0.1  # so the substitution shows
+    for field in ("u", "v", "beta", "r", "ax", "ay", "beta_std"):
+        np.testing.assert_array_equal(getattr(part.estimate, field), getattr(plain.estimate, field))
+    for bad, word in (("joint+true-speed", "speed"), ("kalman9+true-mu", "kalman9"), ("joint+true-mu-mu", "once")):
+        with pytest.raises(ValueError, match=word):
+            make_estimator(bad, VehicleParams())
+
+
 @pytest.mark.parametrize("scenario", ["paper_step", "paper_serpentine"])
 def test_dugoff_at_the_true_state_matches_the_plant_force_near_saturation(scenario):
     """The estimator's tyre (Dugoff, eq. 17 stiffness, its own quasi-static loads), evaluated at

@@ -175,8 +175,12 @@ def _add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
 def _add_matrix_arguments(parser: argparse.ArgumentParser, scenarios, estimators, seeds: int, out: str,
                           scenarios_help: str) -> None:
     """The scenario x estimator x seed matrix arguments that compare and estimate share."""
+    from estimation import ESTIMATORS, TRUTH_GROUPS
+
     parser.add_argument("--scenarios", nargs="+", default=list(scenarios), help=scenarios_help)
-    parser.add_argument("--estimators", nargs="+", default=list(estimators))
+    parser.add_argument("--estimators", nargs="+", default=list(estimators),
+                        help=f"estimator names ({', '.join(ESTIMATORS)}); NAME+true-mu (groups "
+                             f"{', '.join(TRUTH_GROUPS)}, joined by '-') reports those quantities from the truth")
     parser.add_argument("--seeds", type=int, default=seeds, help="sensor-noise seeds per cell")
     parser.add_argument("--jobs", type=int, help="worker processes (default: up to 2)")
     parser.add_argument("--out", default=out, help="output directory")

@@ -26,7 +26,7 @@ from envs.scenarios import SCENARIOS, make_scenario
 from envs.sensors import Fault
 from envs.simulation import Trajectory, simulate
 from envs.vehicle import A_AY, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_X, S_Y
-from estimation import ESTIMATORS
+from estimation import check_estimator_name
 from training.io import atomic_write, atomic_write_text
 from training.pool import parallel_map
 from training.tables import mean_over_seeds, write_runs_csv
@@ -157,7 +157,8 @@ def run_matrix(scenarios: Sequence[str] = HEADLINE, estimators: Sequence[str] = 
                progress: bool = True) -> tuple[list[tuple[RunSpec, dict]], dict]:
     """Run the matrix in parallel processes; returns per-run (spec, metrics) and seed-0 trajectories."""
     names = [parse_scenario(s)[0] for s in scenarios]
-    _check("estimator(s)", estimators, ESTIMATORS)
+    for name in estimators:
+        check_estimator_name(name)
     _check("controller(s)", [c for c in controllers if not c.startswith(RL_PREFIX)], CONTROLLERS)
     for name in controllers:
         if name.startswith(RL_PREFIX):

@@ -20,7 +20,7 @@ import numpy as np
 from envs.metrics import mae, rmse
 from envs.scenarios import PAPER_SCENARIOS, Scenario, make_scenario
 from envs.simulation import Trajectory, simulate
-from estimation import ESTIMATORS, Estimate
+from estimation import ESTIMATORS, Estimate, check_estimator_name
 from training.io import atomic_write, atomic_write_text
 from training.pool import parallel_map
 from training.tables import mean_over_seeds, write_runs_csv
@@ -101,9 +101,8 @@ def run_all(scenarios: Sequence[str | Scenario] = PAPER_SCENARIOS, estimators: S
     built = _scenarios(scenarios)
     if not estimators:
         raise ValueError("estimators must not be empty")
-    unknown = [e for e in estimators if e not in ESTIMATORS]
-    if unknown:
-        raise ValueError(f"unknown estimator(s) {unknown}; known: {list(ESTIMATORS)}")
+    for name in estimators:
+        check_estimator_name(name)
     if not isinstance(seeds, int) or seeds < 1:
         raise ValueError(f"seeds must be an integer >= 1, got {seeds!r}")
     if jobs is not None and jobs < 1:
