@@ -6,53 +6,14 @@ closed loop (driver, noisy sensors, estimator, allocation, truth plant): the sam
 (:class:`YawStabilityCore`) serves both :class:`YawStabilityEnv` (batch of one) and the native
 :class:`YawStabilityVectorEnv` (batch of N, autoreset by masks in the same step).
 
-Observation (float32, ``observation="estimated"`` default; ``"true"`` fills the same slots
-from the truth with zero uncertainty):
-
-==== ============================================ ============
-idx  quantity                                     scale
-==== ============================================ ============
-0    longitudinal speed u                         / 30 m/s
-1    sideslip beta                                / 0.2 rad
-2    yaw rate r                                   / 1 rad/s
-3    longitudinal acceleration ax                 / 10 m/s^2
-4    lateral acceleration ay                      / 10 m/s^2
-5-8  road friction mu per wheel (FL, FR, RL, RR)  / 1
-9    sideslip standard deviation                  / 0.05 rad
-10   mean mu standard deviation                   / 0.3
-11   reference yaw rate r_ref                     / 1 rad/s
-12   front road-wheel steer of the driver         / 0.3 rad
-13   yaw-rate error r - r_ref                     / 1 rad/s
-==== ============================================ ============
-
-``observation="sensors"``: the 13 raw channels (ax, ay, r, 4 wheel speeds, 2 steer angles,
-4 torques) scaled by (10, 10, 1, 100 x4, 0.3 x2, 600 x4), then r_ref / 1 (from the raw
-readings and a nominal mu of 0.8).
-
-Actions (float32 in [-1, 1]): ``action="yaw_moment"`` (default): [corrective yaw moment x
-3000 N m, rear steer x max rear steer], allocated to the wheels by control/ (least tyre
-workload for the driver's drive force plus the moment, within motor and friction limits from
-the estimate; an infeasible moment is cut to the largest feasible one); ``"wheel_torques"``: four corrective torques x the motor
-peak torque added to the driver's speed-holding torques. Out-of-range actions are clipped
-and flagged in ``info["action_clipped"]``; NaN/inf actions raise ValueError.
-
-Reward per step: -(e_r / 0.1)^2 - (beta / 0.05)^2 - 0.1 |a|^2 - (d / 1.0)^2 (e_r: true yaw
-rate minus the reference from the true state; d: lateral deviation from the scenario's path,
-if it has one) times control_dt; -100 on termination. Terminated: |beta| > 20 deg (spin-out)
-or more than 5 m from the path. Truncated: the scenario's end or ``max_episode_steps``.
-
-Other scenario arguments (e.g. ``amplitude_deg`` of ``sine_with_dwell``) go in
-``scenario_kwargs``.
-
-``info``: ``truth`` and ``estimate`` (:class:`estimation.types.Estimate`), ``action_clipped``,
-``beta``, ``yaw_rate_error``, ``path_deviation``, ``spin_out``; when an episode ends,
-``episode_metrics`` (length, return, yaw-rate tracking RMS, peak |beta|, largest path
-deviation, spin-out; on ``sine_with_dwell`` the FMVSS 126 ratios, displacement and verdict).
+The observation table, actions, reward, termination and ``info`` are documented in
+:class:`YawStabilityEnv`; :class:`YawStabilityVectorEnv` batches them.
 """
 
 from __future__ import annotations
 
 import math
+import numbers
 import os
 import warnings
 from dataclasses import dataclass, field
@@ -86,6 +47,19 @@ SENSOR_SCALE = np.array([10, 10, 1, 100, 100, 100, 100, 0.3, 0.3, 600, 600, 600,
 NOMINAL_MU = 0.8  #: friction assumed for r_ref in the sensors observation
 
 
+def _is_real(value) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+
+
+def _is_integer(value) -> bool:
+    return isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_))
+
+
+def _unknown_arguments(unknown: dict) -> None:
+    if unknown:
+        raise ValueError(f"unknown keyword argument(s) {sorted(unknown)}; see the YawStabilityEnv docstring")
+
+
 @dataclass(frozen=True)
 class EnvConfig:
     """Validated keyword arguments of the environments (see the module docstring)."""
@@ -100,25 +74,36 @@ class EnvConfig:
     sensor_faults: tuple[Fault, ...] = field(default=())
     max_episode_steps: int | None = None
     scenario_kwargs: dict | None = None
+    rear_steer: bool = True
 
     def __post_init__(self) -> None:
-        if self.scenario not in SCENARIOS:
-            raise ValueError(f"unknown scenario {self.scenario!r}; known: {sorted(SCENARIOS)}")
+        for name, known in (("scenario", sorted(SCENARIOS)), ("observation", list(OBSERVATIONS)),
+                            ("action", list(ACTIONS))):
+            value = getattr(self, name)
+            if not (isinstance(value, str) and value in known):
+                raise ValueError(f"unknown {name} {value!r}; known: {known}")
+        if not isinstance(self.estimator, str):
+            raise ValueError(f"estimator must be a name, got {self.estimator!r}")
         check_estimator_name(self.estimator)
-        if self.observation not in OBSERVATIONS:
-            raise ValueError(f"unknown observation {self.observation!r}; known: {list(OBSERVATIONS)}")
-        if self.action not in ACTIONS:
-            raise ValueError(f"unknown action {self.action!r}; known: {list(ACTIONS)}")
-        substeps = self.control_dt / DT if isinstance(self.control_dt, (int, float)) else math.nan
-        if not (self.control_dt > 0 and abs(substeps - round(substeps)) < 1e-9):
-            raise ValueError(f"control_dt must be a positive multiple of {DT} s, got {self.control_dt!r}")
-        faults = tuple(self.sensor_faults)
-        if not all(isinstance(f, Fault) for f in faults):
+        dt = self.control_dt
+        substeps = dt / DT if _is_real(dt) and math.isfinite(dt) else math.nan
+        if not (substeps >= 1 - 1e-9 and abs(substeps - round(substeps)) < 1e-9):
+            raise ValueError(f"control_dt must be a positive multiple of {DT} s, got {dt!r}")
+        try:
+            faults = tuple(self.sensor_faults or ())
+        except TypeError:
+            faults = None
+        if faults is None or not all(isinstance(f, Fault) for f in faults):
             raise ValueError(f"sensor_faults must be envs.sensors.Fault instances, got {self.sensor_faults!r}")
         object.__setattr__(self, "sensor_faults", faults)
-        if self.max_episode_steps is not None and not (isinstance(self.max_episode_steps, int)
+        if self.max_episode_steps is not None and not (_is_integer(self.max_episode_steps)
                                                        and self.max_episode_steps > 0):
             raise ValueError(f"max_episode_steps must be a positive integer, got {self.max_episode_steps!r}")
+        if self.scenario_kwargs is not None and not (isinstance(self.scenario_kwargs, dict)
+                                                     and all(isinstance(k, str) for k in self.scenario_kwargs)):
+            raise ValueError(f"scenario_kwargs must be a dict of scenario arguments, got {self.scenario_kwargs!r}")
+        if not isinstance(self.rear_steer, (bool, np.bool_)):
+            raise ValueError(f"rear_steer must be True or False, got {self.rear_steer!r}")
         make_scenario(self.scenario, **self.overrides)  # validate the overrides now
 
     @property
@@ -132,7 +117,7 @@ class EnvConfig:
 
     @property
     def action_size(self) -> int:
-        return 2 if self.action == "yaw_moment" else 4
+        return (2 if self.rear_steer else 1) if self.action == "yaw_moment" else 4
 
     def draw(self, rng: np.random.Generator) -> tuple[Scenario, np.random.Generator]:
         """An episode's scenario and sensor generator, both drawn from the episode's ``rng``."""
@@ -153,9 +138,9 @@ def state_observation(e: Estimate, delta_f: np.ndarray, params) -> np.ndarray:
 class _AgentController:
     """Turns the held agent actions (B, n) into wheel torques and rear steer each substep."""
 
-    def __init__(self, params, action_mode: str, batch_size: int):
-        self.params, self.action_mode = params, action_mode
-        self.action = np.zeros((batch_size, 2 if action_mode == "yaw_moment" else 4))
+    def __init__(self, params, config: EnvConfig, batch_size: int):
+        self.params, self.action_mode = params, config.action
+        self.action = np.zeros((batch_size, config.action_size))
 
     def reset(self) -> None:
         self.action[:] = 0.0
@@ -164,7 +149,8 @@ class _AgentController:
         p = self.params
         if self.action_mode == "yaw_moment":
             torques = allocate_for_estimate(base_torques, self.action[:, 0] * MAX_YAW_MOMENT, estimate, p).torques
-            return Command(torques, self.action[:, 1] * p.max_rear_steer)
+            rear = self.action[:, 1] * p.max_rear_steer if self.action.shape[1] == 2 else np.zeros(len(torques))
+            return Command(torques, rear)
         limit = p.motor_peak_torque
         return Command(np.clip(base_torques + self.action * limit, -limit, limit), np.zeros(len(base_torques)))
 
@@ -200,7 +186,7 @@ class YawStabilityCore:
         self.batch_size = len(rngs)
         scenarios, sensor_rngs = zip(*(config.draw(rng) for rng in rngs))
         params = scenarios[0].vehicle_params
-        self.controller = _AgentController(params, config.action, self.batch_size)
+        self.controller = _AgentController(params, config, self.batch_size)
         self.loop = ClosedLoop(list(scenarios), self.controller, config.estimator, list(sensor_rngs),
                                faults=config.sensor_faults)
         self.params = params
@@ -276,7 +262,7 @@ class YawStabilityCore:
             self._trace.append((s.t[0], truth.r[0], r_ref[0], beta[0]))
         info = {"truth": truth, "estimate": s.estimate, "action_clipped": np.any(clipped != actions, axis=1),
                 "beta": beta, "yaw_rate_error": yaw_error, "path_deviation": deviation, "spin_out": spin,
-                "episode_metrics": [self._episode_metrics(b, spin[b]) if terminated[b] or truncated[b] else None
+                "episode_metrics": [self.episode_metrics(b) if terminated[b] or truncated[b] else None
                                     for b in range(self.batch_size)]}
         return obs, reward, terminated, truncated, info
 
@@ -288,8 +274,10 @@ class YawStabilityCore:
                 out[b] = path_deviation(state[b:b + 1, S_X], state[b:b + 1, S_Y], scenario.reference_path)[1]
         return out
 
-    def _episode_metrics(self, b: int, spun: bool) -> dict:
+    def episode_metrics(self, b: int) -> dict:
+        """Vehicle b's episode so far (see the YawStabilityEnv docstring)."""
         st = self.stats
+        spun = st.peak_beta[b] > SPIN_OUT_SIDESLIP
         out = {"length": int(st.length[b]), "return": float(st.ret[b]),
                "yaw_rate_tracking_rms": float(np.sqrt(st.yaw_sq[b] / max(st.length[b], 1))),
                "peak_beta": float(st.peak_beta[b]), "max_path_deviation": float(st.max_deviation[b]),
@@ -313,6 +301,11 @@ class YawStabilityCore:
         return self._renderer.frame(self.loop, 0, np.array(self._trace).reshape(-1, 4))
 
 
+def _first(estimate: Estimate) -> Estimate:
+    """The first vehicle's fields of a batched estimate."""
+    return Estimate(*(field[0] for field in estimate))
+
+
 def _check_actions(actions, shape: tuple[int, ...]) -> np.ndarray:
     actions = np.asarray(actions, dtype=float)
     if actions.shape != shape:
@@ -333,23 +326,75 @@ def _check_render_mode(render_mode: str | None) -> None:
 
 
 class YawStabilityEnv(gym.Env):
-    """One car (the batched core with B = 1). See the module docstring for observation,
-    action, reward, termination and info."""
+    """One car (the batched core with B = 1).
+
+    Observation (float32, ``observation="estimated"`` default; ``"true"`` fills the same slots
+    from the truth with zero uncertainty):
+
+    ==== ============================================ ============
+    idx  quantity                                     scale
+    ==== ============================================ ============
+    0    longitudinal speed u                         / 30 m/s
+    1    sideslip beta                                / 0.2 rad
+    2    yaw rate r                                   / 1 rad/s
+    3    longitudinal acceleration ax                 / 10 m/s^2
+    4    lateral acceleration ay                      / 10 m/s^2
+    5-8  road friction mu per wheel (FL, FR, RL, RR)  / 1
+    9    sideslip standard deviation                  / 0.05 rad
+    10   mean mu standard deviation                   / 0.3
+    11   reference yaw rate r_ref                     / 1 rad/s
+    12   front road-wheel steer of the driver         / 0.3 rad
+    13   yaw-rate error r - r_ref                     / 1 rad/s
+    ==== ============================================ ============
+
+    ``observation="sensors"``: the 13 raw channels (ax, ay, r, 4 wheel speeds, 2 steer angles,
+    4 torques) scaled by (10, 10, 1, 100 x4, 0.3 x2, 600 x4), then r_ref / 1 (from the raw
+    readings and a nominal mu of 0.8).
+
+    Actions (float32 in [-1, 1]): ``action="yaw_moment"`` (default): [corrective yaw moment x
+    3000 N m, rear steer x max rear steer] (``rear_steer=False``: the moment alone, a 4WID car
+    without 4WS), allocated to the wheels by control/ (least tyre workload for the driver's
+    drive force plus the moment, within motor and friction limits from the estimate; an
+    infeasible moment is cut to the largest feasible one); ``"wheel_torques"``: four corrective
+    torques x the motor peak torque added to the driver's speed-holding torques. Out-of-range
+    actions are clipped and flagged in ``info["action_clipped"]``; NaN/inf actions raise
+    ValueError. Unknown keyword arguments and bad values raise ValueError naming them.
+
+    Reward per step: -(e_r / 0.1)^2 - (beta / 0.05)^2 - 0.1 |a|^2 - (d / 1.0)^2 (e_r: true yaw
+    rate minus the reference from the true state; d: lateral deviation from the scenario's path,
+    if it has one) times control_dt; -100 on termination. Terminated: |beta| > 20 deg (spin-out)
+    or more than 5 m from the path (scenarios with a course: the lane changes, the slalom and
+    ISO 3888-2; the others are open-road manoeuvres without road edges and end by spin-out or
+    time). Truncated: the scenario's end. ``gym.make`` adds gymnasium's TimeLimit at 1,500 steps
+    (30 s at 20 ms, beyond every scenario's default duration); an episode it cuts carries no
+    ``episode_metrics`` in ``info`` (:meth:`YawStabilityEnv.episode_metrics` gives them at any
+    time). The native vector env takes ``max_episode_steps`` itself and reports the metrics.
+
+    Other scenario arguments (e.g. ``amplitude_deg`` of ``sine_with_dwell``) go in
+    ``scenario_kwargs``.
+
+    ``info``: ``truth`` and ``estimate`` (:class:`estimation.types.Estimate` of the car), ``action_clipped``,
+    ``beta``, ``yaw_rate_error``, ``path_deviation``, ``spin_out``; when an episode ends,
+    ``episode_metrics`` (length, return, yaw-rate tracking RMS, peak |beta|, largest path
+    deviation, spin-out; on ``sine_with_dwell`` the FMVSS 126 ratios, displacement and verdict).
+    """
 
     metadata = {"render_modes": list(RENDER_MODES), "render_fps": 50}
 
     def __init__(self, scenario: str = "random", speed_kph: float | None = None, mu=None, estimator: str = "joint",
                  observation: str = "estimated", action: str = "yaw_moment", control_dt: float = 0.02,
                  sensor_faults: tuple[Fault, ...] = (), render_mode: str | None = None,
-                 scenario_kwargs: dict | None = None):
-        self.config = EnvConfig(scenario, speed_kph, mu, estimator, observation, action, control_dt,
-                                tuple(sensor_faults), scenario_kwargs=scenario_kwargs)
+                 scenario_kwargs: dict | None = None, rear_steer: bool = True, **unknown):
+        _unknown_arguments(unknown)
+        self.config = EnvConfig(scenario, speed_kph, mu, estimator, observation, action, control_dt, sensor_faults,
+                                scenario_kwargs=scenario_kwargs, rear_steer=rear_steer)
         _check_render_mode(render_mode)
         self.render_mode = render_mode
         self.metadata = {**self.metadata, "render_fps": int(round(1 / control_dt))}
         self.observation_space, self.action_space = _spaces(self.config)
         self._core: YawStabilityCore | None = None
         self._window = None
+        self._ended = False
 
     @property
     def core(self) -> YawStabilityCore:
@@ -358,27 +403,39 @@ class YawStabilityEnv(gym.Env):
         return self._core
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        if options:
+            raise ValueError(f"unknown reset option(s) {sorted(options)}; this env takes none")
         super().reset(seed=seed)
         if self._core is None:
             self._core = YawStabilityCore(self.config, [self.np_random])
             self._core.keep_trace = self.render_mode is not None
         else:
             self._core.reset_members(np.ones(1, dtype=bool), [self.np_random])
+        self._ended = False
         obs = self._core.observe()[0]
         s = self._core.loop.sample()
         if self.render_mode == "human":
             self.render()
-        return obs, {"truth": s.truth, "estimate": s.estimate}
+        return obs, {"truth": _first(s.truth), "estimate": _first(s.estimate)}
 
     def step(self, action):
         action = _check_actions(action, self.action_space.shape)
+        if self._ended:
+            gym.logger.warn("step() after the episode ended (terminated or truncated); call reset() first: "
+                            "the car goes on, but the episode's statistics no longer mean one episode")
         obs, reward, terminated, truncated, info = self.core.step(action[None, :])
-        info = {k: (v if k in ("truth", "estimate") else v[0]) for k, v in info.items()}
+        info = {k: (_first(v) if k in ("truth", "estimate") else v[0]) for k, v in info.items()}
         if info["episode_metrics"] is None:
             del info["episode_metrics"]
+        self._ended = bool(terminated[0] or truncated[0])
         if self.render_mode == "human":
             self.render()
         return obs[0], float(reward[0]), bool(terminated[0]), bool(truncated[0]), info
+
+    def episode_metrics(self) -> dict:
+        """The current episode's metrics so far (what ``info["episode_metrics"]`` holds when it
+        ends): for an episode that a TimeLimit wrapper cut."""
+        return self.core.episode_metrics(0)
 
     def render(self):
         if self.render_mode is None:
@@ -424,10 +481,15 @@ class YawStabilityVectorEnv(VectorEnv):
     """``num_envs`` cars in one batched core: the native vector env of ``FourWIS/YawStability-v0``.
 
     Autoreset in the same step (``AutoresetMode.SAME_STEP``): a finished car is reset at once,
-    its last observation and info are in ``info["final_obs"]`` / ``info["final_info"]``
-    (object arrays with ``_final_obs`` masks), as gymnasium's ``SyncVectorEnv`` does in that
-    mode; step for step it matches a ``SyncVectorEnv`` of single envs seeded ``seed + i``.
-    ``info`` holds (num_envs,) arrays; ``truth`` and ``estimate`` are batched Estimates.
+    and step for step the env matches a ``SyncVectorEnv`` of single envs seeded ``seed + i``.
+    ``info`` follows gymnasium's vector convention, each key with a ``_key`` mask: a finished
+    car's last observation is in ``info["final_obs"]`` (object array) and its last step's info
+    in ``info["final_info"]`` (the per-step keys as (num_envs,) arrays, plus
+    ``episode_metrics``, an object array); the top-level per-step keys then hold the new
+    episode's (zero, masked out, as SyncVectorEnv's reset info has none). ``truth`` and
+    ``estimate`` are batched Estimates (one per step, not an object array of per-car ones),
+    in ``final_info`` those of the last step. ``reset(options={"reset_mask": mask})`` resets
+    only the selected cars; ``max_episode_steps`` truncates here, with episode metrics.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": list(RENDER_MODES), "render_fps": 50}
@@ -435,35 +497,63 @@ class YawStabilityVectorEnv(VectorEnv):
     def __init__(self, num_envs: int = 1, scenario: str = "random", speed_kph: float | None = None, mu=None,
                  estimator: str = "joint", observation: str = "estimated", action: str = "yaw_moment",
                  control_dt: float = 0.02, sensor_faults: tuple[Fault, ...] = (), render_mode: str | None = None,
-                 max_episode_steps: int | None = None, scenario_kwargs: dict | None = None):
-        if not (isinstance(num_envs, int) and num_envs >= 1):
+                 max_episode_steps: int | None = None, scenario_kwargs: dict | None = None, rear_steer: bool = True,
+                 **unknown):
+        _unknown_arguments(unknown)
+        if not (_is_integer(num_envs) and num_envs >= 1):
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
-        self.config = EnvConfig(scenario, speed_kph, mu, estimator, observation, action, control_dt,
-                                tuple(sensor_faults), max_episode_steps, scenario_kwargs)
+        self.config = EnvConfig(scenario, speed_kph, mu, estimator, observation, action, control_dt, sensor_faults,
+                                max_episode_steps, scenario_kwargs, rear_steer)
         _check_render_mode(render_mode)
-        self.num_envs, self.render_mode = num_envs, render_mode
+        self.num_envs, self.render_mode = int(num_envs), render_mode
+        self.metadata = {**self.metadata, "render_fps": int(round(1 / control_dt))}
         self.single_observation_space, self.single_action_space = _spaces(self.config)
-        self.observation_space = batch_space(self.single_observation_space, num_envs)
-        self.action_space = batch_space(self.single_action_space, num_envs)
-        self._rngs = [seeding.np_random()[0] for _ in range(num_envs)]
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self._rngs = [seeding.np_random()[0] for _ in range(self.num_envs)]
         self._core: YawStabilityCore | None = None
         self._window = None
 
+    def _seeds(self, seed) -> list:
+        if seed is None or _is_integer(seed):
+            return [None if seed is None else int(seed) + i for i in range(self.num_envs)]
+        try:
+            seeds = list(seed)
+        except TypeError:
+            seeds = None
+        if seeds is None or len(seeds) != self.num_envs or not all(s is None or _is_integer(s) for s in seeds):
+            raise ValueError(f"seed must be None, an integer or {self.num_envs} integers (or None), got {seed!r}")
+        return seeds
+
+    def _reset_mask(self, options: dict | None) -> np.ndarray:
+        options = dict(options or {})
+        mask = options.pop("reset_mask", None)
+        if options:
+            raise ValueError(f"unknown reset option(s) {sorted(options)}; known: ['reset_mask']")
+        if mask is None:
+            return np.ones(self.num_envs, dtype=bool)
+        if not (isinstance(mask, np.ndarray) and mask.dtype == np.bool_ and mask.shape == (self.num_envs,)
+                and mask.any()):
+            raise ValueError(f"options['reset_mask'] must be a bool array of shape ({self.num_envs},) with a True, "
+                             f"got {mask!r}")
+        if self._core is None and not mask.all():
+            raise ValueError("the first reset must reset every car (no reset_mask)")
+        return mask
+
     def reset(self, *, seed: int | list[int] | None = None, options: dict | None = None):
-        seeds = [None if seed is None else seed + i for i in range(self.num_envs)] if not isinstance(seed, list) \
-            else seed
-        if len(seeds) != self.num_envs:
-            raise ValueError(f"need {self.num_envs} seeds, got {len(seeds)}")
-        for i, s in enumerate(seeds):
-            if s is not None or self._core is None:
-                self._rngs[i] = seeding.np_random(s)[0]
+        seeds, mask = self._seeds(seed), self._reset_mask(options)
+        members = np.flatnonzero(mask)
+        for i in members:
+            if seeds[i] is not None or self._core is None:
+                self._rngs[i] = seeding.np_random(seeds[i])[0]
         if self._core is None:
             self._core = YawStabilityCore(self.config, self._rngs)
             self._core.keep_trace = self.render_mode is not None
         else:
-            self._core.reset_members(np.ones(self.num_envs, dtype=bool), self._rngs)
+            self._core.reset_members(mask, [self._rngs[i] for i in members])
         s = self._core.loop.sample()
-        return self._core.observe(), {"truth": s.truth, "estimate": s.estimate}
+        return self._core.observe(), {"truth": s.truth, "_truth": mask.copy(), "estimate": s.estimate,
+                                      "_estimate": mask.copy()}
 
     def step(self, actions):
         if self._core is None:
@@ -472,15 +562,24 @@ class YawStabilityVectorEnv(VectorEnv):
         obs, reward, terminated, truncated, info = self._core.step(actions)
         metrics = info.pop("episode_metrics")
         done = terminated | truncated
+        per_step = [k for k in info if k not in ("truth", "estimate")]
         if done.any():
             final_obs = np.full(self.num_envs, None, dtype=object)
-            final_info = np.full(self.num_envs, None, dtype=object)
+            episode_metrics = np.full(self.num_envs, None, dtype=object)
             for b in np.flatnonzero(done):
                 final_obs[b] = obs[b].copy()
-                final_info[b] = {"episode_metrics": metrics[b], "spin_out": bool(info["spin_out"][b])}
+                episode_metrics[b] = metrics[b]
+            final_info = {"truth": info["truth"], "estimate": info["estimate"], "episode_metrics": episode_metrics}
+            final_info.update({k: np.where(done, info[k], np.zeros_like(info[k])) for k in per_step})
+            final_info.update({f"_{k}": done.copy() for k in list(final_info)})
             self._core.reset_members(done, [self._rngs[b] for b in np.flatnonzero(done)])
             obs = self._core.observe()
-            info.update(final_obs=final_obs, _final_obs=done.copy(), final_info=final_info, _final_info=done.copy())
+            s = self._core.loop.sample()
+            info.update({k: np.where(done, np.zeros_like(info[k]), info[k]) for k in per_step})
+            info.update(truth=s.truth, estimate=s.estimate, final_obs=final_obs, _final_obs=done.copy(),
+                        final_info=final_info, _final_info=done.copy())
+        info.update({f"_{k}": ~done for k in per_step})
+        info.update(_truth=np.ones(self.num_envs, dtype=bool), _estimate=np.ones(self.num_envs, dtype=bool))
         if self.render_mode == "human":
             self.render()
         return obs, reward, terminated, truncated, info

@@ -1,5 +1,6 @@
 """The Gymnasium environment: checkers, determinism, estimator in the loop, bad actions."""
 
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -13,6 +14,7 @@ from gymnasium.vector import AutoresetMode
 import envs  # noqa: F401  (registers the environment)
 from envs.gym_env import PrivilegedObservation, YawStabilityEnv, YawStabilityVectorEnv
 from envs.render import FRAME_HEIGHT, FRAME_WIDTH
+from envs.vehicle import S_DELTA_R
 
 
 @pytest.mark.parametrize("observation", ["estimated", "true", "sensors"])
@@ -115,10 +117,23 @@ def test_native_vector_env_matches_sync_vector_env_step_for_step():
         for x, y in zip(out_n[:4], out_s[:4]):
             np.testing.assert_array_equal(x, y)
         done = out_n[2] | out_n[3]
+        info_n, info_s = out_n[4], out_s[4]
+        for key in ("beta", "yaw_rate_error", "path_deviation", "spin_out", "action_clipped"):
+            np.testing.assert_array_equal(info_n[f"_{key}"], ~done)  # masked out where reset
+            if not done.all():  # (SyncVectorEnv has no such key when every car was reset)
+                np.testing.assert_array_equal(info_s[f"_{key}"], ~done)
+                np.testing.assert_array_equal(info_n[key][~done], info_s[key][~done].astype(info_n[key].dtype))
+        np.testing.assert_array_equal(info_n["truth"].beta, [e.beta for e in info_s["truth"]])  # new episodes'
         if done.any():
             resets += done.sum()
-            np.testing.assert_array_equal(out_n[4]["_final_obs"], out_s[4]["_final_obs"])
-            np.testing.assert_array_equal(np.stack(out_n[4]["final_obs"][done]), np.stack(out_s[4]["final_obs"][done]))
+            np.testing.assert_array_equal(info_n["_final_obs"], info_s["_final_obs"])
+            np.testing.assert_array_equal(np.stack(info_n["final_obs"][done]), np.stack(info_s["final_obs"][done]))
+            final_n, final_s = info_n["final_info"], info_s["final_info"]
+            for key in ("beta", "yaw_rate_error", "spin_out"):
+                np.testing.assert_array_equal(final_n[f"_{key}"], final_s[f"_{key}"])
+                np.testing.assert_array_equal(final_n[key][done], final_s[key][done].astype(final_n[key].dtype))
+            np.testing.assert_array_equal(final_n["truth"].beta[done], [e.beta for e in final_s["truth"][done]])
+            assert all(final_n["episode_metrics"][b]["length"] == 20 for b in np.flatnonzero(done))
     assert resets >= 6  # every car reset at least twice
 
 
@@ -151,9 +166,86 @@ def test_vector_env_rejects_bad_actions_and_arguments():
         env.step(np.zeros((3, 2)))
     *_, info = env.step(np.array([[2.0, 0.0], [0.5, 0.0]]))
     np.testing.assert_array_equal(info["action_clipped"], [True, False])
-    for bad in ({"num_envs": 0}, {"max_episode_steps": -3}, {"render_mode": "ascii"}, {"estimator": "psychic"}):
-        with pytest.raises(ValueError, match=str(list(bad.values())[0])):
+    for bad, word in (({"num_envs": 0}, "0"), ({"max_episode_steps": -3}, "-3"), ({"render_mode": "ascii"}, "ascii"),
+                      ({"estimator": "psychic"}, "psychic"), ({"warp": 9}, "warp"), ({"control_dt": 1e-12}, "1e-12"),
+                      ({"control_dt": True}, "True"), ({"control_dt": "0.02"}, "'0.02'"), ({"control_dt": math.inf}, "inf"),
+                      ({"scenario": ["random"]}, "random"), ({"sensor_faults": 3}, "3"),
+                      ({"scenario_kwargs": [1]}, "1"), ({"rear_steer": "no"}, "no"), ({"speed_kph": "fast"}, "fast")):
+        with pytest.raises(ValueError, match=word):
             YawStabilityVectorEnv(**({"num_envs": 1} | bad))
+    for bad_seed in ((0,), "abc", [0, 1.5]):
+        with pytest.raises(ValueError, match="seed"):
+            env.reset(seed=bad_seed)
+    with pytest.raises(ValueError, match="reset_mask"):
+        env.reset(options={"reset_mask": np.array([1, 0])})
+    with pytest.raises(ValueError, match="teleport"):
+        env.reset(options={"teleport": True})
+
+
+def test_numpy_scalars_sequences_of_seeds_and_masked_resets_are_accepted():
+    env = YawStabilityVectorEnv(num_envs=np.int64(3), scenario="paper_sine", speed_kph=np.float32(30.0),
+                                estimator="oracle", max_episode_steps=np.int64(50))
+    obs, _ = env.reset(seed=(4, 5, 6))
+    ref, _ = YawStabilityVectorEnv(num_envs=3, scenario="paper_sine", speed_kph=30.0, estimator="oracle").reset(
+        seed=4)
+    np.testing.assert_array_equal(obs, ref)  # (4, 5, 6) is seed 4 spread as seed + i
+    assert obs[0, 0] * 30.0 == pytest.approx(30.0 / 3.6, rel=1e-3)  # observation slot 0: u / 30 m/s
+    for _ in range(5):
+        after, *_ = env.step(np.zeros((3, 2)))
+    again, info = env.reset(options={"reset_mask": np.array([False, True, False])})
+    np.testing.assert_array_equal(again[[0, 2]], after[[0, 2]])  # untouched cars go on
+    assert not np.array_equal(again[1], after[1])
+    np.testing.assert_array_equal(info["_truth"], [False, True, False])
+
+
+def test_scenario_durations_fit_the_registered_time_limit():
+    """gym.make's TimeLimit never cuts a default scenario at the default 20 ms control step:
+    episodes end at their scenario's end, with their metrics."""
+    from envs import MAX_EPISODE_STEPS
+    from envs.scenarios import SCENARIOS, make_scenario
+
+    longest = max(make_scenario(name).duration for name in SCENARIOS)
+    assert longest <= MAX_EPISODE_STEPS * 0.02
+    assert gym.spec("FourWIS/YawStability-v0").max_episode_steps == MAX_EPISODE_STEPS
+
+
+def test_reward_and_termination_follow_the_documented_formula():
+    """The reward is -(e_r/0.1)^2 - (beta/0.05)^2 - 0.1|a|^2 - d^2 per second (x control_dt), with
+    -100 on termination; a steady corrective moment (900 N m, to the left) pushes the car off the
+    lane-change course against its driver (terminated more than 5 m from the path, at 0.6 deg of
+    sideslip: not a spin-out)."""
+    env = YawStabilityEnv(scenario="paper_dlc", estimator="oracle")
+    env.reset(seed=0)
+    action = np.array([0.3, 0.0], dtype=np.float32)
+    for _ in range(1500):
+        obs, reward, terminated, truncated, info = env.step(action)
+        expected = -0.02 * ((info["yaw_rate_error"] / 0.1) ** 2 + (info["beta"] / 0.05) ** 2
+                            + 0.1 * np.sum(action.astype(float) ** 2) + info["path_deviation"] ** 2)
+        assert reward == pytest.approx(expected - 100.0 * terminated, rel=1e-9)
+        if terminated or truncated:
+            break
+    assert terminated and not info["spin_out"] and info["path_deviation"] > 5.0
+    assert info["episode_metrics"] == env.episode_metrics()
+
+
+def test_rear_steer_is_optional_and_the_single_env_reports_one_car():
+    env = YawStabilityEnv(scenario="paper_sine", estimator="oracle", rear_steer=False)
+    assert env.action_space.shape == (1,)
+    env.reset(seed=0)
+    for _ in range(10):
+        *_, info = env.step(np.ones(1, dtype=np.float32))
+    assert env.core.loop.state[0, S_DELTA_R] == 0.0
+    assert np.shape(info["truth"].beta) == () and info["truth"].mu.shape == (4,)
+    with pytest.warns(UserWarning, match="reset"):  # stepping on after the end is flagged
+        env._ended = True
+        env.step(np.zeros(1, dtype=np.float32))
+    with4ws = YawStabilityEnv(scenario="paper_sine", estimator="oracle")
+    with4ws.reset(seed=0)
+    for _ in range(10):
+        with4ws.step(np.ones(2, dtype=np.float32))
+    assert with4ws.core.loop.state[0, S_DELTA_R] > 0.01
+    with pytest.raises(ValueError, match="warp"):
+        gym.make("envs:FourWIS/YawStability-v0", warp=9)
 
 
 def test_random_actions_100k_vector_steps_stay_finite():
@@ -238,3 +330,20 @@ def test_privileged_observation_appends_the_truth():
     assert obs.shape == (28,)
     np.testing.assert_allclose(obs[14:], ref, atol=1e-6)
     assert not np.allclose(obs[:14], ref)
+
+
+def test_friction_speed_and_sensor_fault_arguments_reach_the_episode():
+    """mu and speed_kph set the scenario's road and speed; a stuck gyro (from 0.5 s) freezes the
+    yaw-rate channel of the sensors observation while the car turns."""
+    from envs.sensors import Fault
+
+    env = gym.make("envs:FourWIS/YawStability-v0", scenario="paper_sine", mu=0.4, speed_kph=30.0, estimator="oracle",
+                   observation="sensors", sensor_faults=(Fault("yaw_rate", "stuck", start=0.5),))
+    obs, info = env.reset(seed=0)
+    assert np.all(info["truth"].mu == 0.4) and info["truth"].u == pytest.approx(30.0 / 3.6, rel=1e-3)
+    gyro = []
+    for _ in range(100):  # 2 s: the sine steers from 1 s
+        obs, *_, info = env.step(np.zeros(2, dtype=np.float32))
+        gyro.append((obs[2], info["truth"].r))
+    gyro = np.array(gyro)
+    assert np.ptp(gyro[25:, 0]) == 0.0 and np.ptp(gyro[25:, 1]) > 0.05  # frozen reading, turning car

@@ -6,7 +6,9 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numba
 import numpy as np
+import pytest
 
 from control import make_controller
 from envs.scenarios import make_scenario
@@ -29,6 +31,7 @@ np.savez(sys.argv[1], state=traj.state, controls=traj.controls, mu=traj.estimate
 """
 
 
+@pytest.mark.skipif(numba.config.DISABLE_JIT, reason="the reference run must be the compiled one")
 def test_with_numba_disabled_the_closed_loop_runs_as_python_and_matches_the_compiled_one(tmp_path):
     out = tmp_path / "python.npz"
     subprocess.run([sys.executable, "-c", RUN, str(out)], check=True, capture_output=True, text=True,

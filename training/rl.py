@@ -79,7 +79,7 @@ class SB3VecEnv(VecEnv):
         done = terminated | truncated
         infos: list[dict] = [{} for _ in range(self.num_envs)]
         for b in np.flatnonzero(done):
-            metrics = info["final_info"][b]["episode_metrics"]
+            metrics = info["final_info"]["episode_metrics"][b]
             infos[b] = {"terminal_observation": info["final_obs"][b], "TimeLimit.truncated": bool(truncated[b]
                                                                                                  and not terminated[b]),
                         "episode": {"r": metrics["return"], "l": metrics["length"],
@@ -275,7 +275,7 @@ class PolicyController:
         self._mean, self._var = normalizer.obs_rms.mean, normalizer.obs_rms.var
         self._clip, self._epsilon = normalizer.clip_obs, normalizer.epsilon
         self.params, self.substeps = params, int(round(env.control_dt / dt))
-        self.action_mode = env.action
+        self.env_config = env
         self._agent: _AgentController | None = None
         self._k = 0
 
@@ -289,7 +289,7 @@ class PolicyController:
 
     def __call__(self, t, estimate, front_steer, base_torques):
         if self._agent is None:
-            self._agent = _AgentController(self.params, self.action_mode, len(front_steer))
+            self._agent = _AgentController(self.params, self.env_config, len(front_steer))
         if self._k % self.substeps == 0:
             obs = state_observation(estimate, front_steer, self.params).astype(np.float32)
             action, _ = self.model.predict(self.normalise(obs), deterministic=True)
