@@ -209,22 +209,44 @@ def test_federated_filter_with_reset_equals_the_centralised_filter_on_a_linear_s
 PARAMS = ModelParams.from_vehicle(VehicleParams())
 
 
-def test_dugoff_is_linear_at_small_slip_and_saturates_at_mu_fz():
+def test_dugoff_is_linear_at_small_slip_and_follows_its_closed_form_in_saturation():
+    """Dugoff (eps = 0): lambda = mu Fz (1 - s) / (2 D), D = sqrt(Cx^2 s^2 + Cy^2 tan^2 a); for
+    lambda >= 1 the force is linear, for lambda < 1 its magnitude D / (1 - s) lambda (2 - lambda)
+    reduces to exactly mu Fz (1 - lambda / 2), in pure cornering and in combined slip alike. mu
+    is the friction the tyre sees: the estimator passes k mu (ModelParams.mu_scale), as here."""
     fx, fy, lam = dugoff(2000.0, 0.0, math.tan(1e-3), 0.8, 3e4, 4e4, 20.0, 0.0)
     assert fy == pytest.approx(4e4 * math.tan(1e-3)) and fx == 0.0 and lam > 1.0
-    fx, fy, lam = dugoff(2000.0, 0.05, math.tan(0.3), 0.8, 3e4, 4e4, 20.0, 0.0)
-    assert lam < 1.0
-    assert math.hypot(fx, fy) <= 0.8 * 2000.0 / 0.95 + 1e-9
-    assert math.hypot(fx, fy) > 0.7 * 0.8 * 2000.0
+    mu, fz, cx, cy = PARAMS.mu_scale * 0.8, 2000.0, 3e4, 4e4
+    for slip, alpha in ((0.0, 0.05), (0.0, 0.3), (0.05, 0.3), (-0.1, 0.1)):
+        fx, fy, lam = dugoff(fz, slip, math.tan(alpha), mu, cx, cy, 20.0, 0.0)
+        demand = math.hypot(cx * slip, cy * math.tan(alpha))
+        assert lam == pytest.approx(mu * fz * (1 - slip) / (2 * demand), rel=1e-12)
+        assert lam < 1.0  # saturating: every case above is past the linear range
+        assert math.hypot(fx, fy) == pytest.approx(mu * fz * (1 - lam / 2), rel=1e-12)
+        if slip == 0.0:
+            assert fx == 0.0 and fy > 0.0
 
 
-def test_normal_loads_sum_to_the_weight_and_shift_the_right_way():
-    fz = normal_loads(np.array(0.0), np.array(0.0), PARAMS)
-    assert fz.sum() == pytest.approx(PARAMS.mass * 9.81)
-    braking = normal_loads(np.array(-5.0), np.array(0.0), PARAMS)
-    assert braking[0] > fz[0] and braking[2] < fz[2]
-    left = normal_loads(np.array(0.0), np.array(4.0), PARAMS)  # left turn loads the right wheels
-    assert left[1] > left[0] and left[3] > left[2]
+def test_normal_loads_follow_the_quasi_static_closed_form():
+    """estimation.model.wheel_load: static share m g b/L (front) and m g a/L (rear), a pitch
+    shift m ax h / L from the front axle to the rear, and a roll moment m ay h shared by the
+    axles in proportion to their static loads (front b/L, rear a/L), each axle's left-right
+    difference times half its track balancing its share; the loads sum to m g (model g = 9.81)."""
+    m, a, b, h = PARAMS.mass, PARAMS.cg_to_front, PARAMS.cg_to_rear, PARAMS.cg_height
+    L, g = PARAMS.wheelbase, 9.81
+    for ax, ay in ((0.0, 0.0), (-5.0, 0.0), (0.0, 4.0), (2.0, -3.0), (-3.0, 5.0)):
+        fz = normal_loads(np.array(ax), np.array(ay), PARAMS)
+        assert fz.sum() == pytest.approx(m * g, rel=1e-12)
+        assert fz[0] + fz[1] == pytest.approx(m * g * b / L - m * ax * h / L, rel=1e-12)
+        assert fz[2] + fz[3] == pytest.approx(m * g * a / L + m * ax * h / L, rel=1e-12)
+        # ay > 0 (left turn) loads the right wheels (FR, RR)
+        assert fz[1] - fz[0] == pytest.approx(2 * m * ay * h * (b / L) / PARAMS.track_front, rel=1e-12, abs=1e-9)
+        assert fz[3] - fz[2] == pytest.approx(2 * m * ay * h * (a / L) / PARAMS.track_rear, rel=1e-12, abs=1e-9)
+        roll_moment = (fz[1] - fz[0]) * PARAMS.track_front / 2 + (fz[3] - fz[2]) * PARAMS.track_rear / 2
+        assert roll_moment == pytest.approx(m * ay * h, rel=1e-12, abs=1e-9)
+    # beyond the inner wheels' lift-off (2 g) they are floored at 5% of their static load
+    fz = normal_loads(np.array(0.0), np.array(20.0), PARAMS)
+    np.testing.assert_allclose(fz[[0, 2]], [0.05 * m * g * b / (2 * L), 0.05 * m * g * a / (2 * L)], rtol=1e-12)
 
 
 def test_model_yaw_rate_is_kinematic_at_low_speed():
@@ -237,12 +259,34 @@ def test_model_yaw_rate_is_kinematic_at_low_speed():
     assert x[4] == pytest.approx(3.0 * delta / PARAMS.wheelbase, rel=0.03)
 
 
+#: Sideslip RMSE / RMS(truth sideslip) bound: the estimate must account for at least 3/4 of the
+#: sideslip's mean square (1 - 0.5^2), where beta_hat = 0 scores 1. Measured 0.36-0.38 on the
+#: sine for every estimator (seed 1), joint 0.25 / 0.36 / 0.40 on step / sine / slalom (seed 0);
+#: README Table 2's 5-seed means give joint 0.26 / 0.36 / 0.41, and its worst step seed (0.19
+#: deg) 0.40, so 0.5 holds with a >= 20% margin.
+BETA_RELATIVE = 0.5
+
+
+def _beta_errors(traj) -> tuple[float, float]:
+    """(sideslip RMSE [deg], RMSE / RMS of the true sideslip)."""
+    error = rmse(traj.estimate.beta, traj.truth.beta)
+    return float(np.degrees(error)), float(error / np.sqrt(np.mean(traj.truth.beta**2)))
+
+
 @pytest.mark.parametrize("name", ["ekf", "ckf", "fkf", "joint"])
-@pytest.mark.parametrize("scenario, beta_deg", [("paper_dlc", 0.1), ("paper_sine", 0.5)])
+@pytest.mark.parametrize("scenario, beta_deg", [("paper_dlc", 0.02), ("paper_sine", 0.25)])
 def test_estimators_track_sideslip_and_yaw_rate(name, scenario, beta_deg):
+    """Sideslip RMSE bounds: README Table 2 (5-seed means) gives 0.0087-0.0092 deg on the lane
+    change, the sensor-noise floor, and 0.177-0.189 deg on the sine; measured on seed 1
+    0.0077-0.0084 and 0.179-0.188. Bounds ~2x the floor and ~1.3x the sine's worst estimator.
+    Both are far below the truth's own RMS sideslip (0.141 / 0.498 deg), and the relative bound
+    (BETA_RELATIVE) fails a filter that reports beta = 0. Yaw rate (measured <= 0.0027 rad/s)
+    and speed (<= 0.011 m/s) keep their earlier loose bounds."""
     traj = simulate(scenario, estimator=name, seed=1)
     T, E = traj.truth, traj.estimate
-    assert np.degrees(rmse(E.beta, T.beta)) < beta_deg
+    beta_rmse, beta_relative = _beta_errors(traj)
+    assert beta_rmse < beta_deg
+    assert beta_relative < BETA_RELATIVE
     assert rmse(E.r, T.r) < 0.005
     assert rmse(E.u, T.u) < 0.05
     assert np.all(np.isfinite(E.mu))
@@ -281,38 +325,58 @@ def test_a_partial_oracle_reports_the_true_groups_and_the_estimators_own_rest():
             make_estimator(bad, VehicleParams())
 
 
-@pytest.mark.parametrize("scenario", ["paper_step", "paper_serpentine"])
-def test_dugoff_at_the_true_state_matches_the_plant_force_near_saturation(scenario):
+@pytest.mark.parametrize("scenario, stays_below", [("paper_step", True), ("paper_serpentine", False)])
+def test_dugoff_at_the_true_state_matches_the_plant_force_near_saturation(scenario, stays_below):
     """The estimator's tyre (Dugoff, eq. 17 stiffness, its own quasi-static loads), evaluated at
-    the plant's true state and road friction, reproduces the plant's PAC2002 lateral force on
-    average within 0.08 mu Fz wherever a tyre uses more than half its grip (measured mean
-    -0.05 on the step, 0.00 on the slalom with the fitted friction scale; -0.10 and 0.00
-    without). The model stays below the plant there, not around it, so where tyres saturate
-    the joint estimator's mu reads a few hundredths high (README, comparison section)."""
+    the plant's true state and road friction, against the plant's PAC2002 lateral force wherever
+    a tyre uses more than half its grip; errors in mu Fz, signed along the plant force (< 0: the
+    model's force is smaller). Measured with the fitted friction scale k / with k = 1: mean
+    |error| 0.052 / 0.100 on the step, 0.039 / 0.041 on the slalom; signed mean -0.048 / -0.098
+    on the step (97% of samples below), +0.018 / -0.008 on the slalom (34% below: there the
+    model scatters around the plant through the transients, so only the step's sign is asserted).
+    Bound 0.07 on the mean |error|: ~1.35x the step's measured value, below k = 1's 0.10 on the
+    step. Where the step saturates, the model stays below the plant, so there the joint
+    estimator's mu reads a few hundredths high (README, comparison section)."""
+    import dataclasses
+
     from envs.vehicle import A_AX, A_AY, A_FY, A_FZ, A_MU, A_USAGE, S_DELTA_F, S_DELTA_R, S_OMEGA, S_R, S_U, S_V
     from estimation.model import dugoff, steer_trig, tyre_operating_point, wheel_loads
 
     traj = simulate(scenario, seed=1)
-    S, A, pk = traj.state, traj.aux, PARAMS.packed
-    errors = []
-    for k in range(0, len(traj.t), 5):
-        fz = np.empty(4)
-        wheel_loads(A[k, A_AX], A[k, A_AY], pk, fz)
-        steer = steer_trig(np.array([S[k, S_DELTA_F]] * 2 + [S[k, S_DELTA_R]] * 2))
-        for w in np.flatnonzero(A[k, A_USAGE:A_USAGE + 4] > 0.5):
-            tan_alpha, slip, cx, cy = tyre_operating_point(S[k, S_U], S[k, S_V], S[k, S_R], fz[w], tuple(steer[:, w]),
-                                                           S[k, S_OMEGA + w], pk, w)
-            fy = dugoff(fz[w], slip, tan_alpha, PARAMS.mu_scale * A[k, A_MU + w], cx, cy, S[k, S_U], 0.0)[1]
-            errors.append((fy - A[k, A_FY + w]) / (A[k, A_MU + w] * A[k, A_FZ + w]))
-    assert len(errors) > 500
-    assert abs(np.mean(errors)) < 0.08
+    S, A = traj.state, traj.aux
+
+    def errors(params: ModelParams) -> np.ndarray:
+        pk, out = params.packed, []
+        for k in range(0, len(traj.t), 5):
+            fz = np.empty(4)
+            wheel_loads(A[k, A_AX], A[k, A_AY], pk, fz)
+            steer = steer_trig(np.array([S[k, S_DELTA_F]] * 2 + [S[k, S_DELTA_R]] * 2))
+            for w in np.flatnonzero(A[k, A_USAGE:A_USAGE + 4] > 0.5):
+                tan_alpha, slip, cx, cy = tyre_operating_point(S[k, S_U], S[k, S_V], S[k, S_R], fz[w],
+                                                               tuple(steer[:, w]), S[k, S_OMEGA + w], pk, w)
+                fy = dugoff(fz[w], slip, tan_alpha, params.mu_scale * A[k, A_MU + w], cx, cy, S[k, S_U], 0.0)[1]
+                plant = A[k, A_FY + w]
+                out.append(math.copysign(1.0, plant) * (fy - plant) / (A[k, A_MU + w] * A[k, A_FZ + w]))
+        return np.array(out)
+
+    fitted, unscaled = errors(PARAMS), errors(dataclasses.replace(PARAMS, mu_scale=1.0))
+    assert PARAMS.mu_scale > 1.0 and len(fitted) > 500
+    assert np.mean(np.abs(fitted)) < 0.07
+    assert np.mean(np.abs(fitted)) < np.mean(np.abs(unscaled))  # the fitted k beats k = 1
+    if stays_below:
+        assert np.mean(fitted) < 0.0
 
 
 def test_the_dugoff_fit_reproduces_the_plant_tyre():
     """Eq. 17 stiffness within 5% of the plant tyre's cornering and slip stiffness over 1-5 kN
-    (the issue's bound); the fitted friction scale k (shipped in dugoff_fit.json) lowers the
-    lateral-force error up to the plant tyre's peak (measured 0.057 -> 0.043 mu Fz RMS at
-    k = 1.066) and refitting reproduces the shipped file."""
+    (the issue's bound); the fitted friction scale k lowers the lateral-force error up to the
+    plant tyre's peak (measured 0.057 -> 0.043 mu Fz RMS at k = 1.066); and refitting reproduces
+    every field of the shipped estimation/data/dugoff_fit.json (which ModelParams loads) to
+    rel 1e-6 (measured: identical but for mu_scale at 6e-15; the fit is deterministic and the
+    bounded scalar search stops at xatol 1e-5 in k, so 1e-6 still catches a stale file)."""
+    import json
+    from importlib import resources
+
     from training.tyre_fit import LOADS, fit_dugoff
 
     fit = fit_dugoff()
@@ -322,6 +386,13 @@ def test_the_dugoff_fit_reproduces_the_plant_tyre():
         np.testing.assert_allclose(m * LOADS - n * LOADS**2, exact, rtol=0.05)
     assert 1.0 < fit["mu_scale"] < 1.2
     assert fit["lateral_rms_error_mu_fz"] < 0.8 * fit["lateral_rms_error_mu_fz_unscaled"]
+    shipped = json.loads(resources.files("estimation").joinpath("data/dugoff_fit.json").read_text())
+    assert set(shipped) == set(fit)
+    for key, value in shipped.items():
+        if isinstance(value, str):
+            assert value == fit[key], key
+        else:
+            np.testing.assert_allclose(value, fit[key], rtol=1e-6, atol=0, err_msg=key)
     assert PARAMS.mu_scale == pytest.approx(fit["mu_scale"], rel=1e-6)
 
 
@@ -342,18 +413,29 @@ def test_joint_estimator_follows_a_friction_drop_and_the_dyc_stays_stable():
     assert np.all(joint.truth.mu[last] == pytest.approx(0.3))
 
 
+#: joint's sideslip RMSE bound [deg] per paper scenario: the issue's 0.2 deg target where
+#: README Table 2's 5-seed mean approaches it (step 0.127 with seeds up to 0.19, sine 0.177,
+#: slalom 0.123); on the two lane changes, where every filter sits at the sensor-noise floor
+#: (Table 2: 0.0087 / 0.0054 deg), about 2x that floor, rounded up (0.2 would pass beta_hat = 0 on the lane
+#: change, RMS sideslip 0.141 deg).
+JOINT_BETA_RMSE_DEG = {"paper_dlc": 0.02, "paper_step": 0.2, "paper_sine": 0.2, "paper_split_dlc": 0.012,
+                       "paper_serpentine": 0.2}
+
+
 @pytest.mark.parametrize("scenario", PAPER_SCENARIOS)
 def test_joint_meets_the_papers_accuracy_targets_on_its_scenarios(scenario):
     """Issue 4 on the mismatched plant with data-sheet sensor noise (seed 0): joint's sideslip
-    RMSE <= 0.2 deg and below ekf's and ckf's (measured 0.008 / 0.122 / 0.177 / 0.005 / 0.120
-    deg in PAPER_SCENARIOS order). mu: from 1 s after the first instant a tyre of the truth
+    RMSE within JOINT_BETA_RMSE_DEG, below BETA_RELATIVE of the truth's RMS sideslip and below
+    ekf's and ckf's (measured 0.008 / 0.122 / 0.177 / 0.005 / 0.120 deg, relative 0.06 / 0.25 /
+    0.36 / 0.02 / 0.40, in PAPER_SCENARIOS order). mu: from 1 s after the first instant a tyre of the truth
     uses more than half its grip (Dugoff's mu-sensitive regime), the per-wheel error averages
     <= 0.05 (measured step 0.024, sine 0.022, slalom 0.035; single samples reach 0.08-0.15 on
     the sine and the slalom, so a per-sample bound of 0.05 does not hold); where no tyre ever
     does (both lane changes), mu_hat is held at its prior."""
     runs = {name: simulate(scenario, estimator=name, seed=0) for name in ("ekf", "ckf", "joint")}
-    beta = {name: np.degrees(rmse(traj.estimate.beta, traj.truth.beta)) for name, traj in runs.items()}
-    assert beta["joint"] <= 0.2
+    beta = {name: _beta_errors(traj)[0] for name, traj in runs.items()}
+    assert beta["joint"] <= JOINT_BETA_RMSE_DEG[scenario]
+    assert _beta_errors(runs["joint"])[1] < BETA_RELATIVE  # the truth's RMS is only 0.14-0.50 deg
     assert beta["joint"] < min(beta["ekf"], beta["ckf"])
     joint = runs["joint"]
     observable = np.flatnonzero(joint.aux[:, A_USAGE:A_USAGE + 4].max(axis=1) > 0.5)
