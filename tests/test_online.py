@@ -28,14 +28,29 @@ def _feed(tuner, check=None):
 @pytest.mark.parametrize("replay_per_step", [1, 3])
 def test_work_per_step_is_bounded_and_results_arrive_when_runs_finish(replay_per_step):
     """Each filter step replays at most ``replay_per_step`` population steps; a run started at
-    a window boundary ends (iterations + 1) * ceil(window / replay_per_step) steps later."""
+    a window boundary ends (iterations + 1) * ceil(window / replay_per_step) steps later, and
+    only then does the live filter's noise change: to the base noise scaled by the run's result
+    (the paper's rule: until a run finishes the filter keeps the noise it has)."""
     window, iterations = 100, 2
     tuner = OnlineTuner(make_estimator("alo-fkf", VehicleParams()), window=window, n_agents=4,
                         iterations=iterations, replay_per_step=replay_per_step)
-    eigen_min = []
+    eigen_min, completed, factors, stds = [], [], [], []
+
+    def live_stds():
+        """The standard deviations the filter computes with (process, then accel, gyro, wheel)."""
+        est = tuner.estimator
+        return np.sqrt(np.concatenate([est._process_var.ravel(), est._sensor_var.ravel()]))
+
+    def noise_stds(noise):
+        return np.concatenate([np.ravel(noise.process_std), [noise.accel_std, noise.gyro_std, noise.wheel_speed_std]])
 
     def check(k):
         eigen_min.append(np.linalg.eigvalsh(tuner.estimator.P).min())
+        completed.append(tuner.runs_completed)
+        factors.append(None if tuner.factors is None else np.array(tuner.factors))
+        stds.append(live_stds())
+        np.testing.assert_array_equal(noise_stds(tuner.estimator.noise), noise_stds(
+            tuner.base_noise if tuner.factors is None else tuner.base_noise.scaled(tuner.factors)))
 
     _feed(tuner, check)
     assert tuner.max_replay_steps_in_a_step == replay_per_step
@@ -48,6 +63,16 @@ def test_work_per_step_is_bounded_and_results_arrive_when_runs_finish(replay_per
         k = -(-(k + run_length) // window) * window
     assert tuner.runs_completed == len(starts) >= 1
     assert tuner.factors is not None and np.all(np.abs(tuner.factors) <= 1.0)
+    # the run started when step index k - 1 filled a window finishes in step k - 1 + run_length
+    ends = [k - 1 + run_length for k in starts]
+    assert [k for k in range(1, len(RUN.t)) if completed[k] != completed[k - 1]] == ends
+    assert completed[ends[0] - 1] == 0 and all(completed[e] == i + 1 for i, e in enumerate(ends))
+    changed = [k for k in range(1, len(RUN.t)) if not np.array_equal(stds[k], stds[k - 1])]
+    assert changed == ends  # the noise changes exactly when a run completes, at every completion
+    np.testing.assert_allclose(stds[0], noise_stds(tuner.base_noise), rtol=1e-12)  # base noise until then
+    assert all(f is None for f in factors[:ends[0]])
+    for e in ends:  # ... and then the base noise scaled by that run's factors
+        np.testing.assert_allclose(stds[e], noise_stds(tuner.base_noise.scaled(factors[e])), rtol=1e-12)
     assert min(eigen_min) > 0  # the live covariance stayed positive definite throughout
 
 

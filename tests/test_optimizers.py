@@ -77,24 +77,51 @@ def test_tuning_file_missing_means_hand_set_noise_and_corrupted_raises(tmp_path)
             tuned_noise(bad)
 
 
-@pytest.mark.parametrize("scenario", ["paper_dlc", "paper_split_dlc"])
-def test_shipped_alo_noise_beats_the_hand_set_noise_on_unseen_scenarios(scenario):
-    """The shipped factors were fitted by innovation likelihood on a randomised calibration run;
-    on two of the paper's conditions (never used for tuning, their own sensor seed) alo-fkf's
-    sideslip RMSE drops by > 10% (measured 0.010 -> 0.008 and 0.008 -> 0.005 deg) and its mean
-    innovation NLL per step by > 5 nats (measured 10.2 and 10.3; the README's table has all
-    six scenarios)."""
-    from envs.metrics import rmse
-    from envs.simulation import simulate
-    from training.tune import OUTPUT, replay
+def _shipped_and_hand_set(scenario_name, seeds):
+    """alo-fkf with the shipped noise (column 0) and the hand-set noise (column 1) on the open-loop
+    ``scenario_name``, one row per sensor seed: sideslip RMSE [rad] and mean innovation NLL per
+    step. One batched run: cars 2i and 2i + 1 get generators seeded alike, hence identical
+    readings (a car's readings depend only on its generator, envs.sensors.SensorModel), and
+    each filter member its own noise, as in training.tune.replay (for seed 5 this reproduces
+    ``replay(..., simulate(scenario_name, seed=5))``, the README's table, to the last digit)."""
+    from envs.scenarios import make_scenario
+    from envs.simulation import ClosedLoop
+    from estimation import make_estimator
+    from training.tune import OUTPUT
 
-    traj = simulate(scenario, seed=5)
+    scenario = make_scenario(scenario_name)
     shipped = json.loads(OUTPUT.read_text())["log10_factors"]
-    run = replay(np.array([shipped, [0.0, 0.0, 0.0, 0.0]]), traj)  # shipped, hand-set
-    beta_rmse = [rmse(run.beta[:, i], traj.truth.beta) for i in range(2)]
-    mean_nll = run.mean_nll
-    assert beta_rmse[0] < 0.9 * beta_rmse[1]
-    assert mean_nll[0] < mean_nll[1] - 5.0
+    factors = np.array([f for _ in seeds for f in (shipped, [0.0] * 4)])
+    est = make_estimator("alo-fkf", scenario.vehicle_params, noise=NoiseParams().scaled(factors))
+    loop = ClosedLoop([scenario] * len(factors), None, est, [np.random.default_rng(s) for s in seeds for _ in "ab"])
+    n = int(np.ceil(scenario.duration / loop.dt - 1e-9))
+    squared_error, nll = np.zeros(len(factors)), np.zeros(len(factors))
+    for k in range(n + 1):
+        record = loop.advance(integrate=k < n)
+        squared_error += (record.estimate.beta - record.truth.beta) ** 2
+        nll += est.last_nll
+    return np.sqrt(squared_error / (n + 1)).reshape(-1, 2), (nll / (n + 1)).reshape(-1, 2)
+
+
+def test_shipped_alo_noise_beats_the_hand_set_noise_on_unseen_scenarios():
+    """The shipped factors were fitted by innovation likelihood on a randomised calibration run;
+    on two of the paper's conditions (never used for tuning) they lower alo-fkf's mean innovation
+    NLL per step, the tuning criterion, by > 5 nats on every sensor seed (measured 9.9-10.5 on
+    seeds 1-8 of both: half of that is a wide margin).
+
+    Sideslip RMSE, shipped / hand-set, measured on seeds 1-8:
+    - paper_split_dlc: 0.81-0.96, every seed below 1, mean 0.884 (sd 0.051). Asserted on seeds
+      1-4 (0.885, 0.910, 0.835, 0.860; e.g. 0.0051 -> 0.0045 deg): each below 1 and the mean below
+      0.935, the 8-seed mean plus two standard errors of a 4-seed mean (2 x 0.051 / 2).
+    - paper_dlc: 0.82-1.22 (seed 4: 1.01, seed 6: 1.22), mean 0.956, so no reliable sideslip
+      gain there (the README's table shows seed 5: 0.0089 -> 0.0079 deg): only the NLL is asserted."""
+    seeds = (1, 2, 3, 4)
+    beta_rmse, nll = _shipped_and_hand_set("paper_split_dlc", seeds)
+    ratio = beta_rmse[:, 0] / beta_rmse[:, 1]
+    assert np.all(ratio < 1.0) and ratio.mean() < 0.935, ratio
+    assert np.all(nll[:, 0] < nll[:, 1] - 5.0), nll
+    _, nll = _shipped_and_hand_set("paper_dlc", seeds)
+    assert np.all(nll[:, 0] < nll[:, 1] - 5.0), nll
 
 
 def test_cmaes_leaves_numpys_global_generator_alone():

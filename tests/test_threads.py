@@ -1,0 +1,63 @@
+"""The parallel kernels (plant, estimator) on two threads give exactly the results of
+the one-car serial kernels: no shared scratch, no race, no order dependence. The rest of the
+suite runs one numba thread per pytest-xdist worker (tests/conftest.py), so this is where the
+threads meet."""
+
+import numba
+import numpy as np
+import pytest
+
+from envs.road import uniform
+from envs.sensors import SensorModel, SensorParams
+from envs.simulation import sensor_truth
+from envs.vehicle import NU, VehicleParams, initial_state, step
+from estimation import make_estimator
+
+P = VehicleParams()
+
+
+@pytest.fixture
+def two_threads():
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("numba has a single thread here")
+    before = numba.get_num_threads()
+    numba.set_num_threads(2)
+    yield
+    numba.set_num_threads(before)
+
+
+def test_parallel_plant_and_estimator_on_two_threads_equal_the_serial_kernels(two_threads):
+    rng = np.random.default_rng(5)
+    n = 64  # the plant's parallel threshold (envs.vehicle.PARALLEL_MIN_BATCH)
+    state = initial_state(P, rng.uniform(10.0, 30.0, n), n)
+    controls = np.zeros((n, NU))
+    controls[:, :4] = rng.uniform(-300, 300, (n, 4))
+    controls[:, 4] = rng.uniform(-0.1, 0.1, n)
+    roads = [uniform(m) for m in rng.uniform(0.3, 1.0, n)]
+    batch = step(state, controls, P, roads, 0.002, 100)
+    for b in (0, 17, 63):
+        single = step(state[b:b + 1], controls[b:b + 1], P, roads[b], 0.002, 100)
+        np.testing.assert_array_equal(batch.state[b], single.state[0])
+
+    # the joint estimator on 8 cars (parallel kernel) against each car alone (serial kernel)
+    cars = [0, 5, 9, 20, 33, 41, 50, 62]
+    sensors = SensorModel(SensorParams(), (), len(cars), [np.random.default_rng(s) for s in cars])
+    readings, x = [], state[cars]
+    for k in range(150):
+        x, aux = step(x, controls[cars], P, [roads[c] for c in cars], 0.002)
+        readings.append(sensors.measure(sensor_truth(x, aux), k * 0.002))
+    batched = make_estimator("joint", P)
+    batched.reset(readings[0], x[:, 3])
+    singles = [make_estimator("joint", P) for _ in cars]
+    for i, est in enumerate(singles):
+        est.reset(_row(readings[0], i), x[i:i + 1, 3])
+    for reading in readings:
+        together = batched.step(reading)
+        for i, est in enumerate(singles):
+            alone = est.step(_row(reading, i))
+            for field in ("u", "v", "r", "mu"):
+                np.testing.assert_array_equal(getattr(together, field)[i], getattr(alone, field)[0])
+
+
+def _row(reading, i):
+    return type(reading)(*(np.ascontiguousarray(f[i:i + 1]) for f in reading))
