@@ -42,15 +42,22 @@ def test_train_save_reload_and_evaluate_with_identical_deterministic_actions(alg
     assert model_path == out / "model.zip"
 
 
-def test_resume_continues_the_step_count(tmp_path):
+def test_resume_continues_the_step_count_and_the_evaluations(tmp_path):
+    """A resumed run counts on from its checkpoint, evaluates on the same schedule (every 512
+    steps of the run, not of the resumed part) and keeps the earlier evaluations in its log."""
     from stable_baselines3 import PPO
 
     out = tmp_path / "run"
     _train("ppo", out, 1024)
+    first = np.load(out / "evaluations.npz")
     _train("ppo", out, 2048, resume=out)
     assert PPO.load(out / "model.zip").num_timesteps == 2048
     assert (out / "checkpoints" / "step_000002048.zip").exists()
     assert json.loads((out / "config.json").read_text())["timesteps"] == 2048
+    log = np.load(out / "evaluations.npz")
+    np.testing.assert_array_equal(log["timesteps"], [512, 1024, 1536, 2048])
+    np.testing.assert_array_equal(log["results"][:2], first["results"])
+    assert sorted(p.name for p in out.iterdir() if p.name.startswith(".")) == []  # no temporary left behind
 
 
 def test_bad_arguments_give_clear_errors(tmp_path):

@@ -153,7 +153,8 @@ def _train(args: argparse.Namespace) -> int:
                      eval_every=args.eval_every, checkpoint_every=args.checkpoint_every, resume=args.resume)
     except (ValueError, FileNotFoundError) as err:
         raise SystemExit(f"fourwis train: {err}") from None
-    print(f"wrote {path} (+ vecnormalize.pkl, config.json, learning_curve.png, checkpoints/, tb/ in {path.parent})")
+    others = [p.name + "/" * p.is_dir() for p in sorted(path.parent.iterdir()) if p != path and not p.name.startswith(".")]
+    print(f"wrote {path} (+ {', '.join(others)} in {path.parent})")
     return 0
 
 

@@ -18,7 +18,9 @@ two 128-unit layers (the observation is 14 numbers); gamma 0.99, i.e. a ~2 s hor
 from __future__ import annotations
 
 import json
+import os
 import pickle
+import shutil
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -28,6 +30,8 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from envs.gym_env import EnvConfig, YawStabilityVectorEnv, _AgentController, state_observation
 from training.io import atomic_write, atomic_write_text
+
+EVALUATIONS = "evaluations.npz"  #: the run's evaluation log (SB3's EvalCallback format)
 
 ALGOS = ("ppo", "sac", "td3")
 ALGO_CONFIGS: dict[str, dict] = {
@@ -136,7 +140,7 @@ def _atomic_save_normalizer(normalizer, path: Path) -> Path:
     return atomic_write(path, lambda tmp: normalizer.save(tmp))
 
 
-def _callbacks(out: Path, eval_env, checkpoint_every: int, eval_every: int, n_envs: int, eval_episodes: int):
+def _callbacks(out: Path, eval_env, checkpoint_every: int, eval_every: int, eval_episodes: int, resumed: bool):
     from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 
     class AtomicCheckpoint(BaseCallback):
@@ -153,9 +157,33 @@ def _callbacks(out: Path, eval_env, checkpoint_every: int, eval_every: int, n_en
                 _atomic_save_normalizer(self.model.get_vec_normalize_env(), stem.with_suffix(".pkl"))
             return True
 
-    evaluation = EvalCallback(eval_env, n_eval_episodes=eval_episodes, eval_freq=max(eval_every // n_envs, 1),
-                              log_path=str(out), best_model_save_path=None, deterministic=True, verbose=0)
-    return [AtomicCheckpoint(), evaluation]
+    class Evaluation(EvalCallback):
+        """SB3's evaluation at every multiple of ``eval_every`` env steps of the run (a resumed
+        run keeps the schedule and extends its evaluations.npz); the file is replaced atomically."""
+
+        def __init__(self) -> None:
+            super().__init__(eval_env, n_eval_episodes=eval_episodes, eval_freq=1, log_path=str(out / ".evaluating"),
+                             best_model_save_path=None, deterministic=True, verbose=0)
+            self.target = out / EVALUATIONS
+
+        def _on_training_start(self) -> None:
+            self.last = self.num_timesteps
+            if resumed and self.target.exists():  # earlier evaluations, up to the resumed step
+                with np.load(self.target) as earlier:
+                    keep = earlier["timesteps"] <= self.num_timesteps
+                    self.evaluations_timesteps = list(earlier["timesteps"][keep])
+                    self.evaluations_results = list(earlier["results"][keep])
+                    self.evaluations_length = list(earlier["ep_lengths"][keep])
+
+        def _on_step(self) -> bool:
+            if self.num_timesteps // eval_every <= self.last // eval_every:
+                return True
+            self.last = self.num_timesteps
+            go_on = super()._on_step()  # writes .evaluating/evaluations.npz
+            os.replace(out / ".evaluating" / EVALUATIONS, self.target)
+            return go_on
+
+    return [AtomicCheckpoint(), Evaluation()]
 
 
 def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs: dict | None = None,
@@ -205,9 +233,10 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs:
                            verbose=0, **settings)
     remaining = timesteps - model.num_timesteps
     if remaining > 0:
-        model.learn(remaining, callback=_callbacks(out, eval_env, checkpoint_every, eval_every, n_envs,
-                                                   eval_episodes),
+        model.learn(remaining, callback=_callbacks(out, eval_env, checkpoint_every, eval_every, eval_episodes,
+                                                   resume is not None),
                     progress_bar=progress, reset_num_timesteps=resume is None, tb_log_name=algo)
+        shutil.rmtree(out / ".evaluating", ignore_errors=True)
     model_path = _atomic_save_model(model, out / "model.zip")
     _atomic_save_normalizer(normalized, out / "vecnormalize.pkl")
     plot_learning_curve(out)
@@ -230,7 +259,7 @@ def run_files(path: str | Path) -> tuple[Path, Path, Path]:
 
 def plot_learning_curve(out: Path) -> Path | None:
     """learning_curve.png and learning_curve.csv from EvalCallback's evaluations.npz (if any)."""
-    data_path = out / "evaluations.npz"
+    data_path = out / EVALUATIONS
     if not data_path.exists():
         return None
     import matplotlib
