@@ -98,7 +98,9 @@ class StabilityController:
     def __call__(self, t: np.ndarray, estimate, front_steer: np.ndarray, base_torques: np.ndarray) -> Command:
         u, beta, r = estimate.u, estimate.beta, estimate.r
         mu = self.planning_mu(estimate)
-        steady = reference_yaw_rate(u, front_steer, mu, self.params)
+        rear = rear_steer_feedforward(u, front_steer, self.params) if self.rear_steer else np.zeros_like(u)
+        # the 2-DOF steady state of the car as steered: front minus rear road-wheel angle
+        steady = reference_yaw_rate(u, front_steer - rear, mu, self.params)
         # first-order lag: the reference a well-behaved car can follow, not a step it cannot
         if self._reference is None:
             self._reference = steady.copy()
@@ -116,9 +118,7 @@ class StabilityController:
         moment = np.where(np.abs(u) > ACTIVE_SPEED, moment, 0.0)
         self.last_allocation = allocate_for_estimate(base_torques, moment, estimate, self.params,
                                                      self.friction_ellipse, mu)
-        torques = self.last_allocation.torques
-        rear = rear_steer_feedforward(u, front_steer, self.params) if self.rear_steer else np.zeros_like(u)
-        return Command(torques, rear)
+        return Command(self.last_allocation.torques, rear)
 
 
 def make_controller(name: str, params, dt: float = 0.002):

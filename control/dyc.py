@@ -68,9 +68,12 @@ class LQRYawController:
 
 @dataclass
 class SlidingModeYawController:
-    """Sliding mode on s = (r - r_ref) + lam * beta: Mz = I_z (r_ref_dot - f_r - eta sat(s / phi))
-    with f_r the 2-DOF yaw acceleration without Mz; the boundary layer ``phi`` [rad/s]
-    removes chattering (Slotine & Li 1991, ch. 7). ``lam`` weights sideslip into the surface.
+    """Sliding mode on s = (r - r_ref) - lam * beta (beta_ref = 0):
+    Mz = I_z (r_ref_dot + lam beta_dot - f_r - eta sat(s / phi)) with f_r the 2-DOF yaw
+    acceleration without Mz and beta_dot = (F_yf + F_yr) / (m u) - r; the boundary layer
+    ``phi`` [rad/s] removes chattering (Slotine & Li 1991, ch. 7). ``lam`` weights sideslip
+    into the surface with the sign of the LQR's optimal gain: a car sliding out of a left turn
+    (beta < 0) needs a clockwise moment, as a yaw rate above the reference does.
 
     The linear model's tyre forces grow without bound with slip; beyond the friction limit
     that would command large moments of the wrong sign. f_r therefore uses axle forces
@@ -104,8 +107,9 @@ class SlidingModeYawController:
         fy_front = np.clip(c_f * (delta_f - beta - a * r / u), -front_limit, front_limit)
         fy_rear = np.clip(c_r * (-beta + b * r / u), -rear_limit, rear_limit)
         f_r = (a * fy_front - b * fy_rear) / iz
+        beta_dot = (fy_front + fy_rear) / (m * u) - r
         ref_dot = np.zeros_like(r_ref) if self._previous_ref is None else (r_ref - self._previous_ref) / dt
         self._previous_ref = r_ref.copy()
-        s = (r - r_ref) + self.lam * beta
-        mz = iz * (ref_dot - f_r - self.eta * np.clip(s / self.phi, -1.0, 1.0))
+        s = (r - r_ref) - self.lam * beta
+        mz = iz * (ref_dot + self.lam * beta_dot - f_r - self.eta * np.clip(s / self.phi, -1.0, 1.0))
         return np.clip(mz, -self.max_moment, self.max_moment)

@@ -112,8 +112,10 @@ class SineWithDwellResult:
 
     @property
     def passed_yaw(self) -> bool:
-        """Lateral stability (S5.2.1-2): ratios <= 35% at COS + 1 s and <= 20% at COS + 1.75 s."""
-        return bool(self.yaw_rate_ratio_1000 <= YAW_RATIO_1000 and self.yaw_rate_ratio_1750 <= YAW_RATIO_1750)
+        """Lateral stability (S5.2.1-2): |ratio| <= 35% at COS + 1 s and <= 20% at COS + 1.75 s.
+        Magnitudes: the regulation's car yaws back the dwell's way; one still yawing hard the
+        first way (a reverse-sense spin, a negative ratio) is not stable either."""
+        return bool(abs(self.yaw_rate_ratio_1000) <= YAW_RATIO_1000 and abs(self.yaw_rate_ratio_1750) <= YAW_RATIO_1750)
 
     @property
     def passed(self) -> bool:

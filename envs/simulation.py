@@ -170,6 +170,9 @@ class ClosedLoop:
             from estimation import make_estimator
 
             estimator = make_estimator(estimator or "oracle", params, dt)
+        if getattr(controller, "rear_steer", False) and any(s.rear_steer_feedforward for s in self.scenarios):
+            raise ValueError("the controller steers the rear axle (eq. 20) and the scenario's "
+                             "rear_steer_feedforward would add the same law again: use one of them")
         self.controller, self.estimator, self.dt = controller, estimator, dt
         self.sensors = SensorModel(sensor_params or SensorParams(), tuple(faults), self.batch_size, rng)
         self.state = np.concatenate([s.initial_state() for s in self.scenarios])

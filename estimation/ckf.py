@@ -254,6 +254,15 @@ def measurement_update(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nu, 
             value = 0.5 * (P[i, j] + P[j, i]) - t
             P_out[i, j] = value
             P_out[j, i] = value
+    return innovation_nll(L, nu, m_valid)
+
+
+@numba.njit(inline="always", **JIT)
+def innovation_nll(L: np.ndarray, nu: np.ndarray, m_valid: int) -> float:
+    """Gaussian negative log-likelihood of the innovation nu (m,) with covariance S = L L^T
+    (L: its Cholesky factor), over the m_valid channels that carry information (the others
+    have nu = 0 and the dropout variance, whose log det is taken out again)."""
+    m = nu.shape[0]
     white = scratch((m,))  # L^-1 nu: maha = |white|^2
     log_det = 0.0
     for i in range(m):

@@ -5,9 +5,18 @@ vectorised models (the estimators' compiled steps run the same cycle on the vehi
 Each step the master's (x_g, P_g) is shared out to the sub-filters with information-sharing
 coefficients beta_i (sum 1): P_i = P_g / beta_i, Q_i = Q / beta_i. Each sub-filter predicts
 with the common model and updates with its own measurements; the master fuses them by
-information weighting. For linear-Gaussian systems this equals the centralised filter.
-The betas adapt to each sub-filter's confidence (paper eq. 59-61): beta_i proportional to
-trace(P_i^-1) after its last update, floored at 5% so no sub-filter is switched off.
+information weighting (eq. 59-61; eq. 60 prints P_sf^-1 where P_sf is meant). For
+linear-Gaussian systems with independent measurements this equals the centralised filter
+(tested). The paper's sub-filters share channels (sub-filter 1 [ax, ay, r], sub-filter 2
+[ay, r]): the fusion then counts the shared channels' information twice, as the paper's
+design does, and the fused covariance is optimistic by up to that much.
+
+Sharing coefficients: a replacement for the paper's adaptive rule (eq. 58), whose printed
+form does not define its quantities: beta_i proportional to trace(P_i^-1) after sub-filter
+i's last update (its confidence), floored at BETA_FLOOR before normalising (so ~4.8% at
+least: no sub-filter is switched off). The trace adds inverse variances of unlike units, so
+the best-known states dominate it; in the mu filter the strongly correlated prior dominates
+and the coefficients stay near 1/2.
 """
 
 from __future__ import annotations

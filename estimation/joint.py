@@ -28,7 +28,13 @@ mu is held, not drifting, when it is unobservable: with Dugoff's lambda >= 1 (fo
 below mu*Fz/2) dF/dmu = 0. The cubature points of a wide mu prior still straddle lambda = 1,
 so model mismatch would leak into mu: a wheel's mu is therefore updated only while its
 lambda at the current estimate is below 1 (all four while any wheel is), and its random-walk
-variance growth is capped. The four mu share a correlated prior and random walk
+variance growth is capped. While mu is held its covariance still takes the update, so the
+reported mu sigma shrinks slowly in stretches without excitation (the covariance's trace
+0.090 -> 0.081 over a straight; sigma 0.036 per wheel after the sine's held stretches). Discarding the update whole (only
+the random walk acting) was tried: after a friction drop mu then stayed at its old, high value,
+because lambda evaluated at a too-high mu keeps the gate closed, and the narrower covariance
+is what let the gate open again. A gate on a lower confidence bound of mu would address both;
+not done. The four mu share a correlated prior and random walk
 (MU_CORRELATION): a saturating outer wheel informs the lightly loaded inner one, while a split
 road still separates left from right over time.
 
@@ -48,8 +54,8 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from estimation.ckf import (DROPOUT_VARIANCE, NO_HUBER, cholesky, cholesky_solve, cubature_points, dot, matmul,
-                            measurement_update, predicted_moments)
+from estimation.ckf import (DROPOUT_VARIANCE, NO_HUBER, cholesky, cholesky_solve, cubature_points, dot,
+                            innovation_nll, matmul, measurement_update, predicted_moments)
 from estimation.federated import fuse, sharing_coefficients
 from estimation.jit import JIT, scratch
 from estimation.model import (P_IZ, P_RW, ModelParams, body_forces, dugoff_lambdas, fill_steer_trig, transition,
@@ -342,8 +348,8 @@ def _finite_difference_jacobian(model, x, eps, centre, J, f_args, h_args, m_args
 
 @numba.njit(**JIT)
 def _ekf_step(x, P, Q, z, valid, R, f_args, h_args, m_args, x_out, P_out) -> float:
-    """EKF on the same model (central-difference Jacobians, Joseph-form update); returns
-    0.5 nu^T S^-1 nu (NaN if S is not positive definite)."""
+    """EKF on the same model (central-difference Jacobians, Joseph-form update); returns the
+    innovation negative log-likelihood, as the CKF's update (NaN if S is not positive definite)."""
     n, m = x.shape[0], z.shape[0]
     eps = scratch((n,))
     for k in range(n):
@@ -357,8 +363,10 @@ def _ekf_step(x, P, Q, z, valid, R, f_args, h_args, m_args, x_out, P_out) -> flo
     _finite_difference_jacobian(STATE_1, x_pred, eps, z_pred, H, f_args, h_args, m_args)
     Rv, nu = scratch((m, m)), scratch((m,))
     Rv[:, :] = R
+    m_valid = 0
     for i in range(m):
         nu[i] = z[i] - z_pred[i] if valid[i] else 0.0
+        m_valid += 1 if valid[i] else 0
         if not valid[i]:
             Rv[i, i] = DROPOUT_VARIANCE
     PHt, S, L = scratch((n, m)), scratch((m, m)), scratch((m, m))
@@ -385,9 +393,7 @@ def _ekf_step(x, P, Q, z, valid, R, f_args, h_args, m_args, x_out, P_out) -> flo
     for i in range(n):
         for j in range(n):
             P_out[i, j] = 0.5 * (P_new[i, j] + P_new[j, i])
-    white = scratch((m,))
-    cholesky_solve(L, nu, white)
-    return 0.5 * dot(nu, white)
+    return innovation_nll(L, nu, m_valid)
 
 
 # ---- one estimator step (compiled) -----------------------------------------------------------
@@ -478,7 +484,8 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, process_var, sensor_var,
                             R2_mu, MU_2, huber_c, f_args, h_args, m_args, mu_fused, P_fused, beta_mu_new)
         if not math.isfinite(nll_mu):
             return FILTER_FAILED, math.nan
-        # hold mu where the tyres are far from saturation (Dugoff lambda >= EXCITATION_LAMBDA)
+        # hold mu where the tyres are far from saturation (Dugoff lambda >= EXCITATION_LAMBDA);
+        # the covariance keeps the update (see the module docstring)
         lam = scratch((4,))
         dugoff_lambdas(x_new[I_U], x_new[I_V], x_new[I_R], x_new[I_AX], x_new[I_AY], mu, steer, omega, pk, lam)
         if lam.min() < EXCITATION_LAMBDA:
@@ -642,6 +649,13 @@ class StateEstimator:
             i = int(rows[j])
             if status[j] == BAD_MEASUREMENT:
                 raise ValueError(f"a valid measurement of vehicle {i} is NaN or inf: {values[i]!r}")
+            from envs.sensors import CHANNELS
+
+            bad_inputs = [CHANNELS[c] for c in range(3, 13) if not np.isfinite(values[i, c])]
+            if bad_inputs:  # the model needs its inputs every step, valid or not
+                raise ValueError(f"inputs {bad_inputs} of vehicle {i} are NaN or inf: wheel speeds, steer angles "
+                                 "and torques drive the model every step; hold the last value while a sensor is "
+                                 "out (as envs.sensors does) and flag it invalid")
             raise ValueError(f"the {self.kind} filter of vehicle {i} failed: a covariance is not finite or not "
                              "positive definite")
         return Estimate(u=out[:, O_U], v=out[:, O_V], beta=out[:, O_BETA], r=out[:, O_R], ax=out[:, O_AX],

@@ -12,7 +12,12 @@ the paper (standard textbook forms, Rajamani 2012 ch. 13; Dugoff, Fancher & Sege
   +/- t/2 laterally and +a / -b longitudinally with the signs of ISO 8855 (the paper's rear-
   wheel signs slip);
 * eq. 8-10: the Dugoff parameter carries mu*Fz (the paper's eq. 10 omits it);
-* eq. 11-14: the rear slip angles use -b (the paper's eq. 14 writes b/l).
+* eq. 11-12: the wheel-centre speeds carry -/+ (t/2) r for the left / right wheels, and the
+  rear slip angles' lateral speed is v - b r (eq. 12 prints -v + b r);
+* eq. 14: the rear normal loads carry a/l (the paper writes b/l), :func:`wheel_load`;
+* eq. 15: one slip ratio, (R omega - u_w) / max(|R omega|, |u_w|), positive when driving, for
+  drive and brake alike (the paper's drive case flips the sign and divides by the wheel-centre
+  speed instead of R omega).
 """
 
 from __future__ import annotations
@@ -176,15 +181,17 @@ def wheel_kinematics(u: float, v: float, r: float, trig: tuple, pk, w: int) -> t
 @numba.njit(inline="always", **JIT)
 def dugoff(fz: float, slip: float, tan_alpha: float, mu: float, cx: float, cy: float, speed: float,
            eps: float) -> tuple[float, float, float]:
-    """Dugoff combined-slip forces Fx, Fy [N] and Dugoff's lambda (standard form; DESIGN.md):
-    lambda = mu Fz (1 - eps u sqrt(Cx^2 s^2 + Cy^2 tan^2 a)) (1 - s) / (2 sqrt(Cx^2 s^2 + Cy^2 tan^2 a)),
-    f = (2 - lambda) lambda if lambda < 1 else 1; Fx = Cx s/(1-s) f, Fy = Cy tan(a)/(1-s) f.
-    Below lambda = 1 the force depends on mu (the tyre is saturating)."""
-    one_minus_s = max(1.0 - slip, 0.05)
+    """Dugoff combined-slip forces Fx, Fy [N] and Dugoff's lambda (standard form, Rajamani 2012
+    sec. 13.9), with ``slip`` positive when driving (the SAE sign of this package):
+    lambda = mu Fz (1 - eps u sqrt(Cx^2 s^2 + Cy^2 tan^2 a)) (1 + s) / (2 sqrt(Cx^2 s^2 + Cy^2 tan^2 a)),
+    f = (2 - lambda) lambda if lambda < 1 else 1; Fx = Cx s/(1+s) f, Fy = Cy tan(a)/(1+s) f.
+    (Dugoff's paper and DESIGN.md write 1 - s for braking slip, positive when braking: the same
+    law.) Below lambda = 1 the force depends on mu (the tyre is saturating)."""
+    one_plus_s = max(1.0 + slip, 0.05)
     demand = math.sqrt((cx * slip) ** 2 + (cy * tan_alpha) ** 2)
-    lam = mu * fz * (1.0 - eps * speed * demand) * one_minus_s / (2.0 * max(demand, 1e-9))
+    lam = mu * fz * (1.0 - eps * speed * demand) * one_plus_s / (2.0 * max(demand, 1e-9))
     f = (2.0 - lam) * lam if lam < 1.0 else 1.0
-    return cx * slip / one_minus_s * f, cy * tan_alpha / one_minus_s * f, lam
+    return cx * slip / one_plus_s * f, cy * tan_alpha / one_plus_s * f, lam
 
 
 @numba.njit(inline="always", **JIT)
@@ -203,7 +210,8 @@ def body_forces(state: np.ndarray, mu: np.ndarray, steer: np.ndarray, omega: np.
     """Body accelerations ax, ay [m/s^2] and yaw moment Gamma [N m] from the tyre forces (eq. 4-6,
     corrected) for K model evaluations at once: ``state`` (5, K) rows u, v, r, ax, ay and
     ``mu`` (4, K) per wheel; writes the rows of out (3, K). Fx from the wheel's torque balance
-    (eq. 7), limited by the Dugoff friction ellipse; Fy from Dugoff with the slip angle and mu.
+    (eq. 7, a measured force: torque and wheel acceleration), limited to +/- k mu Fz against
+    sensor noise; Fy from Dugoff with the slip angle and mu.
     Loads from the (previous) ax, ay; ``steer``: :func:`steer_trig` of the steer angles.
 
     Wheel by wheel over all K evaluations (the K loop innermost and branch-free, so the

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from control import CONTROLLERS, MIN_PLANNING_MU, StabilityController, make_controller
-from control.dyc import LQRYawController, bicycle_matrices
+from control.dyc import LQRWeights, LQRYawController, SlidingModeYawController, bicycle_matrices
 from control.reference import rear_steer_gain, reference_yaw_rate, sideslip_bound, understeer_gradient
 from envs.fmvss126 import characterise, run_series
 from envs.simulation import simulate
@@ -141,3 +141,36 @@ def test_the_controller_plans_with_the_lower_confidence_bound_of_the_friction():
         traj = simulate("mu_jump", controller=controller, estimator="joint", seed=0)
         peaks.append(np.abs(traj.truth.beta).max())
     assert peaks[1] < 0.85 * peaks[0]
+
+
+def test_sliding_mode_meets_sideslip_with_the_lqr_gains_sign():
+    """A car sliding out of a left turn (beta < 0, yaw rate on its reference) needs a clockwise
+    moment, as the LQR's optimal gain gives; the sliding surface s = e - lam beta agrees."""
+    u, beta, r = np.array([22.0]), np.array([-0.05]), np.array([0.2])
+    lqr = LQRYawController(P, LQRWeights())
+    smc = SlidingModeYawController(P)
+    smc(u, np.zeros(1), r, r, np.array([0.02]), 0.002, np.ones((1, 4)))  # the reference's previous value
+    assert lqr(u, beta, r, r, np.array([0.02]), 0.002)[0] < 0.0
+    assert smc(u, beta, r, r, np.array([0.02]), 0.002, np.ones((1, 4)))[0] < \
+        smc(u, np.zeros(1), r, r, np.array([0.02]), 0.002, np.ones((1, 4)))[0]
+
+
+def test_with_rear_steer_the_reference_is_the_four_wheel_steered_car_s():
+    """dyc-lqr-4ws asks for the yaw rate of the car as steered (front minus the eq. 20 rear
+    angle), so at steady state it leaves the 4WS law alone instead of cancelling it; and a
+    scenario that adds eq. 20 itself cannot be combined with it."""
+    from control.reference import rear_steer_feedforward
+    from envs.scenarios import make_scenario
+
+    controller = make_controller("dyc-lqr-4ws", P)
+    u, delta = np.array([22.0]), np.array([0.02])
+    est = Estimate(u=u, v=np.zeros(1), beta=np.zeros(1), r=np.zeros(1), ax=np.zeros(1), ay=np.zeros(1),
+                   mu=np.ones((1, 4)), fz=np.full((1, 4), 3000.0), beta_std=np.zeros(1), mu_std=np.zeros((1, 4)))
+    rear = rear_steer_feedforward(u, delta, P)
+    steady = reference_yaw_rate(u, delta - rear, np.ones((1, 4)), P)
+    controller(np.zeros(1), est._replace(r=steady), delta, np.zeros((1, 4)))
+    for _ in range(2000):  # the reference's lag settles on the steady state; the car on it needs no moment
+        command = controller(np.zeros(1), est._replace(r=steady), delta, np.zeros((1, 4)))
+    assert abs(controller.last_allocation.yaw_moment[0]) < 1.0 and command.rear_steer[0] == rear[0]
+    with pytest.raises(ValueError, match="rear_steer_feedforward"):
+        simulate(make_scenario("paper_sine", rear_steer_feedforward=True), controller)

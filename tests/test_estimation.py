@@ -210,9 +210,10 @@ PARAMS = ModelParams.from_vehicle(VehicleParams())
 
 
 def test_dugoff_is_linear_at_small_slip_and_follows_its_closed_form_in_saturation():
-    """Dugoff (eps = 0): lambda = mu Fz (1 - s) / (2 D), D = sqrt(Cx^2 s^2 + Cy^2 tan^2 a); for
-    lambda >= 1 the force is linear, for lambda < 1 its magnitude D / (1 - s) lambda (2 - lambda)
-    reduces to exactly mu Fz (1 - lambda / 2), in pure cornering and in combined slip alike. mu
+    """Dugoff (eps = 0, slip s positive when driving): lambda = mu Fz (1 + s) / (2 D),
+    D = sqrt(Cx^2 s^2 + Cy^2 tan^2 a); for lambda >= 1 the force is linear, for lambda < 1 its
+    magnitude D / (1 + s) lambda (2 - lambda) reduces to exactly mu Fz (1 - lambda / 2), in pure
+    cornering and in combined slip alike; driving slip lowers the lateral force. mu
     is the friction the tyre sees: the estimator passes k mu (ModelParams.mu_scale), as here."""
     fx, fy, lam = dugoff(2000.0, 0.0, math.tan(1e-3), 0.8, 3e4, 4e4, 20.0, 0.0)
     assert fy == pytest.approx(4e4 * math.tan(1e-3)) and fx == 0.0 and lam > 1.0
@@ -220,11 +221,14 @@ def test_dugoff_is_linear_at_small_slip_and_follows_its_closed_form_in_saturatio
     for slip, alpha in ((0.0, 0.05), (0.0, 0.3), (0.05, 0.3), (-0.1, 0.1)):
         fx, fy, lam = dugoff(fz, slip, math.tan(alpha), mu, cx, cy, 20.0, 0.0)
         demand = math.hypot(cx * slip, cy * math.tan(alpha))
-        assert lam == pytest.approx(mu * fz * (1 - slip) / (2 * demand), rel=1e-12)
+        assert lam == pytest.approx(mu * fz * (1 + slip) / (2 * demand), rel=1e-12)
         assert lam < 1.0  # saturating: every case above is past the linear range
         assert math.hypot(fx, fy) == pytest.approx(mu * fz * (1 - lam / 2), rel=1e-12)
         if slip == 0.0:
             assert fx == 0.0 and fy > 0.0
+    # linear range: the lateral force Cy tan(a) / (1 + s) is smaller when driving, larger when braking
+    fy = [dugoff(fz, s, math.tan(1e-3), mu, cx, cy, 20.0, 0.0)[1] for s in (1e-3, 0.0, -1e-3)]
+    assert fy[0] == pytest.approx(cy * math.tan(1e-3) / 1.001, rel=1e-12) and fy[0] < fy[1] < fy[2]
 
 
 def test_normal_loads_follow_the_quasi_static_closed_form():
@@ -575,3 +579,18 @@ def test_a_step_on_bad_members_raises_and_leaves_the_filters_alone(members):
     with pytest.raises(ValueError, match="members"):
         est.step(reading, members=np.array(members))
     np.testing.assert_array_equal(est.x, before)
+
+
+def test_a_nan_input_is_named_even_on_an_invalid_channel():
+    """Wheel speeds, steer angles and torques drive the model every step: a NaN there, flagged
+    invalid or not, is named (not reported as a failed covariance)."""
+    from envs.sensors import SensorReading
+
+    est = make_estimator("joint", VehicleParams())
+    values = np.zeros((2, len(CHANNELS)))
+    values[:, 3:7] = 20.0 / VehicleParams().wheel_radius
+    valid = np.ones_like(values, dtype=bool)
+    est.reset(SensorReading(values, valid, np.zeros(2)), np.full(2, 20.0))
+    values[1, CHANNELS.index("delta_r")], valid[1, CHANNELS.index("delta_r")] = np.nan, False
+    with pytest.raises(ValueError, match=r"\['delta_r'\] of vehicle 1"):
+        est.step(SensorReading(values, valid, np.zeros(2)))

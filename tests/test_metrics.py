@@ -81,8 +81,19 @@ def test_yaw_ratios_of_a_lagged_yaw_rate(tau):
     r_cos = np.interp(COS, T, r)
     assert res.yaw_rate_ratio_1000 == pytest.approx(-r_cos * math.exp(-1.0 / tau) / peak, abs=2e-3)
     assert res.yaw_rate_ratio_1750 == pytest.approx(-r_cos * math.exp(-1.75 / tau) / peak, abs=2e-3)
-    assert res.passed_yaw == (res.yaw_rate_ratio_1000 <= 0.35 and res.yaw_rate_ratio_1750 <= 0.20)
+    assert res.passed_yaw == (abs(res.yaw_rate_ratio_1000) <= 0.35 and abs(res.yaw_rate_ratio_1750) <= 0.20)
     assert res.passed_yaw == (tau < 1.0)  # a slow yaw decay (ratio ~0.5) fails
+
+
+def test_a_car_still_yawing_the_first_way_after_cos_fails():
+    """A reverse-sense spin: after COS the yaw rate grows the initial steer's way (opposite to
+    the dwell's peak); its ratios are negative and large, which is not the regulation's
+    stable car (|ratio| is checked)."""
+    steer = swd(math.radians(180.0))
+    r = lagged(steer, 0.16, 0.1)
+    r[T > COS] += np.clip(T[T > COS] - COS, 0.0, None) * 2.0  # ramps up the initial direction's way
+    res = sine_with_dwell_metrics(T, steer, r, np.zeros_like(T))
+    assert res.yaw_rate_ratio_1000 < -0.35 and not res.passed_yaw
 
 
 def test_zeroing_removes_pre_manoeuvre_offsets_also_at_small_amplitude():
