@@ -33,8 +33,8 @@ reported mu sigma shrinks slowly in stretches without excitation (the covariance
 0.090 -> 0.081 over a straight; sigma 0.036 per wheel after the sine's held stretches). Discarding the update whole (only
 the random walk acting) was tried: after a friction drop mu then stayed at its old, high value,
 because lambda evaluated at a too-high mu keeps the gate closed, and the narrower covariance
-is what let the gate open again. A gate on a lower confidence bound of mu would address both;
-not done. The four mu share a correlated prior and random walk
+is what let the gate open again. A gate on mu's lower confidence bound was tried too (README,
+"Known limitations"): mu then moves after a jump but wanders on the lane changes. The four mu share a correlated prior and random walk
 (MU_CORRELATION): a saturating outer wheel informs the lightly loaded inner one, while a split
 road still separates left from right over time.
 
