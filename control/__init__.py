@@ -68,10 +68,16 @@ class StabilityController:
     dt: float = 0.002
     friction_ellipse: bool = False  #: see :func:`control.allocation.allocate_for_estimate`
     mu_margin: float = MU_MARGIN  #: standard deviations below mu_hat the controller plans with
+    #: understeer gradient of the yaw reference [rad s^2/m]; None: the car's own (0: neutral)
+    reference_understeer: float | None = None
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.mu_margin) and self.mu_margin >= 0.0):
             raise ValueError(f"mu_margin must be a finite number >= 0, got {self.mu_margin!r}")
+        if self.reference_understeer is not None and not (np.isfinite(self.reference_understeer)
+                                                          and self.reference_understeer >= 0.0):
+            raise ValueError(f"reference_understeer must be a finite gradient >= 0 [rad s^2/m], got "
+                             f"{self.reference_understeer!r}")
         if self.law == "lqr":
             self._law = LQRYawController(self.params, LQRWeights())
         elif self.law == "smc":
@@ -100,7 +106,7 @@ class StabilityController:
         mu = self.planning_mu(estimate)
         rear = rear_steer_feedforward(u, front_steer, self.params) if self.rear_steer else np.zeros_like(u)
         # the 2-DOF steady state of the car as steered: front minus rear road-wheel angle
-        steady = reference_yaw_rate(u, front_steer - rear, mu, self.params)
+        steady = reference_yaw_rate(u, front_steer - rear, mu, self.params, self.reference_understeer)
         # first-order lag: the reference a well-behaved car can follow, not a step it cannot
         if self._reference is None:
             self._reference = steady.copy()

@@ -72,6 +72,22 @@ def test_bad_input_raises():
     with pytest.raises(ValueError, match="pid"):
         make_controller("pid", P)
     assert set(CONTROLLERS) >= {"none", "dyc-lqr", "dyc-smc"}
+    with pytest.raises(ValueError, match="-0.01"):
+        StabilityController(P, reference_understeer=-0.01)
+
+
+def test_a_reference_understeer_gradient_lowers_the_yaw_reference_the_controller_tracks():
+    """StabilityController(reference_understeer=K): the reference u delta / (L + K u^2); with
+    2 deg/g at 25 m/s it asks for L / (L + K u^2) of the neutral car's yaw rate."""
+    k = math.radians(2.0) / 9.81
+    u, delta = np.array([25.0]), np.array([0.01])
+    est = Estimate(u=u, v=np.zeros(1), beta=np.zeros(1), r=np.zeros(1), ax=np.zeros(1), ay=np.zeros(1),
+                   mu=np.ones((1, 4)), fz=np.full((1, 4), 3000.0), beta_std=np.zeros(1), mu_std=np.zeros((1, 4)))
+    ratio = P.wheelbase / (P.wheelbase + k * 25.0**2)
+    neutral, under = StabilityController(P), StabilityController(P, reference_understeer=k)
+    for c in (neutral, under):
+        c(np.zeros(1), est, delta, np.zeros((1, 4)))
+    assert under._reference[0] == pytest.approx(ratio * neutral._reference[0], rel=1e-12)
 
 
 @pytest.mark.parametrize("law", ["lqr", "smc"])
