@@ -29,7 +29,7 @@ from control import Command
 from control.allocation import allocate_for_estimate
 from control.reference import reference_yaw_rate
 from envs.metrics import SPIN_OUT_SIDESLIP, path_deviation, sine_with_dwell_metrics
-from envs.scenarios import SCENARIOS, Scenario, make_scenario
+from envs.scenarios import SCENARIOS, Scenario, is_number, make_scenario
 from envs.sensors import Fault
 from envs.simulation import DT, ClosedLoop
 from envs.vehicle import A_AY, S_R, S_X, S_Y
@@ -45,10 +45,6 @@ RENDER_MODES = ("rgb_array", "human")
 N_OBS = 14
 SENSOR_SCALE = np.array([10, 10, 1, 100, 100, 100, 100, 0.3, 0.3, 600, 600, 600, 600], dtype=float)
 NOMINAL_MU = 0.8  #: friction assumed for r_ref in the sensors observation
-
-
-def _is_real(value) -> bool:
-    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
 
 
 def _is_integer(value) -> bool:
@@ -86,7 +82,7 @@ class EnvConfig:
             raise ValueError(f"estimator must be a name, got {self.estimator!r}")
         check_estimator_name(self.estimator)
         dt = self.control_dt
-        substeps = dt / DT if _is_real(dt) and math.isfinite(dt) else math.nan
+        substeps = dt / DT if is_number(dt) and math.isfinite(dt) else math.nan
         if not (substeps >= 1 - 1e-9 and abs(substeps - round(substeps)) < 1e-9):
             raise ValueError(f"control_dt must be a positive multiple of {DT} s, got {dt!r}")
         try:
@@ -114,6 +110,11 @@ class EnvConfig:
     @property
     def substeps(self) -> int:
         return int(round(self.control_dt / DT))
+
+    @property
+    def render_fps(self) -> int:
+        """Frames per second of a rendered episode: one per control step."""
+        return int(round(1 / self.control_dt))
 
     @property
     def action_size(self) -> int:
@@ -390,7 +391,7 @@ class YawStabilityEnv(gym.Env):
                                 scenario_kwargs=scenario_kwargs, rear_steer=rear_steer)
         _check_render_mode(render_mode)
         self.render_mode = render_mode
-        self.metadata = {**self.metadata, "render_fps": int(round(1 / control_dt))}
+        self.metadata = {**self.metadata, "render_fps": self.config.render_fps}
         self.observation_space, self.action_space = _spaces(self.config)
         self._core: YawStabilityCore | None = None
         self._window = None
@@ -506,7 +507,7 @@ class YawStabilityVectorEnv(VectorEnv):
                                 max_episode_steps, scenario_kwargs, rear_steer)
         _check_render_mode(render_mode)
         self.num_envs, self.render_mode = int(num_envs), render_mode
-        self.metadata = {**self.metadata, "render_fps": int(round(1 / control_dt))}
+        self.metadata = {**self.metadata, "render_fps": self.config.render_fps}
         self.single_observation_space, self.single_action_space = _spaces(self.config)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)

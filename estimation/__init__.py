@@ -12,15 +12,19 @@ from estimation.types import Estimate
 ESTIMATORS = ("oracle",) + KINDS  #: names accepted by make_estimator; "joint" is the paper's full system
 
 
-def check_estimator_name(name: str) -> str:
-    """``name`` if make_estimator accepts it: one of :data:`ESTIMATORS`, optionally followed by
-    ``+true-<group>[-<group>...]`` (:data:`TRUTH_GROUPS`); else ValueError naming it."""
+def _parse_name(name: str) -> tuple[str, tuple[str, ...]]:
+    """(base estimator, truth groups) of ``name`` (see :func:`check_estimator_name`)."""
     base, sep, groups = str(name).partition(TRUE_SUFFIX)
     if base not in ESTIMATORS:
         raise ValueError(f"unknown estimator {name!r}; known: {list(ESTIMATORS)}, each optionally with "
                          f"'{TRUE_SUFFIX}<group>[-<group>...]', groups {list(TRUTH_GROUPS)}")
-    if sep:
-        parse_truth_groups(groups)
+    return base, parse_truth_groups(groups) if sep else ()
+
+
+def check_estimator_name(name: str) -> str:
+    """``name`` if make_estimator accepts it: one of :data:`ESTIMATORS`, optionally followed by
+    ``+true-<group>[-<group>...]`` (:data:`TRUTH_GROUPS`); else ValueError naming it."""
+    _parse_name(name)
     return name
 
 
@@ -32,9 +36,9 @@ def make_estimator(name: str, params, dt: float = 0.002, noise: NoiseParams | No
     ``<name>+true-<group>[-<group>...]`` (e.g. ``joint+true-mu``) reports the truth for those
     groups (:class:`PartialOracle`, :data:`TRUTH_GROUPS`): which estimated quantity a
     closed-loop loss comes from."""
-    base, sep, groups = check_estimator_name(name).partition(TRUE_SUFFIX)
-    if sep:
-        return PartialOracle(make_estimator(base, params, dt, noise, **kwargs), parse_truth_groups(groups))
+    base, groups = _parse_name(name)
+    if groups:
+        return PartialOracle(make_estimator(base, params, dt, noise, **kwargs), groups)
     if name == "oracle":
         return Oracle()
     if noise is None:

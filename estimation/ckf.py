@@ -209,15 +209,8 @@ def measurement_update(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nu, 
                 t += (points[k, i] - x[i]) * (Z[k, j] - z_mean[j])
             Pxz[i, j] = t / K
     Rv = scratch((m, m))
-    m_valid = 0
-    for i in range(m):
-        nu[i] = z[i] - z_mean[i] if valid[i] else 0.0
-        m_valid += 1 if valid[i] else 0
-        for j in range(m):
-            Rv[i, j] = R[i, j]
-        if not valid[i]:
-            Rv[i, i] = DROPOUT_VARIANCE
-        weights[i] = 1.0
+    m_valid = innovation(z, z_mean, valid, R, nu, Rv)
+    weights[:] = 1.0
     if huber_c < math.inf:
         for i in range(m):
             a = abs(nu[i]) / math.sqrt(Pzz[i, i] + Rv[i, i])
@@ -255,6 +248,23 @@ def measurement_update(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nu, 
             P_out[i, j] = value
             P_out[j, i] = value
     return innovation_nll(L, nu, m_valid)
+
+
+@numba.njit(inline="always", **JIT)
+def innovation(z: np.ndarray, z_pred: np.ndarray, valid: np.ndarray, R: np.ndarray, nu: np.ndarray,
+               Rv: np.ndarray) -> int:
+    """The innovation nu = z - z_pred (m,) and its noise Rv (m, m) = R, zero and the dropout
+    variance (no information) on channels with ``valid`` False; returns the valid count."""
+    m = z.shape[0]
+    m_valid = 0
+    for i in range(m):
+        nu[i] = z[i] - z_pred[i] if valid[i] else 0.0
+        m_valid += 1 if valid[i] else 0
+        for j in range(m):
+            Rv[i, j] = R[i, j]
+        if not valid[i]:
+            Rv[i, i] = DROPOUT_VARIANCE
+    return m_valid
 
 
 @numba.njit(inline="always", **JIT)

@@ -30,11 +30,12 @@ so model mismatch would leak into mu: a wheel's mu is therefore updated only whi
 lambda at the current estimate is below 1 (all four while any wheel is), and its random-walk
 variance growth is capped. While mu is held its covariance still takes the update, so the
 reported mu sigma shrinks slowly in stretches without excitation (the covariance's trace
-0.090 -> 0.081 over a straight; sigma 0.036 per wheel after the sine's held stretches). Discarding the update whole (only
-the random walk acting) was tried: after a friction drop mu then stayed at its old, high value,
-because lambda evaluated at a too-high mu keeps the gate closed, and the narrower covariance
-is what let the gate open again. A gate on mu's lower confidence bound was tried too (README,
-"Known limitations"): mu then moves after a jump but wanders on the lane changes. The four mu share a correlated prior and random walk
+0.090 -> 0.081 over a straight; sigma 0.036 per wheel after the sine's held stretches).
+Discarding the update whole (only the random walk acting) was tried: after a friction drop mu
+then stayed at its old, high value, because lambda evaluated at a too-high mu keeps the gate
+closed, and the narrower covariance is what let the gate open again. A gate on mu's lower
+confidence bound was tried too (README, "Known limitations"): mu then moves after a jump but
+wanders on the lane changes. The four mu share a correlated prior and random walk
 (MU_CORRELATION): a saturating outer wheel informs the lightly loaded inner one, while a split
 road still separates left from right over time.
 
@@ -54,8 +55,8 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from estimation.ckf import (DROPOUT_VARIANCE, NO_HUBER, cholesky, cholesky_solve, cubature_points, dot,
-                            innovation_nll, matmul, measurement_update, predicted_moments)
+from estimation.ckf import (NO_HUBER, cholesky, cholesky_solve, cubature_points, dot, innovation, innovation_nll,
+                            matmul, measurement_update, predicted_moments)
 from estimation.federated import fuse, sharing_coefficients
 from estimation.jit import JIT, scratch
 from estimation.model import (P_IZ, P_RW, ModelParams, body_forces, dugoff_lambdas, fill_steer_trig, transition,
@@ -362,13 +363,7 @@ def _ekf_step(x, P, Q, z, valid, R, f_args, h_args, m_args, x_out, P_out) -> flo
     z_pred, H = scratch((m,)), scratch((m, n))
     _finite_difference_jacobian(STATE_1, x_pred, eps, z_pred, H, f_args, h_args, m_args)
     Rv, nu = scratch((m, m)), scratch((m,))
-    Rv[:, :] = R
-    m_valid = 0
-    for i in range(m):
-        nu[i] = z[i] - z_pred[i] if valid[i] else 0.0
-        m_valid += 1 if valid[i] else 0
-        if not valid[i]:
-            Rv[i, i] = DROPOUT_VARIANCE
+    m_valid = innovation(z, z_pred, valid, R, nu, Rv)
     PHt, S, L = scratch((n, m)), scratch((m, m)), scratch((m, m))
     matmul(P_pred, H.T, PHt)
     matmul(H, PHt, S)

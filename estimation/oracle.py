@@ -60,8 +60,7 @@ class PartialOracle:
 
     def __init__(self, estimator, groups: Sequence[str]) -> None:
         self.estimator = estimator
-        self.groups = tuple(groups)
-        parse_truth_groups("-".join(self.groups))
+        self.groups = parse_truth_groups("-".join(groups))
         self._fields = [f for g in self.groups for f in TRUTH_GROUPS[g]]
 
     def reset(self, reading, initial_speed=None, mask=None) -> None:

@@ -143,6 +143,15 @@ def _atomic_save_normalizer(normalizer, path: Path) -> Path:
 def _callbacks(out: Path, eval_env, checkpoint_every: int, eval_every: int, eval_episodes: int, resumed: bool):
     from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 
+    def due(callback, every: int) -> bool:
+        """True once each time the run's step count passes a multiple of ``every`` (counted over
+        the whole run, so a resumed run keeps the schedule); ``callback.last`` is the step count
+        at the previous such time or at the start of training."""
+        if callback.num_timesteps // every <= callback.last // every:
+            return False
+        callback.last = callback.num_timesteps
+        return True
+
     class AtomicCheckpoint(BaseCallback):
         """Every ``checkpoint_every`` env steps: model + normaliser into checkpoints/, atomically."""
 
@@ -150,8 +159,7 @@ def _callbacks(out: Path, eval_env, checkpoint_every: int, eval_every: int, eval
             self.last = self.num_timesteps
 
         def _on_step(self) -> bool:
-            if self.num_timesteps // checkpoint_every > self.last // checkpoint_every:
-                self.last = self.num_timesteps
+            if due(self, checkpoint_every):
                 stem = out / "checkpoints" / f"step_{self.num_timesteps:09d}"
                 _atomic_save_model(self.model, stem.with_suffix(".zip"))
                 _atomic_save_normalizer(self.model.get_vec_normalize_env(), stem.with_suffix(".pkl"))
@@ -176,9 +184,8 @@ def _callbacks(out: Path, eval_env, checkpoint_every: int, eval_every: int, eval
                     self.evaluations_length = list(earlier["ep_lengths"][keep])
 
         def _on_step(self) -> bool:
-            if self.num_timesteps // eval_every <= self.last // eval_every:
+            if not due(self, eval_every):
                 return True
-            self.last = self.num_timesteps
             go_on = super()._on_step()  # writes .evaluating/evaluations.npz
             os.replace(out / ".evaluating" / EVALUATIONS, self.target)
             return go_on
