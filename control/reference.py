@@ -1,10 +1,16 @@
-"""Upper-layer references: desired yaw rate and sideslip bound, and the paper's 4WS law.
+"""Upper-layer references: desired yaw rate, sideslip bound, the sideslip phase-plane stability
+region, and the paper's 4WS law.
 
 Vehicle parameters are duck-typed (a VehicleParams-like object: mass, yaw_inertia,
 cg_to_front, cg_to_rear, wheelbase, axle_cornering_stiffness, max_rear_steer).
 """
 
 from __future__ import annotations
+
+import functools
+import json
+from dataclasses import dataclass
+from importlib import resources
 
 import numpy as np
 
@@ -35,6 +41,61 @@ def sideslip_bound(mu: np.ndarray) -> np.ndarray:
     """Largest acceptable |beta| (B,) [rad]: atan(0.02 mu g), ~10 deg on dry and ~3.4 deg on
     ice-like roads (the mu-dependent bound of ESC practice; van Zanten, SAE 2000-01-1633)."""
     return np.arctan(0.02 * np.mean(mu, axis=-1) * GRAVITY)
+
+
+def sideslip_rate(u: np.ndarray, v: np.ndarray, r: np.ndarray, ay: np.ndarray) -> np.ndarray:
+    """beta_dot [rad/s] of beta = atan(v / u) from the lateral acceleration ay = v_dot + u r
+    [m/s^2] at constant forward speed: u (ay - u r) / (u^2 + v^2). No derivative of a noisy
+    signal: it needs only what an estimator reports."""
+    u = np.maximum(np.abs(u), MIN_SPEED)
+    return u * (ay - u * r) / (u**2 + v**2)
+
+
+@dataclass(frozen=True)
+class PhasePlaneRegion:
+    """Sideslip phase-plane stability region |beta_dot + c1 beta| <= c2 (Inagaki, Kushiro and
+    Yamamoto, AVEC '94; the band form of He et al., Proc. IMechE D 220, 2006): inside it the
+    car returns to straight running by itself with the steering straight. Slope c1 [1/s] and
+    half-width c2 [rad/s] tabulated over speed [m/s] x road friction, interpolated bilinearly
+    and clamped to the table's range. The shipped table is this car's (derived by
+    ``python -m training.phase_plane_fit``; Inagaki et al.'s dry-road numbers, c1 = 2.49 1/s and
+    c2 = 9.55 deg/s, are their car's); :meth:`default` loads it."""
+
+    speeds: tuple[float, ...]
+    frictions: tuple[float, ...]
+    slope: tuple[tuple[float, ...], ...]  #: c1 (speeds x frictions) [1/s]
+    bound: tuple[tuple[float, ...], ...]  #: c2 (speeds x frictions) [rad/s]
+
+    @staticmethod
+    @functools.cache
+    def default() -> "PhasePlaneRegion":
+        """The region of the default car (control/data/phase_plane.json)."""
+        table = json.loads(resources.files("control").joinpath("data/phase_plane.json").read_text())
+        return PhasePlaneRegion(tuple(table["speeds_m_s"]), tuple(table["frictions"]),
+                                tuple(map(tuple, table["slope_1_s"])), tuple(map(tuple, table["bound_rad_s"])))
+
+    def coefficients(self, u: np.ndarray, mu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(c1 [1/s], c2 [rad/s]) at speeds ``u`` (B,) [m/s] and per-wheel friction ``mu`` (B, 4) (its mean)."""
+        speeds, frictions = np.asarray(self.speeds), np.asarray(self.frictions)
+        x = np.clip(np.abs(np.asarray(u, dtype=float)), speeds[0], speeds[-1])
+        y = np.clip(np.mean(mu, axis=-1), frictions[0], frictions[-1])
+        i = np.clip(np.searchsorted(speeds, x) - 1, 0, speeds.size - 2)
+        j = np.clip(np.searchsorted(frictions, y) - 1, 0, frictions.size - 2)
+        wx = (x - speeds[i]) / (speeds[i + 1] - speeds[i])
+        wy = (y - frictions[j]) / (frictions[j + 1] - frictions[j])
+
+        def bilinear(grid):
+            g = np.asarray(grid)
+            return ((1 - wx) * ((1 - wy) * g[i, j] + wy * g[i, j + 1])
+                    + wx * ((1 - wy) * g[i + 1, j] + wy * g[i + 1, j + 1]))
+
+        return bilinear(self.slope), bilinear(self.bound)
+
+    def index(self, u: np.ndarray, beta: np.ndarray, beta_rate: np.ndarray, mu: np.ndarray) -> np.ndarray:
+        """|beta_dot + c1 beta| / c2 (B,): below 1 inside the region, above 1 outside.
+        ``u`` [m/s], ``beta`` [rad], ``beta_rate`` [rad/s] (B,), ``mu`` (B, 4)."""
+        c1, c2 = self.coefficients(u, mu)
+        return np.abs(np.asarray(beta_rate) + c1 * np.asarray(beta)) / c2
 
 
 def rear_steer_gain(u: np.ndarray, params) -> np.ndarray:

@@ -190,3 +190,70 @@ def test_with_rear_steer_the_reference_is_the_four_wheel_steered_car_s():
     assert abs(controller.last_allocation.yaw_moment[0]) < 1.0 and command.rear_steer[0] == rear[0]
     with pytest.raises(ValueError, match="rear_steer_feedforward"):
         simulate(make_scenario("paper_sine", rear_steer_feedforward=True), controller)
+
+
+def test_the_shipped_phase_plane_region_is_a_refit_and_grows_with_friction():
+    """control/data/phase_plane.json is what training.phase_plane_fit derives (two cells refit),
+    the interpolation returns the table at its nodes, and more grip means a wider band."""
+    from control.reference import PhasePlaneRegion
+    from training.phase_plane_fit import FRICTIONS, SPEEDS, fit_cell
+
+    region = PhasePlaneRegion.default()
+    for i, j in ((2, 2), (4, 4)):
+        c1, c2, _ = fit_cell(SPEEDS[i], FRICTIONS[j])
+        assert (region.slope[i][j], region.bound[i][j]) == pytest.approx((c1, c2), rel=1e-9)
+        got = region.coefficients(np.array([SPEEDS[i]]), np.full((1, 4), FRICTIONS[j]))
+        assert (got[0][0], got[1][0]) == pytest.approx((c1, c2), rel=1e-12)
+    assert np.all(np.diff(np.asarray(region.bound), axis=1) > 0.0)
+
+
+def test_the_phase_plane_band_separates_recovery_from_spin_on_the_full_plant():
+    """Started at 20 m/s on mu 0.5 with the steering straight and no torque, the full plant (load
+    transfer, wheel dynamics, tyre lag: not the 2-DOF model the band was derived on) recovers from
+    a state at 0.8 of the band's half-width on the spin side and spins (|beta| > 20 deg) from 1.2;
+    mirror-symmetric."""
+    from scipy.optimize import brentq
+
+    from control.reference import PhasePlaneRegion
+    from envs.road import uniform
+    from envs.vehicle import NU, S_R, S_U, S_V, initial_state, step
+    from training.phase_plane_fit import sideslip_dynamics
+
+    p, u, mu = VehicleParams(), 20.0, 0.5
+    region = PhasePlaneRegion.default()
+    c1, c2 = (c[0] for c in region.coefficients(np.array([u]), np.full((1, 4), mu)))
+    starts = [(math.radians(b), k) for b in (3.0, -3.0, 6.0, -6.0) for k in (0.8, 1.2)]
+    x = initial_state(p, u, batch_size=len(starts))
+    for car, (beta, k) in enumerate(starts):
+        beta_rate = math.copysign(k * c2, beta) - c1 * beta  # the spin side: sideslip growing
+        r = brentq(lambda r: sideslip_dynamics(np.array([beta]), np.array([r]), u, mu, p)[0][0] - beta_rate, -3, 3)
+        x[car, S_V], x[car, S_R] = u * math.tan(beta), r
+        index = region.index(np.array([u]), np.array([beta]), np.array([beta_rate]), np.full((1, 4), mu))
+        assert index[0] == pytest.approx(k)
+    peak = np.zeros(len(starts))
+    for _ in range(20):
+        x = step(x, np.zeros((len(starts), NU)), p, uniform(mu), 0.002, 100).state
+        peak = np.maximum(peak, np.abs(np.arctan2(x[:, S_V], x[:, S_U])))
+    final = np.degrees(np.abs(np.arctan2(x[:, S_V], x[:, S_U])))
+    for car, (beta, k) in enumerate(starts):
+        if k < 1.0:
+            assert final[car] < 0.5, (math.degrees(beta), k, final[car])
+        else:
+            assert math.degrees(peak[car]) > 20.0, (math.degrees(beta), k, math.degrees(peak[car]))
+    mirrored = peak.reshape(2, 2, 2)  # (|beta|, sign, k)
+    assert mirrored[:, 0] == pytest.approx(mirrored[:, 1], rel=1e-9)
+
+
+def test_sideslip_rate_from_lateral_acceleration_matches_the_derivative_of_sideslip():
+    """beta_dot from (u, v, r, ay) against the numerical derivative of the plant's sideslip on a
+    sine steer (0.2 deg/s of 6 deg/s peak)."""
+    from control.reference import sideslip_rate
+    from envs.scenarios import make_scenario
+    from envs.vehicle import A_AY
+
+    traj = simulate(make_scenario("paper_sine"), estimator="oracle")
+    T = traj.truth
+    rate = sideslip_rate(T.u, T.v, T.r, traj.aux[:, A_AY])
+    numeric = np.gradient(T.beta, traj.t)
+    assert np.max(np.abs(numeric)) > math.radians(3.0)
+    assert np.max(np.abs(rate - numeric)[5:-5]) < math.radians(0.2)

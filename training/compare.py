@@ -19,7 +19,7 @@ import numpy as np
 
 from control import CONTROLLERS, make_controller
 from control.allocation import yaw_moment_arms
-from control.reference import reference_yaw_rate
+from control.reference import PhasePlaneRegion, reference_yaw_rate, sideslip_rate
 from envs.fmvss126 import characterise
 from envs.metrics import cone_hits, mae, path_deviation, rms, rmse, sine_with_dwell_metrics, spin_out
 from envs.scenarios import SCENARIOS, make_scenario
@@ -99,6 +99,9 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
     r_ref = reference_yaw_rate(traj.state[:, S_U], traj.state[:, S_DELTA_F], T.mu, params)
     out = {"peak_beta": float(np.max(np.abs(beta))), "yaw_tracking_rms": rmse(traj.state[:, S_R], r_ref),
            "spin_out": float(spin_out(beta))}
+    # how far the car left the sideslip phase-plane region it recovers from by itself (> 1: outside)
+    beta_rate = sideslip_rate(T.u, T.v, T.r, traj.aux[:, A_AY])
+    out["phase_plane_peak"] = float(np.max(PhasePlaneRegion.default().index(T.u, beta, beta_rate, T.mu)))
     # control effort: the yaw moment the motors' torques make by driving left and right wheels
     # differently (straight-wheel arms) [N m], and the rear steer [rad]
     wheel_forces = traj.state[:, S_TORQUE:S_TORQUE + 4] / params.wheel_radius
@@ -201,17 +204,21 @@ def markdown_report(table: dict, scenarios: Sequence[str], estimators: Sequence[
     lines = ["# fourwis closed-loop comparison", "",
              f"Runs: {len(scenarios)} scenarios x {len(estimators)} estimators x {len(controllers)} controllers "
              f"x {seeds} seeds (means over seeds). The controller sees only the estimate.",
-             f"`swd_wet`: FMVSS 126 sine with dwell at {SWD_MULTIPLE}A on mu {SWD_MU} from 80 km/h.", "",
+             f"`swd_wet`: FMVSS 126 sine with dwell at {SWD_MULTIPLE}A on mu {SWD_MU} from 80 km/h.",
+             "Phase-plane peak: the largest |beta_dot + c1 beta| / c2 of the run, the car's sideslip phase-plane "
+             "stability region (control.reference.PhasePlaneRegion); above 1 the car left the region it recovers "
+             "from by itself with the steering straight.", "",
              "## Stability", "",
-             "| scenario | controller | estimator | peak beta [deg] | yaw-rate RMS err [deg/s] | spin-outs "
-             "| path RMS [m] | cone hits | SWD ratio @1.0 s | SWD ratio @1.75 s | SWD displ. [m] "
+             "| scenario | controller | estimator | peak beta [deg] | phase-plane peak | yaw-rate RMS err [deg/s] "
+             "| spin-outs | path RMS [m] | cone hits | SWD ratio @1.0 s | SWD ratio @1.75 s | SWD displ. [m] "
              "| yaw moment RMS [N m] |",
-             "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for s in scenarios:
         for c in controllers:
             for e in estimators:
                 m = table[(s, e, c)]
-                lines.append(f"| {s} | {c} | {e} | {_fmt(m['peak_beta'], deg, 1)} | {_fmt(m['yaw_tracking_rms'], deg)} "
+                lines.append(f"| {s} | {c} | {e} | {_fmt(m['peak_beta'], deg, 1)} | {_fmt(m['phase_plane_peak'])} "
+                             f"| {_fmt(m['yaw_tracking_rms'], deg)} "
                              f"| {_fmt(m['spin_out'], 1, 1)} | {_fmt(m.get('path_rms'))} | {_fmt(m.get('cone_hits'), 1, 1)} "
                              f"| {_fmt(m.get('swd_ratio_1000'), 100, 0)}{'%' if 'swd_ratio_1000' in m else ''} "
                              f"| {_fmt(m.get('swd_ratio_1750'), 100, 0)}{'%' if 'swd_ratio_1750' in m else ''} "
@@ -287,6 +294,15 @@ def plot_report(table: dict, trajectories: dict, scenarios, estimators, controll
         first = next((t for k, t in trajectories.items() if k[0] == s), None)
         if first is not None:
             axes[2].plot(first.t, first.truth.mu.mean(axis=1), "k--", label="truth")
+            # the stable band at the run's median speed and lowest road friction
+            lowest = int(np.argmin(first.truth.mu.mean(axis=1)))
+            c1, c2 = PhasePlaneRegion.default().coefficients(np.median(first.truth.u)[None], first.truth.mu[lowest][None])
+            sideslip, rate = np.array(axes[3].get_xlim()), axes[3].get_ylim()
+            for sign in (1.0, -1.0):
+                axes[3].plot(sideslip, sign * math.degrees(c2[0]) - c1[0] * sideslip, "k:", lw=1,
+                             label="stable band" if sign > 0 else None)
+            axes[3].set(xlim=sideslip, ylim=rate)
+            axes[3].legend(fontsize=7)
         for a, title in zip(axes, ("yaw rate [deg/s]", "sideslip [deg]", "mean mu (last controller)",
                                    "phase portrait: sideslip rate [deg/s] vs sideslip [deg]")):
             a.set_title(title, fontsize=9)

@@ -1,0 +1,124 @@
+"""Derive this car's sideslip phase-plane stability region, the way Inagaki, Kushiro and
+Yamamoto derive it ("Analysis on vehicle stability in critical cornering using phase-plane
+method", AVEC '94 / JSAE Review 16(2), 1995; the band form |beta_dot + c1 beta| <= c2 is the one
+He, Crolla, Levesque and Manning use, Proc. IMechE D 220, 2006): trajectories of the nonlinear
+2-DOF model (sideslip beta, yaw rate r) with the steering straight, started on a grid of
+initial states, either return to straight running or diverge; in the (beta, beta_dot) plane the
+states that return lie in a band between two parallel lines, bounded by the separatrices of the
+model's saddle points. Their numbers (Inagaki et al.'s dry-road c1 = 2.49 1/s, c2 = 9.55 deg/s)
+belong to their car; these are this car's.
+
+Model: the plant's own tyre (PAC2002, :mod:`envs.tyre`) at the static axle loads, pure
+cornering, constant forward speed u (the 2-DOF assumption; no load transfer, no drive slip):
+    v_dot = (F_yf + F_yr) / m - u r,   r_dot = (a F_yf - b F_yr) / I_z,
+    beta = atan(v / u), so beta_dot = cos^2(beta) v_dot / u,
+integrated by RK4 (5 ms) for 4 s from a grid of (beta, r): |beta| <= 20 deg, |r| <= 3 mu g / u.
+A start counts as stable when the car is back within 1 deg of sideslip and 0.02 rad/s of yaw
+rate at the end. For each slope c1 on a grid, c2 is the largest half-width such that the band
+holds no start that diverged; the slope kept is the one whose band holds the most stable
+starts ("coverage", reported). The band is therefore conservative: inside it, the car recovers
+by itself with the steering straight.
+
+Writes control/data/phase_plane.json (SI: slope [1/s], bound [rad/s]) for a table of speeds x
+road friction. Run: ``python -m training.phase_plane_fit`` (~2 min).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from envs.tyre import tyre_forces
+from envs.vehicle import GRAVITY, VehicleParams
+from training.io import atomic_write_text
+
+OUTPUT = Path(__file__).resolve().parent.parent / "control" / "data" / "phase_plane.json"
+SPEEDS = (10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0)  #: table speeds [m/s]
+FRICTIONS = (0.2, 0.3, 0.5, 0.7, 1.0)  #: table road friction [-]
+MAX_SIDESLIP = np.radians(20.0)  #: initial-state window [rad]
+YAW_RATE_WINDOW = 3.0  #: initial |r| up to this many friction-limited yaw rates mu g / u
+GRID = 101  #: initial states per axis
+HORIZON = 4.0  #: [s]
+STEP = 0.005  #: [s]
+RECOVERED_SIDESLIP = np.radians(1.0)  #: [rad]
+RECOVERED_YAW_RATE = 0.02  #: [rad/s]
+SLOPES = np.linspace(0.0, 10.0, 201)  #: candidate slopes c1 [1/s]
+
+
+def sideslip_dynamics(beta: np.ndarray, r: np.ndarray, u: float, mu: float,
+                      params: VehicleParams) -> tuple[np.ndarray, np.ndarray]:
+    """(beta_dot [rad/s], r_dot [rad/s^2]) of the straight-steered 2-DOF model, shapes of ``beta``."""
+    fz = params.static_wheel_loads
+    a, b = params.cg_to_front, params.cg_to_rear
+    tan_beta = np.tan(beta)
+    slip = np.concatenate([tan_beta + a * r / u, tan_beta - b * r / u])  # contact-centre tan(alpha)
+    loads = np.repeat([fz[0], fz[2]], beta.size)
+    _, fy = tyre_forces(params.tyre, loads, 0.0, slip, mu, params.reference_wheel_load)
+    fy_front, fy_rear = 2.0 * fy[:beta.size], 2.0 * fy[beta.size:]
+    v_dot = (fy_front + fy_rear) / params.mass - u * r
+    return np.cos(beta) ** 2 * v_dot / u, (a * fy_front - b * fy_rear) / params.yaw_inertia
+
+
+def recovers(beta: np.ndarray, r: np.ndarray, u: float, mu: float, params: VehicleParams) -> np.ndarray:
+    """Whether each start (beta [rad], r [rad/s]) returns to straight running (bool, shape of beta)."""
+    def f(x):
+        return np.stack(sideslip_dynamics(x[0], x[1], u, mu, params))
+
+    x = np.stack([beta, r]).astype(float)
+    for _ in range(int(round(HORIZON / STEP))):
+        k1 = f(x)
+        k2 = f(x + 0.5 * STEP * k1)
+        k3 = f(x + 0.5 * STEP * k2)
+        k4 = f(x + STEP * k3)
+        x = x + STEP / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        x[0] = np.clip(x[0], -1.5, 1.5)  # a spun car stays spun; keeps tan(beta) finite
+    return (np.abs(x[0]) < RECOVERED_SIDESLIP) & (np.abs(x[1]) < RECOVERED_YAW_RATE)
+
+
+def fit_band(beta: np.ndarray, beta_rate: np.ndarray, stable: np.ndarray) -> tuple[float, float, float]:
+    """(c1 [1/s], c2 [rad/s], coverage): the band |beta_rate + c1 beta| < c2 free of unstable
+    starts that holds the largest share (coverage) of the stable ones."""
+    best = (0.0, 0.0, -1.0)
+    for c1 in SLOPES:
+        z = np.abs(beta_rate + c1 * beta)
+        c2 = float(np.min(z[~stable])) if np.any(~stable) else float(np.max(z))
+        coverage = float(np.mean(z[stable] < c2))
+        if coverage > best[2]:
+            best = (float(c1), c2, coverage)
+    return best
+
+
+def fit_cell(u: float, mu: float, params: VehicleParams | None = None) -> tuple[float, float, float]:
+    """(c1, c2, coverage) at speed ``u`` [m/s] and road friction ``mu``."""
+    params = params or VehicleParams()
+    beta, r = np.meshgrid(np.linspace(-MAX_SIDESLIP, MAX_SIDESLIP, GRID),
+                          np.linspace(-1.0, 1.0, GRID) * YAW_RATE_WINDOW * mu * GRAVITY / u)
+    beta, r = beta.ravel(), r.ravel()
+    stable = recovers(beta, r, u, mu, params)
+    beta_rate, _ = sideslip_dynamics(beta, r, u, mu, params)
+    return fit_band(beta, beta_rate, stable)
+
+
+def fit_table(params: VehicleParams | None = None) -> dict:
+    """The region over SPEEDS x FRICTIONS, in the layout of control/data/phase_plane.json."""
+    cells = [[fit_cell(u, mu, params) for mu in FRICTIONS]
+             for u in tqdm(SPEEDS, desc="phase-plane region", unit="speed")]
+    return {"speeds_m_s": list(SPEEDS), "frictions": list(FRICTIONS),
+            "slope_1_s": [[c[0] for c in row] for row in cells],
+            "bound_rad_s": [[c[1] for c in row] for row in cells],
+            "coverage": [[c[2] for c in row] for row in cells],
+            "source": "python -m training.phase_plane_fit: Inagaki et al. (AVEC '94) phase-plane method on the "
+                      "2-DOF model with the plant tyre (PAC2002) at static axle loads, steering straight"}
+
+
+def main() -> None:
+    table = fit_table()
+    atomic_write_text(OUTPUT, json.dumps(table, indent=2) + "\n")
+    print(json.dumps(table, indent=2))
+
+
+if __name__ == "__main__":
+    main()
