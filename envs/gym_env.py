@@ -27,7 +27,7 @@ from gymnasium.vector.utils import batch_space
 
 from control import Command
 from control.allocation import allocate_for_estimate
-from control.reference import reference_yaw_rate
+from control.reference import PhasePlaneRegion, reference_yaw_rate, sideslip_rate
 from envs.metrics import SPIN_OUT_SIDESLIP, path_deviation, sine_with_dwell_metrics
 from envs.scenarios import SCENARIOS, Scenario, is_number, make_scenario
 from envs.sensors import Fault
@@ -164,11 +164,12 @@ class _EpisodeStats:
         self.ret = np.zeros(batch_size)
         self.yaw_sq = np.zeros(batch_size)
         self.peak_beta = np.zeros(batch_size)
+        self.peak_phase_plane = np.zeros(batch_size)
         self.max_deviation = np.zeros(batch_size)
         self.series: list[list] = [[] for _ in range(batch_size)]
 
     def clear(self, members: np.ndarray) -> None:
-        for name in ("length", "ret", "yaw_sq", "peak_beta", "max_deviation"):
+        for name in ("length", "ret", "yaw_sq", "peak_beta", "peak_phase_plane", "max_deviation"):
             getattr(self, name)[members] = 0
         for b in members:
             self.series[b] = []
@@ -244,6 +245,8 @@ class YawStabilityCore:
         r_ref = reference_yaw_rate(truth.u, s.steering_wheel / self.params.steering_ratio, truth.mu, self.params)
         yaw_error = truth.r - r_ref
         beta = truth.beta
+        phase_plane = PhasePlaneRegion.default().index(truth.u, beta, sideslip_rate(truth.u, truth.v, truth.r, truth.ay),
+                                                       truth.mu)
         deviation = self._deviation()
         reward = -self.config.control_dt * ((yaw_error / 0.1) ** 2 + (beta / 0.05) ** 2
                                             + 0.1 * np.sum(clipped**2, axis=1) + deviation**2)
@@ -255,6 +258,7 @@ class YawStabilityCore:
         st.ret += reward
         st.yaw_sq += yaw_error**2
         st.peak_beta = np.maximum(st.peak_beta, np.abs(beta))
+        st.peak_phase_plane = np.maximum(st.peak_phase_plane, phase_plane)
         st.max_deviation = np.maximum(st.max_deviation, deviation)
         truncated = self.loop.k >= self._ends
         if self.config.max_episode_steps is not None:
@@ -263,6 +267,7 @@ class YawStabilityCore:
             self._trace.append((s.t[0], truth.r[0], r_ref[0], beta[0]))
         info = {"truth": truth, "estimate": s.estimate, "action_clipped": np.any(clipped != actions, axis=1),
                 "beta": beta, "yaw_rate_error": yaw_error, "path_deviation": deviation, "spin_out": spin,
+                "phase_plane_index": phase_plane,
                 "episode_metrics": [self.episode_metrics(b) if terminated[b] or truncated[b] else None
                                     for b in range(self.batch_size)]}
         return obs, reward, terminated, truncated, info
@@ -281,7 +286,8 @@ class YawStabilityCore:
         spun = st.peak_beta[b] > SPIN_OUT_SIDESLIP
         out = {"length": int(st.length[b]), "return": float(st.ret[b]),
                "yaw_rate_tracking_rms": float(np.sqrt(st.yaw_sq[b] / max(st.length[b], 1))),
-               "peak_beta": float(st.peak_beta[b]), "max_path_deviation": float(st.max_deviation[b]),
+               "peak_beta": float(st.peak_beta[b]), "peak_phase_plane_index": float(st.peak_phase_plane[b]),
+               "max_path_deviation": float(st.max_deviation[b]),
                "spin_out": bool(spun)}
         if st.series[b]:
             t, swa, r, ay, beta = np.array(st.series[b]).T
@@ -375,9 +381,12 @@ class YawStabilityEnv(gym.Env):
     ``scenario_kwargs``.
 
     ``info``: ``truth`` and ``estimate`` (:class:`estimation.types.Estimate` of the car), ``action_clipped``,
-    ``beta``, ``yaw_rate_error``, ``path_deviation``, ``spin_out``; when an episode ends,
-    ``episode_metrics`` (length, return, yaw-rate tracking RMS, peak |beta|, largest path
-    deviation, spin-out; on ``sine_with_dwell`` the FMVSS 126 ratios, displacement and verdict).
+    ``beta``, ``yaw_rate_error``, ``path_deviation``, ``spin_out``, ``phase_plane_index`` (the
+    true state's |beta_dot + c1 beta| / c2 of :class:`control.reference.PhasePlaneRegion`: above 1
+    the car is outside the sideslip region it recovers from by itself); when an episode ends,
+    ``episode_metrics`` (length, return, yaw-rate tracking RMS, peak |beta|, peak phase-plane
+    index at the control steps, largest path deviation, spin-out; on ``sine_with_dwell`` the
+    FMVSS 126 ratios, displacement and verdict).
     """
 
     metadata = {"render_modes": list(RENDER_MODES), "render_fps": 50}

@@ -118,7 +118,7 @@ def test_native_vector_env_matches_sync_vector_env_step_for_step():
             np.testing.assert_array_equal(x, y)
         done = out_n[2] | out_n[3]
         info_n, info_s = out_n[4], out_s[4]
-        for key in ("beta", "yaw_rate_error", "path_deviation", "spin_out", "action_clipped"):
+        for key in ("beta", "yaw_rate_error", "path_deviation", "spin_out", "phase_plane_index", "action_clipped"):
             np.testing.assert_array_equal(info_n[f"_{key}"], ~done)  # masked out where reset
             if not done.all():  # (SyncVectorEnv has no such key when every car was reset)
                 np.testing.assert_array_equal(info_s[f"_{key}"], ~done)
@@ -314,6 +314,7 @@ def test_episode_metrics_on_sine_with_dwell_give_the_fmvss126_verdict(amplitude_
     ref = sine_with_dwell_metrics(traj.t, traj.steering_wheel, traj.state[:, S_R], traj.aux[:, A_AY])
     assert metrics["fmvss126_passed"] == ref.passed == (amplitude_deg < 100)
     assert metrics["spin_out"] == terminated == (amplitude_deg > 100)
+    assert (metrics["peak_phase_plane_index"] > 1.0) == (amplitude_deg > 100)  # left the region it recovers from
     if ref.passed:
         assert metrics["length"] == 250
         assert metrics["fmvss126_ratio_1000"] == pytest.approx(ref.yaw_rate_ratio_1000, abs=0.02)
