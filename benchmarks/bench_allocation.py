@@ -14,7 +14,7 @@ import numpy as np
 from _common import report
 from scipy.optimize import minimize
 
-from control.allocation import allocate_torques, yaw_moment_arms
+from control.allocation import allocate_torques, wheel_force_map
 from envs.vehicle import VehicleParams
 
 
@@ -38,7 +38,7 @@ def _best_time(fn, repeats: int = 5) -> float:
 
 
 def _scipy_allocate(params, base, moment, fz, mu, lateral, speed) -> None:
-    lever = yaw_moment_arms(params)
+    _, (lever,) = wheel_force_map(params, 0.0, 0.0)
     for b in range(len(base)):
         cap = mu[b] * fz[b]
         motor = min(params.motor_peak_torque, params.motor_peak_power * params.wheel_radius / max(speed[b], 1e-9))

@@ -123,7 +123,7 @@ class StabilityController:
         moment = np.where(turning_further, moment * fade, moment)
         moment = np.where(np.abs(u) > ACTIVE_SPEED, moment, 0.0)
         self.last_allocation = allocate_for_estimate(base_torques, moment, estimate, self.params,
-                                                     self.friction_ellipse, mu)
+                                                     self.friction_ellipse, mu, front_steer, rear)
         return Command(self.last_allocation.torques, rear)
 
 

@@ -8,11 +8,14 @@ With the lateral forces Fy_i as they are, the tyre workload
 
 is minimised over Fx subject to
 
-    sum_i Fx_i = Fx_total             (the driver's drive force, from the base torques)
-    sum_i c_i Fx_i = Mz               (c_i = -/+ half-track for left/right wheels, ISO axes)
+    sum_i w_i Fx_i = Fx_total         (the driver's drive force along the body, from the base torques)
+    sum_i c_i Fx_i = Mz               (the corrective yaw moment)
     |Fx_i| <= min(T_motor(u) / R, sqrt((mu_i Fz_i)^2 - Fy_i^2))   (motor and friction ellipse)
 
-(straight-wheel lever arms; T_motor(u) = min(peak torque, peak power / (u / R))). When no bound
+with the steered wheels' body-frame share w_i = cos(delta_i) and lever arm
+c_i = x_i sin(delta_i) - y_i cos(delta_i) (wheel i at (x_i, y_i), ISO axes: -/+ the half-track
+for left/right wheels when straight; a steered front wheel's drive force also turns the car,
+as in the plant), and T_motor(u) = min(peak torque, peak power / (u / R)). When no bound
 is active this is the closed-form weighted least squares Fx = W^-1 A^T (A W^-1 A^T)^-1 d. When
 a bound binds, the small bounded QP is solved exactly: the optimum lies on one face of the box
 (each force free, at its lower or at its upper bound, 3^4 = 81 faces), on each face the
@@ -23,12 +26,12 @@ QP (benchmarks/bench_allocation.py, BENCHMARKS.md), which serves as the tests' r
 
 Infeasible demands degrade in a fixed priority: the drive force is clipped to what the bounds
 allow, then the yaw moment to the largest one feasible with that drive force (an exact
-greedy linear programme over the box); the result reports what was delivered and flags it.
+greedy linear programme over the box, by lever per unit of drive force; |delta| < 90 deg);
+the result reports what was delivered and flags it.
 """
 
 from __future__ import annotations
 
-import functools
 from typing import NamedTuple
 
 import numba
@@ -38,7 +41,6 @@ from control.reference import GRAVITY
 from estimation.ckf import dot
 from estimation.jit import JIT, scratch
 
-SIDE = (-1.0, 1.0, -1.0, 1.0)  #: -1 left wheels, +1 right wheels
 #: the 3^4 = 81 activity patterns (81, 4): each wheel free (0), at its lower (1) or upper (2) bound
 _FACES = np.array([[(face // 3**w) % 3 for w in range(4)] for face in range(81)], dtype=np.int64)
 
@@ -54,29 +56,29 @@ class Allocation(NamedTuple):
 
 
 @numba.njit(**JIT)
-def _greedy_moment(lever, lower, upper, force, sign, x) -> float:
+def _greedy_moment(weight, lever, lower, upper, force, sign, x) -> float:
     """Largest (sign = +1) or smallest (-1) sum lever_i x_i over lower <= x <= upper with
-    sum x_i = force (assumed within [sum lower, sum upper]): fill the best levers first.
-    Writes that x (4,) and returns its sum lever_i x_i."""
-    order = scratch((4,), np.int64)  # wheels by -sign lever_i, ties in wheel order (a stable sort)
+    sum weight_i x_i = force (weights > 0; force within [weight.lower, weight.upper]): fill the
+    wheels with the best lever per unit weight first. Writes that x (4,) and returns its moment."""
+    order = scratch((4,), np.int64)  # wheels by -sign lever_i / weight_i, ties in wheel order (a stable sort)
     for i in range(4):
         k, j = i, i
-        while j > 0 and -sign * lever[k] < -sign * lever[order[j - 1]]:
+        while j > 0 and -sign * lever[k] / weight[k] < -sign * lever[order[j - 1]] / weight[order[j - 1]]:
             order[j] = order[j - 1]
             j -= 1
         order[j] = k
     x[:] = lower
-    remaining = force - lower.sum()
+    remaining = force - dot(weight, lower)
     for w in order:
-        step = min(max(remaining, 0.0), upper[w] - lower[w])
+        step = min(max(remaining, 0.0) / weight[w], upper[w] - lower[w])
         x[w] += step
-        remaining -= step
+        remaining -= weight[w] * step
     return dot(lever, x)
 
 
 @numba.njit(**JIT)
-def _solve_box_qp(capacity_sq, lever, lower, upper, force, moment, faces, x_best) -> bool:
-    """min sum x_i^2 / capacity_sq_i s.t. sum x_i = force, sum lever_i x_i = moment,
+def _solve_box_qp(capacity_sq, weight, lever, lower, upper, force, moment, faces, x_best) -> bool:
+    """min sum x_i^2 / capacity_sq_i s.t. sum weight_i x_i = force, sum lever_i x_i = moment,
     lower <= x <= upper, over the first ``faces`` activity patterns of ``_FACES`` (all 81: the
     exact optimum; 1: only the all-free closed form); False if none of them is feasible."""
     abs_lower = abs_upper = 0.0  # (np.abs(...).sum() without the temporaries)
@@ -92,19 +94,19 @@ def _solve_box_qp(capacity_sq, lever, lower, upper, force, moment, faces, x_best
         s0 = s1 = s2 = 0.0
         for w in range(4):
             if _FACES[face, w] == 0:
-                s0 += capacity_sq[w]
-                s1 += capacity_sq[w] * lever[w]
+                s0 += capacity_sq[w] * weight[w] ** 2
+                s1 += capacity_sq[w] * weight[w] * lever[w]
                 s2 += capacity_sq[w] * lever[w] ** 2
             else:
                 x[w] = lower[w] if _FACES[face, w] == 1 else upper[w]
-                f_rest -= x[w]
+                f_rest -= weight[w] * x[w]
                 m_rest -= lever[w] * x[w]
-        # free x_i = capacity_sq_i (l0 + l1 lever_i): the stationary point on this face
+        # free x_i = capacity_sq_i (l0 weight_i + l1 lever_i): the stationary point on this face
         det = s0 * s2 - s1 * s1
         if det > 1e-12 * s0 * s2:
             l0 = (s2 * f_rest - s1 * m_rest) / det
             l1 = (s0 * m_rest - s1 * f_rest) / det
-        elif s0 > 0.0:  # all free levers equal: only the force row is independent
+        elif s0 > 0.0:  # free levers proportional to the weights: only the force row is independent
             l0, l1 = f_rest / s0, 0.0
         else:
             l0 = l1 = 0.0
@@ -112,14 +114,14 @@ def _solve_box_qp(capacity_sq, lever, lower, upper, force, moment, faces, x_best
         ok = True
         for w in range(4):
             if _FACES[face, w] == 0:
-                x[w] = capacity_sq[w] * (l0 + l1 * lever[w])
+                x[w] = capacity_sq[w] * (l0 * weight[w] + l1 * lever[w])
                 slack = 1e-9 * (upper[w] - lower[w] + 1.0)
                 if x[w] < lower[w] - slack or x[w] > upper[w] + slack:
                     ok = False
             cost += x[w] ** 2 / capacity_sq[w]
         if not ok or cost >= best_cost:
             continue
-        if abs(x.sum() - force) > 1e-9 * scale_f or abs(dot(lever, x) - moment) > 1e-9 * scale_m:
+        if abs(dot(weight, x) - force) > 1e-9 * scale_f or abs(dot(lever, x) - moment) > 1e-9 * scale_m:
             continue
         best_cost = cost
         for w in range(4):
@@ -128,15 +130,18 @@ def _solve_box_qp(capacity_sq, lever, lower, upper, force, moment, faces, x_best
 
 
 @numba.njit(**JIT)
-def _allocate(base_torques, yaw_moment, fz, mu, lateral, speed, lever, motor_peak_torque, motor_peak_power,
-              wheel_radius, torques, delivered_moment, delivered_force, feasible) -> int:
+def _allocate(base_torques, yaw_moment, fz, mu, lateral, speed, front_steer, rear_steer, positions,
+              motor_peak_torque, motor_peak_power, wheel_radius, torques, delivered_moment, delivered_force,
+              feasible) -> int:
     """Fills the outputs; returns 0, or 1 + the index of the first non-finite input."""
     for i, value in enumerate((base_torques.sum(), yaw_moment.sum(), fz.sum(), mu.sum(), lateral.sum(),
-                               speed.sum())):
+                               speed.sum(), front_steer.sum(), rear_steer.sum())):
         if not np.isfinite(value):
             return 1 + i
     upper, lower, x, capacity_sq = scratch((4,)), scratch((4,)), scratch((4,)), scratch((4,))
+    weight, lever = scratch((4,)), scratch((4,))
     for b in range(base_torques.shape[0]):
+        _wheel_force_map(positions, front_steer[b], rear_steer[b], weight, lever)
         spin = abs(speed[b]) / wheel_radius  # wheel speed [rad/s] if rolling
         motor_force = min(motor_peak_torque, motor_peak_power / max(spin, 1e-9)) / wheel_radius
         drive_force = 0.0
@@ -145,71 +150,91 @@ def _allocate(base_torques, yaw_moment, fz, mu, lateral, speed, lever, motor_pea
             capacity_sq[w] = capacity * capacity
             upper[w] = min(motor_force, np.sqrt(max(capacity_sq[w] - lateral[b, w] ** 2, 0.0)))
             lower[w] = -upper[w]
-            drive_force += base_torques[b, w] / wheel_radius
+            drive_force += weight[w] * base_torques[b, w] / wheel_radius
         # no bound active: the closed-form weighted least squares is the optimum
-        feasible[b] = _solve_box_qp(capacity_sq, lever, lower, upper, drive_force, yaw_moment[b], 1, x)
+        feasible[b] = _solve_box_qp(capacity_sq, weight, lever, lower, upper, drive_force, yaw_moment[b], 1, x)
         if not feasible[b]:
-            force = min(max(drive_force, lower.sum()), upper.sum())
+            force = min(max(drive_force, dot(weight, lower)), dot(weight, upper))
             x_high, x_low = scratch((4,)), scratch((4,))
-            moment_high = _greedy_moment(lever, lower, upper, force, 1.0, x_high)
-            moment_low = _greedy_moment(lever, lower, upper, force, -1.0, x_low)
+            moment_high = _greedy_moment(weight, lever, lower, upper, force, 1.0, x_high)
+            moment_low = _greedy_moment(weight, lever, lower, upper, force, -1.0, x_low)
             moment = min(max(yaw_moment[b], moment_low), moment_high)
             tolerance = 1e-9 * (abs(drive_force) + abs(yaw_moment[b]) + upper.sum() + 1.0)
             feasible[b] = abs(force - drive_force) <= tolerance and abs(moment - yaw_moment[b]) <= tolerance
-            if not _solve_box_qp(capacity_sq, lever, lower, upper, force, moment, len(_FACES), x):
+            if not _solve_box_qp(capacity_sq, weight, lever, lower, upper, force, moment, len(_FACES), x):
                 # only at a vertex of the achievable set, within rounding: take the LP's vertex
                 x[:] = x_high if moment >= 0.5 * (moment_high + moment_low) else x_low
         delivered_force[b] = delivered_moment[b] = 0.0
         for w in range(4):
             torques[b, w] = x[w] * wheel_radius
-            delivered_force[b] += x[w]
+            delivered_force[b] += weight[w] * x[w]
             delivered_moment[b] += lever[w] * x[w]
     return 0
 
 
-def yaw_moment_arms(params) -> np.ndarray:
-    """dMz/dFx_i [m] (4,) of the wheels FL, FR, RL, RR: minus/plus the half-track for left/right
-    wheels (straight wheels, ISO axes). A read-only array cached per track pair."""
-    return _arms(float(params.track_front), float(params.track_rear))
+@numba.njit(inline="always", **JIT)
+def _wheel_force_map(positions, front_steer, rear_steer, weight, lever) -> None:
+    """Body-frame effect of a unit longitudinal force at each wheel (4,): weight = cos(delta_i)
+    along the body's x axis, lever = x_i sin(delta_i) - y_i cos(delta_i) [m] about the CG."""
+    for w in range(4):
+        delta = front_steer if w < 2 else rear_steer
+        c, s = np.cos(delta), np.sin(delta)
+        weight[w] = c
+        lever[w] = positions[w, 0] * s - positions[w, 1] * c
 
 
-@functools.lru_cache(maxsize=8)
-def _arms(track_front: float, track_rear: float) -> np.ndarray:
-    arms = np.array(SIDE) * np.array([track_front, track_front, track_rear, track_rear]) / 2
-    arms.flags.writeable = False
-    return arms
+@numba.njit(**JIT)
+def _wheel_force_maps(positions, front_steer, rear_steer, weight, lever) -> None:
+    for b in range(front_steer.size):
+        _wheel_force_map(positions, front_steer[b], rear_steer[b], weight[b], lever[b])
 
 
-_INPUTS = ("base torques", "yaw moment", "wheel loads", "friction", "lateral forces", "speed")
+def wheel_force_map(params, front_steer, rear_steer) -> tuple[np.ndarray, np.ndarray]:
+    """(weight, lever) (B, 4): the body-x force [-] and the yaw moment [m] a unit longitudinal tyre
+    force at each wheel makes, with the front wheels at ``front_steer`` and the rear wheels at
+    ``rear_steer`` (B,) [rad] (straight: weight 1, lever -/+ the half-track for left/right)."""
+    front = np.atleast_1d(np.asarray(front_steer, dtype=np.float64))
+    rear = np.broadcast_to(np.asarray(rear_steer, dtype=np.float64), front.shape).copy()
+    weight, lever = np.empty((front.size, 4)), np.empty((front.size, 4))
+    _wheel_force_maps(params.wheel_positions, front, rear, weight, lever)
+    return weight, lever
+
+
+_INPUTS = ("base torques", "yaw moment", "wheel loads", "friction", "lateral forces", "speed", "front steer",
+           "rear steer")
 
 
 def allocate_torques(base_torques: np.ndarray, yaw_moment: np.ndarray, fz: np.ndarray, mu: np.ndarray,
                      params, lateral_forces: np.ndarray | None = None,
-                     speed: np.ndarray | None = None) -> Allocation:
+                     speed: np.ndarray | None = None, front_steer: np.ndarray | None = None,
+                     rear_steer: np.ndarray | None = None) -> Allocation:
     """Minimum-workload wheel torques for the drive force of ``base_torques`` (B, 4) [N m]
-    (only their sum matters) plus the yaw moment ``yaw_moment`` (B,) [N m].
+    (what they push the body forward with) plus the yaw moment ``yaw_moment`` (B,) [N m].
 
     ``fz``, ``mu`` (B, 4): estimated wheel loads [N] and friction; ``lateral_forces`` (B, 4)
     [N]: estimated tyre lateral forces for the friction ellipse (None: zero, the friction
     circle's full radius is available longitudinally); ``speed`` (B,) [m/s]: for the motors'
-    power limit (None: peak torque at any speed). Compiled (numba)."""
+    power limit (None: peak torque at any speed); ``front_steer``, ``rear_steer`` (B,) [rad]:
+    road-wheel angles, for the wheels' lever arms and drive directions (None: straight).
+    Compiled (numba)."""
     base_torques = np.ascontiguousarray(base_torques, dtype=np.float64)
     if base_torques.ndim != 2 or base_torques.shape[1] != 4:
         raise ValueError(f"base_torques must have shape (B, 4), got {base_torques.shape}")
     B = base_torques.shape[0]
+    optional = (lateral_forces, speed, front_steer, rear_steer)
+    defaults = (np.zeros((B, 4)), np.zeros(B), np.zeros(B), np.zeros(B))
     inputs = [base_torques] + [np.ascontiguousarray(q, dtype=np.float64) for q in (
-        yaw_moment, fz, mu, np.zeros((B, 4)) if lateral_forces is None else lateral_forces,
-        np.zeros(B) if speed is None else speed)]
+        yaw_moment, fz, mu, *(d if q is None else q for q, d in zip(optional, defaults)))]
     shapes = [q.shape for q in inputs[1:]]
-    if shapes != [(B,), (B, 4), (B, 4), (B, 4), (B,)]:
-        raise ValueError(f"yaw_moment and speed must have shape ({B},) and fz, mu, lateral_forces ({B}, 4); got "
+    if shapes != [(B,), (B, 4), (B, 4), (B, 4), (B,), (B,), (B,)]:
+        raise ValueError(f"yaw_moment, speed and the steer angles must have shape ({B},) and fz, mu, "
+                         f"lateral_forces ({B}, 4); got "
                          + ", ".join(f"{name} {shape}" for name, shape in zip(_INPUTS[1:], shapes)))
     p = params
-    lever = yaw_moment_arms(p)
     torques, moment, force = np.empty((B, 4)), np.empty(B), np.empty(B)
     feasible = np.empty(B, dtype=np.bool_)
-    bad = _allocate(*inputs, lever, float(p.motor_peak_torque), float(p.motor_peak_power), float(p.wheel_radius),
-                    torques, moment, force, feasible)
+    bad = _allocate(*inputs, p.wheel_positions, float(p.motor_peak_torque),
+                    float(p.motor_peak_power), float(p.wheel_radius), torques, moment, force, feasible)
     if bad:
         value = inputs[bad - 1]
         raise ValueError(f"{_INPUTS[bad - 1]} must be finite, got {value[~np.isfinite(value)][:4]}")
@@ -217,9 +242,10 @@ def allocate_torques(base_torques: np.ndarray, yaw_moment: np.ndarray, fz: np.nd
 
 
 def allocate_for_estimate(base_torques: np.ndarray, yaw_moment: np.ndarray, estimate, params,
-                          friction_ellipse: bool = False, mu: np.ndarray | None = None) -> Allocation:
+                          friction_ellipse: bool = False, mu: np.ndarray | None = None,
+                          front_steer: np.ndarray | None = None, rear_steer: np.ndarray | None = None) -> Allocation:
     """:func:`allocate_torques` fed from an Estimate-like object (u, ay, mu, fz); ``mu`` (B, 4)
-    replaces the estimate's friction when given.
+    replaces the estimate's friction when given; the steer angles [rad] (B,) as there.
 
     ``friction_ellipse``: bound each tyre's Fx by what its lateral force leaves, with the
     quasi-static lateral forces Fy_i = Fz_i a_y / g (each tyre carries lateral force in
@@ -234,4 +260,5 @@ def allocate_for_estimate(base_torques: np.ndarray, yaw_moment: np.ndarray, esti
     """
     lateral = estimate.fz * (estimate.ay / GRAVITY)[:, None] if friction_ellipse else None
     mu = estimate.mu if mu is None else mu
-    return allocate_torques(base_torques, yaw_moment, estimate.fz, mu, params, lateral, estimate.u)
+    return allocate_torques(base_torques, yaw_moment, estimate.fz, mu, params, lateral, estimate.u, front_steer,
+                            rear_steer)

@@ -149,8 +149,9 @@ class _AgentController:
     def __call__(self, t, estimate, front_steer, base_torques) -> Command:
         p = self.params
         if self.action_mode == "yaw_moment":
-            torques = allocate_for_estimate(base_torques, self.action[:, 0] * MAX_YAW_MOMENT, estimate, p).torques
-            rear = self.action[:, 1] * p.max_rear_steer if self.action.shape[1] == 2 else np.zeros(len(torques))
+            rear = self.action[:, 1] * p.max_rear_steer if self.action.shape[1] == 2 else np.zeros(len(base_torques))
+            torques = allocate_for_estimate(base_torques, self.action[:, 0] * MAX_YAW_MOMENT, estimate, p,
+                                            front_steer=front_steer, rear_steer=rear).torques
             return Command(torques, rear)
         limit = p.motor_peak_torque
         return Command(np.clip(base_torques + self.action * limit, -limit, limit), np.zeros(len(base_torques)))

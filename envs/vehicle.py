@@ -142,12 +142,14 @@ class VehicleParams:
         c = self.tyre.cornering_stiffness(fz)
         return float(c[0] + c[1]), float(c[2] + c[3])
 
-    @property
+    @cached_property
     def wheel_positions(self) -> np.ndarray:
-        """Contact-point positions (4, 2) [m] in the body frame, (x forward, y left)."""
+        """Contact-point positions (4, 2) [m] in the body frame, (x forward, y left); read-only."""
         a, b = self.cg_to_front, self.cg_to_rear
         tf, tr = self.track_front / 2.0, self.track_rear / 2.0
-        return np.array([[a, tf], [a, -tf], [-b, tr], [-b, -tr]])
+        positions = np.array([[a, tf], [a, -tf], [-b, tr], [-b, -tr]])
+        positions.flags.writeable = False
+        return positions
 
     @cached_property
     def kernel_tyre_array(self) -> np.ndarray:

@@ -1,5 +1,6 @@
 """Torque allocation: minimum tyre workload under the drive-force and yaw-moment equalities,
-motor and friction bounds; checked against scipy's SLSQP and linprog on random demands."""
+motor and friction bounds; checked against scipy's SLSQP and linprog on random demands, with
+steered wheels (the body-frame effect of each wheel's force derived here from the geometry)."""
 
 import numpy as np
 import pytest
@@ -9,7 +10,21 @@ from control.allocation import allocate_torques
 from envs.vehicle import VehicleParams
 
 P = VehicleParams()
-LEVER = np.array([-1.0, 1.0, -1.0, 1.0]) * P.track_front / 2  # dMz / dFx_i, ISO axes
+LEVER = np.array([-1.0, 1.0, -1.0, 1.0]) * P.track_front / 2  # dMz / dFx_i of straight wheels, ISO axes
+WHEELS = np.array([[P.cg_to_front, P.track_front / 2], [P.cg_to_front, -P.track_front / 2],
+                   [-P.cg_to_rear, P.track_rear / 2], [-P.cg_to_rear, -P.track_rear / 2]])  # (x, y) [m]
+
+
+def _body_effect(front_steer: float, rear_steer: float) -> tuple[np.ndarray, np.ndarray]:
+    """Body x force and yaw moment (r x F, z component) of a unit force along each wheel's heading."""
+    delta = np.array([front_steer, front_steer, rear_steer, rear_steer])
+    fx, fy = np.cos(delta), np.sin(delta)
+    return fx, WHEELS[:, 0] * fy - WHEELS[:, 1] * fx
+
+
+def _random_steer(seed: int, batch: int):
+    rng = np.random.default_rng(seed + 100)
+    return rng.uniform(-0.5, 0.5, batch), rng.uniform(-P.max_rear_steer, P.max_rear_steer, batch)
 
 
 def _random_demands(seed: int, batch: int):
@@ -28,24 +43,30 @@ def _force_limits(fz, mu, lateral, speed):
     return np.minimum(motor[:, None] / P.wheel_radius, np.sqrt(np.maximum((mu * fz) ** 2 - lateral**2, 0.0)))
 
 
-def test_feasible_demands_are_met_exactly_at_the_least_workload_scipy_finds():
+@pytest.mark.parametrize("steered", [False, True])
+def test_feasible_demands_are_met_exactly_at_the_least_workload_scipy_finds(steered):
     base, moment, fz, mu, lateral, speed = _random_demands(0, 60)
-    out = allocate_torques(base, moment, fz, mu, P, lateral, speed)
+    front, rear = _random_steer(0, 60) if steered else (np.zeros(60), np.zeros(60))
+    out = allocate_torques(base, moment, fz, mu, P, lateral, speed, front, rear)
     forces = out.torques / P.wheel_radius
     limits = _force_limits(fz, mu, lateral, speed)
     assert np.all(np.abs(forces) <= limits * (1 + 1e-9) + 1e-9)
     checked = 0
     for b in np.flatnonzero(out.feasible):
-        drive, cap = base[b].sum() / P.wheel_radius, mu[b] * fz[b]
-        assert forces[b].sum() == pytest.approx(drive, abs=1e-6)
-        assert LEVER @ forces[b] == pytest.approx(moment[b], abs=1e-6)
+        along, lever = _body_effect(front[b], rear[b])
+        drive, cap = along @ base[b] / P.wheel_radius, mu[b] * fz[b]
+        assert along @ forces[b] == pytest.approx(drive, abs=1e-6)
+        assert lever @ forces[b] == pytest.approx(moment[b], abs=1e-6)
+        assert (out.drive_force[b], out.yaw_moment[b]) == pytest.approx((drive, moment[b]), abs=1e-6)
         # the same QP in workload-normalised forces y = Fx / (mu Fz), which SLSQP handles well
-        # (scipy 1.17's SLSQP needs more than its default 100 iterations on some of these)
+        # (scipy 1.17's SLSQP needs more than its default 100 iterations on some of these, and the
+        # constraints' exact Jacobian: with finite differences its line search failed on one)
+        rows = np.array([along * cap, lever * cap]) / 1e3
         reference = minimize(lambda y: y @ y, np.zeros(4), jac=lambda y: 2 * y, method="SLSQP",
                              bounds=list(zip(-limits[b] / cap, limits[b] / cap)),
                              options={"ftol": 1e-13, "maxiter": 1000},
-                             constraints=[{"type": "eq", "fun": lambda y: [(cap @ y - drive) / 1e3,
-                                                                           (LEVER * cap @ y - moment[b]) / 1e3]}])
+                             constraints=[{"type": "eq", "fun": lambda y: rows @ y - np.array([drive, moment[b]]) / 1e3,
+                                           "jac": lambda y: rows}])
         assert reference.success, reference.message
         workload = np.sum((forces[b] / cap) ** 2)
         assert workload <= reference.fun * (1 + 1e-7) + 1e-12
@@ -66,19 +87,22 @@ def test_without_active_bounds_it_is_the_closed_form_weighted_least_squares():
     assert out.feasible[0]
 
 
-def test_infeasible_moment_degrades_to_the_largest_feasible_one_and_is_flagged():
+@pytest.mark.parametrize("steered", [False, True])
+def test_infeasible_moment_degrades_to_the_largest_feasible_one_and_is_flagged(steered):
     base, moment, fz, mu, lateral, speed = _random_demands(1, 40)
+    front, rear = _random_steer(1, 40) if steered else (np.zeros(40), np.zeros(40))
     moment = np.sign(moment) * 2e4  # beyond any tyre's reach on this car
-    out = allocate_torques(base, moment, fz, mu, P, lateral, speed)
+    out = allocate_torques(base, moment, fz, mu, P, lateral, speed, front, rear)
     limits = _force_limits(fz, mu, lateral, speed)
     assert not out.feasible.any()
     for b in range(len(base)):
-        drive = np.clip(base[b].sum() / P.wheel_radius, -limits[b].sum(), limits[b].sum())
-        best = linprog(-np.sign(moment[b]) * LEVER, A_eq=np.ones((1, 4)), b_eq=[drive],
+        along, lever = _body_effect(front[b], rear[b])
+        drive = np.clip(along @ base[b] / P.wheel_radius, -along @ limits[b], along @ limits[b])
+        best = linprog(-np.sign(moment[b]) * lever, A_eq=along[None], b_eq=[drive],
                        bounds=list(zip(-limits[b], limits[b])))
         assert out.drive_force[b] == pytest.approx(drive, abs=1e-6)
-        assert out.yaw_moment[b] == pytest.approx(LEVER @ best.x, abs=1e-6)
-        np.testing.assert_allclose(out.torques[b].sum() / P.wheel_radius, out.drive_force[b], atol=1e-6)
+        assert out.yaw_moment[b] == pytest.approx(lever @ best.x, abs=1e-6)
+        np.testing.assert_allclose(along @ out.torques[b] / P.wheel_radius, out.drive_force[b], atol=1e-6)
     assert np.isfinite(out.torques).all()
 
 
@@ -95,6 +119,19 @@ def test_mirrored_demand_mirrors_the_torques_and_a_laterally_saturated_tyre_gets
     assert saturated.feasible[0] and saturated.yaw_moment[0] == pytest.approx(800.0)
 
 
+def test_steered_front_wheels_drive_the_car_and_turn_it():
+    """With the front wheels steered left, equal drive forces on them turn the car left; asked for
+    drive without a yaw moment, the allocator drives the front-left wheel harder to cancel it."""
+    fz, mu, base = np.full((1, 4), 2000.0), np.full((1, 4), 0.8), np.full((1, 4), 100.0)
+    straight = allocate_torques(base, np.zeros(1), fz, mu, P)
+    steered = allocate_torques(base, np.zeros(1), fz, mu, P, front_steer=np.array([0.2]))
+    np.testing.assert_allclose(straight.torques[0], 100.0, rtol=1e-12)
+    _, lever = _body_effect(0.2, 0.0)
+    assert lever[:2].sum() > 0.0  # a steered-left front axle's drive force turns the car left...
+    assert steered.torques[0, 0] > steered.torques[0, 1]  # ...so the allocator drives the left wheel harder
+    assert lever @ steered.torques[0] == pytest.approx(0.0, abs=1e-6)
+
+
 def test_motor_power_limits_the_torque_at_speed():
     fz, mu = np.full((1, 4), 3000.0), np.full((1, 4), 1.0)
     fast = allocate_torques(np.full((1, 4), 600.0), np.zeros(1), fz, mu, P, speed=np.array([30.0]))
@@ -104,7 +141,8 @@ def test_motor_power_limits_the_torque_at_speed():
 
 @pytest.mark.parametrize("bad, match", [({"yaw_moment": np.array([np.nan])}, "yaw moment"),
                                         ({"mu": np.full((1, 4), np.inf)}, "friction"),
-                                        ({"fz": np.ones((1, 3))}, "shape")])
+                                        ({"fz": np.ones((1, 3))}, "shape"),
+                                        ({"front_steer": np.array([np.nan])}, "front steer")])
 def test_bad_input_names_the_bad_value(bad, match):
     args = {"base_torques": np.zeros((1, 4)), "yaw_moment": np.zeros(1), "fz": np.ones((1, 4)),
             "mu": np.ones((1, 4))} | bad

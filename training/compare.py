@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from control import CONTROLLERS, make_controller
-from control.allocation import yaw_moment_arms
+from control.allocation import wheel_force_map
 from control.reference import PhasePlaneRegion, reference_yaw_rate, sideslip_rate
 from envs.fmvss126 import characterise
 from envs.metrics import cone_hits, mae, path_deviation, rms, rmse, sine_with_dwell_metrics, spin_out
@@ -103,9 +103,11 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
     beta_rate = sideslip_rate(T.u, T.v, T.r, traj.aux[:, A_AY])
     out["phase_plane_peak"] = float(np.max(PhasePlaneRegion.default().index(T.u, beta, beta_rate, T.mu)))
     # control effort: the yaw moment the motors' torques make by driving left and right wheels
-    # differently (straight-wheel arms) [N m], and the rear steer [rad]
+    # differently (straight-wheel arms, so equal drive torques on steered wheels count as no
+    # effort) [N m], and the rear steer [rad]
     wheel_forces = traj.state[:, S_TORQUE:S_TORQUE + 4] / params.wheel_radius
-    out.update(yaw_moment_rms=rms(wheel_forces @ yaw_moment_arms(params)),
+    _, straight_levers = wheel_force_map(params, 0.0, 0.0)
+    out.update(yaw_moment_rms=rms(wheel_forces @ straight_levers[0]),
                rear_steer_rms=rms(traj.state[:, S_DELTA_R]))
     if scenario.reference_path is not None:
         path = scenario.reference_path
