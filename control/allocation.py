@@ -32,6 +32,7 @@ the result reports what was delivered and flags it.
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import numba
@@ -200,6 +201,14 @@ def wheel_force_map(params, front_steer, rear_steer) -> tuple[np.ndarray, np.nda
     return weight, lever
 
 
+@functools.lru_cache(maxsize=16)
+def _zeros(batch: int) -> tuple[np.ndarray, np.ndarray]:
+    """Read-only zero arrays (batch, 4) and (batch,)."""
+    wheels, cars = np.zeros((batch, 4)), np.zeros(batch)
+    wheels.flags.writeable = cars.flags.writeable = False
+    return wheels, cars
+
+
 _INPUTS = ("base torques", "yaw moment", "wheel loads", "friction", "lateral forces", "speed", "front steer",
            "rear steer")
 
@@ -221,12 +230,15 @@ def allocate_torques(base_torques: np.ndarray, yaw_moment: np.ndarray, fz: np.nd
     if base_torques.ndim != 2 or base_torques.shape[1] != 4:
         raise ValueError(f"base_torques must have shape (B, 4), got {base_torques.shape}")
     B = base_torques.shape[0]
-    optional = (lateral_forces, speed, front_steer, rear_steer)
-    defaults = (np.zeros((B, 4)), np.zeros(B), np.zeros(B), np.zeros(B))
-    inputs = [base_torques] + [np.ascontiguousarray(q, dtype=np.float64) for q in (
-        yaw_moment, fz, mu, *(d if q is None else q for q, d in zip(optional, defaults)))]
-    shapes = [q.shape for q in inputs[1:]]
-    if shapes != [(B,), (B, 4), (B, 4), (B, 4), (B,), (B,), (B,)]:
+    wheels, cars = _zeros(B)  # read-only defaults, shared: this runs at every 2 ms substep
+    inputs = (base_torques, np.ascontiguousarray(yaw_moment, dtype=np.float64),
+              np.ascontiguousarray(fz, dtype=np.float64), np.ascontiguousarray(mu, dtype=np.float64),
+              wheels if lateral_forces is None else np.ascontiguousarray(lateral_forces, dtype=np.float64),
+              cars if speed is None else np.ascontiguousarray(speed, dtype=np.float64),
+              cars if front_steer is None else np.ascontiguousarray(front_steer, dtype=np.float64),
+              cars if rear_steer is None else np.ascontiguousarray(rear_steer, dtype=np.float64))
+    shapes = tuple(q.shape for q in inputs[1:])
+    if shapes != ((B,), (B, 4), (B, 4), (B, 4), (B,), (B,), (B,)):
         raise ValueError(f"yaw_moment, speed and the steer angles must have shape ({B},) and fz, mu, "
                          f"lateral_forces ({B}, 4); got "
                          + ", ".join(f"{name} {shape}" for name, shape in zip(_INPUTS[1:], shapes)))
