@@ -69,6 +69,19 @@ class PhasePlaneRegion:
     slope: tuple[tuple[float, ...], ...]  #: c1 (speeds x frictions) [1/s]
     bound: tuple[tuple[float, ...], ...]  #: c2 (speeds x frictions) [rad/s]
 
+    def __post_init__(self) -> None:
+        for name in ("speeds", "frictions"):
+            axis = np.asarray(getattr(self, name), dtype=float)
+            if axis.ndim != 1 or axis.size < 2 or not np.all(np.isfinite(axis)) or np.any(np.diff(axis) <= 0):
+                raise ValueError(f"PhasePlaneRegion.{name} must be at least two increasing finite values, "
+                                 f"got {getattr(self, name)!r}")
+        shape = (len(self.speeds), len(self.frictions))
+        for name in ("slope", "bound"):
+            grid = np.asarray(getattr(self, name), dtype=float)
+            if grid.shape != shape or not np.all(np.isfinite(grid)) or (name == "bound" and np.any(grid <= 0)):
+                raise ValueError(f"PhasePlaneRegion.{name} must be a finite {shape} table"
+                                 + (" of values > 0" if name == "bound" else "") + f", got shape {grid.shape}")
+
     @staticmethod
     @functools.cache
     def default() -> "PhasePlaneRegion":
@@ -85,9 +98,12 @@ class PhasePlaneRegion:
 
     def coefficients(self, u: np.ndarray, mu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(c1 [1/s], c2 [rad/s]) at speeds ``u`` (B,) [m/s] and per-wheel friction ``mu`` (B, 4) (its mean)."""
-        u = np.atleast_1d(np.asarray(u, dtype=float))
+        u = np.ascontiguousarray(np.atleast_1d(np.asarray(u, dtype=float)))
+        mu_mean = np.ascontiguousarray(np.atleast_1d(np.mean(mu, axis=-1)), dtype=float)
+        if u.ndim != 1 or mu_mean.shape != u.shape:
+            raise ValueError(f"u must have shape (B,) and mu (B, 4); got u {u.shape}, mu {np.shape(mu)}")
         out = np.empty((2, u.size))
-        _bilinear(*self._grids, u, np.atleast_1d(np.mean(mu, axis=-1)), out)
+        _bilinear(*self._grids, u, mu_mean, out)
         return out[0], out[1]
 
     def index(self, u: np.ndarray, beta: np.ndarray, beta_rate: np.ndarray, mu: np.ndarray) -> np.ndarray:

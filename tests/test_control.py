@@ -257,3 +257,16 @@ def test_sideslip_rate_from_lateral_acceleration_matches_the_derivative_of_sides
     numeric = np.gradient(T.beta, traj.t)
     assert np.max(np.abs(numeric)) > math.radians(3.0)
     assert np.max(np.abs(rate - numeric)[5:-5]) < math.radians(0.2)
+
+
+def test_the_phase_plane_region_refuses_bad_tables_and_mismatched_shapes():
+    from control.reference import PhasePlaneRegion
+
+    with pytest.raises(ValueError, match="speeds"):
+        PhasePlaneRegion((20.0, 10.0), (0.5, 1.0), ((1.0, 1.0), (1.0, 1.0)), ((0.1, 0.1), (0.1, 0.1)))
+    with pytest.raises(ValueError, match="bound"):
+        PhasePlaneRegion((10.0, 20.0), (0.5, 1.0), ((1.0, 1.0), (1.0, 1.0)), ((0.1, 0.0), (0.1, 0.1)))
+    with pytest.raises(ValueError, match="slope"):
+        PhasePlaneRegion((10.0, 20.0), (0.5, 1.0), ((1.0, 1.0),), ((0.1, 0.1), (0.1, 0.1)))
+    with pytest.raises(ValueError, match="shape"):
+        PhasePlaneRegion.default().index(np.full(3, 20.0), np.zeros(3), np.zeros(3), np.full((2, 4), 0.5))
