@@ -62,7 +62,8 @@ class PhasePlaneRegion:
     half-width c2 [rad/s] tabulated over speed [m/s] x road friction, interpolated bilinearly
     and clamped to the table's range. The shipped table is this car's (derived by
     ``python -m training.phase_plane_fit``; Inagaki et al.'s dry-road numbers, c1 = 2.49 1/s and
-    c2 = 9.55 deg/s, are their car's); :meth:`default` loads it."""
+    c2 = 9.55 deg/s, are their car's); :meth:`default` loads it. For another car:
+    ``PhasePlaneRegion.from_table(training.phase_plane_fit.fit_table(params))`` (~2.5 min)."""
 
     speeds: tuple[float, ...]
     frictions: tuple[float, ...]
@@ -83,12 +84,18 @@ class PhasePlaneRegion:
                                  + (" of values > 0" if name == "bound" else "") + f", got shape {grid.shape}")
 
     @staticmethod
+    def from_table(table: dict) -> "PhasePlaneRegion":
+        """From the layout of control/data/phase_plane.json, which
+        ``training.phase_plane_fit.fit_table(params)`` returns for any car."""
+        return PhasePlaneRegion(tuple(table["speeds_m_s"]), tuple(table["frictions"]),
+                                tuple(map(tuple, table["slope_1_s"])), tuple(map(tuple, table["bound_rad_s"])))
+
+    @staticmethod
     @functools.cache
     def default() -> "PhasePlaneRegion":
         """The region of the default car (control/data/phase_plane.json)."""
-        table = json.loads(resources.files("control").joinpath("data/phase_plane.json").read_text())
-        return PhasePlaneRegion(tuple(table["speeds_m_s"]), tuple(table["frictions"]),
-                                tuple(map(tuple, table["slope_1_s"])), tuple(map(tuple, table["bound_rad_s"])))
+        return PhasePlaneRegion.from_table(
+            json.loads(resources.files("control").joinpath("data/phase_plane.json").read_text()))
 
     @functools.cached_property
     def _grids(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
