@@ -14,7 +14,7 @@ from control.dyc import LQRYawController, LQRWeights, SlidingModeYawController
 from control.reference import rear_steer_feedforward, reference_yaw_rate, sideslip_bound
 
 CONTROLLERS = ("none", "dyc-lqr", "dyc-smc", "dyc-lqr-4ws", "dyc-smc-4ws")
-ACTIVE_SPEED = 2.0  #: below this speed [m/s] the controller passes the driver's torques through
+ACTIVE_SPEED = 2.0  #: below this speed [m/s] the law's moment is zero (the allocator still shares the drive)
 YAW_DEADBAND = 0.02  #: |r - r_ref| [rad/s] tolerated without intervention (ESC practice)
 REFERENCE_LAG = 0.15  #: time constant of the yaw-rate reference [s]: the car's own yaw response lag
 MIN_PLANNING_MU = 0.1  #: floor of the friction the controller plans with
@@ -51,6 +51,14 @@ class StabilityController:
     it does not fight sensor noise in normal driving, as production ESC does. Moments that
     turn the car further into the bend (understeer correction) fade out linearly as |beta|
     approaches the mu-dependent sideslip bound.
+
+    The law's moment is the whole yaw moment the four longitudinal tyre forces make: the
+    allocator meets it with the steered wheels' lever arms, so a zero moment also cancels the
+    small moment that equal drive forces make on steered front wheels (the 2-DOF model the laws
+    are designed on has no drive forces). The allocator works with the commanded road-wheel
+    angles (the driver's front angle, the controller's own rear angle), not the servos' lagged
+    positions, and does not see a rear angle that the plant adds itself
+    (``VehicleParams.rear_steer_feedforward``).
 
     ``last_allocation`` holds the latest :class:`control.allocation.Allocation`: the yaw moment
     and drive force the wheels delivered and whether the demand was feasible (None before the

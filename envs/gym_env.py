@@ -362,8 +362,9 @@ class YawStabilityEnv(gym.Env):
     Actions (float32 in [-1, 1]): ``action="yaw_moment"`` (default): [corrective yaw moment x
     3000 N m, rear steer x max rear steer] (``rear_steer=False``: the moment alone, a 4WID car
     without 4WS), allocated to the wheels by control/ (least tyre workload for the driver's
-    drive force plus the moment, within motor and friction limits from the estimate; an
-    infeasible moment is cut to the largest feasible one); ``"wheel_torques"``: four corrective
+    drive force plus the moment, within motor and friction limits from the estimate; the moment
+    is the whole yaw moment of the longitudinal tyre forces, with the commanded wheel angles'
+    lever arms; an infeasible moment is cut to the largest feasible one); ``"wheel_torques"``: four corrective
     torques x the motor peak torque added to the driver's speed-holding torques. Out-of-range
     actions are clipped and flagged in ``info["action_clipped"]``; NaN/inf actions raise
     ValueError. Unknown keyword arguments and bad values raise ValueError naming them.
