@@ -247,7 +247,7 @@ class YawStabilityCore:
         yaw_error = truth.r - r_ref
         beta = truth.beta
         phase_plane = PhasePlaneRegion.default().index(truth.u, beta, sideslip_rate(truth.u, truth.v, truth.r, truth.ay),
-                                                       truth.mu)
+                                                       truth.r, truth.mu)
         deviation = self._deviation()
         reward = -self.config.control_dt * ((yaw_error / 0.1) ** 2 + (beta / 0.05) ** 2
                                             + 0.1 * np.sum(clipped**2, axis=1) + deviation**2)

@@ -99,9 +99,13 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
     r_ref = reference_yaw_rate(traj.state[:, S_U], traj.state[:, S_DELTA_F], T.mu, params)
     out = {"peak_beta": float(np.max(np.abs(beta))), "yaw_tracking_rms": rmse(traj.state[:, S_R], r_ref),
            "spin_out": float(spin_out(beta))}
-    # how far the car left the sideslip phase-plane region it recovers from by itself (> 1: outside)
-    beta_rate = sideslip_rate(T.u, T.v, T.r, traj.aux[:, A_AY])
-    out["phase_plane_peak"] = float(np.max(PhasePlaneRegion.default().index(T.u, beta, beta_rate, T.mu)))
+    # how far the car left the sideslip phase-plane region it recovers from by itself (> 1:
+    # outside), over the samples at speeds the region is tabulated for
+    region = PhasePlaneRegion.default()
+    fast = np.abs(T.u) >= region.speeds[0]
+    index = region.index(T.u[fast], beta[fast], sideslip_rate(T.u, T.v, T.r, traj.aux[:, A_AY])[fast], T.r[fast],
+                         T.mu[fast])
+    out["phase_plane_peak"] = float(np.max(index)) if index.size else math.nan
     # control effort: the yaw moment the motors' torques make by driving left and right wheels
     # differently (straight-wheel arms, so equal drive torques on steered wheels count as no
     # effort) [N m], and the rear steer [rad]

@@ -12,15 +12,19 @@ Model: the plant's own tyre (PAC2002, :mod:`envs.tyre`) at the static axle loads
 cornering, constant forward speed u (the 2-DOF assumption; no load transfer, no drive slip):
     v_dot = (F_yf + F_yr) / m - u r,   r_dot = (a F_yf - b F_yr) / I_z,
     beta = atan(v / u), so beta_dot = cos^2(beta) v_dot / u,
-integrated by RK4 (5 ms) for 4 s from a grid of (beta, r): |beta| <= 20 deg, |r| <= 3 mu g / u.
+integrated by RK4 (5 ms) for 4 s from a grid of (beta, r): |beta| <= 20 deg, |r| <= 3 mu g / u
+(three times the friction-limited steady yaw rate; the region is the band within this window,
+since the band alone, an unbounded strip, reaches spinning states far outside it).
 A start counts as stable when the car is back within 1 deg of sideslip and 0.02 rad/s of yaw
-rate at the end. For each slope c1 on a grid, c2 is the largest half-width such that the band
-holds no start that diverged; the slope kept is the one whose band holds the most stable
-starts ("coverage", reported). The band is therefore conservative: inside it, the car recovers
-by itself with the steering straight.
+rate at the end. Between neighbouring starts (along r) that end differently, the separatrix is
+located by bisection (12 halvings: to 1/4096 of a grid step). For each slope c1 on a grid, c2 is the largest
+half-width such that the band holds no diverging start and no separatrix point; the slope kept
+is the one whose band holds the most stable starts ("coverage", reported). The band is
+therefore conservative on the 2-DOF model within the window: inside it, the car recovers by
+itself with the steering straight.
 
 Writes control/data/phase_plane.json (SI: slope [1/s], bound [rad/s]) for a table of speeds x
-road friction. Run: ``python -m training.phase_plane_fit`` (~2 min).
+road friction. Run: ``python -m training.phase_plane_fit`` (~3.5 min).
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ FRICTIONS = (0.2, 0.3, 0.5, 0.7, 1.0)  #: table road friction [-]
 MAX_SIDESLIP = np.radians(20.0)  #: initial-state window [rad]
 YAW_RATE_WINDOW = 3.0  #: initial |r| up to this many friction-limited yaw rates mu g / u
 GRID = 101  #: initial states per axis
+BISECTIONS = 12  #: halvings of a grid step to locate the separatrix
 HORIZON = 4.0  #: [s]
 STEP = 0.005  #: [s]
 RECOVERED_SIDESLIP = np.radians(1.0)  #: [rad]
@@ -78,17 +83,37 @@ def recovers(beta: np.ndarray, r: np.ndarray, u: float, mu: float, params: Vehic
     return (np.abs(x[0]) < RECOVERED_SIDESLIP) & (np.abs(x[1]) < RECOVERED_YAW_RATE)
 
 
-def fit_band(beta: np.ndarray, beta_rate: np.ndarray, stable: np.ndarray) -> tuple[float, float, float]:
-    """(c1 [1/s], c2 [rad/s], coverage): the band |beta_rate + c1 beta| < c2 free of unstable
-    starts that holds the largest share (coverage) of the stable ones."""
+def fit_band(beta: np.ndarray, beta_rate: np.ndarray, stable: np.ndarray,
+             boundary_beta: np.ndarray, boundary_rate: np.ndarray) -> tuple[float, float, float]:
+    """(c1 [1/s], c2 [rad/s], coverage): the band |beta_rate + c1 beta| < c2 free of diverging
+    starts and of separatrix points (``boundary_*``) that holds the largest share (coverage) of
+    the stable starts."""
     best = (0.0, 0.0, -1.0)
+    excluded_beta = np.concatenate([beta[~stable], boundary_beta])
+    excluded_rate = np.concatenate([beta_rate[~stable], boundary_rate])
     for c1 in SLOPES:
-        z = np.abs(beta_rate + c1 * beta)
-        c2 = float(np.min(z[~stable])) if np.any(~stable) else float(np.max(z))
-        coverage = float(np.mean(z[stable] < c2))
+        c2 = float(np.min(np.abs(excluded_rate + c1 * excluded_beta))) if excluded_beta.size else np.inf
+        coverage = float(np.mean(np.abs(beta_rate[stable] + c1 * beta[stable]) < c2))
         if coverage > best[2]:
             best = (float(c1), c2, coverage)
     return best
+
+
+def separatrix(beta: np.ndarray, r: np.ndarray, stable: np.ndarray, u: float, mu: float,
+               params: VehicleParams) -> tuple[np.ndarray, np.ndarray]:
+    """Points (beta, r) on the boundary between recovering and diverging starts, by bisection
+    between neighbours along r of the (GRID, GRID) grid (rows: r) that end differently."""
+    b, rr, ok = (x.reshape(GRID, GRID) for x in (beta, r, stable))
+    rows, cols = np.nonzero(ok[:-1] != ok[1:])
+    beta_b = b[rows, cols]
+    low, high = rr[rows, cols], rr[rows + 1, cols]
+    low_ok = ok[rows, cols]
+    for _ in range(BISECTIONS):
+        mid = 0.5 * (low + high)
+        mid_ok = recovers(beta_b, mid, u, mu, params)
+        same = mid_ok == low_ok
+        low, high = np.where(same, mid, low), np.where(same, high, mid)
+    return beta_b, 0.5 * (low + high)
 
 
 def fit_cell(u: float, mu: float, params: VehicleParams | None = None) -> tuple[float, float, float]:
@@ -99,7 +124,9 @@ def fit_cell(u: float, mu: float, params: VehicleParams | None = None) -> tuple[
     beta, r = beta.ravel(), r.ravel()
     stable = recovers(beta, r, u, mu, params)
     beta_rate, _ = sideslip_dynamics(beta, r, u, mu, params)
-    return fit_band(beta, beta_rate, stable)
+    boundary_beta, boundary_r = separatrix(beta, r, stable, u, mu, params)
+    boundary_rate, _ = sideslip_dynamics(boundary_beta, boundary_r, u, mu, params)
+    return fit_band(beta, beta_rate, stable, boundary_beta, boundary_rate)
 
 
 def fit_table(params: VehicleParams | None = None) -> dict:
@@ -109,7 +136,7 @@ def fit_table(params: VehicleParams | None = None) -> dict:
     return {"speeds_m_s": list(SPEEDS), "frictions": list(FRICTIONS),
             "slope_1_s": [[c[0] for c in row] for row in cells],
             "bound_rad_s": [[c[1] for c in row] for row in cells],
-            "coverage": [[c[2] for c in row] for row in cells],
+            "coverage": [[c[2] for c in row] for row in cells], "yaw_rate_window": YAW_RATE_WINDOW,
             "source": "python -m training.phase_plane_fit: Inagaki et al. (AVEC '94) phase-plane method on the "
                       "2-DOF model with the plant tyre (PAC2002) at static axle loads, steering straight"}
 
