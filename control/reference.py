@@ -109,26 +109,36 @@ class PhasePlaneRegion:
 
     def coefficients(self, u: np.ndarray, mu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(c1 [1/s], c2 [rad/s]) at speeds ``u`` (B,) [m/s] and per-wheel friction ``mu`` (B, 4) (its mean)."""
+        return self._at(u, mu)[:2]
+
+    def _at(self, u: np.ndarray, mu: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(c1, c2, u, mean mu) (B,) each, the inputs checked and as float arrays."""
         u = np.ascontiguousarray(np.atleast_1d(np.asarray(u, dtype=float)))
         mu_mean = np.ascontiguousarray(np.atleast_1d(np.mean(mu, axis=-1)), dtype=float)
         if u.ndim != 1 or mu_mean.shape != u.shape:
             raise ValueError(f"u must have shape (B,) and mu (B, 4); got u {u.shape}, mu {np.shape(mu)}")
         out = np.empty((2, u.size))
         _bilinear(*self._grids, u, mu_mean, out)
-        return out[0], out[1]
+        return out[0], out[1], u, mu_mean
 
     def index(self, u: np.ndarray, beta: np.ndarray, beta_rate: np.ndarray, r: np.ndarray,
               mu: np.ndarray) -> np.ndarray:
         """max(|beta_dot + c1 beta| / c2, |r| / (k mu g / u)) (B,): below 1 inside the region,
         above 1 outside. ``u`` [m/s], ``beta`` [rad], ``beta_rate`` [rad/s], ``r`` [rad/s] (B,),
         ``mu`` (B, 4) (its mean is the road friction)."""
-        c1, c2 = self.coefficients(u, mu)
+        c1, c2, u, mu_mean = self._at(u, mu)
         beta, beta_rate, r = (np.asarray(x, dtype=float) for x in (beta, beta_rate, r))
         if not beta.shape == beta_rate.shape == r.shape == c1.shape:
             raise ValueError(f"beta, beta_rate and r must have the shape of u {c1.shape}; got {beta.shape}, "
                              f"{beta_rate.shape}, {r.shape}")
-        window = self.yaw_rate_window * np.mean(mu, axis=-1) * GRAVITY / np.maximum(np.abs(u), MIN_SPEED)
+        window = self.yaw_rate_window * mu_mean * GRAVITY / np.maximum(np.abs(u), MIN_SPEED)
         return np.maximum(np.abs(beta_rate + c1 * beta) / c2, np.abs(r) / window)
+
+    def state_index(self, state) -> np.ndarray:
+        """:meth:`index` (B,) of an Estimate-like state (u, v, beta, r, ay, mu), with beta_dot
+        from :func:`sideslip_rate`."""
+        s = state
+        return self.index(s.u, s.beta, sideslip_rate(s.u, s.v, s.r, s.ay), s.r, s.mu)
 
 
 @numba.njit(**JIT)

@@ -27,7 +27,7 @@ from gymnasium.vector.utils import batch_space
 
 from control import Command
 from control.allocation import allocate_for_estimate
-from control.reference import PhasePlaneRegion, reference_yaw_rate, sideslip_rate
+from control.reference import PhasePlaneRegion, reference_yaw_rate
 from envs.metrics import SPIN_OUT_SIDESLIP, path_deviation, sine_with_dwell_metrics
 from envs.scenarios import SCENARIOS, Scenario, is_number, make_scenario
 from envs.sensors import Fault
@@ -246,8 +246,7 @@ class YawStabilityCore:
         r_ref = reference_yaw_rate(truth.u, s.steering_wheel / self.params.steering_ratio, truth.mu, self.params)
         yaw_error = truth.r - r_ref
         beta = truth.beta
-        phase_plane = PhasePlaneRegion.default().index(truth.u, beta, sideslip_rate(truth.u, truth.v, truth.r, truth.ay),
-                                                       truth.r, truth.mu)
+        phase_plane = PhasePlaneRegion.default().state_index(truth)
         deviation = self._deviation()
         reward = -self.config.control_dt * ((yaw_error / 0.1) ** 2 + (beta / 0.05) ** 2
                                             + 0.1 * np.sum(clipped**2, axis=1) + deviation**2)

@@ -19,7 +19,7 @@ import numpy as np
 
 from control import CONTROLLERS, make_controller
 from control.allocation import wheel_force_map
-from control.reference import PhasePlaneRegion, reference_yaw_rate, sideslip_rate
+from control.reference import PhasePlaneRegion, reference_yaw_rate
 from envs.fmvss126 import characterise
 from envs.metrics import cone_hits, mae, path_deviation, rms, rmse, sine_with_dwell_metrics, spin_out
 from envs.scenarios import SCENARIOS, make_scenario
@@ -102,9 +102,7 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
     # how far the car left the sideslip phase-plane region it recovers from by itself (> 1:
     # outside), over the samples at speeds the region is tabulated for
     region = PhasePlaneRegion.default()
-    fast = np.abs(T.u) >= region.speeds[0]
-    index = region.index(T.u[fast], beta[fast], sideslip_rate(T.u, T.v, T.r, traj.aux[:, A_AY])[fast], T.r[fast],
-                         T.mu[fast])
+    index = region.state_index(T)[np.abs(T.u) >= region.speeds[0]]
     out["phase_plane_peak"] = float(np.max(index)) if index.size else math.nan
     # control effort: the yaw moment the motors' torques make by driving left and right wheels
     # differently (straight-wheel arms, so equal drive torques on steered wheels count as no
