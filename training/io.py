@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import tempfile
 from collections.abc import Callable
@@ -33,3 +34,11 @@ def _umask() -> int:
 def atomic_write_text(path: str | Path, text: str) -> Path:
     """Write ``text`` (UTF-8) to ``path`` atomically."""
     return atomic_write(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
+
+
+def atomic_write_json(path: str | Path, data, default=None) -> str:
+    """Write ``data`` as indented JSON (with a final newline) to ``path`` atomically; returns the
+    text. ``default``: as json.dumps's, for values JSON cannot hold."""
+    text = json.dumps(data, indent=2, default=default) + "\n"
+    atomic_write_text(path, text)
+    return text

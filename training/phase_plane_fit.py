@@ -29,7 +29,6 @@ road friction. Run: ``python -m training.phase_plane_fit`` (~3.5 min).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -37,7 +36,7 @@ from tqdm import tqdm
 
 from envs.tyre import tyre_forces
 from envs.vehicle import GRAVITY, VehicleParams
-from training.io import atomic_write_text
+from training.io import atomic_write_json
 
 OUTPUT = Path(__file__).resolve().parent.parent / "control" / "data" / "phase_plane.json"
 SPEEDS = (10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0)  #: table speeds [m/s]
@@ -143,8 +142,7 @@ def fit_table(params: VehicleParams | None = None) -> dict:
 
 def main() -> None:
     table = fit_table()
-    atomic_write_text(OUTPUT, json.dumps(table, indent=2) + "\n")
-    print(json.dumps(table, indent=2))
+    print(atomic_write_json(OUTPUT, table), end="")
 
 
 if __name__ == "__main__":

@@ -29,7 +29,7 @@ import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
 from envs.gym_env import EnvConfig, YawStabilityVectorEnv, _AgentController, state_observation
-from training.io import atomic_write, atomic_write_text
+from training.io import atomic_write, atomic_write_json, atomic_write_text
 
 EVALUATIONS = "evaluations.npz"  #: the run's evaluation log (SB3's EvalCallback format)
 
@@ -218,7 +218,7 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     config = RunConfig(algo, env_kwargs, seed, n_envs, timesteps)
-    atomic_write_text(out / "config.json", json.dumps(asdict(config), indent=2, default=repr) + "\n")
+    atomic_write_json(out / "config.json", asdict(config), default=repr)
     off_policy = algo != "ppo"
     train_env = _vec_env(env_kwargs, n_envs, seed)
     eval_kwargs = {**env_kwargs, "scenario": eval_scenario}

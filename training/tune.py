@@ -27,7 +27,6 @@ sideslip error and the NLL on every unseen paper scenario, so it is the default.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Sequence
 from dataclasses import replace
@@ -41,7 +40,7 @@ from envs.sensors import SensorReading
 from envs.simulation import Trajectory, simulate
 from estimation import NoiseParams, make_estimator, tuned_noise
 from estimation.optimizers import minimize
-from training.io import atomic_write_text
+from training.io import atomic_write_json
 from training.pool import parallel_map
 
 OUTPUT = Path(__file__).resolve().parent.parent / "estimation" / "data" / "tuned_noise.json"
@@ -157,5 +156,5 @@ def tune(n_agents: int = 30, iterations: int = 100, seed: int = 0, out: Path = O
             "criterion": criterion,
             "objective": ("mean innovation NLL per step of alo-fkf" if criterion == "nll" else
                           "beta RMSE/0.1 deg + r RMSE/0.01 rad/s + u RMSE/0.05 m/s of alo-fkf")}
-    atomic_write_text(out, json.dumps(data, indent=2) + "\n")
+    atomic_write_json(out, data)
     return data

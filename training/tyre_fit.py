@@ -12,7 +12,6 @@ Run: ``python -m training.tyre_fit``
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +20,7 @@ from scipy.optimize import minimize_scalar
 from envs.tyre import TyreParams, tyre_forces
 from envs.vehicle import VehicleParams
 from estimation.model import dugoff
-from training.io import atomic_write_text
+from training.io import atomic_write_json
 
 OUTPUT = Path(__file__).resolve().parent.parent / "estimation" / "data" / "dugoff_fit.json"
 LOADS = np.linspace(1000.0, 5000.0, 17)  #: fit loads [N]
@@ -81,8 +80,7 @@ def fit_dugoff(tyre: TyreParams | None = None, reference_load: float | None = No
 
 def main() -> None:
     fit = fit_dugoff()
-    atomic_write_text(OUTPUT, json.dumps(fit, indent=2) + "\n")
-    print(json.dumps(fit, indent=2))
+    print(atomic_write_json(OUTPUT, fit), end="")
 
 
 if __name__ == "__main__":
