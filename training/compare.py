@@ -209,9 +209,9 @@ def markdown_report(table: dict, scenarios: Sequence[str], estimators: Sequence[
              f"Runs: {len(scenarios)} scenarios x {len(estimators)} estimators x {len(controllers)} controllers "
              f"x {seeds} seeds (means over seeds). The controller sees only the estimate.",
              f"`swd_wet`: FMVSS 126 sine with dwell at {SWD_MULTIPLE}A on mu {SWD_MU} from 80 km/h.",
-             "Phase-plane peak: the largest |beta_dot + c1 beta| / c2 of the run, the car's sideslip phase-plane "
-             "stability region (control.reference.PhasePlaneRegion); above 1 the car left the region it recovers "
-             "from by itself with the steering straight.", "",
+             "Phase-plane peak: the largest index of the car's sideslip phase-plane stability region "
+             "(control.reference.PhasePlaneRegion: max(|beta_dot + c1 beta| / c2, |r| / (3 mu g / u))) at speeds "
+             ">= 10 m/s; above 1 the car left the region it recovers from by itself with the steering straight.", "",
              "## Stability", "",
              "| scenario | controller | estimator | peak beta [deg] | phase-plane peak | yaw-rate RMS err [deg/s] "
              "| spin-outs | path RMS [m] | cone hits | SWD ratio @1.0 s | SWD ratio @1.75 s | SWD displ. [m] "
