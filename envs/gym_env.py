@@ -383,8 +383,8 @@ class YawStabilityEnv(gym.Env):
 
     ``info``: ``truth`` and ``estimate`` (:class:`estimation.types.Estimate` of the car), ``action_clipped``,
     ``beta``, ``yaw_rate_error``, ``path_deviation``, ``spin_out``, ``phase_plane_index`` (the
-    true state's |beta_dot + c1 beta| / c2 of :class:`control.reference.PhasePlaneRegion`: above 1
-    the car is outside the sideslip region it recovers from by itself); when an episode ends,
+    true state's :meth:`control.reference.PhasePlaneRegion.state_index`: above 1 the car is
+    outside the sideslip region it recovers from by itself); when an episode ends,
     ``episode_metrics`` (length, return, yaw-rate tracking RMS, peak |beta|, peak phase-plane
     index at the control steps, largest path deviation, spin-out; on ``sine_with_dwell`` the
     FMVSS 126 ratios, displacement and verdict).
