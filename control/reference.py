@@ -46,12 +46,13 @@ def sideslip_bound(mu: np.ndarray) -> np.ndarray:
     return np.arctan(0.02 * np.mean(mu, axis=-1) * GRAVITY)
 
 
-def sideslip_rate(u: np.ndarray, v: np.ndarray, r: np.ndarray, ay: np.ndarray) -> np.ndarray:
-    """beta_dot [rad/s] of beta = atan(v / u) from the lateral acceleration ay = v_dot + u r
-    [m/s^2] at constant forward speed: u (ay - u r) / (u^2 + v^2). No derivative of a noisy
-    signal: it needs only what an estimator reports."""
+def sideslip_rate(u: np.ndarray, v: np.ndarray, r: np.ndarray, ax: np.ndarray, ay: np.ndarray) -> np.ndarray:
+    """beta_dot [rad/s] of beta = atan(v / u) from the body's specific forces ax = u_dot - v r and
+    ay = v_dot + u r [m/s^2]: (u v_dot - v u_dot) / (u^2 + v^2) = (u (ay - u r) - v (ax + v r)) /
+    (u^2 + v^2), exact (u floored at MIN_SPEED). No derivative of a noisy signal: it needs only
+    what an estimator reports."""
     u = np.maximum(np.abs(u), MIN_SPEED)
-    return u * (ay - u * r) / (u**2 + v**2)
+    return (u * (ay - u * r) - v * (ax + v * r)) / (u**2 + v**2)
 
 
 @dataclass(frozen=True)
@@ -135,10 +136,10 @@ class PhasePlaneRegion:
         return np.maximum(np.abs(beta_rate + c1 * beta) / c2, np.abs(r) / window)
 
     def state_index(self, state) -> np.ndarray:
-        """:meth:`index` (B,) of an Estimate-like state (u, v, beta, r, ay, mu), with beta_dot
+        """:meth:`index` (B,) of an Estimate-like state (u, v, beta, r, ax, ay, mu), with beta_dot
         from :func:`sideslip_rate`."""
         s = state
-        return self.index(s.u, s.beta, sideslip_rate(s.u, s.v, s.r, s.ay), s.r, s.mu)
+        return self.index(s.u, s.beta, sideslip_rate(s.u, s.v, s.r, s.ax, s.ay), s.r, s.mu)
 
 
 @numba.njit(**JIT)
