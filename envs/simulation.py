@@ -170,6 +170,10 @@ class ClosedLoop:
             from estimation import make_estimator
 
             estimator = make_estimator(estimator or "oracle", params, dt)
+        estimator_dt = getattr(estimator, "dt", None)
+        if estimator_dt is not None and not math.isclose(estimator_dt, dt, rel_tol=1e-12):
+            raise ValueError(f"the estimator steps at dt = {estimator_dt!r} s, the simulation at {dt!r} s: build it with "
+                             "the simulation's dt (it integrates its model over its own step)")
         if getattr(controller, "rear_steer", False) and any(s.rear_steer_feedforward for s in self.scenarios):
             raise ValueError("the controller steers the rear axle (eq. 20) and the scenario's "
                              "rear_steer_feedforward would add the same law again: use one of them")

@@ -3,6 +3,8 @@ estimator, its building blocks and baselines, behind one factory and one step in
 
 from __future__ import annotations
 
+import math
+
 from estimation.joint import KINDS, NoiseParams, StateEstimator, tuned_noise
 from estimation.model import ModelParams
 from estimation.online import OnlineTuner
@@ -40,6 +42,10 @@ def make_estimator(name: str, params, dt: float = 0.002, noise: NoiseParams | No
     if groups:
         return PartialOracle(make_estimator(base, params, dt, noise, **kwargs), groups)
     if name == "oracle":
+        if not (math.isfinite(dt) and dt > 0):
+            raise ValueError(f"dt must be a finite step > 0 [s], got {dt!r}")
+        if noise is not None or kwargs:
+            raise ValueError(f"the oracle takes no noise or keyword arguments, got {sorted(kwargs) or ['noise']}")
         return Oracle()
     if noise is None:
         noise = (tuned_noise() if name in ("alo-fkf", "joint") else None) or NoiseParams()

@@ -317,9 +317,28 @@ def batch_arrays(x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return x, P
 
 
-def broadcast_matrix(M: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
-    """A (k, k) or (B, k, k) matrix as a contiguous (B, k, k) float64 array."""
-    return np.ascontiguousarray(np.broadcast_to(np.asarray(M, dtype=np.float64), shape))
+def noise_matrix(M: np.ndarray, shape: tuple[int, ...], name: str) -> np.ndarray:
+    """A noise covariance (k, k) or (B, k, k) as a contiguous (B, k, k) float64 array (``shape``),
+    checked: finite, symmetric and positive semi-definite (ValueError naming ``name`` otherwise)."""
+    given = np.asarray(M, dtype=np.float64)
+    if given.shape not in (shape[-2:], shape):
+        raise ValueError(f"{name} must have shape {shape[-2:]} or {shape}, got {given.shape}")
+    if not np.all(np.isfinite(given)):
+        raise ValueError(f"{name} must be finite, got {given!r}")
+    scale = max(float(np.abs(given).max()), 1e-300)
+    if not np.allclose(given, np.swapaxes(given, -1, -2), rtol=0.0, atol=1e-12 * scale) \
+            or np.linalg.eigvalsh(given).min() < -1e-12 * scale:
+        raise ValueError(f"{name} must be a symmetric positive semi-definite covariance, got {given!r}")
+    return np.ascontiguousarray(np.broadcast_to(given, shape))
+
+
+def check_huber(huber_c: float | None) -> float:
+    """The Huber threshold as the compiled update takes it: None (plain update) or a number > 0."""
+    if huber_c is None:
+        return NO_HUBER
+    if not float(huber_c) > 0.0:
+        raise ValueError(f"huber_c must be > 0 (or None for the plain update), got {huber_c!r}")
+    return float(huber_c)
 
 
 def batch_points(x: np.ndarray, P: np.ndarray) -> np.ndarray:
@@ -327,7 +346,7 @@ def batch_points(x: np.ndarray, P: np.ndarray) -> np.ndarray:
     points, ok = np.empty((x.shape[0], 2 * x.shape[1], x.shape[1])), np.empty(len(x), dtype=np.bool_)
     _points_batch(x, P, points, ok)
     if not ok.all():
-        raise ValueError(f"covariance of member {int(np.argmin(ok))} contains NaN or inf")
+        raise ValueError(f"covariance of member {int(np.argmin(ok))} is not finite or not positive definite")
     return points
 
 
@@ -346,7 +365,7 @@ def ckf_predict(x: np.ndarray, P: np.ndarray, f, Q: np.ndarray) -> tuple[np.ndar
     x, P = batch_arrays(x, P)
     moved = _model_values(f, batch_points(x, P), x.shape[1])
     x_out, P_out = np.empty_like(x), np.empty_like(P)
-    _moments_batch(moved, broadcast_matrix(Q, P.shape), x_out, P_out)
+    _moments_batch(moved, noise_matrix(Q, P.shape, "Q"), x_out, P_out)
     return x_out, P_out
 
 
@@ -373,6 +392,8 @@ def ckf_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, h, R: np.ndarray, hu
     if z.ndim != 2 or z.shape[0] != x.shape[0]:
         raise ValueError(f"measurement must have shape (B, m) with B = {x.shape[0]}, got {z.shape}")
     valid = np.ones(z.shape, dtype=np.bool_) if valid is None else np.ascontiguousarray(valid, dtype=np.bool_)
+    if valid.shape != z.shape:
+        raise ValueError(f"valid must have the measurement's shape {z.shape}, got {valid.shape}")
     if not np.all(np.isfinite(z[valid])):
         raise ValueError("a valid measurement is NaN or inf")
     B, m = z.shape
@@ -380,8 +401,8 @@ def ckf_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, h, R: np.ndarray, hu
     Z = _model_values(h, points, m)
     x_out, P_out = np.empty_like(x), np.empty_like(P)
     nu, S, weights, nll = np.empty((B, m)), np.empty((B, m, m)), np.empty((B, m)), np.empty(B)
-    _update_batch(x, P, points, Z, z, valid, broadcast_matrix(R, (B, m, m)),
-                  NO_HUBER if huber_c is None else float(huber_c), x_out, P_out, nu, S, weights, nll)
+    _update_batch(x, P, points, Z, z, valid, noise_matrix(R, (B, m, m), "R"), check_huber(huber_c), x_out, P_out,
+                  nu, S, weights, nll)
     if not np.all(np.isfinite(nll)):
         raise ValueError(f"update of member {int(np.argmin(np.isfinite(nll)))} failed: innovation covariance "
                          "not positive definite")

@@ -27,7 +27,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from estimation.ckf import batch_arrays, broadcast_matrix, ckf_predict, ckf_update, spd_inverse
+from estimation.ckf import batch_arrays, ckf_predict, ckf_update, noise_matrix, spd_inverse
 from estimation.jit import JIT, scratch
 
 BETA_FLOOR = 0.05
@@ -104,7 +104,9 @@ def federated_step(x: np.ndarray, P: np.ndarray, f: Callable[[np.ndarray], np.nd
     beta = np.asarray(beta, dtype=np.float64)
     if beta.shape != (len(x), len(subs)):
         raise ValueError(f"beta must have shape {(len(x), len(subs))}, got {beta.shape}")
-    Q = broadcast_matrix(Q, P.shape)
+    if not (np.all(beta > 0.0) and np.allclose(beta.sum(axis=1), 1.0, rtol=0.0, atol=1e-9)):
+        raise ValueError(f"information-sharing coefficients must be > 0 and sum to 1 per member, got {beta!r}")
+    Q = noise_matrix(Q, P.shape, "Q")
     xs, Ps, nlls = [], [], []
     for i, sub in enumerate(subs):
         b = beta[:, i][:, None, None]

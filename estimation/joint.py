@@ -33,7 +33,8 @@ reported mu sigma shrinks slowly in stretches without excitation (the covariance
 0.090 -> 0.081 over a straight; sigma 0.036 per wheel after the sine's held stretches).
 Discarding the update whole (only the random walk acting) was tried: after a friction drop mu
 then stayed at its old, high value, because lambda evaluated at a too-high mu keeps the gate
-closed, and the narrower covariance is what let the gate open again. A gate on mu's lower
+closed, and the narrower covariance is what let the gate open again. Below MU_MIN_SPEED the
+friction filter does not run at all (slip angles are not defined at rest). A gate on mu's lower
 confidence bound was tried too (README, "Known limitations"): mu then moves after a jump but
 wanders on the lane changes. The four mu share a correlated prior and random walk
 (MU_CORRELATION): a saturating outer wheel informs the lightly loaded inner one, while a split
@@ -59,7 +60,7 @@ from estimation.ckf import (NO_HUBER, cholesky, cholesky_solve, cubature_points,
                             matmul, measurement_update, predicted_moments)
 from estimation.federated import fuse, sharing_coefficients
 from estimation.jit import JIT, scratch
-from estimation.model import (P_IZ, P_RW, ModelParams, body_forces, dugoff_lambdas, fill_steer_trig, transition,
+from estimation.model import (MIN_SPEED, P_IZ, P_RW, ModelParams, body_forces, dugoff_lambdas, fill_steer_trig, transition,
                               wheel_kinematics, wheel_loads, wheel_trig)
 from estimation.types import Estimate, member_rows
 
@@ -68,6 +69,11 @@ I_U, I_V, I_AX, I_AY, I_R, I_GAMMA = range(N_STATE)
 KINDS = ("ekf", "ckf", "fkf", "alo-fkf", "joint")
 MU_BOUNDS = (0.1, 1.2)  #: estimated mu stays inside these bounds
 EXCITATION_LAMBDA = 1.0  #: a wheel's mu is updated only while its Dugoff lambda is below this
+#: below this estimated forward speed [m/s] the friction filter does not run (mu and its
+#: covariance are held): slip angles tan(alpha) = vy / max(|vx|, MIN_SPEED) of a car at rest are
+#: sensor noise over a floored speed, which pushed Dugoff's lambda below 1 and let mu collapse
+#: to its lower bound with a confident covariance in a few seconds of standing still
+MU_MIN_SPEED = 3.0
 
 
 #: prior and random-walk correlation of the four wheels' mu. The contact patches lie within
@@ -125,6 +131,20 @@ class NoiseParams:
     #: and reads mu high (README, "Friction model error").
     mu_accel_std: float = 0.6
     mu_max_std: float = 0.3
+
+    def __post_init__(self) -> None:
+        process = np.asarray(self.process_std, dtype=float)
+        if process.ndim not in (1, 2) or process.shape[-1] != N_STATE:
+            raise ValueError(f"process_std needs {N_STATE} values (u, v, ax, ay, r, Gamma), or (B, {N_STATE}), "
+                             f"got shape {process.shape}: {self.process_std!r}")
+        for name in ("process_std", "mu_walk_std"):
+            value = np.asarray(getattr(self, name), dtype=float)
+            if not np.all(np.isfinite(value) & (value >= 0.0)):
+                raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)!r}")
+        for name in ("accel_std", "gyro_std", "wheel_speed_std", "mu_accel_std", "mu_max_std"):
+            value = np.asarray(getattr(self, name), dtype=float)
+            if value.ndim > 1 or not np.all(np.isfinite(value) & (value > 0.0)):
+                raise ValueError(f"{name} must be finite and > 0 (scalar or (B,)), got {getattr(self, name)!r}")
 
     def scaled(self, log10_factors: np.ndarray) -> "NoiseParams":
         """Scale (process_std, accel_std, gyro_std, wheel_speed_std) by 10**factors: (4,) for
@@ -468,7 +488,7 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, process_var, sensor_var,
         return FILTER_FAILED, math.nan
     mu_new, P_mu_new, beta_mu_new = scratch((4,)), scratch((4, 4)), scratch((2,))
     mu_new[:], P_mu_new[:, :], beta_mu_new[:] = mu, P_mu, beta_mu
-    if joint:
+    if joint and x_new[I_U] > MU_MIN_SPEED:
         walk, R1_mu, R2_mu = scratch((4, 4)), scratch((3, 3)), scratch((2, 2))
         _fill_correlated(mu_var[0], walk)
         _fill_diagonal((mu_var[1], mu_var[1], gyro_var), R1_mu)
@@ -505,9 +525,11 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, process_var, sensor_var,
     # the estimate
     u, v = x[I_U], x[I_V]
     out[O_U], out[O_V], out[O_R], out[O_AX], out[O_AY] = u, v, x[I_R], x[I_AX], x[I_AY]
-    out[O_BETA] = math.atan2(v, abs(u))
-    denom = max(u * u + v * v, 1.0)
-    grad_u, grad_v = -v / denom, u / denom
+    speed = max(abs(u), MIN_SPEED)  # sideslip of a car at rest: lateral speed over a floored speed
+    out[O_BETA] = math.atan2(v, speed)
+    denom = speed * speed + v * v
+    grad_u = 0.0 if abs(u) < MIN_SPEED else (-v if u >= 0.0 else v) / denom
+    grad_v = speed / denom
     beta_var = grad_u**2 * P[I_U, I_U] + 2 * grad_u * grad_v * P[I_U, I_V] + grad_v**2 * P[I_V, I_V]
     out[O_BETA_STD] = math.sqrt(max(beta_var, 0.0))
     wheel_loads(x[I_AX], x[I_AY], pk, out[O_FZ:O_FZ + 4])
@@ -570,8 +592,8 @@ class StateEstimator:
             raise ValueError(f"unknown estimator kind {self.kind!r}; known: {list(KINDS)}")
         if not (MU_BOUNDS[0] <= self.nominal_mu <= MU_BOUNDS[1]):
             raise ValueError(f"nominal_mu must lie in {MU_BOUNDS}, got {self.nominal_mu!r}")
-        if not self.dt > 0:
-            raise ValueError(f"dt must be > 0, got {self.dt!r}")
+        if not (math.isfinite(self.dt) and self.dt > 0):
+            raise ValueError(f"dt must be a finite step > 0 [s], got {self.dt!r}")
         if not self.huber_c > 0:
             raise ValueError(f"huber_c must be > 0, got {self.huber_c!r}")
         if not self.zero_point_time_constant > 0:
@@ -590,9 +612,22 @@ class StateEstimator:
 
     # ---- set-up -------------------------------------------------------------------------
     def reset(self, reading, initial_speed: np.ndarray, mask: np.ndarray | None = None) -> None:
+        """Start (or, with ``mask`` (B,) bool, restart those rows of) the batch from a first
+        ``reading`` (values and valid (B, 13)) and the forward speed [m/s] (scalar or (B,)):
+        nominal mu, the inertial states from the reading."""
         values = np.asarray(reading.values, dtype=float)
+        if values.ndim != 2 or values.shape[1] != 13:
+            raise ValueError(f"sensor reading must have shape (B, 13), got {values.shape}")
         B = values.shape[0]
+        if mask is not None and hasattr(self, "x") and self.x.shape[0] != B:
+            raise ValueError(f"a masked reset keeps the batch of {self.x.shape[0]}; the reading has {B} rows")
         initial_speed = np.broadcast_to(np.asarray(initial_speed, dtype=float), (B,))
+        rows = slice(None) if mask is None else np.asarray(mask, dtype=bool)
+        if not np.all(np.isfinite(initial_speed[rows])):
+            raise ValueError(f"initial_speed must be finite [m/s], got {initial_speed!r}")
+        if not np.all(np.isfinite(values[rows])):
+            raise ValueError("the first reading must be finite in every channel (it sets the inertial states, the "
+                             f"wheel speeds and the steering): got {values[rows]!r}")
         x0 = np.zeros((B, N_STATE))
         x0[:, I_U] = initial_speed
         x0[:, I_AX], x0[:, I_AY], x0[:, I_R] = values[:, 0], values[:, 1], values[:, 2]
@@ -620,12 +655,16 @@ class StateEstimator:
             self.inertial_prev[mask] = np.nan
             self.inertial_repeats[mask] = 0.0
             self.zero_point[mask] = zero_point0[mask]
+            self.last_nll[mask] = 0.0
+            return
         self.last_nll = np.zeros(B)
 
     # ---- one step -----------------------------------------------------------------------
     def step(self, reading, truth: Estimate | None = None, members: np.ndarray | None = None) -> Estimate:
         """One filter step on ``reading`` (values and valid (B, 13)); with ``members`` (M,) indices
         only those rows step (the others keep their state) and the estimate has M rows."""
+        if not hasattr(self, "x"):
+            raise RuntimeError("call reset(first_reading, initial_speed) before the first step")
         B = self.x.shape[0]
         values = np.ascontiguousarray(reading.values, dtype=np.float64)
         valid = np.ascontiguousarray(reading.valid, dtype=np.bool_)

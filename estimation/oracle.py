@@ -63,6 +63,11 @@ class PartialOracle:
         self.groups = parse_truth_groups("-".join(groups))
         self._fields = [f for g in self.groups for f in TRUTH_GROUPS[g]]
 
+    @property
+    def dt(self) -> float | None:
+        """The wrapped estimator's step [s] (None if it has none)."""
+        return getattr(self.estimator, "dt", None)
+
     def reset(self, reading, initial_speed=None, mask=None) -> None:
         self.estimator.reset(reading, initial_speed, mask)
 

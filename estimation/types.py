@@ -15,10 +15,15 @@ STATE_NAMES = ("u", "v", "ax", "ay", "r", "gamma")
 class Estimate(NamedTuple):
     """One estimator step's output for a batch of B vehicles (SI units).
 
-    u, v: body velocities [m/s] (B,); beta = atan2(v, u) [rad] (B,); r: yaw rate [rad/s] (B,);
-    ax, ay: body specific forces [m/s^2] (B,); mu: road friction per wheel (B, 4);
-    fz: normal loads per wheel [N] (B, 4); beta_std [rad] (B,) and mu_std (B, 4): one-sigma
-    uncertainty (zero for the oracle).
+    u, v: body velocities [m/s] (B,); beta = atan2(v, |u|) [rad] (B,) (the filters floor |u| at
+    1 m/s: a car at rest has no defined sideslip); r: yaw rate [rad/s] (B,); ax, ay: body
+    specific forces [m/s^2] (B,); mu: road friction per wheel (B, 4); fz: normal loads per
+    wheel [N] (B, 4); beta_std [rad] (B,) and mu_std (B, 4): the filter's own one-sigma
+    uncertainty, from its covariance (zero for the oracle; mu_std also zero for the filters that
+    assume a nominal mu). The state filters' covariance does not model the estimation model's
+    error, so beta_std is far too confident (the actual sideslip error is ~10-40x beta_std on
+    the paper's scenarios); the joint estimator's mu_std matches its actual mu error (README,
+    "Estimator accuracy").
     """
 
     u: np.ndarray
@@ -45,7 +50,10 @@ def member_rows(members, batch_size: int) -> np.ndarray:
     batch, since the compiled steps index without bounds checks (ValueError naming them)."""
     if members is None:
         return _all_rows(batch_size)
-    rows = np.ascontiguousarray(members, dtype=np.int64)
+    given = np.asarray(members)
+    if given.size and not np.issubdtype(given.dtype, np.integer):
+        raise ValueError(f"members must be integer indices into the batch of {batch_size}, got {members!r}")
+    rows = np.ascontiguousarray(given, dtype=np.int64)
     if rows.ndim != 1 or (len(rows) and not (0 <= rows.min() and rows.max() < batch_size)) \
             or len(np.unique(rows)) != len(rows):
         raise ValueError(f"members must be distinct indices into the batch of {batch_size}, got {members!r}")

@@ -46,8 +46,13 @@ def _simulate(args: argparse.Namespace) -> int:
     from envs.simulation import simulate
     from training.trajectory_io import plot_trajectory, write_trajectory_csv
 
+    from estimation import check_estimator_name
+
     try:
         scenario = make_scenario(args.scenario, **_scenario_overrides(args))
+        check_estimator_name(args.estimator)
+        if args.seed < 0:
+            raise ValueError(f"seed must be >= 0, got {args.seed}")
     except ValueError as err:
         raise SystemExit(f"fourwis simulate: {err}") from None
     traj = simulate(scenario, estimator=args.estimator, seed=args.seed, progress=True)
@@ -128,8 +133,12 @@ def _tune(args: argparse.Namespace) -> int:
                     args.duration, criterion=args.criterion)
     except ValueError as err:
         raise SystemExit(f"fourwis tune: {err}") from None
-    print(f"{args.optimizer} tuning: cost {data['default_cost']:.3f} (default noise) -> {data['cost']:.3f}, "
-          f"log10 factors {data['log10_factors']}")
+    if data["improved"]:
+        print(f"{args.optimizer} tuning: cost {data['default_cost']:.3f} (default noise) -> {data['cost']:.3f}, "
+              f"log10 factors {data['log10_factors']}")
+    else:
+        print(f"{args.optimizer} tuning found no noise better than the hand-set one (cost {data['default_cost']:.3f}; "
+              f"its best {data['optimizer_best']['cost']:.3f}): kept the hand-set noise (log10 factors 0)")
     return 0
 
 
