@@ -59,8 +59,24 @@ def test_batched_tuning_objective_equals_single_replays_and_tune_writes_its_resu
     saved = json.loads((tmp_path / "tuned.json").read_text())
     assert saved == json.loads(json.dumps(data))
     assert saved["optimizer"] == "cmaes" and saved["evaluations"] == 12
-    assert np.isfinite(saved["cost"]) and saved["cost"] == saved["history"][-1]
+    assert np.isfinite(saved["cost"]) and saved["cost"] <= saved["default_cost"]
+    assert saved["optimizer_best"]["cost"] == saved["history"][-1]
     assert saved["cost"] == pytest.approx(replay_cost(np.array(saved["log10_factors"])[None], traj)[0], rel=1e-12)
+
+
+def test_tune_keeps_the_hand_set_noise_when_the_optimizer_finds_nothing_better(tmp_path, monkeypatch):
+    """A tuning whose best candidate is worse than the hand-set noise writes factors 0 (flagged),
+    never the worse noise."""
+    import training.tune as tune_module
+    from estimation.optimizers import OptimizeResult
+
+    worse = np.array([1.0, 1.0, 1.0, 1.0])  # every noise 10x: far above the default's cost
+    monkeypatch.setattr(tune_module, "minimize", lambda objective, *args, **kwargs: OptimizeResult(
+        worse, float(objective(worse[None])[0]), [float(objective(worse[None])[0])], 1))
+    data = tune_module.tune(2, 1, out=tmp_path / "tuned.json", duration=0.6, progress=False)
+    assert not data["improved"] and data["log10_factors"] == [0.0] * 4
+    assert data["cost"] == data["default_cost"] < data["optimizer_best"]["cost"]
+    assert json.loads((tmp_path / "tuned.json").read_text())["log10_factors"] == [0.0] * 4
 
 
 def test_tuning_file_missing_means_hand_set_noise_and_corrupted_raises(tmp_path):

@@ -140,7 +140,9 @@ def mu_noise_scan(grid: Sequence[float] = MU_NOISE_GRID, seeds: Sequence[int] = 
 def tune(n_agents: int = 30, iterations: int = 100, seed: int = 0, out: Path = OUTPUT, optimizer: str = "alo",
          duration: float = 10.0, progress: bool = True, criterion: str = "nll") -> dict:
     """Tune alo-fkf's noise with ``optimizer`` (see estimation.optimizers) by ``criterion`` on a
-    ``duration`` [s] calibration run; returns (and writes atomically) the result."""
+    ``duration`` [s] calibration run; returns (and writes atomically) the result. If the optimizer
+    does not beat the hand-set noise the result keeps it (log10 factors 0, ``improved`` false;
+    ``optimizer_best`` holds what the optimizer found)."""
     traj = calibration_run(duration=duration)
 
     def objective(X: np.ndarray) -> np.ndarray:
@@ -149,7 +151,10 @@ def tune(n_agents: int = 30, iterations: int = 100, seed: int = 0, out: Path = O
     default = float(objective(np.zeros((1, 4)))[0])
     result = minimize(objective, BOUNDS, optimizer, n_agents=n_agents, iterations=iterations, seed=seed,
                       progress=progress)
-    data = {"log10_factors": [float(v) for v in result.x], "cost": result.fun, "default_cost": default,
+    improved = bool(result.fun < default)  # else the hand-set noise (factors 0) is kept, not a worse tuning
+    data = {"log10_factors": [float(v) for v in result.x] if improved else [0.0] * 4,
+            "cost": float(result.fun) if improved else default, "default_cost": default, "improved": improved,
+            "optimizer_best": {"log10_factors": [float(v) for v in result.x], "cost": float(result.fun)},
             "optimizer": optimizer, "history": [float(v) for v in result.history],
             "evaluations": result.n_evaluations,
             "calibration": f"random scenario seed {CALIBRATION_SEED}, {duration:g} s, sensor seed {CALIBRATION_SEED}",
