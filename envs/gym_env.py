@@ -273,11 +273,16 @@ class YawStabilityCore:
         return obs, reward, terminated, truncated, info
 
     def _deviation(self) -> np.ndarray:
+        """Distance [m] (B,) from the course's reference path while the car is alongside it (0
+        before its start and past its end, where the run-out continues straight: measured to
+        the path's end point there, a car leaving a course cleanly passed 5 m and was
+        terminated), as the comparison's path metrics count it."""
         out = np.zeros(self.batch_size)
+        state = self.loop.state
         for b, scenario in enumerate(self.loop.scenarios):
-            if scenario.reference_path is not None:
-                state = self.loop.state
-                out[b] = path_deviation(state[b:b + 1, S_X], state[b:b + 1, S_Y], scenario.reference_path)[1]
+            path = scenario.reference_path
+            if path is not None and path[0, 0] <= state[b, S_X] <= path[-1, 0]:
+                out[b] = path_deviation(state[b:b + 1, S_X], state[b:b + 1, S_Y], path)[1]
         return out
 
     def episode_metrics(self, b: int) -> dict:
@@ -370,11 +375,14 @@ class YawStabilityEnv(gym.Env):
 
     Reward per step: -(e_r / 0.1)^2 - (beta / 0.05)^2 - 0.1 |a|^2 - (d / 1.0)^2 (e_r: true yaw
     rate minus the reference from the true state; d: lateral deviation from the scenario's path,
-    if it has one) times control_dt; -100 on termination. Terminated: |beta| > 20 deg (spin-out)
+    if it has one, while the car is alongside it: 0 before its start and on the straight run-out
+    past its end) times control_dt; -100 on termination. Terminated: |beta| > 20 deg (spin-out)
     or more than 5 m from the path (scenarios with a course: the lane changes, the slalom and
     ISO 3888-2; the others are open-road manoeuvres without road edges and end by spin-out or
     time). Truncated: the scenario's end. ``gym.make`` adds gymnasium's TimeLimit at 1,500 steps
-    (30 s at 20 ms, beyond every scenario's default duration); an episode it cuts carries no
+    (30 s at the default 20 ms, beyond every scenario's default duration; a smaller
+    ``control_dt`` or a slow ``speed_kph`` on a course can need more: pass
+    ``max_episode_steps`` to ``gym.make``); an episode it cuts carries no
     ``episode_metrics`` in ``info`` (:meth:`YawStabilityEnv.episode_metrics` gives them at any
     time). The native vector env takes ``max_episode_steps`` itself and reports the metrics.
 

@@ -211,12 +211,13 @@ def test_scenario_durations_fit_the_registered_time_limit():
 
 def test_reward_and_termination_follow_the_documented_formula():
     """The reward is -(e_r/0.1)^2 - (beta/0.05)^2 - 0.1|a|^2 - d^2 per second (x control_dt), with
-    -100 on termination; a steady corrective moment (900 N m, to the left) pushes the car off the
-    lane-change course against its driver (terminated more than 5 m from the path, at 0.6 deg of
-    sideslip: not a spin-out)."""
-    env = YawStabilityEnv(scenario="paper_dlc", estimator="oracle")
+    -100 on termination; 70 km/h through ISO 3888-2 on a 0.5 road with the rear wheels steered
+    fully to the right slides the car off the course (terminated more than 5 m from the path, at
+    13 deg of sideslip: not a spin-out). (Its driver holds the car within 0.1 m of the path
+    against a steady 900 N m on the dry lane change.)"""
+    env = YawStabilityEnv(scenario="iso3888_2", mu=0.5, speed_kph=70.0, estimator="oracle")
     env.reset(seed=0)
-    action = np.array([0.3, 0.0], dtype=np.float32)
+    action = np.array([0.0, -1.0], dtype=np.float32)
     for _ in range(1500):
         obs, reward, terminated, truncated, info = env.step(action)
         expected = -0.02 * ((info["yaw_rate_error"] / 0.1) ** 2 + (info["beta"] / 0.05) ** 2
@@ -226,6 +227,22 @@ def test_reward_and_termination_follow_the_documented_formula():
             break
     assert terminated and not info["spin_out"] and info["path_deviation"] > 5.0
     assert info["episode_metrics"] == env.episode_metrics()
+
+
+@pytest.mark.parametrize("scenario", ["paper_dlc", "iso3888_2"])
+def test_a_car_that_leaves_a_course_cleanly_is_truncated_not_terminated(scenario):
+    """With no corrective action the driver takes the car through the course and onto the
+    straight run-out past its end: the episode ends at the scenario's end (truncated), not
+    terminated, and the path deviation is that of the course (measured to the path's end point
+    the run-out reached 5 m and the episode was terminated with -100)."""
+    env = YawStabilityEnv(scenario=scenario, estimator="oracle")
+    env.reset(seed=0)
+    for _ in range(2000):
+        _, reward, terminated, truncated, info = env.step(np.zeros(2, dtype=np.float32))
+        if terminated or truncated:
+            break
+    assert truncated and not terminated and reward > -1.0
+    assert info["episode_metrics"]["max_path_deviation"] < 1.5
 
 
 def test_rear_steer_is_optional_and_the_single_env_reports_one_car():
