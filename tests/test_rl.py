@@ -58,6 +58,12 @@ def test_resume_continues_the_step_count_and_the_evaluations(tmp_path):
     np.testing.assert_array_equal(log["timesteps"], [512, 1024, 1536, 2048])
     np.testing.assert_array_equal(log["results"][:2], first["results"])
     assert sorted(p.name for p in out.iterdir() if p.name.startswith(".")) == []  # no temporary left behind
+    saved = (out / "config.json").read_text()
+    with pytest.raises(ValueError, match="--algo ppo, not sac"):
+        train("sac", out, 4096, resume=out, progress=False)
+    with pytest.raises(ValueError, match="env_kwargs"):
+        train("ppo", out, 4096, resume=out, env_kwargs={"action": "wheel_torques"}, progress=False)
+    assert (out / "config.json").read_text() == saved  # a refused resume leaves the run as it was
 
 
 def test_bad_arguments_give_clear_errors(tmp_path):
@@ -67,6 +73,10 @@ def test_bad_arguments_give_clear_errors(tmp_path):
         train("ppo", tmp_path, -5)
     with pytest.raises(ValueError, match="warp"):
         train("ppo", tmp_path, 100, env_kwargs={"warp": 9})
+    with pytest.raises(ValueError, match="eval_every"):
+        train("ppo", tmp_path, 100, eval_every=0)
+    with pytest.raises(ValueError, match="checkpoint_every"):
+        train("ppo", tmp_path, 100, checkpoint_every=-1)
     with pytest.raises(FileNotFoundError, match="missing_run"):
         PolicyController(tmp_path / "missing_run", make_scenario("paper_sine").vehicle_params)
     with pytest.raises(FileNotFoundError, match="missing_run"):

@@ -207,11 +207,17 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs:
         raise ValueError(f"timesteps must be a positive integer, got {timesteps!r}")
     if not (isinstance(n_envs, int) and n_envs > 0):
         raise ValueError(f"n_envs must be a positive integer, got {n_envs!r}")
+    for name, value in (("eval_every", eval_every), ("checkpoint_every", checkpoint_every),
+                        ("eval_episodes", eval_episodes)):
+        if not (isinstance(value, int) and value > 0):
+            raise ValueError(f"{name} must be a positive integer, got {value!r}")
     env_kwargs = dict(env_kwargs or {})
     try:
         EnvConfig(**env_kwargs)  # validate now, with clear errors
     except TypeError as err:
         raise ValueError(f"bad env_kwargs {env_kwargs!r}: {err}") from None
+    if resume is not None:
+        _check_resumable(resume, algo, env_kwargs)
     from stable_baselines3.common.noise import NormalActionNoise
     from stable_baselines3.common.vec_env import VecNormalize
 
@@ -248,6 +254,20 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs:
     _atomic_save_normalizer(normalized, out / "vecnormalize.pkl")
     plot_learning_curve(out)
     return model_path
+
+
+def _check_resumable(resume: str | Path, algo: str, env_kwargs: dict) -> None:
+    """A resumed run continues the same algorithm on the same env: ValueError naming what differs
+    from the resumed run's config.json (checked before anything is written)."""
+    config_path = run_files(resume)[2]
+    if not config_path.exists():
+        raise ValueError(f"cannot resume {resume}: {config_path} is missing (its algorithm and env are unknown)")
+    saved = json.loads(config_path.read_text())
+    if saved["algo"] != algo:
+        raise ValueError(f"cannot resume {resume}: it was trained with --algo {saved['algo']}, not {algo}")
+    if saved["env_kwargs"] != json.loads(json.dumps(env_kwargs, default=repr)):
+        raise ValueError(f"cannot resume {resume}: it was trained with env_kwargs {saved['env_kwargs']!r}, "
+                         f"not {env_kwargs!r} (pass the same --env-kwargs)")
 
 
 def run_files(path: str | Path) -> tuple[Path, Path, Path]:
