@@ -10,13 +10,12 @@ from typing import NamedTuple
 import numpy as np
 
 from control.allocation import Allocation, allocate_for_estimate, allocate_torques
-from control.dyc import LQRYawController, LQRWeights, SlidingModeYawController
-from control.reference import rear_steer_feedforward, reference_yaw_rate, sideslip_bound
+from control.dyc import LQRYawController, LQRWeights, SlidingModeYawController, actuator_lag
+from control.reference import rear_steer_feedforward, reference_yaw_rate, sideslip_bound, yaw_time_constant
 
 CONTROLLERS = ("none", "dyc-lqr", "dyc-smc", "dyc-lqr-4ws", "dyc-smc-4ws")
 ACTIVE_SPEED = 2.0  #: below this speed [m/s] the law's moment is zero (the allocator still shares the drive)
 YAW_DEADBAND = 0.02  #: |r - r_ref| [rad/s] tolerated without intervention (ESC practice)
-REFERENCE_LAG = 0.15  #: time constant of the yaw-rate reference [s]: the car's own yaw response lag
 MIN_PLANNING_MU = 0.1  #: floor of the friction the controller plans with
 #: default StabilityController.mu_margin. Measured on the headline matrix (DYC-LQR + joint,
 #: peak sideslip [deg] on paper_step / swd_wet / mu_jump / ISO 3888-2 at 70 km/h): margin 0:
@@ -43,8 +42,15 @@ class StabilityController:
     """Reference + yaw-moment law + allocation (+ optional eq. 20 rear steer).
 
     The yaw-rate reference is the friction-bounded 2-DOF steady state passed through a
-    first-order lag of 0.15 s (the car's natural yaw response), so the controller corrects
-    deviations from how a stable car responds rather than the response delay itself.
+    first-order lag of the car's natural yaw response (:func:`control.reference.yaw_time_constant`:
+    0.036 s at 20 km/h, 0.14 s at 80 km/h), so the controller corrects deviations from how a
+    stable car responds rather than the response delay itself. (A fixed 0.15 s, right at
+    80-90 km/h, made the controller brake the car's own, faster response at low speed.)
+    With the eq. 20 rear steer the controller's rear angle moves at most at the rear servo's
+    rate (``params.rear_steer_rate``), so the reference is built on an angle the car has.
+
+    The LQR law is told the yaw moment the wheels deliver now: the allocation's delivered
+    moment through the actuator lag (:func:`control.dyc.actuator_lag`) it was designed with.
 
     The law acts on the yaw-rate error outside a deadband of 0.02 rad/s (smoothly: the error
     is shrunk by the deadband) and on sideslip beyond half the mu-dependent bound, so that
@@ -93,10 +99,14 @@ class StabilityController:
         else:
             raise ValueError(f"unknown yaw-moment law {self.law!r}; known: ['lqr', 'smc']")
         self._reference = None
+        self._rear = None
+        self._delivered = None
         self.last_allocation: Allocation | None = None
 
     def reset(self) -> None:
         self._reference = None
+        self._rear = None
+        self._delivered = None
         self.last_allocation = None
         if isinstance(self._law, SlidingModeYawController):
             self._law.reset()
@@ -112,18 +122,28 @@ class StabilityController:
     def __call__(self, t: np.ndarray, estimate, front_steer: np.ndarray, base_torques: np.ndarray) -> Command:
         u, beta, r = estimate.u, estimate.beta, estimate.r
         mu = self.planning_mu(estimate)
-        rear = rear_steer_feedforward(u, front_steer, self.params) if self.rear_steer else np.zeros_like(u)
+        rear = np.zeros_like(u)
+        if self.rear_steer:
+            target = rear_steer_feedforward(u, front_steer, self.params)
+            if self._rear is None:
+                self._rear = np.zeros_like(target)
+            step = getattr(self.params, "rear_steer_rate", np.inf) * self.dt
+            self._rear = rear = self._rear + np.clip(target - self._rear, -step, step)
+        if self._delivered is None:
+            self._delivered = np.zeros_like(u)
         # the 2-DOF steady state of the car as steered: front minus rear road-wheel angle
         steady = reference_yaw_rate(u, front_steer - rear, mu, self.params, self.reference_understeer)
         # first-order lag: the reference a well-behaved car can follow, not a step it cannot
         if self._reference is None:
             self._reference = steady.copy()
-        self._reference = self._reference + (steady - self._reference) * min(self.dt / REFERENCE_LAG, 1.0)
+        self._reference = self._reference + (steady - self._reference) * np.minimum(
+            self.dt / yaw_time_constant(u, self.params), 1.0)
         r_ref = self._reference
         bound = sideslip_bound(mu)
         shrunk_error = _deadband(r - r_ref, YAW_DEADBAND)
         shrunk_beta = _deadband(beta, 0.5 * bound)
-        moment = self._law(u, shrunk_beta, r_ref + shrunk_error, r_ref, front_steer, self.dt, mu)
+        moment = self._law(u, shrunk_beta, r_ref + shrunk_error, r_ref, front_steer, rear, self.dt, mu,
+                           self._delivered)
         # a moment that turns the car further (understeer correction) is faded out as |beta|
         # approaches its bound: at the friction limit more yaw moment only spins the car
         turning_further = np.sign(moment) == np.sign(r_ref)
@@ -132,7 +152,10 @@ class StabilityController:
         moment = np.where(np.abs(u) > ACTIVE_SPEED, moment, 0.0)
         self.last_allocation = allocate_for_estimate(base_torques, moment, estimate, self.params,
                                                      self.friction_ellipse, mu, front_steer, rear)
-        return Command(self.last_allocation.torques, rear)
+        lag = actuator_lag(u, self.params)
+        self._delivered = self._delivered + (self.last_allocation.yaw_moment - self._delivered) * np.minimum(
+            self.dt / np.maximum(lag, 1e-12), 1.0)
+        return Command(self.last_allocation.torques, rear.copy())
 
 
 def make_controller(name: str, params, dt: float = 0.002):
