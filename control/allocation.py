@@ -130,15 +130,23 @@ def _solve_box_qp(capacity_sq, weight, lever, lower, upper, force, moment, faces
     return best_cost < np.inf
 
 
+NEGATIVE_LOAD, NONPOSITIVE_FRICTION = -1, -2  #: statuses of _allocate for out-of-range inputs
+
+
 @numba.njit(**JIT)
 def _allocate(base_torques, yaw_moment, fz, mu, lateral, speed, front_steer, rear_steer, positions,
               motor_peak_torque, motor_peak_power, wheel_radius, torques, delivered_moment, delivered_force,
               feasible) -> int:
-    """Fills the outputs; returns 0, or 1 + the index of the first non-finite input."""
+    """Fills the outputs; returns 0, 1 + the index of the first non-finite input, or
+    NEGATIVE_LOAD / NONPOSITIVE_FRICTION."""
     for i, value in enumerate((base_torques.sum(), yaw_moment.sum(), fz.sum(), mu.sum(), lateral.sum(),
                                speed.sum(), front_steer.sum(), rear_steer.sum())):
         if not np.isfinite(value):
             return 1 + i
+    if fz.min() < 0.0:
+        return NEGATIVE_LOAD
+    if mu.min() <= 0.0:
+        return NONPOSITIVE_FRICTION
     upper, lower, x, capacity_sq = scratch((4,)), scratch((4,)), scratch((4,)), scratch((4,))
     weight, lever = scratch((4,)), scratch((4,))
     for b in range(base_torques.shape[0]):
@@ -247,6 +255,10 @@ def allocate_torques(base_torques: np.ndarray, yaw_moment: np.ndarray, fz: np.nd
     feasible = np.empty(B, dtype=np.bool_)
     bad = _allocate(*inputs, p.wheel_positions, float(p.motor_peak_torque),
                     float(p.motor_peak_power), float(p.wheel_radius), torques, moment, force, feasible)
+    if bad == NEGATIVE_LOAD:
+        raise ValueError(f"wheel loads must be >= 0 N, got {inputs[2][inputs[2] < 0.0][:4]}")
+    if bad == NONPOSITIVE_FRICTION:
+        raise ValueError(f"friction must be > 0, got {inputs[3][inputs[3] <= 0.0][:4]}")
     if bad:
         value = inputs[bad - 1]
         raise ValueError(f"{_INPUTS[bad - 1]} must be finite, got {value[~np.isfinite(value)][:4]}")

@@ -13,6 +13,7 @@ it in Python once per :func:`envs.vehicle.step` call.
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -24,8 +25,11 @@ from envs.vehicle import MU_MAX, S_PSI, S_X, S_Y, VehicleParams
 DRY, WET, SNOW, ICE = 0.9, 0.6, 0.25, 0.1  #: representative mu of common surfaces
 
 
-def _check_mu(name: str, value: float) -> float:
-    if not (isinstance(value, (int, float, np.floating)) and math.isfinite(value) and 0.0 < value <= MU_MAX):
+def check_mu(name: str, value: float) -> float:
+    """``value`` as a float if it is a friction coefficient in (0, MU_MAX] (any real number type,
+    not a bool); else ValueError naming ``name``."""
+    if not (isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)) and math.isfinite(value)
+            and 0.0 < value <= MU_MAX):
         raise ValueError(f"{name} must be a friction coefficient in (0, {MU_MAX}], got {value!r}")
     return float(value)
 
@@ -41,7 +45,7 @@ class Patch:
     mu: float
 
     def __post_init__(self) -> None:
-        _check_mu("Patch.mu", self.mu)
+        check_mu("Patch.mu", self.mu)
         for name in ("x0", "x1", "y0", "y1"):
             if math.isnan(getattr(self, name)):
                 raise ValueError(f"Patch.{name} is NaN")
@@ -68,7 +72,7 @@ class PatchMap(FrictionMap):
     patches: tuple[Patch, ...] = ()
 
     def __post_init__(self) -> None:
-        _check_mu("base mu", self.base)
+        check_mu("base mu", self.base)
         object.__setattr__(self, "patches", tuple(self.patches))
         for patch in self.patches:
             if not isinstance(patch, Patch):
@@ -88,25 +92,25 @@ class PatchMap(FrictionMap):
 
 def uniform(mu: float) -> PatchMap:
     """The same friction everywhere."""
-    return PatchMap(_check_mu("mu", mu))
+    return PatchMap(check_mu("mu", mu))
 
 
 def split(mu_left: float, mu_right: float, y_split: float = 0.0) -> PatchMap:
     """Left/right split: ``mu_left`` for Y >= ``y_split`` [m], ``mu_right`` below (ISO: +Y is left)."""
-    return PatchMap(_check_mu("mu_right", mu_right),
-                    (Patch(-math.inf, math.inf, y_split, math.inf, _check_mu("mu_left", mu_left)),))
+    return PatchMap(check_mu("mu_right", mu_right),
+                    (Patch(-math.inf, math.inf, y_split, math.inf, check_mu("mu_left", mu_left)),))
 
 
 def step_change(mu_before: float, mu_after: float, x_step: float) -> PatchMap:
     """Longitudinal step: ``mu_before`` for X < ``x_step`` [m], ``mu_after`` from there on."""
-    return PatchMap(_check_mu("mu_before", mu_before),
-                    (Patch(x_step, math.inf, -math.inf, math.inf, _check_mu("mu_after", mu_after)),))
+    return PatchMap(check_mu("mu_before", mu_before),
+                    (Patch(x_step, math.inf, -math.inf, math.inf, check_mu("mu_after", mu_after)),))
 
 
 def patch(mu_base: float, mu_patch: float, x0: float, x1: float,
           y0: float = -math.inf, y1: float = math.inf) -> PatchMap:
     """A single patch, e.g. ice ``patch(0.9, 0.1, 50, 80)`` across the whole road for 30 m."""
-    return PatchMap(_check_mu("mu_base", mu_base), (Patch(x0, x1, y0, y1, mu_patch),))
+    return PatchMap(check_mu("mu_base", mu_base), (Patch(x0, x1, y0, y1, mu_patch),))
 
 
 @dataclass(frozen=True)
@@ -129,7 +133,7 @@ def as_friction_map(road: FrictionMap | float | Callable) -> FrictionMap:
     """Accept a map, a number (uniform) or a callable ``mu(x, y)``."""
     if isinstance(road, FrictionMap):
         return road
-    if isinstance(road, (int, float, np.floating)) and not isinstance(road, bool):
+    if isinstance(road, numbers.Real) and not isinstance(road, (bool, np.bool_)):
         return uniform(float(road))
     if callable(road):
         return CallableMap(road)

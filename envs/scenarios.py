@@ -32,7 +32,7 @@ import numpy as np
 
 from envs import courses
 from envs.driver import Constant, PathFollower, Ramp, Sine, SineWithDwell, SpeedHold, Step, VectorisedDriver
-from envs.road import FrictionMap, PatchMap, as_friction_map, patch, split, uniform
+from envs.road import FrictionMap, PatchMap, as_friction_map, check_mu, patch, split, uniform
 from envs.vehicle import GRAVITY, VehicleParams, initial_state
 from estimation.jit import JIT
 
@@ -90,6 +90,19 @@ def _positive(name: str, value) -> float:
     return float(value)
 
 
+def _finite(name: str, value, minimum: float = -math.inf) -> float:
+    if not (is_number(value) and math.isfinite(value) and value >= minimum):
+        raise ValueError(f"{name} must be a finite number" + (f" >= {minimum:g}" if minimum > -math.inf else "")
+                         + f", got {value!r}")
+    return float(value)
+
+
+def _direction(direction) -> int:
+    if not (is_number(direction) and direction in (1, -1)):
+        raise ValueError(f"direction must be +1 (left) or -1 (right), got {direction!r}")
+    return int(direction)
+
+
 def _road(mu) -> FrictionMap:
     try:
         return as_friction_map(mu)
@@ -134,7 +147,7 @@ def paper_split_dlc(speed_kph=25.0, mu=(0.5, 0.3), duration=None, steering=None,
 def paper_step(speed_kph=40.0, mu=0.3, duration=10.0, steering=None, step_time=5.0, angle=1.0,
                rear_steer_feedforward=False, params=VehicleParams()) -> Scenario:
     """Paper 3.3.3 (2): steering-wheel step of ``angle`` [rad] (1 rad) at ``step_time`` (5 s), mu 0.3, 40 km/h."""
-    steering = steering if steering is not None else Step(angle, step_time)
+    steering = steering if steering is not None else Step(_finite("angle", angle), _finite("step_time", step_time, 0.0))
     return Scenario("paper_step", _positive("speed_kph", speed_kph), _road(mu), _positive("duration", duration),
                     steering, rear_steer_feedforward=rear_steer_feedforward, params=params)
 
@@ -162,9 +175,8 @@ def sine_with_dwell(speed_kph=80.0, mu=1.0, duration=5.0, steering=None, amplitu
     (+1 left, -1 right); speed held until the steering starts at ``start`` [s], then coasting.
     The amplitude series (1.5A ... max(6.5A, 270 deg), capped at 300 deg) and A come from
     :mod:`envs.fmvss126`."""
-    if direction not in (1, -1):
-        raise ValueError(f"direction must be +1 (left) or -1 (right), got {direction!r}")
-    amplitude = math.radians(_positive("amplitude_deg", amplitude_deg)) * direction
+    amplitude = math.radians(_positive("amplitude_deg", amplitude_deg)) * _direction(direction)
+    start = _finite("start", start, 0.0)
     steering = steering if steering is not None else SineWithDwell(amplitude, start)
     return Scenario("sine_with_dwell", _positive("speed_kph", speed_kph), _road(mu), _positive("duration", duration),
                     steering, coast_after=start, rear_steer_feedforward=rear_steer_feedforward,
@@ -177,7 +189,7 @@ def slowly_increasing_steer(speed_kph=80.0, mu=1.0, duration=None, steering=None
 
     Runs until the ramp would reach 0.55 g in the linear bicycle model (past the 0.5 g the
     procedure asks for) unless ``duration`` is given."""
-    rate = math.radians(_positive("rate_deg", rate_deg)) * direction
+    rate = math.radians(_positive("rate_deg", rate_deg)) * _direction(direction)
     speed = _positive("speed_kph", speed_kph) / 3.6
     if duration is None:
         swa_end = 0.55 * GRAVITY * params.wheelbase / speed**2 * params.steering_ratio
@@ -200,7 +212,8 @@ def iso3888_2(speed_kph=60.0, mu=1.0, duration=None, steering=None, rear_steer_f
 def mu_jump(speed_kph=60.0, mu=0.9, duration=6.0, steering=None, mu_patch=0.3, lateral_g=0.4, patch_x=25.0,
             rear_steer_feedforward=False, params=VehicleParams()) -> Scenario:
     """Steady cornering at ``lateral_g`` (neutral-steer steering-wheel angle) on ``mu``, onto a
-    ``mu_patch`` surface covering every X >= ``patch_x`` [m] (about 1.5 s into the turn)."""
+    ``mu_patch`` surface covering every X >= ``patch_x`` [m] (about 1.5 s into the turn). ``mu``
+    may be a patch map (e.g. a split road): its patches stay, the jump is laid over them."""
     speed = _positive("speed_kph", speed_kph) / 3.6
     if steering is None:
         delta = _positive("lateral_g", lateral_g) * GRAVITY * params.wheelbase / speed**2
@@ -208,7 +221,8 @@ def mu_jump(speed_kph=60.0, mu=0.9, duration=6.0, steering=None, mu_patch=0.3, l
     base = _road(mu)
     if not isinstance(base, PatchMap):
         raise ValueError(f"mu_jump needs a uniform or patch map as mu, got {mu!r}")
-    road = patch(base.base, mu_patch, patch_x, math.inf)
+    jump = patch(base.base, check_mu("mu_patch", mu_patch), patch_x, math.inf).patches
+    road = PatchMap(base.base, base.patches + jump)
     return Scenario("mu_jump", speed_kph, road, _positive("duration", duration), steering,
                     rear_steer_feedforward=rear_steer_feedforward, params=params)
 

@@ -142,7 +142,9 @@ def test_motor_power_limits_the_torque_at_speed():
 @pytest.mark.parametrize("bad, match", [({"yaw_moment": np.array([np.nan])}, "yaw moment"),
                                         ({"mu": np.full((1, 4), np.inf)}, "friction"),
                                         ({"fz": np.ones((1, 3))}, "shape"),
-                                        ({"front_steer": np.array([np.nan])}, "front steer")])
+                                        ({"front_steer": np.array([np.nan])}, "front steer"),
+                                        ({"mu": np.array([[1.0, 0.0, 1.0, 1.0]])}, "friction must be > 0"),
+                                        ({"fz": np.array([[1.0, -5.0, 1.0, 1.0]])}, "loads must be >= 0")])
 def test_bad_input_names_the_bad_value(bad, match):
     args = {"base_torques": np.zeros((1, 4)), "yaw_moment": np.zeros(1), "fz": np.ones((1, 4)),
             "mu": np.ones((1, 4))} | bad

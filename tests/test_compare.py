@@ -38,6 +38,19 @@ def test_cli_names_bad_scenarios_and_controllers():
         main(["swd", "--mu", "1.0", "--A", "16.6", "--controller", "rl:nowhere"])
     with pytest.raises(SystemExit, match="warp"):
         main(["swd", "--mu", "1.0", "--A", "16.6", "--controller", "warp"])
+    for args, match in ((["--mu", "0"], r"--mu must lie in \(0, 2\], got \[0.0\]"), (["--estimator", "nope"], "nope"),
+                        (["--A", "-5"], "-5.0"), (["--seed", "-2"], "-2")):
+        with pytest.raises(SystemExit, match=match):  # before the characterisation runs
+            main(["swd", *args])
+    with pytest.raises(SystemExit, match="kalman"):
+        main(["simulate", "paper_step", "--estimator", "kalman"])
+
+
+def test_integer_overrides_stay_integers():
+    """A seed override reaches the scenario as an int (a float seed is refused by numpy)."""
+    from training.compare import parse_scenario
+
+    assert parse_scenario("random:seed=3,speed_kph=50.5") == ("random", {"seed": 3, "speed_kph": 50.5})
 
 
 def test_report_is_reproducible_byte_for_byte_in_one_or_two_processes_and_the_fault_variant_bites(tmp_path):

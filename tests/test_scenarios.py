@@ -95,10 +95,22 @@ def test_speed_hold_feeds_forward_the_resistance_and_coasts():
     ("paper_sine", {"duration": float("nan")}, "nan"),
     ("paper_sine", {"colour": "red"}, "colour"),
     ("sine_with_dwell", {"direction": 2}, "2"),
+    ("sine_with_dwell", {"start": -1.0}, "start"),
+    ("paper_step", {"angle": float("nan")}, "angle"),
+    ("slowly_increasing_steer", {"direction": 0}, "direction"),
+    ("mu_jump", {"mu_patch": 0.0}, "mu_patch"),
 ])
 def test_bad_scenario_arguments_raise_value_error_naming_the_value(name, kwargs, bad):
     with pytest.raises(ValueError, match=bad):
         make_scenario(name, **kwargs)
+
+
+def test_mu_jump_lays_its_patch_over_the_given_road_and_numpy_frictions_are_numbers():
+    from envs.road import split
+
+    road = make_scenario("mu_jump", mu=split(0.9, 0.5), mu_patch=0.3).road
+    np.testing.assert_array_equal(road.mu_at(np.array([0.0, 0.0, 100.0]), np.array([1.0, -1.0, 1.0])), [0.9, 0.5, 0.3])
+    assert make_scenario("paper_step", mu=np.int64(1)).road.mu_at(np.zeros(1), np.zeros(1))[0] == 1.0
 
 
 def test_overrides_apply():

@@ -72,13 +72,24 @@ def _sine_with_dwell(args: argparse.Namespace) -> int:
     from envs.vehicle import VehicleParams
     from training.compare import build_controller
 
+    from estimation import check_estimator_name
+
+    try:  # fail early, before the characterisation, on every argument
+        if args.A is not None and not (math.isfinite(args.A) and args.A > 0):
+            raise ValueError(f"--A must be a positive steering-wheel angle [deg], got {args.A!r}")
+        bad_mu = [mu for mu in args.mu if not (math.isfinite(mu) and 0.0 < mu <= 2.0)]
+        if bad_mu:
+            raise ValueError(f"--mu must lie in (0, 2], got {bad_mu}")
+        check_estimator_name(args.estimator)
+        if args.seed < 0:
+            raise ValueError(f"--seed must be >= 0, got {args.seed}")
+        if args.controller != "none":
+            build_controller(args.controller, VehicleParams())  # a bad name or path
+    except (ValueError, FileNotFoundError) as err:
+        raise SystemExit(f"fourwis swd: {err}") from None
     A = math.radians(args.A) if args.A is not None else characterise()
     factory = None
     if args.controller != "none":
-        try:
-            build_controller(args.controller, VehicleParams())  # fail early on a bad name or path
-        except (ValueError, FileNotFoundError) as err:
-            raise SystemExit(f"fourwis swd: {err}") from None
         factory = functools.partial(build_controller, args.controller, VehicleParams())
     tables = []
     for mu in args.mu:

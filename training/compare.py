@@ -57,7 +57,7 @@ SENSOR_FAULTS = (Fault("yaw_rate", "spike", magnitude=0.2, rate=5.0), Fault("yaw
 FAULT_SUFFIX = "+faults"
 
 
-def parse_scenario(text: str) -> tuple[str, dict[str, float]]:
+def parse_scenario(text: str) -> tuple[str, dict[str, float | int]]:
     """Scenario name and numeric overrides of a comparison entry ``name[:key=value,...][+faults]``,
     e.g. ``iso3888_2:mu=0.5,speed_kph=50``; ``amplitude_A=k`` gives sine with dwell k times A;
     ``swd_wet`` stands for ``sine_with_dwell:mu=0.5,amplitude_A=5.5``; a ``+faults`` suffix runs
@@ -71,8 +71,8 @@ def parse_scenario(text: str) -> tuple[str, dict[str, float]]:
     overrides = {}
     for item in filter(None, rest.split(",")):
         key, sep, value = item.partition("=")
-        try:
-            overrides[key.strip()] = float(value)
+        try:  # an integer literal stays an int (a seed), anything else is a float
+            overrides[key.strip()] = int(value) if value.strip().lstrip("+-").isdigit() else float(value)
         except ValueError:
             sep = ""
         if not sep:
