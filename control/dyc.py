@@ -103,7 +103,8 @@ class SlidingModeYawController:
     Mz = I_z (r_ref_dot + lam beta_dot - f_r - eta sat(s / phi)) with f_r the 2-DOF yaw
     acceleration without Mz and beta_dot = (F_yf + F_yr) / (m u) - r; the boundary layer
     ``phi`` [rad/s] removes chattering (Slotine & Li 1991, ch. 7). ``lam`` weights sideslip
-    into the surface with the sign of the LQR's optimal gain: a car sliding out of a left turn
+    into the surface with the sign of this car's LQR gain on beta (tested; a strongly
+    understeering car's optimal gain can have the other sign): a car sliding out of a left turn
     (beta < 0) needs a clockwise moment, as a yaw rate above the reference does.
 
     The linear model's tyre forces grow without bound with slip; beyond the friction limit

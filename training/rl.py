@@ -315,9 +315,10 @@ class PolicyController:
     """A trained policy as a :class:`envs.simulation.Controller`: every ``control_dt`` it builds
     the env's observation from the *estimate* (normalised with the run's VecNormalize
     statistics), asks the policy for a deterministic action and holds it, turned into wheel
-    torques and rear steer exactly as the env does. Policies trained on ``observation="true"``
-    are evaluated with the oracle estimator; ``"sensors"`` policies need readings and are not
-    supported here."""
+    torques and rear steer exactly as the env does. A policy trained on ``observation="true"``
+    sees whatever estimate the loop runs (the truth only with the oracle: choose the estimator
+    accordingly, as README's truth-trained comparison does on purpose); ``"sensors"`` policies
+    need raw readings and are not supported here (``fourwis evaluate`` refuses them)."""
 
     def __init__(self, run: str | Path, params, dt: float = 0.002):
         model_path, normalizer_path, config_path = run_files(run)
