@@ -51,7 +51,8 @@ class WindowReplay:
                  valid: np.ndarray, factors: np.ndarray):
         n = len(factors)
         self.filter = StateEstimator(template.params, template.kind, template.dt, base_noise.scaled(factors),
-                                     template.nominal_mu, template.huber_c, template.zero_point_time_constant)
+                                     template.nominal_mu, template.huber_c, template.zero_point_time_constant,
+                                     template.stuck_samples)
         for name, value in snapshot.items():
             setattr(self.filter, name, np.repeat(value, n, axis=0))
         self.values, self.valid = values, valid
