@@ -90,7 +90,7 @@ class EnvConfig:
         except TypeError:
             faults = None
         if faults is None or not all(isinstance(f, Fault) for f in faults):
-            raise ValueError(f"sensor_faults must be envs.sensors.Fault instances, got {self.sensor_faults!r}")
+            raise ValueError(f"sensor_faults must be a sequence of envs.sensors.Fault, got {self.sensor_faults!r}")
         object.__setattr__(self, "sensor_faults", faults)
         if self.max_episode_steps is not None and not (_is_integer(self.max_episode_steps)
                                                        and self.max_episode_steps > 0):
@@ -98,6 +98,12 @@ class EnvConfig:
         if self.scenario_kwargs is not None and not (isinstance(self.scenario_kwargs, dict)
                                                      and all(isinstance(k, str) for k in self.scenario_kwargs)):
             raise ValueError(f"scenario_kwargs must be a dict of scenario arguments, got {self.scenario_kwargs!r}")
+        for key, value in (("speed_kph", self.speed_kph), ("mu", self.mu)):
+            if value is not None and key in (self.scenario_kwargs or {}):
+                raise ValueError(f"{key} is given both as an argument and in scenario_kwargs; give it once")
+        if self.scenario == "random" and "seed" in (self.scenario_kwargs or {}):
+            raise ValueError("the random scenario's seed is drawn from reset(seed=...) each episode; "
+                             "scenario_kwargs cannot fix it")
         if not isinstance(self.rear_steer, (bool, np.bool_)):
             raise ValueError(f"rear_steer must be True or False, got {self.rear_steer!r}")
         make_scenario(self.scenario, **self.overrides)  # validate the overrides now
@@ -418,7 +424,7 @@ class YawStabilityEnv(gym.Env):
     @property
     def core(self) -> YawStabilityCore:
         if self._core is None:
-            raise RuntimeError("call reset() before step()")
+            raise RuntimeError("call reset() before step() or render()")
         return self._core
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):

@@ -39,6 +39,9 @@ from estimation.jit import JIT
 Steering = Callable[[float, np.ndarray], float]
 
 
+MAX_SPEED_KPH = 300.0  #: fastest scenario speed [km/h] (far beyond the motors' top speed)
+
+
 @dataclass(frozen=True)
 class Scenario:
     """A manoeuvre: initial speed, road, driver inputs, duration.
@@ -60,6 +63,17 @@ class Scenario:
     reference_path: np.ndarray | None = None
     amplitude_deg: float | None = None
     params: VehicleParams = field(default_factory=VehicleParams)
+
+    def __post_init__(self) -> None:
+        if not callable(self.steering):
+            raise ValueError(f"steering must be a callable steering(t, plant_state) -> angle [rad], got "
+                             f"{self.steering!r}")
+        if not isinstance(self.rear_steer_feedforward, (bool, np.bool_)):
+            raise ValueError(f"rear_steer_feedforward must be True or False, got {self.rear_steer_feedforward!r}")
+        if not isinstance(self.params, VehicleParams):
+            raise ValueError(f"params must be a VehicleParams, got {self.params!r}")
+        if not (is_number(self.speed_kph) and 0.0 < self.speed_kph <= MAX_SPEED_KPH):
+            raise ValueError(f"speed_kph must lie in (0, {MAX_SPEED_KPH:g}], got {self.speed_kph!r}")
 
     @property
     def speed(self) -> float:
@@ -104,6 +118,10 @@ def _direction(direction) -> int:
 
 
 def _road(mu) -> FrictionMap:
+    """The road of a scenario's ``mu``: a friction coefficient, a (left, right) pair for a split
+    road (a list too, as JSON gives it), a FrictionMap or a callable mu(x, y)."""
+    if isinstance(mu, (tuple, list)) and len(mu) == 2 and all(is_number(m) for m in mu):
+        return split(mu_left=mu[0], mu_right=mu[1], y_split=0.0)
     try:
         return as_friction_map(mu)
     except ValueError as err:
@@ -138,8 +156,6 @@ def paper_split_dlc(speed_kph=25.0, mu=(0.5, 0.3), duration=None, steering=None,
                     params=VehicleParams()) -> Scenario:
     """Paper 4.3.1: double lane change on a left/right split road, ``mu = (left, right)`` = (0.5, 0.3), 25 km/h."""
     _positive("speed_kph", speed_kph)
-    if isinstance(mu, tuple) and len(mu) == 2:
-        mu = split(mu_left=mu[0], mu_right=mu[1], y_split=0.0)
     return _path_scenario("paper_split_dlc", courses.iso3888_1(*_body(params)), speed_kph, mu, duration, 20.0,
                           steering, params, rear_steer_feedforward=rear_steer_feedforward)
 

@@ -13,6 +13,7 @@ from gymnasium.vector import AutoresetMode
 
 import envs  # noqa: F401  (registers the environment)
 from envs.gym_env import PrivilegedObservation, YawStabilityEnv, YawStabilityVectorEnv
+from envs.sensors import Fault
 from envs.render import FRAME_HEIGHT, FRAME_WIDTH
 from envs.vehicle import S_DELTA_R
 
@@ -265,6 +266,27 @@ def test_rear_steer_is_optional_and_the_single_env_reports_one_car():
         gym.make("envs:FourWIS/YawStability-v0", warp=9)
 
 
+@pytest.mark.parametrize("kwargs, match", [
+    ({"scenario": "paper_step", "speed_kph": 50.0, "scenario_kwargs": {"speed_kph": 60.0}}, "both"),
+    ({"scenario_kwargs": {"seed": 3}}, "reset\\(seed"),
+    ({"scenario": "paper_step", "scenario_kwargs": {"steering": "x"}}, "steering"),
+    ({"scenario": "paper_step", "scenario_kwargs": {"rear_steer_feedforward": "yes"}}, "rear_steer_feedforward"),
+    ({"scenario": "paper_step", "speed_kph": 1e6}, "speed_kph"),
+    ({"sensor_faults": Fault("yaw_rate", "stuck", start=1.0, end=2.0)}, "sequence"),
+])
+def test_arguments_that_would_be_ignored_or_fail_later_are_refused_at_make(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        YawStabilityEnv(estimator="oracle", **kwargs)
+
+
+def test_a_split_friction_list_from_json_is_a_split_road_and_render_wants_a_reset():
+    env = YawStabilityEnv(scenario="paper_step", mu=[0.9, 0.3], estimator="oracle", render_mode="rgb_array")
+    with pytest.raises(RuntimeError, match="reset"):
+        env.render()
+    env.reset(seed=0)
+    assert sorted(set(env.core.loop.scenarios[0].road.mu_at(np.zeros(2), np.array([1.0, -1.0])))) == [0.3, 0.9]
+
+
 def test_random_actions_100k_vector_steps_stay_finite():
     """100,000 env steps (4 scenarios x 25 cars x 1,000 steps) of random wheel torques with the
     native vector env: every observation, reward and true state finite."""
@@ -353,7 +375,6 @@ def test_privileged_observation_appends_the_truth():
 def test_friction_speed_and_sensor_fault_arguments_reach_the_episode():
     """mu and speed_kph set the scenario's road and speed; a stuck gyro (from 0.5 s) freezes the
     yaw-rate channel of the sensors observation while the car turns."""
-    from envs.sensors import Fault
 
     env = gym.make("envs:FourWIS/YawStability-v0", scenario="paper_sine", mu=0.4, speed_kph=30.0, estimator="oracle",
                    observation="sensors", sensor_faults=(Fault("yaw_rate", "stuck", start=0.5),))

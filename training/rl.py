@@ -22,7 +22,7 @@ import os
 import pickle
 import shutil
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -215,7 +215,8 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs:
     try:
         EnvConfig(**env_kwargs)  # validate now, with clear errors
     except TypeError as err:
-        raise ValueError(f"bad env_kwargs {env_kwargs!r}: {err}") from None
+        raise ValueError(f"bad env_kwargs {env_kwargs!r}: {err}; known: {[f.name for f in fields(EnvConfig)]}") \
+            from None
     if resume is not None:
         _check_resumable(resume, algo, env_kwargs)
     from stable_baselines3.common.noise import NormalActionNoise
