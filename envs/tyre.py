@@ -29,6 +29,7 @@ opposes it: ``Fy = -F(alpha)`` with ``F`` odd and increasing near zero.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 
 import numba
@@ -76,6 +77,14 @@ class TyreParams:
     rey2: float = -0.0022958
     pty1: float = 1.8473
     pty2: float = 1.9465
+
+    def __post_init__(self) -> None:
+        bad = [f.name for f in fields(self) if not math.isfinite(getattr(self, f.name))]
+        if bad:
+            raise ValueError(f"TyreParams {bad} must be finite")
+        for name in ("nominal_load", "unloaded_radius", "pcx1", "pcy1", "pdx1", "pdy1", "pkx1", "pky1", "pky2"):
+            if not getattr(self, name) > 0.0:  # divisors and the curves' sizes
+                raise ValueError(f"TyreParams.{name} must be > 0, got {getattr(self, name)!r}")
 
     def as_array(self) -> np.ndarray:
         """Coefficients in field order, shape (N_TYRE_COEFFS,), for the compiled kernel."""
@@ -177,6 +186,9 @@ def tyre_forces(tyre: TyreParams, fz, kappa, tan_alpha, mu_road=1.0, reference_l
                                                           for a in (fz, kappa, tan_alpha, mu_road)))
     if not np.all(fz > 0.0):
         raise ValueError(f"tyre load must be > 0 N, got min {fz.min()!r}")
+    good = np.isfinite(mu_road) & (mu_road > 0.0)
+    if not np.all(good):
+        raise ValueError(f"mu_road must be finite and > 0, got {mu_road[~good][:4]}")
     ref = tyre.nominal_load if reference_load is None else reference_load
     mux_ref, muy_ref = tyre.peak_friction(ref)
     fx = np.empty(fz.size)

@@ -102,3 +102,14 @@ def test_ratio_section_divides_each_sideslip_rmse_by_fkfs():
     assert "| paper_dlc | 0.500 | 1.250 |" in text and "| paper_step | 0.500 | 1.250 |" in text
     assert "0.058 (0.0003 / 0.0052)" in text  # the paper's ALO-FKF / FKF on its DLC
     assert "relative to fkf" not in markdown_report(table, scenarios, ("alo-fkf", "joint"), 1)
+
+
+def test_the_convergence_column_tells_a_true_mu_from_a_nominal_one():
+    """An estimator that reports the truth's mu (oracle, +true-mu) is labelled so, not as holding
+    a nominal mu (ckf on paper_sine even holds the road's 0.8)."""
+    from training.estimate import _convergence
+
+    held = {"mu_estimated": 0.0, "mu_convergence_time": math.nan}
+    assert _convergence(held, "joint+true-mu") == _convergence(held, "oracle") == "n/a (true mu)"
+    assert _convergence(held, "joint+true-beta") == _convergence(held, "ckf") == "n/a (nominal mu)"
+    assert _convergence({"mu_estimated": 1.0, "mu_convergence_time": 1.25}, "joint") == "1.25"

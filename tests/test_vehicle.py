@@ -265,3 +265,14 @@ def test_bad_input_raises_value_error_naming_the_value():
         VehicleParams(mass=-830.0)
     with pytest.raises(ValueError, match="dt"):
         step(state, controls, P, uniform(1.0), dt=float("nan"))
+
+
+def test_bad_tyre_coefficients_and_road_friction_are_named():
+    from envs.tyre import TyreParams, tyre_forces
+
+    with pytest.raises(ValueError, match="nominal_load"):  # it divides every load
+        TyreParams(nominal_load=0.0)
+    with pytest.raises(ValueError, match="pdy2"):
+        TyreParams(pdy2=float("nan"))
+    with pytest.raises(ValueError, match="mu_road"):  # -1 mirrored the forces
+        tyre_forces(TyreParams(), 3000.0, 0.0, 0.1, mu_road=-1.0)

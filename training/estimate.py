@@ -21,6 +21,7 @@ from envs.metrics import mae, rmse
 from envs.scenarios import PAPER_SCENARIOS, Scenario, make_scenario
 from envs.simulation import Trajectory, simulate
 from estimation import ESTIMATORS, Estimate, check_estimator_name
+from estimation.oracle import TRUE_SUFFIX
 from training.io import atomic_write, atomic_write_text
 from training.pool import parallel_map
 from training.tables import mean_over_seeds, write_runs_csv
@@ -130,7 +131,10 @@ def _fmt(value: float, digits: int = 5) -> str:
     return "—" if not math.isfinite(value) else f"{value:.{digits}f}"
 
 
-def _convergence(m: dict[str, float]) -> str:
+def _convergence(m: dict[str, float], estimator: str) -> str:
+    base, _, groups = estimator.partition(TRUE_SUFFIX)
+    if base == "oracle" or "mu" in groups.split("-"):
+        return "n/a (true mu)"
     if not m["mu_estimated"]:
         return "n/a (nominal mu)"
     return "never" if not math.isfinite(m["mu_convergence_time"]) else f"{m['mu_convergence_time']:.2f}"
@@ -152,7 +156,7 @@ def markdown_report(table: dict, scenarios: Sequence[Scenario], estimators: Sequ
         for e in estimators:
             m = table[(s.name, e)]
             lines.append(f"| {e} | " + " | ".join(_fmt(m[k]) for k in METRICS[:6])
-                         + f" | {_fmt(m['mu_error_last_half'], 3)} | {_convergence(m)} |")
+                         + f" | {_fmt(m['mu_error_last_half'], 3)} | {_convergence(m, e)} |")
         lines.append("")
     lines += ["## The paper's Table 2 beside ours", "",
               "Table 2 of *Joint Estimation of Driving State and Road Surface Adhesion Coefficient of a "
