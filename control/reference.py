@@ -20,6 +20,7 @@ from estimation.jit import JIT
 GRAVITY = 9.81  #: [m/s^2]
 FRICTION_USE = 0.85  #: share of mu*g the reference may ask for (Rajamani 2012, sec. 8.5)
 MIN_SPEED = 1.0  #: speed floor in divisions [m/s]
+MAX_YAW_TIME_CONSTANT = 0.5  #: cap of yaw_time_constant [s] (this car: 0.25 s at 40 m/s)
 
 
 def understeer_gradient(params) -> float:
@@ -44,7 +45,9 @@ def yaw_time_constant(u: np.ndarray, params) -> np.ndarray:
     """Time constant (B,) [s] of the linear 2-DOF model's slower mode at speed u [m/s]:
     -1 / max Re(eig A(u)) (:func:`control.dyc.bicycle_matrices`), from the 2 x 2 matrix's trace
     and determinant. The car answers a steering input this fast: ~0.036 s at 20 km/h and 0.16 s
-    at 90 km/h on this car (the time constant grows with speed, as the model's damping falls)."""
+    at 90 km/h on this car (the time constant grows with speed, as the model's damping falls).
+    At most MAX_YAW_TIME_CONSTANT: an oversteering car near or above its critical speed has a
+    slow or unstable mode, which no reference should follow."""
     c_f, c_r = params.axle_cornering_stiffness
     m, iz, a, b = params.mass, params.yaw_inertia, params.cg_to_front, params.cg_to_rear
     u = np.maximum(np.abs(np.asarray(u, dtype=float)), MIN_SPEED)
@@ -52,7 +55,7 @@ def yaw_time_constant(u: np.ndarray, params) -> np.ndarray:
     a21, a22 = (b * c_r - a * c_f) / iz, -(a**2 * c_f + b**2 * c_r) / (iz * u)
     half_trace, det = 0.5 * (a11 + a22), a11 * a22 - a12 * a21
     slower = half_trace + np.sqrt(np.maximum(half_trace**2 - det, 0.0))  # real part of the slower eigenvalue
-    return -1.0 / slower
+    return 1.0 / np.maximum(-slower, 1.0 / MAX_YAW_TIME_CONSTANT)
 
 
 def sideslip_bound(mu: np.ndarray) -> np.ndarray:

@@ -321,7 +321,7 @@ def noise_matrix(M: np.ndarray, shape: tuple[int, ...], name: str) -> np.ndarray
     """A noise covariance (k, k) or (B, k, k) as a contiguous (B, k, k) float64 array (``shape``),
     checked: finite, symmetric and positive semi-definite (ValueError naming ``name`` otherwise)."""
     given = np.asarray(M, dtype=np.float64)
-    if given.shape not in (shape[-2:], shape):
+    if given.shape not in (shape[-2:], (1, *shape[-2:]), shape):
         raise ValueError(f"{name} must have shape {shape[-2:]} or {shape}, got {given.shape}")
     if not np.all(np.isfinite(given)):
         raise ValueError(f"{name} must be finite, got {given!r}")

@@ -144,8 +144,14 @@ class NoiseParams:
                 raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)!r}")
         for name in ("accel_std", "gyro_std", "wheel_speed_std", "mu_accel_std", "mu_max_std"):
             value = np.asarray(getattr(self, name), dtype=float)
-            if value.ndim > 1 or not np.all(np.isfinite(value) & (value > 0.0)):
-                raise ValueError(f"{name} must be finite and > 0 (scalar or (B,)), got {getattr(self, name)!r}")
+            per_member = name in ("accel_std", "gyro_std", "wheel_speed_std")  # (B,) allowed
+            if value.ndim > int(per_member) or not np.all(np.isfinite(value) & (value > 0.0)):
+                raise ValueError(f"{name} must be finite and > 0 ({'scalar or (B,)' if per_member else 'a scalar'}), "
+                                 f"got {getattr(self, name)!r}")
+        sizes = {len(process) if process.ndim == 2 else 1} | {np.asarray(getattr(self, name)).size for name in
+                                                              ("accel_std", "gyro_std", "wheel_speed_std")}
+        if len(sizes - {1}) > 1:
+            raise ValueError(f"per-member noise fields disagree on the number of members: {sorted(sizes)}")
 
     def scaled(self, log10_factors: np.ndarray) -> "NoiseParams":
         """Scale (process_std, accel_std, gyro_std, wheel_speed_std) by 10**factors: (4,) for
@@ -619,10 +625,13 @@ class StateEstimator:
     def set_noise(self, noise: NoiseParams) -> None:
         """Use ``noise`` from the next step on (shared, or per member: see NoiseParams.scaled)."""
         self.noise = noise
-        self._process_var = np.ascontiguousarray(np.atleast_2d(np.square(np.asarray(noise.process_std, float))))
+        process_var = np.atleast_2d(np.square(np.asarray(noise.process_std, float)))
         sensor_std = np.broadcast_arrays(*(np.atleast_1d(np.asarray(s, dtype=float))
                                            for s in (noise.accel_std, noise.gyro_std, noise.wheel_speed_std)))
-        self._sensor_var = np.ascontiguousarray(np.square(np.stack(sensor_std, axis=1)))
+        sensor_var = np.square(np.stack(sensor_std, axis=1))
+        members = max(len(process_var), len(sensor_var))  # the kernel reads both at one member's row
+        self._process_var = np.ascontiguousarray(np.broadcast_to(process_var, (members, N_STATE)))
+        self._sensor_var = np.ascontiguousarray(np.broadcast_to(sensor_var, (members, 3)))
         self._mu_var = np.square(np.array([noise.mu_walk_std, noise.mu_accel_std, noise.mu_max_std], dtype=float))
 
     # ---- set-up -------------------------------------------------------------------------

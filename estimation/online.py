@@ -105,6 +105,11 @@ class OnlineTuner:
         self._thread: threading.Thread | None = None
 
     # ---- the filter side ----------------------------------------------------------------
+    @property
+    def dt(self) -> float:
+        """The tuned filter's step [s]."""
+        return self.estimator.dt
+
     def reset(self, reading, initial_speed: np.ndarray, mask: np.ndarray | None = None) -> None:
         if np.asarray(reading.values).shape[0] != 1:
             raise ValueError("OnlineTuner tunes one vehicle's filter; use one tuner per vehicle")

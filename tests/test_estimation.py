@@ -481,7 +481,8 @@ def test_a_stuck_gyro_is_detected_and_bridged_by_the_model(name):
     # plain CKF follows it, the robust joint filter's Huber weights only soften it
     trusting = make_estimator(name, VehicleParams(), stuck_samples=math.inf)
     traj = simulate("paper_sine", estimator=trusting, seed=4, faults=faults)
-    assert rmse(traj.estimate.r[window], traj.truth.r[window]) > 1.5 * checked
+    unchecked = rmse(traj.estimate.r[window], traj.truth.r[window])
+    assert unchecked > (0.5 * sensor_error if name == "ckf" else 1.5 * checked)
 
 
 def test_the_kernel_cache_follows_every_compiled_module(tmp_path):
@@ -608,7 +609,8 @@ def test_a_standing_or_creeping_car_keeps_its_friction_and_a_bounded_sideslip(sp
     rest are noise over a floored speed, which once drove Dugoff's lambda below 1 and mu to its
     0.1 bound (0.31 after 2 s at rest) with a confident covariance. Below MU_MIN_SPEED the
     friction filter holds mu and its covariance; the sideslip stays within 3 deg (v noise over
-    a floored 1 m/s) and is not reported with a tiny sigma while it is that uncertain."""
+    a floored 1 m/s) and, after the first second, within 3 of its reported sigmas (measured
+    <= 0.43; at rest the sigma was 0 while the sideslip reached 88 deg)."""
     from envs.sensors import SensorReading
     from estimation.joint import MU_MIN_SPEED
 
@@ -630,6 +632,8 @@ def test_a_standing_or_creeping_car_keeps_its_friction_and_a_bounded_sideslip(sp
         if k == 0:
             mu0, std0 = e.mu.copy(), e.mu_std.copy()
         assert abs(e.beta[0]) < math.radians(3.0)
+        if k >= 500:
+            assert abs(e.beta[0]) <= 3.0 * e.beta_std[0]
     np.testing.assert_array_equal(e.mu, mu0)
     np.testing.assert_array_equal(e.mu_std, std0)
 
@@ -663,6 +667,14 @@ def test_estimator_input_errors_name_the_bad_value():
         replace(NoiseParams(), accel_std=-0.1)
     with pytest.raises(ValueError, match="gyro_std"):
         NoiseParams(gyro_std=math.nan)
+    with pytest.raises(ValueError, match="mu_accel_std"):  # shared by the batch
+        NoiseParams(mu_accel_std=np.array([0.3, 0.6]))
+    with pytest.raises(ValueError, match="number of members"):
+        NoiseParams(accel_std=np.array([0.1, 0.2]), gyro_std=np.array([0.01, 0.02, 0.03]))
+    # per-member sensor noise with a shared process noise reaches every member's row
+    two = make_estimator("ckf", params, noise=NoiseParams(accel_std=np.array([0.1, 10.0])))
+    np.testing.assert_allclose(two._sensor_var[:, 0], [0.01, 100.0], rtol=1e-12)
+    assert two._process_var.shape == (2, 6)
     with pytest.raises(ValueError, match="dt = 0.01"):
         simulate("paper_step", estimator=make_estimator("joint", params, dt=0.01))
 
@@ -673,6 +685,8 @@ def test_the_reusable_filters_refuse_bad_noise_and_sharing_coefficients():
     def f(points):
         return points
 
+    np.testing.assert_allclose(ckf_predict(np.zeros((2, 2)), np.stack([np.eye(2)] * 2), f, np.eye(2)[None])[1][1],
+                               2.0 * np.eye(2))  # a (1, n, n) Q serves the batch
     for Q, match in ((np.full((2, 2), np.nan), "finite"), (-np.eye(2), "positive semi-definite"),
                      (np.array([[1.0, 0.5], [0.0, 1.0]]), "symmetric"), (np.eye(3), "shape")):
         with pytest.raises(ValueError, match=match):
