@@ -10,7 +10,7 @@ from typing import NamedTuple
 import numpy as np
 
 from control.allocation import Allocation, allocate_for_estimate, allocate_torques
-from control.dyc import LQRYawController, LQRWeights, SlidingModeYawController, actuator_lag
+from control.dyc import LQRYawController, LQRWeights, SlidingModeYawController
 from control.reference import rear_steer_feedforward, reference_yaw_rate, sideslip_bound, yaw_time_constant
 
 CONTROLLERS = ("none", "dyc-lqr", "dyc-smc", "dyc-lqr-4ws", "dyc-smc-4ws")
@@ -49,8 +49,9 @@ class StabilityController:
     With the eq. 20 rear steer the controller's rear angle moves at most at the rear servo's
     rate (``params.rear_steer_rate``), so the reference is built on an angle the car has.
 
-    The LQR law is told the yaw moment the wheels deliver now: the allocation's delivered
-    moment through the actuator lag (:func:`control.dyc.actuator_lag`) it was designed with.
+    The LQR law is told the moment the allocation delivered (:meth:`LQRYawController.note_delivered`),
+    which reaches the car through the actuator lag (:func:`control.dyc.actuator_lag`) it was
+    designed with.
 
     The law acts on the yaw-rate error outside a deadband of 0.02 rad/s (smoothly: the error
     is shrunk by the deadband) and on sideslip beyond half the mu-dependent bound, so that
@@ -100,16 +101,13 @@ class StabilityController:
             raise ValueError(f"unknown yaw-moment law {self.law!r}; known: ['lqr', 'smc']")
         self._reference = None
         self._rear = None
-        self._delivered = None
         self.last_allocation: Allocation | None = None
 
     def reset(self) -> None:
         self._reference = None
         self._rear = None
-        self._delivered = None
         self.last_allocation = None
-        if isinstance(self._law, SlidingModeYawController):
-            self._law.reset()
+        self._law.reset()
 
     def planning_mu(self, estimate) -> np.ndarray:
         """Per-wheel friction (B, 4) the controller plans with (see the class docstring)."""
@@ -129,8 +127,6 @@ class StabilityController:
                 self._rear = np.zeros_like(target)
             step = getattr(self.params, "rear_steer_rate", np.inf) * self.dt
             self._rear = rear = self._rear + np.clip(target - self._rear, -step, step)
-        if self._delivered is None:
-            self._delivered = np.zeros_like(u)
         # the 2-DOF steady state of the car as steered: front minus rear road-wheel angle
         steady = reference_yaw_rate(u, front_steer - rear, mu, self.params, self.reference_understeer)
         # first-order lag: the reference a well-behaved car can follow, not a step it cannot
@@ -142,8 +138,7 @@ class StabilityController:
         bound = sideslip_bound(mu)
         shrunk_error = _deadband(r - r_ref, YAW_DEADBAND)
         shrunk_beta = _deadband(beta, 0.5 * bound)
-        moment = self._law(u, shrunk_beta, r_ref + shrunk_error, r_ref, front_steer, rear, self.dt, mu,
-                           self._delivered)
+        moment = self._law(u, shrunk_beta, r_ref + shrunk_error, r_ref, front_steer, rear, self.dt, mu)
         # a moment that turns the car further (understeer correction) is faded out as |beta|
         # approaches its bound: at the friction limit more yaw moment only spins the car
         turning_further = np.sign(moment) == np.sign(r_ref)
@@ -152,9 +147,8 @@ class StabilityController:
         moment = np.where(np.abs(u) > ACTIVE_SPEED, moment, 0.0)
         self.last_allocation = allocate_for_estimate(base_torques, moment, estimate, self.params,
                                                      self.friction_ellipse, mu, front_steer, rear)
-        lag = actuator_lag(u, self.params)
-        self._delivered = self._delivered + (self.last_allocation.yaw_moment - self._delivered) * np.minimum(
-            self.dt / np.maximum(lag, 1e-12), 1.0)
+        if isinstance(self._law, LQRYawController):
+            self._law.note_delivered(self.last_allocation.yaw_moment, u, self.dt)
         return Command(self.last_allocation.torques, rear.copy())
 
 

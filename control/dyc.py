@@ -14,30 +14,34 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.linalg import solve_continuous_are
 
-from control.reference import GRAVITY
+from control.reference import GRAVITY, bicycle_state_matrix
 
 
 def bicycle_matrices(u: float, params) -> tuple[np.ndarray, np.ndarray]:
     """(A, B_mz) of the 2-DOF model at speed ``u`` [m/s] for states [beta, r] and input Mz."""
-    c_f, c_r = params.axle_cornering_stiffness
-    m, iz, a, b = params.mass, params.yaw_inertia, params.cg_to_front, params.cg_to_rear
-    A = np.array([[-(c_f + c_r) / (m * u), (b * c_r - a * c_f) / (m * u**2) - 1.0],
-                  [(b * c_r - a * c_f) / iz, -(a**2 * c_f + b**2 * c_r) / (iz * u)]])
-    return A, np.array([[0.0], [1.0 / iz]])
+    a11, a12, a21, a22 = bicycle_state_matrix(u, params)
+    return np.array([[a11, a12], [a21, a22]]), np.array([[0.0], [1.0 / params.yaw_inertia]])
 
 
-def actuator_lag(u, params):
+def actuator_lag_terms(params) -> tuple[float, float]:
+    """(motor torque lag [s], longitudinal relaxation length sigma_kappa at the static wheel load
+    [m]) of :func:`actuator_lag`; (0, 0) for a parameter object without a motor lag and tyre."""
+    if not (hasattr(params, "motor_time_constant") and hasattr(params, "tyre")):
+        return 0.0, 0.0
+    from envs.tyre import relaxation_lengths
+
+    return params.motor_time_constant, relaxation_lengths(params.kernel_tyre_array, params.reference_wheel_load)[0]
+
+
+def actuator_lag(u, params, terms: tuple[float, float] | None = None):
     """Time constant [s] of the delivered yaw moment behind the commanded one at speed ``u``
     [m/s]: the motors' torque lag plus the longitudinal tyre force's build-up over its
     relaxation length at the static wheel load, sigma_kappa / u (Pacejka, Tire and Vehicle
     Dynamics, 3rd ed., sec. 7.2): 28 ms at 80 km/h, 80 ms at 20 km/h on this car. ``u`` scalar
-    or (B,). Zero for a parameter object without a motor lag and tyre (a bare 2-DOF description)."""
-    if not (hasattr(params, "motor_time_constant") and hasattr(params, "tyre")):
-        return np.zeros_like(np.asarray(u, dtype=float))
-    from envs.tyre import relaxation_lengths
-
-    sigma_kappa = relaxation_lengths(params.tyre.as_array(), params.reference_wheel_load)[0]
-    return params.motor_time_constant + sigma_kappa / np.maximum(np.abs(np.asarray(u, dtype=float)), 1.0)
+    or (B,); ``terms``: :func:`actuator_lag_terms` of ``params`` if already at hand. Zero for a
+    parameter object without a motor lag and tyre (a bare 2-DOF description)."""
+    motor, sigma_kappa = actuator_lag_terms(params) if terms is None else terms
+    return motor + sigma_kappa / np.maximum(np.abs(np.asarray(u, dtype=float)), 1.0)
 
 
 @dataclass(frozen=True)
@@ -51,14 +55,14 @@ class LQRWeights:
 
 @dataclass
 class LQRYawController:
-    """Gain-scheduled LQR aware of the actuator's lag: Mz = -K(u) [beta, r - r_ref, M], with M
-    the yaw moment the wheels deliver now (a first-order lag :func:`actuator_lag` behind what was
-    commanded; the caller tracks it). K from the continuous Riccati equation of the 2-DOF model
-    augmented with that lag, M_dot = (Mz - M) / tau(u), on a speed grid (3-45 m/s), interpolated
-    linearly in u. Designed without the lag, the gains that suit 80 km/h leave the loop with
-    damping ratio ~0.4 there and, at 20 km/h where the tyres' force build-up (sigma / u) is
-    slower than the car's yaw response, commanded moments the tyres could not follow: the
-    wheels spun up and the car oscillated in a gentle turn (README, "Control"). With it: damping
+    """Gain-scheduled LQR aware of the actuator's lag: Mz = -K(u) [beta, r - r_ref, M], with M the yaw
+    moment the wheels deliver now (a first-order lag :func:`actuator_lag` behind what they were
+    given, which the caller reports through :meth:`note_delivered`). K from the continuous Riccati
+    equation of the 2-DOF model augmented with that lag, M_dot = (Mz - M) / tau(u), on a speed grid
+    (3-45 m/s), interpolated linearly in u. Designed without the lag, the gains that suit 80 km/h
+    leave the loop with damping ratio ~0.4 there and, at 20 km/h where the tyres' force build-up
+    (sigma / u) is slower than the car's yaw response, commanded moments the tyres could not follow:
+    the wheels spun up and the car oscillated in a gentle turn (README, "Control"). With it: damping
     ~0.8 at every speed, and 2.5x lower yaw-rate gain at 20 km/h."""
 
     params: object
@@ -70,10 +74,12 @@ class LQRYawController:
         if min(w.beta, w.yaw_rate_error, w.yaw_moment) <= 0:
             raise ValueError(f"LQR weights must be > 0, got {w}")
         R = np.array([[1 / w.yaw_moment**2]])
+        self._lag_terms = actuator_lag_terms(self.params)
+        self._delivered: np.ndarray | None = None
         gains = []
         for u in self.speeds:
             A, B = bicycle_matrices(float(u), self.params)
-            tau = float(actuator_lag(float(u), self.params))
+            tau = float(actuator_lag(float(u), self.params, self._lag_terms))
             if tau > 0.0:  # states [beta, r, M], input the commanded moment
                 A = np.block([[A, B], [np.zeros((1, 2)), np.full((1, 1), -1.0 / tau)]])
                 B = np.array([[0.0], [0.0], [1.0 / tau]])
@@ -88,13 +94,23 @@ class LQRYawController:
         u = np.clip(np.abs(u), self.speeds[0], self.speeds[-1])
         return np.stack([np.interp(u, self.speeds, self.gains[:, j]) for j in range(3)], axis=-1)
 
-    def __call__(self, u, beta, r, r_ref, delta_f, delta_r, dt: float, mu: np.ndarray | None = None,
-                 delivered: np.ndarray | None = None) -> np.ndarray:
-        """Mz (B,) [N m]; the steer angles enter through the reference only (pure state feedback);
-        ``delivered``: the moment the wheels deliver now [N m] (B,) (None: zero)."""
+    def reset(self) -> None:
+        self._delivered = None
+
+    def note_delivered(self, moment: np.ndarray, u: np.ndarray, dt: float) -> None:
+        """The wheels were given ``moment`` (B,) [N m] for ``dt`` [s] at speed ``u``: the moment
+        they deliver follows it through the actuator lag."""
+        if self._delivered is None:
+            self._delivered = np.zeros_like(moment)
+        lag = actuator_lag(u, self.params, self._lag_terms)
+        self._delivered = self._delivered + (moment - self._delivered) * np.minimum(dt / np.maximum(lag, 1e-12), 1.0)
+
+    def __call__(self, u, beta, r, r_ref, delta_f, delta_r, dt: float, mu: np.ndarray | None = None) -> np.ndarray:
+        """Mz (B,) [N m]; the steer angles enter through the reference only (pure state feedback),
+        the moment the wheels deliver now through :meth:`note_delivered` (zero before)."""
         k = self.gain(u)
         moment = -(k[:, 0] * beta + k[:, 1] * (r - r_ref))
-        return moment if delivered is None else moment - k[:, 2] * delivered
+        return moment if self._delivered is None else moment - k[:, 2] * self._delivered
 
 
 @dataclass
@@ -128,11 +144,9 @@ class SlidingModeYawController:
     def reset(self) -> None:
         self._previous_ref = None
 
-    def __call__(self, u, beta, r, r_ref, delta_f, delta_r, dt: float, mu: np.ndarray | None = None,
-                 delivered: np.ndarray | None = None) -> np.ndarray:
+    def __call__(self, u, beta, r, r_ref, delta_f, delta_r, dt: float, mu: np.ndarray | None = None) -> np.ndarray:
         """Mz (B,) [N m] at speed u, sideslip beta, yaw rate r and reference r_ref (B,), front and
-        rear road-wheel angles delta_f, delta_r [rad] (B,), per-wheel mu (B, 4); ``delivered``
-        (the LQR's actuator state) is not used."""
+        rear road-wheel angles delta_f, delta_r [rad] (B,), per-wheel mu (B, 4)."""
         p = self.params
         c_f, c_r = p.axle_cornering_stiffness
         a, b, iz, m, L = p.cg_to_front, p.cg_to_rear, p.yaw_inertia, p.mass, p.wheelbase

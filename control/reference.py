@@ -41,18 +41,24 @@ def reference_yaw_rate(u: np.ndarray, delta_f: np.ndarray, mu: np.ndarray, param
     return np.clip(steady, -limit, limit)
 
 
+def bicycle_state_matrix(u, params) -> tuple:
+    """Entries (a11, a12, a21, a22) of the linear 2-DOF model's state matrix for [beta, r] at
+    speed ``u`` [m/s] (scalar or (B,)), per-axle stiffnesses (Rajamani 2012, sec. 2.3):
+    beta_dot = a11 beta + a12 r, r_dot = a21 beta + a22 r (plus the steer and moment inputs)."""
+    c_f, c_r = params.axle_cornering_stiffness
+    m, iz, a, b = params.mass, params.yaw_inertia, params.cg_to_front, params.cg_to_rear
+    return (-(c_f + c_r) / (m * u), (b * c_r - a * c_f) / (m * u**2) - 1.0,
+            (b * c_r - a * c_f) / iz, -(a**2 * c_f + b**2 * c_r) / (iz * u))
+
+
 def yaw_time_constant(u: np.ndarray, params) -> np.ndarray:
     """Time constant (B,) [s] of the linear 2-DOF model's slower mode at speed u [m/s]:
-    -1 / max Re(eig A(u)) (:func:`control.dyc.bicycle_matrices`), from the 2 x 2 matrix's trace
+    -1 / max Re(eig A(u)) (:func:`bicycle_state_matrix`), from the 2 x 2 matrix's trace
     and determinant. The car answers a steering input this fast: ~0.036 s at 20 km/h and 0.16 s
     at 90 km/h on this car (the time constant grows with speed, as the model's damping falls).
     At most MAX_YAW_TIME_CONSTANT: an oversteering car near or above its critical speed has a
     slow or unstable mode, which no reference should follow."""
-    c_f, c_r = params.axle_cornering_stiffness
-    m, iz, a, b = params.mass, params.yaw_inertia, params.cg_to_front, params.cg_to_rear
-    u = np.maximum(np.abs(np.asarray(u, dtype=float)), MIN_SPEED)
-    a11, a12 = -(c_f + c_r) / (m * u), (b * c_r - a * c_f) / (m * u**2) - 1.0
-    a21, a22 = (b * c_r - a * c_f) / iz, -(a**2 * c_f + b**2 * c_r) / (iz * u)
+    a11, a12, a21, a22 = bicycle_state_matrix(np.maximum(np.abs(np.asarray(u, dtype=float)), MIN_SPEED), params)
     half_trace, det = 0.5 * (a11 + a22), a11 * a22 - a12 * a21
     slower = half_trace + np.sqrt(np.maximum(half_trace**2 - det, 0.0))  # real part of the slower eigenvalue
     return 1.0 / np.maximum(-slower, 1.0 / MAX_YAW_TIME_CONSTANT)
@@ -75,15 +81,15 @@ def sideslip_rate(u: np.ndarray, v: np.ndarray, r: np.ndarray, ax: np.ndarray, a
 
 @dataclass(frozen=True)
 class PhasePlaneRegion:
-    """Sideslip phase-plane stability region |beta_dot + c1 beta| <= c2 (Inagaki, Kushiro and
-    Yamamoto, AVEC '94; the band form of He et al., Proc. IMechE D 220, 2006) within the yaw-rate
-    window |r| <= k mu g / u it was derived over (k = ``yaw_rate_window``; the band alone, an
-    unbounded strip, reaches spinning states beyond it): inside, the car returns to straight
-    running by itself with the steering straight (on the 2-DOF model it was derived on; the
-    full plant is checked in the tests). Slope c1 [1/s] and half-width c2 [rad/s] tabulated over
-    speed [m/s] x road friction, interpolated bilinearly and clamped to the table's range. The shipped table is this car's (derived by
-    ``python -m training.phase_plane_fit``; Inagaki et al.'s dry-road numbers, c1 = 2.49 1/s and
-    c2 = 9.55 deg/s, are their car's); :meth:`default` loads it. For another car:
+    """Sideslip phase-plane stability region |beta_dot + c1 beta| <= c2 (Inagaki, Kushiro and Yamamoto,
+    AVEC '94; the band form of He et al., Proc. IMechE D 220, 2006) within the yaw-rate window |r|
+    <= k mu g / u it was derived over (k = ``yaw_rate_window``; the band alone, an unbounded strip,
+    reaches spinning states beyond it): inside, the car returns to straight running by itself with
+    the steering straight (on the 2-DOF model it was derived on; the full plant is checked in the
+    tests). Slope c1 [1/s] and half-width c2 [rad/s] tabulated over speed [m/s] x road friction,
+    interpolated bilinearly and clamped to the table's range. The shipped table is this car's
+    (derived by ``python -m training.phase_plane_fit``; Inagaki et al.'s dry-road numbers, c1 = 2.49
+    1/s and c2 = 9.55 deg/s, are their car's); :meth:`default` loads it. For another car:
     ``PhasePlaneRegion.from_table(training.phase_plane_fit.fit_table(params))`` (~3.5 min)."""
 
     speeds: tuple[float, ...]

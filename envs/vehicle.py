@@ -135,7 +135,7 @@ class VehicleParams:
         """Mean static wheel load [N]: the load at which road mu equals the tyre's peak."""
         return self.mass * GRAVITY / 4.0
 
-    @property
+    @cached_property
     def axle_cornering_stiffness(self) -> tuple[float, float]:
         """(C_f, C_r): linear cornering stiffness of each axle at static load [N/rad]."""
         fz = self.static_wheel_loads
