@@ -28,7 +28,7 @@ from gymnasium.vector.utils import batch_space
 from control import Command
 from control.allocation import allocate_for_estimate
 from control.reference import PhasePlaneRegion, reference_yaw_rate
-from envs.metrics import SPIN_OUT_SIDESLIP, path_deviation, sine_with_dwell_metrics
+from envs.metrics import SPIN_OUT_SIDESLIP, alongside_path, path_deviation, sine_with_dwell_metrics
 from envs.scenarios import SCENARIOS, Scenario, is_number, make_scenario
 from envs.sensors import Fault
 from envs.simulation import DT, ClosedLoop
@@ -287,7 +287,7 @@ class YawStabilityCore:
         state = self.loop.state
         for b, scenario in enumerate(self.loop.scenarios):
             path = scenario.reference_path
-            if path is not None and path[0, 0] <= state[b, S_X] <= path[-1, 0]:
+            if path is not None and alongside_path(state[b, S_X], path):
                 out[b] = path_deviation(state[b:b + 1, S_X], state[b:b + 1, S_Y], path)[1]
         return out
 

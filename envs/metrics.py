@@ -324,6 +324,14 @@ def cone_hits(x, y, psi, cones, width: float, front_extent: float, rear_extent: 
     return int(np.sum(np.any(np.hypot(out_lon, out_lat) < cone_radius, axis=1)))
 
 
+def alongside_path(x, path) -> np.ndarray:
+    """Whether the positions X [m] (n,) lie within the X extent of the course's ``path`` (N, 2),
+    which runs along +X: where path deviations count (before its start and on the straight
+    run-out past its end the distance to the polyline's end points is no deviation)."""
+    x = np.asarray(x, dtype=float)
+    return (x >= path[0, 0]) & (x <= path[-1, 0])
+
+
 def path_deviation(x, y, path, chunk: int = 2048) -> tuple[float, float]:
     """RMS and largest distance [m] of the points ``x, y`` (n,) [m] from the polyline ``path``
     (N >= 2, 2) [m]: each point's distance to its nearest segment (vectorised over segments,

@@ -3,13 +3,11 @@ estimator, its building blocks and baselines, behind one factory and one step in
 
 from __future__ import annotations
 
-import math
-
 from estimation.joint import KINDS, NoiseParams, StateEstimator, tuned_noise
 from estimation.model import ModelParams
 from estimation.online import OnlineTuner
 from estimation.oracle import TRUE_SUFFIX, TRUTH_GROUPS, Oracle, PartialOracle, parse_truth_groups
-from estimation.types import Estimate
+from estimation.types import Estimate, check_step
 
 ESTIMATORS = ("oracle",) + KINDS  #: names accepted by make_estimator; "joint" is the paper's full system
 
@@ -42,8 +40,7 @@ def make_estimator(name: str, params, dt: float = 0.002, noise: NoiseParams | No
     if groups:
         return PartialOracle(make_estimator(base, params, dt, noise, **kwargs), groups)
     if name == "oracle":
-        if not (math.isfinite(dt) and dt > 0):
-            raise ValueError(f"dt must be a finite step > 0 [s], got {dt!r}")
+        check_step(dt)
         if noise is not None or kwargs:
             raise ValueError(f"the oracle takes no noise or keyword arguments, got {sorted(kwargs) or ['noise']}")
         return Oracle()

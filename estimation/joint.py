@@ -63,7 +63,7 @@ from estimation.federated import fuse, sharing_coefficients
 from estimation.jit import JIT, scratch
 from estimation.model import (MIN_SPEED, P_IZ, P_RW, ModelParams, body_forces, dugoff_lambdas, fill_steer_trig, transition,
                               wheel_kinematics, wheel_loads, wheel_trig)
-from estimation.types import Estimate, member_rows
+from estimation.types import Estimate, check_step, member_rows
 
 N_STATE = 6
 I_U, I_V, I_AX, I_AY, I_R, I_GAMMA = range(N_STATE)
@@ -611,8 +611,7 @@ class StateEstimator:
             raise ValueError(f"unknown estimator kind {self.kind!r}; known: {list(KINDS)}")
         if not (MU_BOUNDS[0] <= self.nominal_mu <= MU_BOUNDS[1]):
             raise ValueError(f"nominal_mu must lie in {MU_BOUNDS}, got {self.nominal_mu!r}")
-        if not (math.isfinite(self.dt) and self.dt > 0):
-            raise ValueError(f"dt must be a finite step > 0 [s], got {self.dt!r}")
+        check_step(self.dt)
         if not self.huber_c > 0:
             raise ValueError(f"huber_c must be > 0, got {self.huber_c!r}")
         if not self.stuck_samples >= 1:

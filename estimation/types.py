@@ -1,8 +1,9 @@
-"""Types shared by every estimator: what goes out of a step, and which rows of a batch a
-step works on."""
+"""Types shared by every estimator: what goes out of a step, its step check, and which rows of
+a batch a step works on."""
 
 from __future__ import annotations
 
+import math
 from functools import lru_cache
 from typing import NamedTuple
 
@@ -36,6 +37,13 @@ class Estimate(NamedTuple):
     fz: np.ndarray
     beta_std: np.ndarray
     mu_std: np.ndarray
+
+
+def check_step(dt) -> float:
+    """An estimator's step ``dt`` [s] if finite and > 0; else ValueError naming it."""
+    if not (math.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt must be a finite step > 0 [s], got {dt!r}")
+    return float(dt)
 
 
 @lru_cache(maxsize=8)

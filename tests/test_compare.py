@@ -38,7 +38,8 @@ def test_cli_names_bad_scenarios_and_controllers():
         main(["swd", "--mu", "1.0", "--A", "16.6", "--controller", "rl:nowhere"])
     with pytest.raises(SystemExit, match="warp"):
         main(["swd", "--mu", "1.0", "--A", "16.6", "--controller", "warp"])
-    for args, match in ((["--mu", "0"], r"--mu must lie in \(0, 2\], got \[0.0\]"), (["--estimator", "nope"], "nope"),
+    for args, match in ((["--mu", "0"], r"--mu must be a friction coefficient in \(0, 2.0\], got 0.0"),
+                        (["--estimator", "nope"], "nope"),
                         (["--A", "-5"], "-5.0"), (["--seed", "-2"], "-2")):
         with pytest.raises(SystemExit, match=match):  # before the characterisation runs
             main(["swd", *args])

@@ -41,18 +41,23 @@ def _scenario_overrides(args: argparse.Namespace) -> dict:
     return overrides
 
 
+def _check_estimator_and_seed(args: argparse.Namespace) -> None:
+    """ValueError naming a bad --estimator or a negative --seed (the jobs that take them)."""
+    from estimation import check_estimator_name
+
+    check_estimator_name(args.estimator)
+    if args.seed < 0:
+        raise ValueError(f"--seed must be >= 0, got {args.seed}")
+
+
 def _simulate(args: argparse.Namespace) -> int:
     from envs.scenarios import make_scenario
     from envs.simulation import simulate
     from training.trajectory_io import plot_trajectory, write_trajectory_csv
 
-    from estimation import check_estimator_name
-
     try:
         scenario = make_scenario(args.scenario, **_scenario_overrides(args))
-        check_estimator_name(args.estimator)
-        if args.seed < 0:
-            raise ValueError(f"seed must be >= 0, got {args.seed}")
+        _check_estimator_and_seed(args)
     except ValueError as err:
         raise SystemExit(f"fourwis simulate: {err}") from None
     traj = simulate(scenario, estimator=args.estimator, seed=args.seed, progress=True)
@@ -69,20 +74,16 @@ def _sine_with_dwell(args: argparse.Namespace) -> int:
     from envs.fmvss126 import characterise, format_table, run_series
     from training.io import atomic_write_text
 
+    from envs.road import check_mu
     from envs.vehicle import VehicleParams
     from training.compare import build_controller
-
-    from estimation import check_estimator_name
 
     try:  # fail early, before the characterisation, on every argument
         if args.A is not None and not (math.isfinite(args.A) and args.A > 0):
             raise ValueError(f"--A must be a positive steering-wheel angle [deg], got {args.A!r}")
-        bad_mu = [mu for mu in args.mu if not (math.isfinite(mu) and 0.0 < mu <= 2.0)]
-        if bad_mu:
-            raise ValueError(f"--mu must lie in (0, 2], got {bad_mu}")
-        check_estimator_name(args.estimator)
-        if args.seed < 0:
-            raise ValueError(f"--seed must be >= 0, got {args.seed}")
+        for mu in args.mu:
+            check_mu("--mu", mu)
+        _check_estimator_and_seed(args)
         if args.controller != "none":
             build_controller(args.controller, VehicleParams())  # a bad name or path
     except (ValueError, FileNotFoundError) as err:

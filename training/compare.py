@@ -21,7 +21,7 @@ from control import CONTROLLERS, make_controller
 from control.allocation import wheel_force_map
 from control.reference import PhasePlaneRegion, reference_yaw_rate
 from envs.fmvss126 import characterise
-from envs.metrics import cone_hits, mae, path_deviation, rms, rmse, sine_with_dwell_metrics, spin_out
+from envs.metrics import alongside_path, cone_hits, mae, path_deviation, rms, rmse, sine_with_dwell_metrics, spin_out
 from envs.scenarios import SCENARIOS, make_scenario
 from envs.sensors import Fault
 from envs.simulation import Trajectory, simulate
@@ -113,7 +113,7 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
                rear_steer_rms=rms(traj.state[:, S_DELTA_R]))
     if scenario.reference_path is not None:
         path = scenario.reference_path
-        on_course = (traj.state[:, S_X] >= path[0, 0]) & (traj.state[:, S_X] <= path[-1, 0])
+        on_course = alongside_path(traj.state[:, S_X], path)
         rms_dev, max_dev = path_deviation(traj.state[on_course, S_X], traj.state[on_course, S_Y], path)
         out.update(path_rms=rms_dev, path_max=max_dev)
         out["cone_hits"] = float(cone_hits(traj.state[:, S_X], traj.state[:, S_Y], traj.state[:, S_PSI],
