@@ -12,7 +12,7 @@ from estimation.types import Estimate, check_step
 ESTIMATORS = ("oracle",) + KINDS  #: names accepted by make_estimator; "joint" is the paper's full system
 
 
-def _parse_name(name: str) -> tuple[str, tuple[str, ...]]:
+def parse_estimator_name(name: str) -> tuple[str, tuple[str, ...]]:
     """(base estimator, truth groups) of ``name`` (see :func:`check_estimator_name`)."""
     base, sep, groups = str(name).partition(TRUE_SUFFIX)
     if base not in ESTIMATORS:
@@ -24,7 +24,7 @@ def _parse_name(name: str) -> tuple[str, tuple[str, ...]]:
 def check_estimator_name(name: str) -> str:
     """``name`` if make_estimator accepts it: one of :data:`ESTIMATORS`, optionally followed by
     ``+true-<group>[-<group>...]`` (:data:`TRUTH_GROUPS`); else ValueError naming it."""
-    _parse_name(name)
+    parse_estimator_name(name)
     return name
 
 
@@ -36,7 +36,7 @@ def make_estimator(name: str, params, dt: float = 0.002, noise: NoiseParams | No
     ``<name>+true-<group>[-<group>...]`` (e.g. ``joint+true-mu``) reports the truth for those
     groups (:class:`PartialOracle`, :data:`TRUTH_GROUPS`): which estimated quantity a
     closed-loop loss comes from."""
-    base, groups = _parse_name(name)
+    base, groups = parse_estimator_name(name)
     if groups:
         return PartialOracle(make_estimator(base, params, dt, noise, **kwargs), groups)
     if name == "oracle":
@@ -50,4 +50,4 @@ def make_estimator(name: str, params, dt: float = 0.002, noise: NoiseParams | No
 
 
 __all__ = ["ESTIMATORS", "TRUTH_GROUPS", "Estimate", "ModelParams", "NoiseParams", "OnlineTuner", "PartialOracle",
-           "StateEstimator", "check_estimator_name", "make_estimator", "tuned_noise"]
+           "StateEstimator", "check_estimator_name", "make_estimator", "parse_estimator_name", "tuned_noise"]

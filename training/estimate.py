@@ -20,8 +20,7 @@ import numpy as np
 from envs.metrics import mae, rmse
 from envs.scenarios import PAPER_SCENARIOS, Scenario, make_scenario
 from envs.simulation import Trajectory, simulate
-from estimation import ESTIMATORS, Estimate, check_estimator_name
-from estimation.oracle import TRUE_SUFFIX
+from estimation import ESTIMATORS, Estimate, check_estimator_name, parse_estimator_name
 from training.io import atomic_write, atomic_write_text
 from training.pool import parallel_map
 from training.tables import mean_over_seeds, write_runs_csv
@@ -132,8 +131,8 @@ def _fmt(value: float, digits: int = 5) -> str:
 
 
 def _convergence(m: dict[str, float], estimator: str) -> str:
-    base, _, groups = estimator.partition(TRUE_SUFFIX)
-    if base == "oracle" or "mu" in groups.split("-"):
+    base, groups = parse_estimator_name(estimator)
+    if base == "oracle" or "mu" in groups:
         return "n/a (true mu)"
     if not m["mu_estimated"]:
         return "n/a (nominal mu)"
