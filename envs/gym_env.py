@@ -71,6 +71,7 @@ class EnvConfig:
     max_episode_steps: int | None = None
     scenario_kwargs: dict | None = None
     rear_steer: bool = True
+    privileged: bool = False
 
     def __post_init__(self) -> None:
         for name, known in (("scenario", sorted(SCENARIOS)), ("observation", list(OBSERVATIONS)),
@@ -104,8 +105,9 @@ class EnvConfig:
         if self.scenario == "random" and "seed" in (self.scenario_kwargs or {}):
             raise ValueError("the random scenario's seed is drawn from reset(seed=...) each episode; "
                              "scenario_kwargs cannot fix it")
-        if not isinstance(self.rear_steer, (bool, np.bool_)):
-            raise ValueError(f"rear_steer must be True or False, got {self.rear_steer!r}")
+        for name in ("rear_steer", "privileged"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
         make_scenario(self.scenario, **self.overrides)  # validate the overrides now
 
     @property
@@ -121,6 +123,11 @@ class EnvConfig:
     def render_fps(self) -> int:
         """Frames per second of a rendered episode: one per control step."""
         return int(round(1 / self.control_dt))
+
+    @property
+    def observation_size(self) -> int:
+        """N_OBS agent slots, followed by the truth's N_OBS when ``privileged``."""
+        return 2 * N_OBS if self.privileged else N_OBS
 
     @property
     def action_size(self) -> int:
@@ -220,7 +227,7 @@ class YawStabilityCore:
             self._trace = []
 
     def observe(self) -> np.ndarray:
-        """Observations (B, 14) float32 at the current time."""
+        """Observations (B, observation_size) float32 at the current time."""
         s = self.loop.sample()
         delta_f = s.steering_wheel / self.params.steering_ratio
         if self.config.observation == "sensors":
@@ -231,6 +238,8 @@ class YawStabilityCore:
         else:
             obs = state_observation(s.truth if self.config.observation == "true" else s.estimate, delta_f,
                                     self.params)
+        if self.config.privileged:
+            obs = np.concatenate([obs, state_observation(s.truth, delta_f, self.params)], axis=1)
         if not np.all(np.isfinite(obs)):
             b = int(np.flatnonzero(~np.all(np.isfinite(obs), axis=1))[0])
             raise FloatingPointError(f"non-finite observation for vehicle {b}: the estimator diverged")
@@ -334,7 +343,7 @@ def _check_actions(actions, shape: tuple[int, ...]) -> np.ndarray:
 
 
 def _spaces(config: EnvConfig) -> tuple[spaces.Box, spaces.Box]:
-    return (spaces.Box(-np.inf, np.inf, (N_OBS,), np.float32),
+    return (spaces.Box(-np.inf, np.inf, (config.observation_size,), np.float32),
             spaces.Box(-1.0, 1.0, (config.action_size,), np.float32))
 
 
@@ -368,6 +377,12 @@ class YawStabilityEnv(gym.Env):
     ``observation="sensors"``: the 13 raw channels (ax, ay, r, 4 wheel speeds, 2 steer angles,
     4 torques) scaled by (10, 10, 1, 100 x4, 0.3 x2, 600 x4), then r_ref / 1 (from the raw
     readings and a nominal mu of 0.8).
+
+    ``privileged=True`` appends the truth's 14 slots (as ``observation="true"`` fills them:
+    slots 14-27) to any observation mode, for asymmetric actor-critic training, where the
+    critic learns from the true state and the actor reads the agent's first 14 slots only
+    (``training.asymmetric``; ``fourwis train --env-kwargs '{"privileged": true}'``). The
+    deployed actor then needs no truth.
 
     Actions (float32 in [-1, 1]): ``action="yaw_moment"`` (default): [corrective yaw moment x
     3000 N m, rear steer x max rear steer] (``rear_steer=False``: the moment alone, a 4WID car
@@ -409,10 +424,10 @@ class YawStabilityEnv(gym.Env):
     def __init__(self, scenario: str = "random", speed_kph: float | None = None, mu=None, estimator: str = "joint",
                  observation: str = "estimated", action: str = "yaw_moment", control_dt: float = 0.02,
                  sensor_faults: tuple[Fault, ...] = (), render_mode: str | None = None,
-                 scenario_kwargs: dict | None = None, rear_steer: bool = True, **unknown):
+                 scenario_kwargs: dict | None = None, rear_steer: bool = True, privileged: bool = False, **unknown):
         _unknown_arguments(unknown)
         self.config = EnvConfig(scenario, speed_kph, mu, estimator, observation, action, control_dt, sensor_faults,
-                                scenario_kwargs=scenario_kwargs, rear_steer=rear_steer)
+                                scenario_kwargs=scenario_kwargs, rear_steer=rear_steer, privileged=privileged)
         _check_render_mode(render_mode)
         self.render_mode = render_mode
         self.metadata = {**self.metadata, "render_fps": self.config.render_fps}
@@ -523,12 +538,12 @@ class YawStabilityVectorEnv(VectorEnv):
                  estimator: str = "joint", observation: str = "estimated", action: str = "yaw_moment",
                  control_dt: float = 0.02, sensor_faults: tuple[Fault, ...] = (), render_mode: str | None = None,
                  max_episode_steps: int | None = None, scenario_kwargs: dict | None = None, rear_steer: bool = True,
-                 **unknown):
+                 privileged: bool = False, **unknown):
         _unknown_arguments(unknown)
         if not (_is_integer(num_envs) and num_envs >= 1):
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
         self.config = EnvConfig(scenario, speed_kph, mu, estimator, observation, action, control_dt, sensor_faults,
-                                max_episode_steps, scenario_kwargs, rear_steer)
+                                max_episode_steps, scenario_kwargs, rear_steer, privileged)
         _check_render_mode(render_mode)
         self.num_envs, self.render_mode = int(num_envs), render_mode
         self.metadata = {**self.metadata, "render_fps": self.config.render_fps}
@@ -617,19 +632,3 @@ class YawStabilityVectorEnv(VectorEnv):
             return (frame,)
         self._window = _show(frame, self._window)
         return None
-
-
-class PrivilegedObservation(gym.ObservationWrapper):
-    """Appends the true-state observation (same 14 slots and scales) to the agent's: for
-    asymmetric actor-critic training, where the critic sees the truth and the actor only the
-    first half (the estimate). Works on :class:`YawStabilityEnv` with any observation mode."""
-
-    def __init__(self, env: gym.Env):
-        super().__init__(env)
-        self.observation_space = spaces.Box(-np.inf, np.inf, (2 * N_OBS,), np.float32)
-
-    def observation(self, observation: np.ndarray) -> np.ndarray:
-        core = self.env.unwrapped.core
-        s = core.loop.sample()
-        true = state_observation(s.truth, s.steering_wheel / core.params.steering_ratio, core.params)[0]
-        return np.concatenate([observation, true]).astype(np.float32)

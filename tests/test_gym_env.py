@@ -12,7 +12,7 @@ from gymnasium.utils.env_checker import check_env
 from gymnasium.vector import AutoresetMode
 
 import envs  # noqa: F401  (registers the environment)
-from envs.gym_env import PrivilegedObservation, YawStabilityEnv, YawStabilityVectorEnv
+from envs.gym_env import YawStabilityEnv, YawStabilityVectorEnv
 from envs.sensors import Fault
 from envs.render import FRAME_HEIGHT, FRAME_WIDTH
 from envs.vehicle import S_DELTA_R
@@ -101,10 +101,12 @@ def _vector_pair(n, **kwargs):
     return native, sync
 
 
-def test_native_vector_env_matches_sync_vector_env_step_for_step():
-    """Same seeds, same actions: identical observations, rewards, flags and final observations,
-    through several autoresets (short time limit) with the joint estimator in the loop."""
-    native, sync = _vector_pair(3, scenario="random", estimator="joint", max_episode_steps=20)
+@pytest.mark.parametrize("privileged", [False, True])
+def test_native_vector_env_matches_sync_vector_env_step_for_step(privileged):
+    """Same seeds, same actions: identical observations, rewards, flags and final observations
+    (with the truth's slots, privileged), through several autoresets (short time limit) with the
+    joint estimator in the loop."""
+    native, sync = _vector_pair(3, scenario="random", estimator="joint", max_episode_steps=20, privileged=privileged)
     assert isinstance(native.unwrapped, YawStabilityVectorEnv)
     assert native.metadata["autoreset_mode"] == AutoresetMode.SAME_STEP
     a, _ = native.reset(seed=11)
@@ -273,6 +275,7 @@ def test_rear_steer_is_optional_and_the_single_env_reports_one_car():
     ({"scenario": "paper_step", "scenario_kwargs": {"rear_steer_feedforward": "yes"}}, "rear_steer_feedforward"),
     ({"scenario": "paper_step", "speed_kph": 1e6}, "speed_kph"),
     ({"sensor_faults": Fault("yaw_rate", "stuck", start=1.0, end=2.0)}, "sequence"),
+    ({"privileged": 1}, "privileged"),
 ])
 def test_arguments_that_would_be_ignored_or_fail_later_are_refused_at_make(kwargs, match):
     with pytest.raises(ValueError, match=match):
@@ -359,17 +362,25 @@ def test_episode_metrics_on_sine_with_dwell_give_the_fmvss126_verdict(amplitude_
         assert metrics["fmvss126_ratio_1000"] == pytest.approx(ref.yaw_rate_ratio_1000, abs=0.02)
 
 
-def test_privileged_observation_appends_the_truth():
-    env = PrivilegedObservation(YawStabilityEnv(scenario="paper_sine", estimator="ckf"))
-    true = YawStabilityEnv(scenario="paper_sine", estimator="ckf", observation="true")
-    obs, _ = env.reset(seed=4)
-    ref, _ = true.reset(seed=4)
+@pytest.mark.parametrize("observation", ["estimated", "sensors"])
+def test_privileged_observation_appends_the_truth(observation):
+    """privileged=True: the agent's 14 slots exactly as without it, then the truth's 14 exactly
+    as observation="true" fills them; the checkers pass."""
+    from stable_baselines3.common.env_checker import check_env as sb3_check
+
+    kwargs = {"scenario": "paper_sine", "estimator": "ckf"}
+    envs = [YawStabilityEnv(**kwargs, observation=observation, privileged=True),
+            YawStabilityEnv(**kwargs, observation=observation), YawStabilityEnv(**kwargs, observation="true")]
+    assert envs[0].observation_space.shape == (28,)
+    observations = [env.reset(seed=4)[0] for env in envs]
     for _ in range(20):
-        obs, *_ = env.step(np.zeros(2, dtype=np.float32))
-        ref, *_ = true.step(np.zeros(2, dtype=np.float32))
-    assert obs.shape == (28,)
-    np.testing.assert_allclose(obs[14:], ref, atol=1e-6)
-    assert not np.allclose(obs[:14], ref)
+        observations = [env.step(np.full(2, 0.3, dtype=np.float32))[0] for env in envs]
+    obs, agent, true = observations
+    np.testing.assert_array_equal(obs[:14], agent)
+    np.testing.assert_array_equal(obs[14:], true)
+    assert not np.allclose(obs[:14], obs[14:], atol=1e-3)
+    check_env(envs[0], skip_render_check=True)
+    sb3_check(YawStabilityEnv(**kwargs, observation=observation, privileged=True), warn=True)
 
 
 def test_friction_speed_and_sensor_fault_arguments_reach_the_episode():

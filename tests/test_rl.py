@@ -13,9 +13,10 @@ from training.rl import ALGOS, PolicyController, SB3VecEnv, train
 FAST = {"ppo": {"n_steps": 128, "batch_size": 256}, "sac": {"learning_starts": 256}, "td3": {"learning_starts": 256}}
 
 
-def _train(algo, out, timesteps=1024, resume=None):
-    return train(algo, out, timesteps, seed=0, env_kwargs={"estimator": "oracle"}, n_envs=4, eval_every=512,
-                 eval_episodes=2, checkpoint_every=512, progress=False, algo_overrides=FAST[algo], resume=resume)
+def _train(algo, out, timesteps=1024, resume=None, **env_kwargs):
+    return train(algo, out, timesteps, seed=0, env_kwargs={"estimator": "oracle", **env_kwargs}, n_envs=4,
+                 eval_every=512, eval_episodes=2, checkpoint_every=512, progress=False, algo_overrides=FAST[algo],
+                 resume=resume)
 
 
 @pytest.mark.parametrize("algo", ALGOS)
@@ -40,6 +41,40 @@ def test_train_save_reload_and_evaluate_with_identical_deterministic_actions(alg
     np.testing.assert_allclose(traj.state[-1], env.unwrapped.core.loop.state[0], rtol=1e-9, atol=1e-9)
     assert np.ptp(np.array(actions), axis=0).max() > 0  # the policy acts, not a constant
     assert model_path == out / "model.zip"
+
+
+@pytest.mark.parametrize("algo", ALGOS)
+def test_privileged_training_gives_an_actor_that_needs_no_truth(algo, tmp_path):
+    """privileged=True trains an asymmetric policy: its action ignores the truth's slots, its
+    critic reads them; as a controller (fed the estimate, the truth's slots at their mean) it
+    drives the plant exactly as in the privileged env, where those slots hold the truth."""
+    import torch as th
+
+    from training.asymmetric import POLICIES
+
+    out = tmp_path / algo
+    _train(algo, out, privileged=True)
+    controller = PolicyController(out, make_scenario("paper_sine").vehicle_params)
+    policy = controller.model.policy
+    assert type(policy) is POLICIES[algo]
+    obs = th.as_tensor(np.random.default_rng(0).normal(size=(8, 28)), dtype=th.float32)
+    other = obs.clone()
+    other[:, 14:] = -obs[:, 14:]
+    with th.no_grad():
+        assert th.equal(policy._predict(obs, deterministic=True), policy._predict(other, deterministic=True))
+        if algo == "ppo":
+            values = policy.predict_values(obs), policy.predict_values(other)
+        else:
+            act = th.zeros(8, 2)
+            values = policy.critic(obs, act)[0], policy.critic(other, act)[0]
+    assert (values[0] - values[1]).abs().max() > 1e-3
+    env = YawStabilityEnv(scenario="paper_sine", estimator="oracle", privileged=True)
+    obs, _ = env.reset(seed=0)
+    for _ in range(40):
+        action, _ = controller.model.predict(controller.normalise(obs[None]), deterministic=True)
+        obs, *_ = env.step(action[0])
+    traj = simulate(make_scenario("paper_sine", duration=40 * 0.02), controller=controller, estimator="oracle")
+    np.testing.assert_allclose(traj.state[-1], env.unwrapped.core.loop.state[0], rtol=1e-9, atol=1e-9)
 
 
 def test_resume_continues_the_step_count_and_the_evaluations(tmp_path):

@@ -28,7 +28,8 @@ from pathlib import Path
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
-from envs.gym_env import EnvConfig, YawStabilityVectorEnv, _AgentController, state_observation
+from envs.gym_env import N_OBS, EnvConfig, YawStabilityVectorEnv, _AgentController, state_observation
+from training.asymmetric import POLICIES
 from training.io import atomic_write, atomic_write_json, atomic_write_text
 
 EVALUATIONS = "evaluations.npz"  #: the run's evaluation log (SB3's EvalCallback format)
@@ -213,7 +214,7 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs:
             raise ValueError(f"{name} must be a positive integer, got {value!r}")
     env_kwargs = dict(env_kwargs or {})
     try:
-        EnvConfig(**env_kwargs)  # validate now, with clear errors
+        env_config = EnvConfig(**env_kwargs)  # validate now, with clear errors
     except TypeError as err:
         raise ValueError(f"bad env_kwargs {env_kwargs!r}: {err}; known: {[f.name for f in fields(EnvConfig)]}") \
             from None
@@ -243,7 +244,8 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs:
         if noise_std is not None:
             dim = train_env.action_space.shape[0]
             settings["action_noise"] = NormalActionNoise(np.zeros(dim), noise_std * np.ones(dim))
-        model = algo_class("MlpPolicy", normalized, seed=seed, device="cpu", tensorboard_log=str(out / "tb"),
+        policy = POLICIES[algo] if env_config.privileged else "MlpPolicy"
+        model = algo_class(policy, normalized, seed=seed, device="cpu", tensorboard_log=str(out / "tb"),
                            verbose=0, **settings)
     remaining = timesteps - model.num_timesteps
     if remaining > 0:
@@ -319,7 +321,9 @@ class PolicyController:
     torques and rear steer exactly as the env does. A policy trained on ``observation="true"``
     sees whatever estimate the loop runs (the truth only with the oracle: choose the estimator
     accordingly, as README's truth-trained comparison does on purpose); ``"sensors"`` policies
-    need raw readings and are not supported here (``fourwis evaluate`` refuses them)."""
+    need raw readings and are not supported here (``fourwis evaluate`` refuses them). A policy
+    trained with ``privileged=True`` (training.asymmetric) acts on the agent's slots alone: the
+    truth's slots are filled with their normalising mean, which its actor does not read."""
 
     def __init__(self, run: str | Path, params, dt: float = 0.002):
         model_path, normalizer_path, config_path = run_files(run)
@@ -328,6 +332,9 @@ class PolicyController:
         if env.observation == "sensors":
             raise ValueError("PolicyController needs a policy trained on estimated or true observations")
         self.model = _algo_class(config["algo"]).load(str(model_path), device="cpu")
+        if env.privileged and not isinstance(self.model.policy, tuple(POLICIES.values())):
+            raise ValueError(f"{run} was trained on the privileged observation without an asymmetric policy: its "
+                             "actor reads the truth, which a controller does not have")
         with open(normalizer_path, "rb") as handle:
             normalizer = pickle.load(handle)
         self._mean, self._var = normalizer.obs_rms.mean, normalizer.obs_rms.var
@@ -350,6 +357,8 @@ class PolicyController:
             self._agent = _AgentController(self.params, self.env_config, len(front_steer))
         if self._k % self.substeps == 0:
             obs = state_observation(estimate, front_steer, self.params).astype(np.float32)
+            if self.env_config.privileged:  # the actor does not read the truth's slots
+                obs = np.concatenate([obs, np.broadcast_to(self._mean[N_OBS:], obs.shape)], axis=1)
             action, _ = self.model.predict(self.normalise(obs), deterministic=True)
             self._agent.action[:] = np.clip(action, -1.0, 1.0)
         self._k += 1
