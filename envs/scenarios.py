@@ -111,6 +111,17 @@ def _finite(name: str, value, minimum: float = -math.inf) -> float:
     return float(value)
 
 
+def _interval(name: str, value) -> tuple[float, float]:
+    """(low, high) of two finite numbers 0 < low <= high, or ValueError naming ``name``."""
+    try:
+        low, high = value
+    except (TypeError, ValueError):
+        low = high = None
+    if not all(is_number(v) and math.isfinite(v) and v > 0 for v in (low, high)) or low > high:
+        raise ValueError(f"{name} must be two finite numbers 0 < low <= high, got {value!r}")
+    return float(low), float(high)
+
+
 def _direction(direction) -> int:
     if not (is_number(direction) and direction in (1, -1)):
         raise ValueError(f"direction must be +1 (left) or -1 (right), got {direction!r}")
@@ -244,12 +255,16 @@ def mu_jump(speed_kph=60.0, mu=0.9, duration=6.0, steering=None, mu_patch=0.3, l
 
 
 def random(speed_kph=None, mu=None, duration=10.0, steering=None, seed=0, rear_steer_feedforward=False,
-           params=VehicleParams()) -> Scenario:
-    """Domain-randomised training scenario drawn from ``seed``: speed 30-110 km/h; road uniform,
-    split, or with a patch (mu 0.2-1.0); steering a sum of three random sines (0.2-1.2 Hz) with
-    an amplitude that asks for 0.3-1.2 mu g in the linear model, or a random step."""
+           params=VehicleParams(), speed_range_kph=(30.0, 110.0), lateral_demand=(0.3, 1.2)) -> Scenario:
+    """Domain-randomised training scenario drawn from ``seed``: speed uniform in
+    ``speed_range_kph`` (30-110 km/h); road uniform, split, or with a patch (mu 0.2-1.0);
+    steering a sum of three random sines (0.2-1.2 Hz) with an amplitude that asks for
+    ``lateral_demand`` (0.3-1.2) times mu g in the linear model, or a random step. The ranges
+    change the values drawn, not the draws: a seed gives the same road and frequencies."""
+    speed_low, speed_high = _interval("speed_range_kph", speed_range_kph)
+    demand_low, demand_high = _interval("lateral_demand", lateral_demand)
     rng = np.random.default_rng(seed)
-    speed_kph = float(rng.uniform(30.0, 110.0)) if speed_kph is None else _positive("speed_kph", speed_kph)
+    speed_kph = float(rng.uniform(speed_low, speed_high)) if speed_kph is None else _positive("speed_kph", speed_kph)
     if mu is None:
         kind = rng.integers(3)
         lo, hi = np.sort(rng.uniform(0.2, 1.0, 2))
@@ -259,7 +274,7 @@ def random(speed_kph=None, mu=None, duration=10.0, steering=None, seed=0, rear_s
     if steering is None:
         speed = speed_kph / 3.6
         mu_ref = road.table()[0] if road.table() is not None else 0.5
-        demand = rng.uniform(0.3, 1.2) * mu_ref * GRAVITY
+        demand = rng.uniform(demand_low, demand_high) * mu_ref * GRAVITY
         swa = demand * params.wheelbase / speed**2 * params.steering_ratio
         if rng.random() < 0.75:
             weights = rng.dirichlet(np.ones(3))

@@ -99,6 +99,9 @@ def test_speed_hold_feeds_forward_the_resistance_and_coasts():
     ("paper_step", {"angle": float("nan")}, "angle"),
     ("slowly_increasing_steer", {"direction": 0}, "direction"),
     ("mu_jump", {"mu_patch": 0.0}, "mu_patch"),
+    ("random", {"speed_range_kph": (50.0, 40.0)}, "speed_range_kph"),
+    ("random", {"lateral_demand": 0.3}, "lateral_demand"),
+    ("random", {"lateral_demand": (0.0, 1.0)}, "lateral_demand"),
 ])
 def test_bad_scenario_arguments_raise_value_error_naming_the_value(name, kwargs, bad):
     with pytest.raises(ValueError, match=bad):
@@ -131,6 +134,26 @@ def test_random_scenarios_differ_by_seed_and_repeat_by_seed():
     a, b, c = (make_scenario("random", seed=s) for s in (1, 1, 2))
     assert a.speed_kph == b.speed_kph and a.speed_kph != c.speed_kph
     assert a.steering(3.0, STATE) == b.steering(3.0, STATE)
+
+
+def test_random_ranges_bound_the_draws_and_keep_the_rest():
+    """speed_range_kph and lateral_demand bound the speed and the steering's linear-model
+    lateral demand (step amplitudes: demand mu g L / u^2 times the steering ratio); a seed keeps
+    its road, its kind of steering and its timing."""
+    p = VehicleParams()
+    narrow_steps = 0
+    for seed in range(40):
+        default = make_scenario("random", seed=seed)
+        narrow = make_scenario("random", seed=seed, speed_range_kph=[20, 25], lateral_demand=[0.05, 0.1])
+        assert 20 <= narrow.speed_kph <= 25 and 30 <= default.speed_kph <= 110
+        assert narrow.road == default.road and type(narrow.steering) is type(default.steering)
+        if isinstance(narrow.steering, Step):
+            assert narrow.steering.start == default.steering.start
+            u, mu = narrow.speed, narrow.road.table()[0] if narrow.road.table() is not None else 0.5
+            demand = abs(narrow.steering.angle) / p.steering_ratio * u**2 / p.wheelbase / (mu * GRAVITY)
+            assert 0.05 <= demand <= 0.1
+            narrow_steps += 1
+    assert narrow_steps >= 5
 
 
 def test_mu_jump_drives_onto_the_low_friction_patch():
