@@ -29,7 +29,12 @@ mu is held, not drifting, when it is unobservable: with Dugoff's lambda >= 1 (fo
 below mu*Fz/2) dF/dmu = 0. The cubature points of a wide mu prior still straddle lambda = 1,
 so model mismatch would leak into mu: a wheel's mu is therefore updated only while its
 lambda at the current estimate is below 1 (all four while any wheel is), and its random-walk
-variance growth is capped. While mu is held its covariance still takes the update, so the
+variance growth is capped. The gate's lambda leaves out the longitudinal slip: Fx is measured
+(torque balance), so a wheel that is only driven or braked tells the model about mu through
+nothing but Dugoff's combined-slip cut of its lateral force, where Dugoff and the plant's
+Magic Formula disagree most (at slip 0.023 on mu 0.5, -18% against -1%). Gated on the
+combined lambda, a sustained differential torque on a straight (a DYC's or an RL agent's yaw
+moment, ~75% of the grip) drove mu from 0.8 to its 1.2 bound in 1.5 s on a 0.5 road. While mu is held its covariance still takes the update, so the
 reported mu sigma shrinks slowly in stretches without excitation (the covariance's trace
 0.090 -> 0.081 over a straight; sigma 0.036 per wheel after the sine's held stretches).
 Discarding the update whole (only the random walk acting) was tried: after a friction drop mu
@@ -69,7 +74,7 @@ N_STATE = 6
 I_U, I_V, I_AX, I_AY, I_R, I_GAMMA = range(N_STATE)
 KINDS = ("ekf", "ckf", "fkf", "alo-fkf", "joint")
 MU_BOUNDS = (0.1, 1.2)  #: estimated mu stays inside these bounds
-EXCITATION_LAMBDA = 1.0  #: a wheel's mu is updated only while its Dugoff lambda is below this
+EXCITATION_LAMBDA = 1.0  #: a wheel's mu is updated only while its lateral Dugoff lambda is below this
 #: below this estimated forward speed [m/s] the friction filter does not run (mu and its
 #: covariance are held): slip angles tan(alpha) = vy / max(|vx|, MIN_SPEED) of a car at rest are
 #: sensor noise over a floored speed, which pushed Dugoff's lambda below 1 and let mu collapse
@@ -506,7 +511,7 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, process_v
                             R2_mu, MU_2, huber_c, f_args, h_args, m_args, mu_fused, P_fused, beta_mu_new)
         if not math.isfinite(nll_mu):
             return FILTER_FAILED, math.nan
-        # hold mu where the tyres are far from saturation (Dugoff lambda >= EXCITATION_LAMBDA);
+        # hold mu where the lateral demand is far from saturation (lambda >= EXCITATION_LAMBDA);
         # the covariance keeps the update (see the module docstring)
         lam = scratch((4,))
         dugoff_lambdas(x_new[I_U], x_new[I_V], x_new[I_R], x_new[I_AX], x_new[I_AY], mu, steer, omega, pk, lam)

@@ -245,11 +245,12 @@ def body_forces(state: np.ndarray, mu: np.ndarray, steer: np.ndarray, omega: np.
 
 @numba.njit(inline="always", **JIT)
 def dugoff_lambdas(u, v, r, ax, ay, mu, steer, omega, pk, out) -> None:
-    """Each wheel's Dugoff lambda (4,) at the given state: below 1 its force depends on mu."""
+    """Each wheel's Dugoff lambda (4,) at the given state without its longitudinal slip: below 1
+    its lateral force depends on mu (the lateral demand alone reaches half the grip)."""
     fz = load_tuple(ax, ay, pk)
     for w in range(4):
-        tan_alpha, slip, cx, cy = tyre_operating_point(u, v, r, fz[w], wheel_trig(steer, w), omega[w], pk, w)
-        out[w] = dugoff(fz[w], slip, tan_alpha, pk[P_MU_SCALE] * mu[w], cx, cy, u, 0.0)[2]
+        tan_alpha, _, cx, cy = tyre_operating_point(u, v, r, fz[w], wheel_trig(steer, w), omega[w], pk, w)
+        out[w] = dugoff(fz[w], 0.0, tan_alpha, pk[P_MU_SCALE] * mu[w], cx, cy, u, 0.0)[2]
 
 
 @numba.njit(inline="always", **JIT)

@@ -638,6 +638,29 @@ def test_a_standing_or_creeping_car_keeps_its_friction_and_a_bounded_sideslip(sp
     np.testing.assert_array_equal(e.mu_std, std0)
 
 
+def test_a_sustained_differential_torque_on_a_straight_does_not_move_mu():
+    """A yaw moment from +-190 N m left / right on the 0.5 lane change at 35 km/h (the path
+    follower steers against it): the tyres use ~75% of their grip longitudinally and little
+    laterally. Fx is measured (torque balance), so the only friction information Dugoff offers
+    is its combined-slip cut of the lateral force, which the plant's Magic Formula hardly has
+    (at slip 0.023 on mu 0.5: Dugoff -18%, the plant -1%). Gated on the longitudinal slip too,
+    the joint estimator ran mu to its 1.2 bound within 1.5 s; gated on the lateral demand it
+    holds its nominal 0.8."""
+    from control import Command
+
+    class Differential:
+        def reset(self):
+            pass
+
+        def __call__(self, t, estimate, front_steer, base_torques):
+            return Command(base_torques + np.array([190.0, -190.0, 190.0, -190.0]), np.zeros(len(base_torques)))
+
+    traj = simulate(make_scenario("paper_dlc", duration=3.0), controller=Differential(), estimator="joint", seed=0)
+    late = traj.t > 1.0
+    assert traj.aux[late][:, A_USAGE:A_USAGE + 4].mean() > 0.6  # real excitation, not a coasting car
+    np.testing.assert_allclose(traj.estimate.mu[late], 0.8, atol=1e-3)
+
+
 def test_estimator_input_errors_name_the_bad_value():
     from dataclasses import replace
 
