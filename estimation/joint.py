@@ -129,7 +129,7 @@ class NoiseParams:
     #: the mu filter's ax, ay "noise" [m/s^2]: the error of the Dugoff-predicted body
     #: accelerations (model error, far above the accelerometer's). Chosen from the grid
     #: 0.15-1.2 by ``fourwis tune --mu-noise`` on 24 random scenarios that no report uses
-    #: (mean |mu_hat - mu| over the last half: 0.143 at the earlier hand-set 0.3, 0.137 at 0.6,
+    #: (mean |mu_hat - mu| over the last half: 0.144 at the earlier hand-set 0.3, 0.137 at 0.6,
     #: the grid's best; a shallow optimum). It was first noticed on the paper's scenarios,
     #: where 0.3 -> 0.6 cut the mu error on the sine / slalom from 0.09 / 0.10 to 0.02 / 0.04
     #: (last half, sensor seed 0):
