@@ -77,6 +77,19 @@ def test_privileged_training_gives_an_actor_that_needs_no_truth(algo, tmp_path):
     np.testing.assert_allclose(traj.state[-1], env.unwrapped.core.loop.state[0], rtol=1e-9, atol=1e-9)
 
 
+def test_asymmetric_policies_refuse_an_observation_without_the_truth_or_a_shared_extractor():
+    from training.asymmetric import POLICIES
+    from training.rl import _algo_class
+
+    plain = SB3VecEnv(YawStabilityVectorEnv(num_envs=2, estimator="oracle"))
+    for algo in ALGOS:
+        with pytest.raises(ValueError, match="privileged"):
+            _algo_class(algo)(POLICIES[algo], plain, device="cpu")
+    privileged = SB3VecEnv(YawStabilityVectorEnv(num_envs=2, estimator="oracle", privileged=True))
+    with pytest.raises(ValueError, match="share_features_extractor"):
+        _algo_class("sac")(POLICIES["sac"], privileged, device="cpu", policy_kwargs={"share_features_extractor": True})
+
+
 def test_resume_continues_the_step_count_and_the_evaluations(tmp_path):
     """A resumed run counts on from its checkpoint, evaluates on the same schedule (every 512
     steps of the run, not of the resumed part) and keeps the earlier evaluations in its log."""
