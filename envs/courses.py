@@ -25,7 +25,7 @@ lane-centre line: the lanes of ISO 3888-2 are too short for that at any useful s
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import sparse
@@ -172,11 +172,28 @@ def _lane_change(name: str, lengths: tuple[float, ...], widths: tuple[float, flo
 def iso3888_1(width: float, front_extent: float = 1.77, rear_extent: float = 1.67) -> Course:
     """ISO 3888-1 double lane change for a vehicle ``width`` [m] wide whose body reaches
     ``front_extent`` ahead of and ``rear_extent`` behind its CG [m] (for the driver's line)."""
+    return replace(lane_change(width, front_extent=front_extent, rear_extent=rear_extent), name="iso3888_1")
+
+
+def lane_change(width: float, scale: float = 1.0, offset: float = 3.5, direction: int = 1,
+                front_extent: float = 1.77, rear_extent: float = 1.67) -> Course:
+    """A double lane change of ISO 3888-1's lane widths with its section lengths times
+    ``scale`` and lane 3's right-hand cone row ``offset`` [m] from lane 1's, to the left
+    (``direction`` 1) or mirrored to the right (-1): the family the randomised training scenario
+    draws its course episodes from (``iso3888_1`` is scale 1, offset 3.5, to the left)."""
     w = _check_width(width)
+    if not (math.isfinite(scale) and scale > 0 and math.isfinite(offset) and offset > 0 and direction in (1, -1)):
+        raise ValueError(f"lane_change needs scale > 0, offset > 0 [m] and direction +-1, got {scale!r}, "
+                         f"{offset!r}, {direction!r}")
     w1 = 1.1 * w + 0.25
-    return _lane_change("iso3888_1", (15.0, 30.0, 25.0, 25.0, 15.0), (w1, 1.2 * w + 0.25, 1.3 * w + 0.25),
-                        lane3_right=-w1 / 2 + 3.5, width=w,
-                        front_extent=front_extent, rear_extent=rear_extent)
+    course = _lane_change("lane_change", tuple(scale * n for n in (15.0, 30.0, 25.0, 25.0, 15.0)),
+                          (w1, 1.2 * w + 0.25, 1.3 * w + 0.25), lane3_right=-w1 / 2 + offset, width=w,
+                          front_extent=front_extent, rear_extent=rear_extent)
+    if direction == 1:
+        return course
+    mirror = np.array([1.0, -1.0])
+    gates = tuple(Gate(g.x_start, g.x_end, -g.y_left, -g.y_right) for g in course.gates)
+    return Course(course.name, gates, course.cones * mirror, course.centreline * mirror)
 
 
 def iso3888_2(width: float, front_extent: float = 1.77, rear_extent: float = 1.67) -> Course:

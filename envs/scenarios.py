@@ -255,14 +255,22 @@ def mu_jump(speed_kph=60.0, mu=0.9, duration=6.0, steering=None, mu_patch=0.3, l
 
 
 def random(speed_kph=None, mu=None, duration=10.0, steering=None, seed=0, rear_steer_feedforward=False,
-           params=VehicleParams(), speed_range_kph=(30.0, 110.0), lateral_demand=(0.3, 1.2)) -> Scenario:
+           params=VehicleParams(), speed_range_kph=(30.0, 110.0), lateral_demand=(0.3, 1.2),
+           course_share=0.0) -> Scenario:
     """Domain-randomised training scenario drawn from ``seed``: speed uniform in
     ``speed_range_kph`` (30-110 km/h); road uniform, split, or with a patch (mu 0.2-1.0);
     steering a sum of three random sines (0.2-1.2 Hz) with an amplitude that asks for
     ``lateral_demand`` (0.3-1.2) times mu g in the linear model, or a random step. The ranges
-    change the values drawn, not the draws: a seed gives the same road and frequencies."""
+    change the values drawn, not the draws: a seed gives the same road and frequencies.
+
+    ``course_share`` (default 0): the probability of a course episode instead, a double lane
+    change (:func:`envs.courses.lane_change`: ISO 3888-1's sections times 0.8-2.0, lane 3
+    1.5-3.5 m to the left or right) steered by the path-following driver, who answers the
+    controller's yaw moment as open-loop steering cannot; it lasts until 20 m past the exit."""
     speed_low, speed_high = _interval("speed_range_kph", speed_range_kph)
     demand_low, demand_high = _interval("lateral_demand", lateral_demand)
+    if not (is_number(course_share) and 0.0 <= course_share <= 1.0):
+        raise ValueError(f"course_share must be a probability in [0, 1], got {course_share!r}")
     rng = np.random.default_rng(seed)
     speed_kph = float(rng.uniform(speed_low, speed_high)) if speed_kph is None else _positive("speed_kph", speed_kph)
     if mu is None:
@@ -271,6 +279,12 @@ def random(speed_kph=None, mu=None, duration=10.0, steering=None, seed=0, rear_s
         mu = (uniform(hi) if kind == 0 else split(*(rng.permutation([lo, hi]))) if kind == 1
               else patch(hi, lo, float(rng.uniform(20.0, 150.0)), float(rng.uniform(170.0, 300.0))))
     road = _road(mu)
+    if steering is None and course_share > 0.0 and rng.random() < course_share:
+        width, front, rear = _body(params)
+        course = courses.lane_change(width, scale=float(rng.uniform(0.8, 2.0)), offset=float(rng.uniform(1.5, 3.5)),
+                                     direction=int(rng.choice([-1, 1])), front_extent=front, rear_extent=rear)
+        return _path_scenario("random", course, speed_kph, road, None, 20.0, None, params,
+                              rear_steer_feedforward=rear_steer_feedforward)
     if steering is None:
         speed = speed_kph / 3.6
         mu_ref = road.table()[0] if road.table() is not None else 0.5

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from envs.courses import CONE_RADIUS, iso3888_1, iso3888_2, slalom
+from envs.courses import CONE_RADIUS, iso3888_1, iso3888_2, lane_change, slalom
 
 WIDTH = 1.60  # the paper car's body width [m]
 
@@ -31,7 +31,8 @@ def test_iso3888_1_gates_match_the_standard_for_this_car():
     assert g3.y_right - g1.y_right == pytest.approx(3.5)
 
 
-@pytest.mark.parametrize("course", [iso3888_1(WIDTH), iso3888_2(WIDTH)])
+@pytest.mark.parametrize("course", [iso3888_1(WIDTH), iso3888_2(WIDTH), lane_change(WIDTH, 0.8, 1.5, -1),
+                                    lane_change(WIDTH, 2.0, 3.5, 1)])
 def test_drivers_line_keeps_the_body_inside_every_lane(course):
     x, y = course.centreline.T
     psi = np.arctan(np.gradient(y, x))
@@ -43,6 +44,22 @@ def test_drivers_line_keeps_the_body_inside_every_lane(course):
                 py = y + s * np.sin(psi) + side * half * np.cos(psi)
                 inside = (px >= gate.x_start) & (px <= gate.x_end)
                 assert np.all(py[inside] >= gate.y_right - 1e-6) and np.all(py[inside] <= gate.y_left + 1e-6)
+
+
+def test_a_lane_change_scales_its_sections_shifts_its_lane_and_mirrors():
+    """lane_change: ISO 3888-1 at scale 1 and offset 3.5; the sections stretch with ``scale``,
+    lane 3's right-hand row sits ``offset`` from lane 1's, and direction -1 mirrors everything."""
+    iso, same = iso3888_1(WIDTH), lane_change(WIDTH)
+    assert iso.gates == same.gates and np.array_equal(iso.centreline, same.centreline)
+    left, right = lane_change(WIDTH, 1.5, 2.5, 1), lane_change(WIDTH, 1.5, 2.5, -1)
+    def extent(course):
+        return course.gates[-1].x_end - course.gates[0].x_start
+
+    assert extent(left) == pytest.approx(1.5 * extent(iso))
+    assert left.gates[1].y_right - left.gates[0].y_right == pytest.approx(2.5)
+    np.testing.assert_array_equal(right.centreline, left.centreline * [1.0, -1.0])
+    np.testing.assert_array_equal(right.cones, left.cones * [1.0, -1.0])
+    assert [(g.y_right, g.y_left) for g in right.gates] == [(-g.y_left, -g.y_right) for g in left.gates]
 
 
 def test_drivers_line_enters_and_leaves_straight():
@@ -67,7 +84,9 @@ def test_slalom_line_passes_cones_alternately_at_the_amplitude():
 
 
 @pytest.mark.parametrize("call, bad", [(lambda: iso3888_2(float("nan")), "nan"), (lambda: iso3888_1(0.2), "0.2"),
-                                       (lambda: slalom(-3.0, 1.0, 5), "-3.0"), (lambda: slalom(18.0, 1.0, 1), "1")])
+                                       (lambda: slalom(-3.0, 1.0, 5), "-3.0"), (lambda: slalom(18.0, 1.0, 1), "1"),
+                                       (lambda: lane_change(WIDTH, direction=0), "direction"),
+                                       (lambda: lane_change(WIDTH, offset=-1.0), "-1.0")])
 def test_bad_course_arguments_raise(call, bad):
     with pytest.raises(ValueError, match=bad):
         call()

@@ -383,6 +383,16 @@ def test_privileged_observation_appends_the_truth(observation):
     sb3_check(YawStabilityEnv(**kwargs, observation=observation, privileged=True), warn=True)
 
 
+def test_random_course_episodes_reward_keeping_to_the_line():
+    """scenario_kwargs course_share=1: the randomised episodes are lane changes with the path
+    follower; the env measures the deviation from their line (small for a car left alone)."""
+    env = YawStabilityEnv(estimator="oracle", scenario_kwargs={"course_share": 1.0})
+    env.reset(seed=3)
+    assert env.unwrapped.core.loop.scenarios[0].course.name == "lane_change"
+    deviations = [env.step(np.zeros(2, dtype=np.float32))[4]["path_deviation"] for _ in range(300)]
+    assert 0.0 < max(deviations) < 0.5
+
+
 def test_friction_speed_and_sensor_fault_arguments_reach_the_episode():
     """mu and speed_kph set the scenario's road and speed; a stuck gyro (from 0.5 s) freezes the
     yaw-rate channel of the sensors observation while the car turns."""

@@ -102,6 +102,7 @@ def test_speed_hold_feeds_forward_the_resistance_and_coasts():
     ("random", {"speed_range_kph": (50.0, 40.0)}, "speed_range_kph"),
     ("random", {"lateral_demand": 0.3}, "lateral_demand"),
     ("random", {"lateral_demand": (0.0, 1.0)}, "lateral_demand"),
+    ("random", {"course_share": 1.5}, "course_share"),
 ])
 def test_bad_scenario_arguments_raise_value_error_naming_the_value(name, kwargs, bad):
     with pytest.raises(ValueError, match=bad):
@@ -154,6 +155,24 @@ def test_random_ranges_bound_the_draws_and_keep_the_rest():
             assert 0.05 <= demand <= 0.1
             narrow_steps += 1
     assert narrow_steps >= 5
+
+
+def test_random_course_episodes_follow_a_lane_change_with_the_path_follower():
+    """course_share 1: every episode is a drawn double lane change steered by the path
+    follower, run to 20 m past the exit; the car keeps to the line (uncontrolled, the oracle).
+    course_share 0 leaves the draws alone."""
+    from envs.driver import PathFollower
+
+    for seed in (3, 4):
+        s = make_scenario("random", seed=seed, course_share=1.0)
+        assert s.course.name == "lane_change" and isinstance(s.steering, PathFollower)
+        np.testing.assert_array_equal(s.reference_path[1:], s.course.centreline)
+        assert s.duration * s.speed == pytest.approx(s.course.length + 40.0)
+    s = make_scenario("random", seed=3, course_share=1.0, speed_kph=40.0)
+    traj = simulate(s)
+    lateral_error = traj.state[:, 1] - np.interp(traj.state[:, 0], s.reference_path[:, 0], s.reference_path[:, 1])
+    assert np.abs(lateral_error).max() < 0.5
+    assert make_scenario("random", seed=3, course_share=0.0).steering == make_scenario("random", seed=3).steering
 
 
 def test_mu_jump_drives_onto_the_low_friction_patch():
