@@ -34,9 +34,10 @@ variance growth is capped. The gate's lambda leaves out the longitudinal slip: F
 nothing but Dugoff's combined-slip cut of its lateral force, where Dugoff and the plant's
 Magic Formula disagree most (at slip 0.023 on mu 0.5, -18% against -1%). Gated on the
 combined lambda, a sustained differential torque on a straight (a DYC's or an RL agent's yaw
-moment, ~75% of the grip) drove mu from 0.8 to its 1.2 bound in 1.5 s on a 0.5 road. While mu is held its covariance still takes the update, so the
-reported mu sigma shrinks slowly in stretches without excitation (the covariance's trace
-0.090 -> 0.081 over a straight; sigma 0.036 per wheel after the sine's held stretches).
+moment, ~75% of the grip) drove mu from 0.8 to its 1.2 bound in 1.5 s on a 0.5 road.
+While mu is held its covariance still takes the update, so the reported mu sigma shrinks
+slowly in stretches without excitation (the covariance's trace 0.090 -> 0.081 over a
+straight; sigma 0.036 per wheel after the sine's held stretches).
 Discarding the update whole (only the random walk acting) was tried: after a friction drop mu
 then stayed at its old, high value, because lambda evaluated at a too-high mu keeps the gate
 closed, and the narrower covariance is what let the gate open again. Below MU_MIN_SPEED the
