@@ -2,8 +2,10 @@
 
 fourwis: single env (gym.make) with the oracle, CKF and joint estimators in the loop, and the
 native vector env of 64 and 256 cars; one env step = 20 ms of simulated time (ten 2 ms
-substeps of plant, sensors and estimator). Peers (the ``bench`` extra): highway-env's
-``highway-fast-v0`` (one step = 1 simulated second), CommonRoad's multi-body vehicle model
+substeps of plant, sensors and estimator); at 256 cars also on ``random``'s drawn lane
+changes only (``course_share`` 1: the path-following driver steers and the path deviation is
+measured every step). Peers (the ``bench`` extra): highway-env's ``highway-fast-v0`` (one
+step = 1 simulated second), CommonRoad's multi-body vehicle model
 (``vehiclemodels.vehicle_dynamics_mb``, RK4 at 1 ms; model only, no env around it) and
 gymnasium's ``CartPoleVectorEnv`` (256 envs, 20 ms steps). Reports env-steps/s and
 simulated seconds per wall-clock second.
@@ -48,10 +50,10 @@ def fourwis_single(estimator: str) -> float:
     return _rate(step)
 
 
-def fourwis_vector(estimator: str, n: int) -> float:
+def fourwis_vector(estimator: str, n: int, course_share: float = 0.0) -> float:
     from envs.gym_env import YawStabilityVectorEnv
 
-    env = YawStabilityVectorEnv(num_envs=n, estimator=estimator)
+    env = YawStabilityVectorEnv(num_envs=n, estimator=estimator, scenario_kwargs={"course_share": course_share})
     env.reset(seed=0)
     action = np.zeros((n, 2), dtype=np.float32)
 
@@ -129,11 +131,12 @@ def main() -> None:
         rows.append((f"fourwis single env, {estimator}", fourwis_single(estimator), 0.02))
     for n in (64, 256):
         rows.append((f"fourwis vector env x{n}, joint", fourwis_vector("joint", n), 0.02))
+    rows.append(("fourwis vector env x256, joint, lane changes", fourwis_vector("joint", 256, course_share=1.0), 0.02))
     rows.append(("fourwis vector env x256, oracle", fourwis_vector("oracle", 256), 0.02))
     rows.append(("highway-env highway-fast-v0", highway_fast(), 1.0))
     rows.append(("CommonRoad MB model (RK4, 1 ms)", commonroad_mb(), 0.001))
     rows.append(("gymnasium CartPoleVectorEnv x256", cartpole_vector(), 0.02))
-    highway = rows[-3][1]
+    highway = next(rate for name, rate, _ in rows if name.startswith("highway-env"))
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores; "
           f"{time.strftime('%Y-%m-%d')}")
     print("| env | env-steps/s | simulated s per wall s | sim-time ratio to highway-fast-v0 |")

@@ -227,6 +227,7 @@ class PathFollower:
     preview_time: float = 0.4
     points: int = 20
     spacing: float = 0.25  #: path resampling step [m]
+    _alone: "PathFollowerBatch | None" = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         path = np.asarray(self.path, dtype=np.float64)
@@ -245,25 +246,148 @@ class PathFollower:
         object.__setattr__(self, "path", np.vstack([resampled, far]))
 
     def __call__(self, t: float, state: np.ndarray) -> float:
+        if self._alone is None:
+            object.__setattr__(self, "_alone", PathFollowerBatch(self.params, self.preview_time, int(self.points)))
+            self._alone.replace({0: self})
+        out = np.zeros(1)
+        self._alone(np.ascontiguousarray(state, dtype=np.float64)[None], _FIRST, out)
+        return float(out[0])
+
+
+_FIRST = np.zeros(1, dtype=np.int64)
+
+
+class PathFollowerBatch:
+    """The :class:`PathFollower` s of vehicles driving one car (``params``) with one preview
+    (``preview_time``, ``points``), evaluated by one compiled call: their resampled paths in
+    one array, their preview responses in a table by speed (0.1 m/s steps), filled as speeds
+    come up."""
+
+    def __init__(self, params: VehicleParams, preview_time: float, points: int):
+        self.params, self.preview_time, self.points = params, float(preview_time), int(points)
+        self.paths, self.offsets = np.zeros((0, 2)), np.zeros(1, dtype=np.int64)
+        self.response_row = np.full(1000, -1, dtype=np.int64)  # table row by speed in 0.1 m/s; -1: not yet
+        self.free, self.step = np.zeros((0, self.points, 4)), np.zeros((0, self.points))
+
+    def replace(self, followers: dict[int, PathFollower]) -> None:
+        """Drive vehicle b by ``followers[b]`` (vehicles 0..max(b)); the batch's vehicles without
+        one must not be called."""
+        rows = max(followers, default=-1) + 1
+        paths = [followers[b].path if b in followers else np.zeros((0, 2)) for b in range(rows)]
+        self.paths = np.ascontiguousarray(np.concatenate([np.zeros((0, 2)), *paths]))
+        self.offsets = np.concatenate([[0], np.cumsum([len(path) for path in paths])]).astype(np.int64)
+
+    def __call__(self, states: np.ndarray, members: np.ndarray, out: np.ndarray) -> None:
+        """Write the steering-wheel angles [rad] of vehicles ``members`` (M,) int64 at plant
+        states (B, NX) (float64, C-contiguous) into ``out[members]``."""
         p = self.params
-        speed = max(abs(state[S_U]), 1.0)
-        free, step = _preview_responses(p, round(speed, 1), self.preview_time, int(self.points))
-        cos_psi, sin_psi = math.cos(state[S_PSI]), math.sin(state[S_PSI])
-        dx, dy = self.path[:, 0] - state[S_X], self.path[:, 1] - state[S_Y]
-        ahead = cos_psi * dx + sin_psi * dy  # path in the car's frame
-        left = -sin_psi * dx + cos_psi * dy
-        horizon = speed * self.preview_time
-        distances = horizon * np.arange(1, self.points + 1) / self.points
-        first = int(np.argmax(ahead > 0.0))  # first path point ahead of the car
-        stop = first + int(np.argmax(ahead[first:] > horizon)) + 1  # through the first beyond the horizon
-        start = max(first - 1, 0)  # and the last one behind it
-        if ahead[first] > 0.0 and np.all(np.diff(ahead[start:stop]) > 0):
-            target = np.interp(distances, ahead[start:stop], left[start:stop])
-        else:  # facing away from the path (spun): aim back at its nearest point
-            target = np.full(self.points, left[np.argmin(dx * dx + dy * dy)])
-        error = free @ np.array([0.0, 0.0, state[S_V], state[S_R]]) - target
-        delta = -float(step @ error) / float(step @ step)
-        return p.steering_ratio * min(max(delta, -p.max_front_steer), p.max_front_steer)
+        while True:
+            code, value = _follow_paths(self.paths, self.offsets, members, self.response_row, self.free, self.step,
+                                        states, self.preview_time, p.steering_ratio, p.max_front_steer, out)
+            if code == _DONE:
+                return
+            if code == _BAD_SPEED:
+                raise ValueError(f"vehicle {value}'s forward speed is {float(states[value, S_U])!r}; the path follower "
+                                 "needs a finite one")
+            if value >= len(self.response_row):  # _MISSING beyond the table: grow it
+                self.response_row = np.concatenate([self.response_row, np.full(value + 1, -1, dtype=np.int64)])
+            free, step = _preview_responses(p, value / 10.0, self.preview_time, self.points)
+            self.response_row[value] = len(self.free)
+            self.free, self.step = np.concatenate([self.free, free[None]]), np.concatenate([self.step, step[None]])
+
+
+_DONE, _MISSING, _BAD_SPEED = 0, 1, 2
+
+
+@numba.njit(**JIT)
+def _follow_paths(paths, offsets, members, response_row, free, step, states, preview_time, ratio, max_steer, out):
+    """:class:`PathFollowerBatch`'s kernel: (_DONE, 0) once every member's steering-wheel angle
+    is in ``out``, (_MISSING, tenths) if the preview responses at a speed of ``tenths`` x 0.1 m/s
+    are not in the table yet (the speed is |u| floored at 1 m/s, rounded as np.round(u, 1)), or
+    (_BAD_SPEED, vehicle) for a forward speed that is not finite."""
+    for b in members:
+        speed = max(abs(states[b, S_U]), 1.0)
+        if not math.isfinite(speed):
+            return _BAD_SPEED, b
+        tenths = int(np.rint(speed * 10.0))
+        if tenths >= response_row.shape[0] or response_row[tenths] < 0:
+            return _MISSING, tenths
+        row = response_row[tenths]
+        delta = _preview_steer(paths[offsets[b]:offsets[b + 1]], free[row], step[row], states[b], speed, preview_time)
+        out[b] = ratio * min(max(delta, -max_steer), max_steer)
+    return _DONE, 0
+
+
+@numba.njit(inline="always", **JIT)
+def _ahead(path, k, x, y, cos_psi, sin_psi):
+    """Distance [m] of path point k ahead of the car at (x, y) heading (cos_psi, sin_psi)."""
+    return cos_psi * (path[k, 0] - x) + sin_psi * (path[k, 1] - y)
+
+
+@numba.njit(inline="always", **JIT)
+def _left(path, k, x, y, cos_psi, sin_psi):
+    """Distance [m] of path point k to the left of the car at (x, y) heading (cos_psi, sin_psi)."""
+    return -sin_psi * (path[k, 0] - x) + cos_psi * (path[k, 1] - y)
+
+
+@numba.njit(**JIT)
+def _nearest(path, x, y):
+    """Index of the path point nearest to (x, y) [m] (the first of equals)."""
+    nearest, nearest_squared = 0, math.inf
+    for k in range(path.shape[0]):
+        dx, dy = path[k, 0] - x, path[k, 1] - y
+        if dx * dx + dy * dy < nearest_squared:
+            nearest, nearest_squared = k, dx * dx + dy * dy
+    return nearest
+
+
+@numba.njit(**JIT)
+def _preview_steer(path, free, step, state, speed, preview_time):
+    """:class:`PathFollower`'s road-wheel angle [rad] (not yet limited) for the car at ``state``
+    (NX,) moving at ``speed`` [m/s]: the preview ``free`` (P, 4) / ``step`` (P,) responses
+    steered onto the resampled ``path`` (N, 2) seen in the car's frame over the next
+    ``preview_time`` [s]. Scans the path from its start to the car's first point ahead and on
+    to the first one beyond the horizon, interpolating as np.interp does; only a car facing
+    away from the path (spun) looks at every point, for the nearest."""
+    n, points = path.shape[0], step.shape[0]
+    cos_psi, sin_psi = math.cos(state[S_PSI]), math.sin(state[S_PSI])
+    x, y = state[S_X], state[S_Y]
+    horizon = speed * preview_time
+    first = 0  # first path point ahead of the car (0 if none is)
+    for k in range(n):
+        if _ahead(path, k, x, y, cos_psi, sin_psi) > 0.0:
+            first = k
+            break
+    start = max(first - 1, 0)  # from the last point behind it through the first beyond the horizon
+    stop = first + 1
+    for k in range(first, n):
+        if _ahead(path, k, x, y, cos_psi, sin_psi) > horizon:
+            stop = k + 1
+            break
+    increasing = _ahead(path, first, x, y, cos_psi, sin_psi) > 0.0
+    previous = -math.inf
+    for k in range(start, stop):
+        ahead = _ahead(path, k, x, y, cos_psi, sin_psi)
+        increasing = increasing and ahead > previous
+        previous = ahead
+    gain, norm, segment = 0.0, 0.0, start
+    # facing away from the path (spun): aim back at its nearest point, at every preview instant
+    target = 0.0 if increasing else _left(path, _nearest(path, x, y), x, y, cos_psi, sin_psi)
+    for k in range(points):
+        if increasing:  # the path's lateral offset at the preview distance, as np.interp has it
+            distance = horizon * (k + 1) / points
+            while segment < stop - 1 and _ahead(path, segment + 1, x, y, cos_psi, sin_psi) <= distance:
+                segment += 1
+            if segment == stop - 1:
+                target = _left(path, stop - 1, x, y, cos_psi, sin_psi)
+            else:
+                x0, x1 = _ahead(path, segment, x, y, cos_psi, sin_psi), _ahead(path, segment + 1, x, y, cos_psi, sin_psi)
+                y0, y1 = _left(path, segment, x, y, cos_psi, sin_psi), _left(path, segment + 1, x, y, cos_psi, sin_psi)
+                target = y0 if distance < x0 else (y1 - y0) / (x1 - x0) * (distance - x0) + y0
+        error = free[k, 2] * state[S_V] + free[k, 3] * state[S_R] - target
+        gain += step[k] * error
+        norm += step[k] * step[k]
+    return -gain / norm
 
 
 @dataclass(frozen=True)
@@ -290,15 +414,17 @@ class SpeedHold(VectorisedDriver):
 
 
 class DriverBatch:
-    """The drivers of B vehicles (steering profiles or speed holders), evaluated together: the
-    :class:`VectorisedDriver` s of one class (and parameter count) by one kernel call over a
-    (B, k) parameter table that :meth:`replace` keeps up to date; any other callable
-    (:class:`PathFollower`, a user's function) one vehicle at a time."""
+    """The drivers of B vehicles (steering profiles, path followers or speed holders), evaluated
+    together: the :class:`VectorisedDriver` s of one class (and parameter count) by one kernel
+    call over a (B, k) parameter table that :meth:`replace` keeps up to date, the
+    :class:`PathFollower` s of one car and preview by one :class:`PathFollowerBatch` call; any
+    other callable (a user's function) one vehicle at a time."""
 
     def __init__(self, drivers: Sequence[Callable[[float, np.ndarray], float]]):
         self.drivers = list(drivers)
-        self._keys: list[tuple[type, int] | None] = [None] * len(self.drivers)  # None: called one by one
+        self._keys: list[tuple | None] = [None] * len(self.drivers)  # None: called one by one
         self._tables: dict[tuple[type, int], np.ndarray] = {}
+        self._followers: dict[tuple, PathFollowerBatch] = {}
         self.replace(range(len(self.drivers)), self.drivers)
 
     def replace(self, members: Sequence[int], drivers: Sequence[Callable[[float, np.ndarray], float]]) -> None:
@@ -312,8 +438,14 @@ class DriverBatch:
                 if key not in self._tables:
                     self._tables[key] = np.zeros((len(self.drivers), len(row)))
                 self._tables[key][b] = row
+            elif isinstance(driver, PathFollower):
+                self._keys[b] = key = (PathFollower, driver.params, float(driver.preview_time), int(driver.points))
+                if key not in self._followers:
+                    self._followers[key] = PathFollowerBatch(*key[1:])
         self._members = {key: np.array([b for b, k in enumerate(self._keys) if k == key], dtype=np.int64)
-                         for key in self._tables}
+                         for key in [*self._tables, *self._followers]}
+        for key, batch in self._followers.items():
+            batch.replace({int(b): self.drivers[b] for b in self._members[key]})
         self._looped = np.array([b for b, k in enumerate(self._keys) if k is None], dtype=np.int64)
 
     def __call__(self, t: np.ndarray, states: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
@@ -322,7 +454,10 @@ class DriverBatch:
         out = np.zeros(len(self.drivers))
         for key, members in self._members.items():
             if len(members):
-                key[0].kernel(self._tables[key], members, t, states, out)
+                if key in self._followers:
+                    self._followers[key](states, members, out)
+                else:
+                    key[0].kernel(self._tables[key], members, t, states, out)
         if len(self._looped):
             for b in self._looped if rows is None else np.intersect1d(self._looped, rows):
                 out[b] = self.drivers[b](t[b], states[b])

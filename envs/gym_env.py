@@ -28,7 +28,7 @@ from gymnasium.vector.utils import batch_space
 from control import Command
 from control.allocation import allocate_for_estimate
 from control.reference import PhasePlaneRegion, reference_yaw_rate
-from envs.metrics import SPIN_OUT_SIDESLIP, alongside_path, path_deviation, sine_with_dwell_metrics
+from envs.metrics import SPIN_OUT_SIDESLIP, CoursePaths, sine_with_dwell_metrics
 from envs.scenarios import SCENARIOS, Scenario, is_number, make_scenario
 from envs.sensors import Fault
 from envs.simulation import DT, ClosedLoop
@@ -208,6 +208,7 @@ class YawStabilityCore:
         self.params = params
         self.stats = _EpisodeStats(self.batch_size)
         self._ends = self._end_steps(scenarios)
+        self._paths = CoursePaths([s.reference_path for s in scenarios])
         self.keep_trace = False  #: record vehicle 0's strip-chart history (set by envs that render)
         self._renderer = None
         self._trace: list[tuple[float, float, float, float]] = []
@@ -222,6 +223,7 @@ class YawStabilityCore:
         scenarios, sensor_rngs = zip(*(self.config.draw(rng) for rng in rngs))
         self.loop.reset_members(mask, list(scenarios), list(sensor_rngs))
         self._ends[members] = self._end_steps(scenarios)
+        self._paths.replace(members, [s.reference_path for s in scenarios])
         self.stats.clear(members)
         if mask[0]:
             self._trace = []
@@ -292,13 +294,7 @@ class YawStabilityCore:
         before its start and past its end, where the run-out continues straight: measured to
         the path's end point there, a car leaving a course cleanly passed 5 m and was
         terminated), as the comparison's path metrics count it."""
-        out = np.zeros(self.batch_size)
-        state = self.loop.state
-        for b, scenario in enumerate(self.loop.scenarios):
-            path = scenario.reference_path
-            if path is not None and alongside_path(state[b, S_X], path):
-                out[b] = path_deviation(state[b:b + 1, S_X], state[b:b + 1, S_Y], path)[1]
-        return out
+        return self._paths.deviation(self.loop.state[:, S_X], self.loop.state[:, S_Y])
 
     def episode_metrics(self, b: int) -> dict:
         """Vehicle b's episode so far (see the YawStabilityEnv docstring)."""

@@ -15,8 +15,11 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 
+import numba
 import numpy as np
 from scipy.signal import butter, find_peaks, sosfiltfilt
+
+from estimation.jit import JIT
 
 STEERING_CUTOFF = 10.0  #: S7.11.1: steering-wheel angle filter cutoff [Hz]
 RESPONSE_CUTOFF = 6.0  #: S7.11.2-3: yaw rate and lateral acceleration filter cutoff [Hz]
@@ -37,6 +40,7 @@ G_UNIT = 9.80665  #: the unit "g" of the regulation's thresholds (standard gravi
 SPIN_OUT_SIDESLIP = math.radians(20.0)  #: default |beta| spin-out threshold [rad]
 SPIN_OUT_HEADING = math.pi / 2  #: heading this far from the course counts as a spin-out [rad]
 CONE_RADIUS = 0.15  #: base radius of a road cone [m] (300 mm base, ISO 3888 course marking)
+TINY = np.finfo(float).tiny  #: floor of a path segment's squared length [m^2]
 
 
 def _series(name: str, x, n: int | None = None) -> np.ndarray:
@@ -327,15 +331,15 @@ def cone_hits(x, y, psi, cones, width: float, front_extent: float, rear_extent: 
 def alongside_path(x, path) -> np.ndarray:
     """Whether the positions X [m] (n,) lie within the X extent of the course's ``path`` (N, 2),
     which runs along +X: where path deviations count (before its start and on the straight
-    run-out past its end the distance to the polyline's end points is no deviation)."""
+    run-out past its end the distance to the polyline's end points is no deviation). ``path``
+    may carry leading axes matching ``x``'s (each car its own path; NaN: none)."""
     x = np.asarray(x, dtype=float)
-    return (x >= path[0, 0]) & (x <= path[-1, 0])
+    return (x >= path[..., 0, 0]) & (x <= path[..., -1, 0])
 
 
-def path_deviation(x, y, path, chunk: int = 2048) -> tuple[float, float]:
+def path_deviation(x, y, path) -> tuple[float, float]:
     """RMS and largest distance [m] of the points ``x, y`` (n,) [m] from the polyline ``path``
-    (N >= 2, 2) [m]: each point's distance to its nearest segment (vectorised over segments,
-    ``chunk`` points at a time to bound memory)."""
+    (N >= 2, 2) [m]: each point's distance to its nearest segment."""
     x = _series("x", x)
     y = _series("y", y, len(x))
     path = np.asarray(path, dtype=float)
@@ -343,15 +347,70 @@ def path_deviation(x, y, path, chunk: int = 2048) -> tuple[float, float]:
         raise ValueError(f"path must be a finite (N >= 2, 2) polyline, got shape {path.shape}")
     if len(x) == 0:
         raise ValueError("x, y are empty")
-    a, ab = path[:-1], np.diff(path, axis=0)
-    length2 = np.maximum(np.sum(ab**2, axis=1), np.finfo(float).tiny)
-    points = np.column_stack([x, y])
-    distance = np.empty(len(points))
-    for start in range(0, len(points), chunk):
-        q = points[start:start + chunk, None, :] - a  # (c, N-1, 2)
-        s = np.clip(np.sum(q * ab, axis=2) / length2, 0.0, 1.0)
-        distance[start:start + chunk] = np.min(np.linalg.norm(q - s[..., None] * ab, axis=2), axis=1)
+    distance = np.empty(len(x))
+    _distances_to_polyline(x, y, np.ascontiguousarray(path), distance)
     return float(np.sqrt(np.mean(distance**2))), float(distance.max())
+
+
+class CoursePaths:
+    """The reference paths of a batch of B cars (None: no course), for their distance from
+    them sample by sample (the env's per-step path deviation): one compiled call over the batch.
+    """
+
+    def __init__(self, paths: list[np.ndarray | None]):
+        self.paths = list(paths)
+        self._stack()
+
+    def replace(self, members, paths: list[np.ndarray | None]) -> None:
+        """Cars ``members`` get the new ``paths`` (one each, in order)."""
+        for b, path in zip(members, paths):
+            self.paths[b] = path
+        self._stack()
+
+    def _stack(self) -> None:
+        polylines = [np.zeros((0, 2)) if path is None else np.asarray(path, dtype=float) for path in self.paths]
+        self.points = np.ascontiguousarray(np.concatenate([np.zeros((0, 2)), *polylines]))
+        self.offsets = np.concatenate([[0], np.cumsum([len(path) for path in polylines])]).astype(np.int64)
+        self.ends = np.full((len(polylines), 2, 2), np.nan)  # each path's first and last point
+        for b, path in enumerate(polylines):
+            if len(path):
+                self.ends[b] = path[[0, -1]]
+
+    def deviation(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Distance [m] (B,) of the cars at ``x, y`` (B,) [m] from their paths where they are
+        alongside them (:func:`alongside_path`), else 0."""
+        out = np.zeros(len(self.paths))
+        cars = np.flatnonzero(alongside_path(x, self.ends))
+        if len(cars):
+            _batch_distances(np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(y, dtype=float), self.points,
+                             self.offsets, cars, out)
+        return out
+
+
+@numba.njit(**JIT)
+def _distance_to_polyline(x, y, path):
+    """Distance [m] of the point (x, y) from the polyline ``path`` (N >= 2, 2): to its nearest
+    segment."""
+    nearest = math.inf
+    for k in range(path.shape[0] - 1):
+        ab_x, ab_y = path[k + 1, 0] - path[k, 0], path[k + 1, 1] - path[k, 1]
+        q_x, q_y = x - path[k, 0], y - path[k, 1]
+        s = min(max((q_x * ab_x + q_y * ab_y) / max(ab_x * ab_x + ab_y * ab_y, TINY), 0.0), 1.0)
+        d_x, d_y = q_x - s * ab_x, q_y - s * ab_y
+        nearest = min(nearest, math.sqrt(d_x * d_x + d_y * d_y))
+    return nearest
+
+
+@numba.njit(**JIT)
+def _distances_to_polyline(x, y, path, out):
+    for i in range(x.shape[0]):
+        out[i] = _distance_to_polyline(x[i], y[i], path)
+
+
+@numba.njit(**JIT)
+def _batch_distances(x, y, points, offsets, cars, out):
+    for b in cars:
+        out[b] = _distance_to_polyline(x[b], y[b], points[offsets[b]:offsets[b + 1]])
 
 
 def spin_out(beta, psi=None, course_heading=None, threshold_beta: float = SPIN_OUT_SIDESLIP) -> bool:

@@ -248,3 +248,21 @@ def test_uncontrolled_car_is_characterised_and_fails_the_yaw_criterion_on_dry_ro
     left, right = run_series(A, mu=1.0, amplitude_list=np.array([5.5 * A]))
     assert not left.result.passed_yaw and left.result.spun_out
     assert left.result.yaw_rate_ratio_1000 == pytest.approx(right.result.yaw_rate_ratio_1000, abs=1e-6)
+
+
+def test_course_paths_measure_each_car_from_its_own_path_while_alongside_it():
+    from envs.metrics import CoursePaths, alongside_path
+
+    corner = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [20.0, 10.0]])
+    straight = np.column_stack([np.linspace(-5.0, 30.0, 8), np.full(8, 2.0)])
+    paths = CoursePaths([corner, None, straight, corner])
+    x, y = np.array([12.0, 5.0, 25.0, 25.0]), np.array([4.0, 1.0, -1.0, 3.0])
+    deviation = paths.deviation(x, y)
+    # car 0 beside the corner's vertical leg; car 1 has no course; car 2 3 m below its line;
+    # car 3 is past its path's end, where no deviation counts
+    assert deviation.tolist() == pytest.approx([2.0, 0.0, 3.0, 0.0])
+    assert alongside_path(x[[0, 3]], corner).tolist() == [True, False]
+    for b in (0, 2):
+        assert deviation[b] == path_deviation(x[b:b + 1], y[b:b + 1], paths.paths[b])[1]
+    paths.replace([1, 3], [straight, None])  # new episodes: car 1 on the straight, car 3 off course
+    assert paths.deviation(x, y).tolist() == pytest.approx([2.0, 1.0, 3.0, 0.0])

@@ -229,3 +229,53 @@ def test_path_follower_rejects_bad_arguments(kwargs, match):
 
     with pytest.raises(ValueError, match=match):
         PathFollower(**({"path": np.column_stack([np.arange(3.0), np.zeros(3)])} | kwargs))
+
+
+def test_path_follower_scan_steers_as_the_whole_path_seen_from_the_car():
+    """The compiled driver scans the path from its start; written out over every point (the
+    path in the car's frame, np.interp at the preview distances) it steers the same, for cars
+    before the course, on it, past its end and facing away from it."""
+    from envs.courses import lane_change
+    from envs.driver import PathFollower, _preview_responses
+    from envs.vehicle import NX, S_PSI, S_R, S_U, S_V, S_X, S_Y
+
+    follower, rng = PathFollower(lane_change(2.0, scale=1.4, offset=2.5, direction=-1).centreline), np.random.default_rng(5)
+    path, p = follower.path, follower.params
+    steers, kinds = [], set()
+    for _ in range(600):
+        state = np.zeros(NX)
+        state[[S_U, S_X, S_Y, S_PSI, S_V, S_R]] = (rng.uniform(-5.0, 40.0), rng.uniform(-30.0, 200.0),
+                                                    rng.normal(0.0, 3.0), rng.choice([rng.normal(0.0, 0.3), rng.uniform(-4.0, 4.0)]),
+                                                    rng.normal(0.0, 1.0), rng.normal(0.0, 0.3))
+        speed = max(abs(state[S_U]), 1.0)
+        free, step = _preview_responses(p, round(speed, 1), follower.preview_time, follower.points)
+        c, s = math.cos(state[S_PSI]), math.sin(state[S_PSI])
+        dx, dy = path[:, 0] - state[S_X], path[:, 1] - state[S_Y]
+        ahead, left = c * dx + s * dy, -s * dx + c * dy
+        horizon = speed * follower.preview_time
+        first = int(np.argmax(ahead > 0.0))
+        stop = first + int(np.argmax(ahead[first:] > horizon)) + 1
+        start = max(first - 1, 0)
+        if ahead[first] > 0.0 and np.all(np.diff(ahead[start:stop]) > 0):
+            target = np.interp(horizon * np.arange(1, follower.points + 1) / follower.points, ahead[start:stop],
+                               left[start:stop])
+            kinds.add("before the course" if state[S_X] < path[0, 0] else "on or past it")
+        else:
+            target = np.full(follower.points, left[np.argmin(dx * dx + dy * dy)])
+            kinds.add("facing away")
+        delta = -step @ (free @ [0.0, 0.0, state[S_V], state[S_R]] - target) / (step @ step)
+        steers.append((follower(0.0, state), p.steering_ratio * np.clip(delta, -p.max_front_steer, p.max_front_steer)))
+    assert kinds == {"before the course", "on or past it", "facing away"}
+    np.testing.assert_allclose(*np.array(steers).T, rtol=1e-12, atol=1e-12)
+
+
+def test_path_follower_names_a_speed_it_cannot_steer_at():
+    from envs.driver import DriverBatch, PathFollower
+    from envs.vehicle import NX, S_U
+
+    follower = PathFollower(np.column_stack([np.arange(50.0), np.zeros(50)]))
+    states = np.zeros((2, NX))
+    states[:, S_U] = 20.0, np.nan
+    assert np.isfinite(follower(0.0, states[0]))
+    with pytest.raises(ValueError, match="vehicle 1's forward speed is nan"):
+        DriverBatch([follower, follower])(np.zeros(2), states)
