@@ -25,6 +25,7 @@ lane-centre line: the lanes of ISO 3888-2 are too short for that at any useful s
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -213,8 +214,8 @@ def slalom(spacing: float, amplitude: float, n_cones: int) -> Course:
     for name, value in (("spacing", spacing), ("amplitude", amplitude)):
         if not (math.isfinite(value) and value > 0):
             raise ValueError(f"slalom {name} must be a finite number > 0, got {value!r}")
-    if n_cones < 2:
-        raise ValueError(f"slalom needs at least 2 cones, got {n_cones!r}")
+    if not (isinstance(n_cones, numbers.Integral) and not isinstance(n_cones, bool) and n_cones >= 2):
+        raise ValueError(f"slalom n_cones must be a whole number >= 2, got {n_cones!r}")
     last = (n_cones - 1) * spacing
     x = np.arange(-spacing, last + 2 * spacing + 0.125, 0.25)
     fade = _minimum_jerk((x + spacing) / spacing) * _minimum_jerk((last + spacing - x) / spacing)

@@ -191,7 +191,7 @@ def paper_sine(speed_kph=40.0, mu=0.8, duration=10.0, steering=None, amplitude_d
 def paper_serpentine(speed_kph=40.0, mu=0.5, duration=None, steering=None, spacing=18.0, amplitude=1.0,
                      n_cones=8, rear_steer_feedforward=False, params=VehicleParams()) -> Scenario:
     """Paper 4.3.2: slalom through ``n_cones`` cones ``spacing`` [m] apart, path amplitude ``amplitude`` [m]."""
-    course = courses.slalom(_positive("spacing", spacing), _positive("amplitude", amplitude), int(n_cones))
+    course = courses.slalom(_positive("spacing", spacing), _positive("amplitude", amplitude), n_cones)
     return _path_scenario("paper_serpentine", course, _positive("speed_kph", speed_kph), mu, duration, 20.0,
                           steering, params, rear_steer_feedforward=rear_steer_feedforward)
 
@@ -241,10 +241,17 @@ def mu_jump(speed_kph=60.0, mu=0.9, duration=6.0, steering=None, mu_patch=0.3, l
     """Steady cornering at ``lateral_g`` (neutral-steer steering-wheel angle) on ``mu``, onto a
     ``mu_patch`` surface covering every X >= ``patch_x`` [m] (about 1.5 s into the turn). ``mu``
     may be a patch map (e.g. a split road): its patches stay, the jump is laid over them."""
-    speed = _positive("speed_kph", speed_kph) / 3.6
+    speed, duration = _positive("speed_kph", speed_kph) / 3.6, _positive("duration", duration)
+    reach = speed * duration  # the largest X [m] the car reaches: on a straight, its distance
     if steering is None:
         delta = _positive("lateral_g", lateral_g) * GRAVITY * params.wheelbase / speed**2
         steering = Constant(delta * params.steering_ratio)
+        radius = params.wheelbase / delta  # of the neutral-steer circle from X = 0 heading +X [m]
+        reach = radius * math.sin(reach / radius) if reach < 0.5 * math.pi * radius else radius
+    if reach <= _finite("patch_x", patch_x):
+        raise ValueError(f"mu_jump: at {speed_kph!r} km/h for {duration!r} s the car reaches X = {reach:.1f} m at "
+                         f"most, short of the patch at X = {patch_x!r} m; raise speed_kph or duration (or lower "
+                         "lateral_g)")
     base = _road(mu)
     if not isinstance(base, PatchMap):
         raise ValueError(f"mu_jump needs a uniform or patch map as mu, got {mu!r}")
@@ -268,6 +275,8 @@ def random(speed_kph=None, mu=None, duration=10.0, steering=None, seed=0, rear_s
     1.5-3.5 m to the left or right) steered by the path-following driver, who answers the
     controller's yaw moment as open-loop steering cannot; it lasts until 20 m past the exit."""
     speed_low, speed_high = _interval("speed_range_kph", speed_range_kph)
+    if speed_high > MAX_SPEED_KPH:
+        raise ValueError(f"speed_range_kph must lie in (0, {MAX_SPEED_KPH:g}], got {speed_range_kph!r}")
     demand_low, demand_high = _interval("lateral_demand", lateral_demand)
     if not (is_number(course_share) and 0.0 <= course_share <= 1.0):
         raise ValueError(f"course_share must be a probability in [0, 1], got {course_share!r}")

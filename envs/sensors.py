@@ -155,6 +155,9 @@ class SensorModel:
             raise ValueError(f"batch_size must be >= 1, got {batch_size!r}")
         self.params = params
         self.faults = tuple(faults)
+        for fault in self.faults:
+            if not isinstance(fault, Fault):
+                raise ValueError(f"faults must be envs.sensors.Fault objects, got {fault!r}")
         self.batch_size = batch_size
         self._noise = np.asarray(params.noise_std, dtype=float)
         self._bias_std = np.asarray(params.bias_std, dtype=float)

@@ -159,7 +159,7 @@ class ClosedLoop:
     the plant moves), :meth:`advance` applies the controller and integrates.
     """
 
-    def __init__(self, scenarios: Scenario | Sequence[Scenario], controller: Controller | None,
+    def __init__(self, scenarios: Scenario | Sequence[Scenario], controller: Controller | str | None,
                  estimator: Estimator | str | None, rng: np.random.Generator | Sequence[np.random.Generator],
                  sensor_params: SensorParams | None = None, faults: Sequence[Fault] = (), dt: float = DT):
         self.scenarios = [scenarios] if isinstance(scenarios, Scenario) else list(scenarios)
@@ -170,6 +170,13 @@ class ClosedLoop:
             from estimation import make_estimator
 
             estimator = make_estimator(estimator or "oracle", params, dt)
+        if isinstance(controller, str):
+            from control import make_controller
+
+            controller = make_controller(controller, params, dt)
+        if controller is not None and not (callable(controller) and callable(getattr(controller, "reset", None))):
+            raise ValueError(f"controller must be a Controller (reset() and a call), a name from control.CONTROLLERS "
+                             f"or None, got {controller!r}")
         estimator_dt = getattr(estimator, "dt", None)
         if estimator_dt is not None and not math.isclose(estimator_dt, dt, rel_tol=1e-12):
             raise ValueError(f"the estimator steps at dt = {estimator_dt!r} s, the simulation at {dt!r} s: build it with "
@@ -296,13 +303,14 @@ class ClosedLoop:
         return record
 
 
-def simulate(scenario: Scenario | str, controller: Controller | None = None, estimator: Estimator | str | None = None,
+def simulate(scenario: Scenario | str, controller: Controller | str | None = None, estimator: Estimator | str | None = None,
              seed: int = 0, sensor_params: SensorParams | None = None, faults: Sequence[Fault] = (),
              dt: float = DT, progress: bool = False) -> Trajectory:
     """Run ``scenario`` once; returns the :class:`Trajectory`.
 
-    ``estimator``: an estimator object, a name for :func:`estimation.make_estimator`, or None
-    (the oracle: the controller sees the truth). ``seed`` seeds the sensor noise and faults.
+    ``controller``: a controller object, a name for :func:`control.make_controller`, or None
+    (no stability control). ``estimator``: an estimator object, a name for
+    :func:`estimation.make_estimator`, or None (the oracle: the controller sees the truth). ``seed`` seeds the sensor noise and faults.
     """
     if isinstance(scenario, str):
         scenario = make_scenario(scenario)

@@ -179,9 +179,12 @@ TUNED_NOISE_FILE = "data/tuned_noise.json"  #: inside the estimation package; wr
 
 def tuned_noise(path=None) -> NoiseParams | None:
     """The tuned noise in ``path`` (default: the package's :data:`TUNED_NOISE_FILE`, shipped with
-    the ALO result of ``fourwis tune``); None only if that file does not exist (then alo-fkf
-    runs the hand-set noise, as documented in make_estimator). A corrupted file raises
-    ValueError naming it, never a silent default."""
+    the ALO result of ``fourwis tune``); None only if that shipped file does not exist (then
+    alo-fkf runs the hand-set noise, as documented in make_estimator). A ``path`` given that is
+    not a file raises FileNotFoundError, a corrupted file ValueError naming it: never a silent
+    default."""
+    if path is not None and not Path(path).is_file():
+        raise FileNotFoundError(f"no tuning file {str(path)!r}; `fourwis tune --out {path}` writes one")
     path = resources.files("estimation").joinpath(TUNED_NOISE_FILE) if path is None else Path(path)
     if not path.is_file():
         return None

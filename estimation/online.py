@@ -96,6 +96,9 @@ class OnlineTuner:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
         if method not in METHODS:
             raise ValueError(f"unknown optimizer {method!r}; known: {list(METHODS)}")
+        if not isinstance(estimator, StateEstimator):
+            raise ValueError(f"OnlineTuner wraps a StateEstimator (make_estimator('joint', params, dt)), got "
+                             f"{estimator!r}")
         self.estimator, self.base_noise, self.method = estimator, estimator.noise, method
         self.window, self.n_agents, self.iterations = window, n_agents, iterations
         self.replay_per_step, self.seed, self.bounds = replay_per_step, seed, bounds

@@ -11,10 +11,24 @@ def test_scenario_entries_parse_into_name_and_overrides():
     assert parse_scenario("iso3888_2") == ("iso3888_2", {})
     assert parse_scenario("iso3888_2:mu=0.5,speed_kph=50") == ("iso3888_2", {"mu": 0.5, "speed_kph": 50.0})
     assert parse_scenario("swd_wet") == ("sine_with_dwell", {"mu": SWD_MU, "amplitude_A": SWD_MULTIPLE})
+    # a split road as a JSON list; swd_wet takes overrides on top of its own
+    assert parse_scenario("iso3888_2:mu=[0.5, 0.3],speed_kph=40") == ("iso3888_2", {"mu": [0.5, 0.3], "speed_kph": 40})
+    assert parse_scenario("swd_wet:mu=0.3+faults") == ("sine_with_dwell", {"mu": 0.3, "amplitude_A": SWD_MULTIPLE})
     for bad, word in (("iso9999", "iso9999"), ("iso3888_2:mu=wet", "mu=wet"), ("paper_dlc:amplitude_A=3", "only"),
-                      ("paper_dlc:warp=3", "warp"), ("paper_dlc:mu=-1", "mu")):
+                      ("paper_dlc:warp=3", "warp"), ("paper_dlc:mu=-1", "mu"), ("iso3888_2:mu=[0.5,true]", "true"),
+                      ("iso3888_2:mu=[0.5,0.3,0.2]", r"0\.2"), ("swd_wet:warp=1", "warp"),
+                      ("sine_with_dwell:amplitude_A=6.5,amplitude_deg=50", "not both"),
+                      ("sine_with_dwell:amplitude_A=-1", "amplitude_A must be")):
         with pytest.raises(ValueError, match=word):
             parse_scenario(bad)
+
+
+def test_a_matrix_axis_with_a_repeated_entry_is_refused():
+    for axes, word in ((["paper_step", "paper_step"], ["oracle"], ["none"]), "scenarios"), \
+                      ((["paper_step"], ["oracle", "oracle"], ["none"]), "estimators"), \
+                      ((["paper_step"], ["oracle"], ["none", "none"]), "controllers"):
+        with pytest.raises(ValueError, match=f"{word} must be distinct"):
+            run_matrix(*axes, seeds=1, jobs=1, progress=False)
 
 
 def test_overrides_reach_the_runs():

@@ -376,3 +376,17 @@ def test_the_reference_lag_is_the_2dof_models_slower_mode_capped_for_an_overstee
     lag = yaw_time_constant(np.array([22.2, 55.5]), oversteer)
     assert max(np.linalg.eigvals(bicycle_matrices(55.5, oversteer)[0]).real) > 0.0
     assert 0.0 < lag[0] < MAX_YAW_TIME_CONSTANT and lag[1] == MAX_YAW_TIME_CONSTANT
+
+
+def test_simulate_takes_a_controller_by_name_as_it_takes_an_estimator():
+    from envs.scenarios import make_scenario
+    from envs.simulation import simulate
+
+    scenario = make_scenario("paper_step", duration=1.5)
+    by_name = simulate(scenario, "dyc-lqr", "joint", seed=1)
+    built = simulate(scenario, make_controller("dyc-lqr", scenario.vehicle_params), "joint", seed=1)
+    np.testing.assert_array_equal(by_name.controls, built.controls)
+    assert np.any(by_name.controls != simulate(scenario, "none", "joint", seed=1).controls)
+    for bad, match in (("pid", "'pid'"), (3, "got 3")):
+        with pytest.raises(ValueError, match=match):
+            simulate(scenario, bad)

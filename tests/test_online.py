@@ -103,6 +103,8 @@ def test_the_likelihood_criterion_is_not_invariant_to_scaling_q_and_r_together()
 
 
 def test_bad_arguments():
+    with pytest.raises(ValueError, match="'joint'"):
+        OnlineTuner("joint")
     with pytest.raises(ValueError, match="window"):
         OnlineTuner(make_estimator("joint", VehicleParams()), window=0)
     tuner = OnlineTuner(make_estimator("joint", VehicleParams()))

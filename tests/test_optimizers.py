@@ -79,11 +79,16 @@ def test_tune_keeps_the_hand_set_noise_when_the_optimizer_finds_nothing_better(t
     assert json.loads((tmp_path / "tuned.json").read_text())["log10_factors"] == [0.0] * 4
 
 
-def test_tuning_file_missing_means_hand_set_noise_and_corrupted_raises(tmp_path):
+def test_tuning_file_missing_means_hand_set_noise_a_named_one_missing_or_corrupted_raises(tmp_path, monkeypatch):
+    import estimation.joint
     from estimation.joint import tuned_noise
 
-    assert tuned_noise(tmp_path / "absent.json") is None
-    assert tuned_noise(str(tmp_path / "absent.json")) is None  # a str path works too
+    for absent in (tmp_path / "absent.json", str(tmp_path / "absent.json"), tmp_path):  # a typo, a directory
+        with pytest.raises(FileNotFoundError, match="absent.json|no tuning file"):
+            tuned_noise(absent)
+    with monkeypatch.context() as patch:  # a package without the shipped file: the hand-set noise
+        patch.setattr(estimation.joint, "TUNED_NOISE_FILE", "data/absent.json")
+        assert tuned_noise() is None
     shipped = tuned_noise()
     assert shipped is not None and shipped.accel_std != NoiseParams().accel_std
     for text in ("{not json", '{"cost": 1.0}', '{"log10_factors": [1, 2]}'):

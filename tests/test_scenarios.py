@@ -103,6 +103,12 @@ def test_speed_hold_feeds_forward_the_resistance_and_coasts():
     ("random", {"lateral_demand": 0.3}, "lateral_demand"),
     ("random", {"lateral_demand": (0.0, 1.0)}, "lateral_demand"),
     ("random", {"course_share": 1.5}, "course_share"),
+    ("random", {"speed_range_kph": (30.0, 400.0)}, "speed_range_kph"),  # the draw would exceed 300 km/h
+    ("paper_serpentine", {"n_cones": 2.5}, "n_cones"),
+    ("paper_serpentine", {"n_cones": "8"}, "n_cones"),
+    ("mu_jump", {"speed_kph": 2.0}, "short of the patch"),  # 1.4 m in 6 s
+    ("mu_jump", {"speed_kph": 30.0}, "short of the patch"),  # circles 17.7 m across at 0.4 g
+    ("mu_jump", {"duration": 1.2}, "short of the patch"),
 ])
 def test_bad_scenario_arguments_raise_value_error_naming_the_value(name, kwargs, bad):
     with pytest.raises(ValueError, match=bad):

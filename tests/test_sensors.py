@@ -105,6 +105,11 @@ def test_bad_faults_raise(kwargs, bad):
         Fault(**kwargs)
 
 
+def test_faults_other_than_fault_objects_are_refused():
+    with pytest.raises(ValueError, match="'x'"):
+        SensorModel(SensorParams(), ("x",), 1, np.random.default_rng(0))
+
+
 def test_bad_truth_raises_naming_the_channel():
     model = SensorModel(SensorParams(), (), 1, np.random.default_rng(0))
     truth = np.zeros((1, len(CHANNELS)))

@@ -10,7 +10,9 @@ of u, v, beta, r and mu.
 
 from __future__ import annotations
 
+import json
 import math
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,14 +24,14 @@ from control.allocation import wheel_force_map
 from control.reference import PhasePlaneRegion, reference_yaw_rate
 from envs.fmvss126 import characterise
 from envs.metrics import alongside_path, cone_hits, mae, path_deviation, rms, rmse, sine_with_dwell_metrics, spin_out
-from envs.scenarios import SCENARIOS, make_scenario
+from envs.scenarios import SCENARIOS, is_number, make_scenario
 from envs.sensors import Fault
 from envs.simulation import Trajectory, simulate
 from envs.vehicle import A_AY, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_X, S_Y
 from estimation import check_estimator_name
 from training.io import atomic_write, atomic_write_text
 from training.pool import parallel_map
-from training.tables import mean_over_seeds, write_runs_csv
+from training.tables import mean_over_seeds, require_distinct, write_runs_csv
 
 #: headline scenarios: the paper's five conditions, FMVSS 126 at 5.5A on a wet road, the mu jump,
 #: and ISO 3888-2 at 70 km/h on mu 1.0 (where the uncontrolled car spins; it clears 60 km/h)
@@ -57,28 +59,36 @@ SENSOR_FAULTS = (Fault("yaw_rate", "spike", magnitude=0.2, rate=5.0), Fault("yaw
 FAULT_SUFFIX = "+faults"
 
 
-def parse_scenario(text: str) -> tuple[str, dict[str, float | int]]:
-    """Scenario name and numeric overrides of a comparison entry ``name[:key=value,...][+faults]``,
-    e.g. ``iso3888_2:mu=0.5,speed_kph=50``; ``amplitude_A=k`` gives sine with dwell k times A;
-    ``swd_wet`` stands for ``sine_with_dwell:mu=0.5,amplitude_A=5.5``; a ``+faults`` suffix runs
-    it with :data:`SENSOR_FAULTS`."""
+def parse_scenario(text: str) -> tuple[str, dict]:
+    """Scenario name and overrides of a comparison entry ``name[:key=value,...][+faults]``,
+    e.g. ``iso3888_2:mu=0.5,speed_kph=50``; a value is a number or a JSON list (a split road:
+    ``mu=[0.5,0.3]``, left and right); ``amplitude_A=k`` gives sine with dwell k times A;
+    ``swd_wet`` stands for ``sine_with_dwell:mu=0.5,amplitude_A=5.5`` (overrides apply on top);
+    a ``+faults`` suffix runs it with :data:`SENSOR_FAULTS`."""
     text = text.removesuffix(FAULT_SUFFIX)
-    if text == "swd_wet":
-        return "sine_with_dwell", {"mu": SWD_MU, "amplitude_A": SWD_MULTIPLE}
     name, _, rest = text.partition(":")
+    overrides: dict = {"mu": SWD_MU, "amplitude_A": SWD_MULTIPLE} if name == "swd_wet" else {}
+    name = "sine_with_dwell" if name == "swd_wet" else name
     if name not in SCENARIOS:
         raise ValueError(f"unknown scenario {name!r} in {text!r}; known: {sorted(SCENARIOS) + ['swd_wet']}")
-    overrides = {}
-    for item in filter(None, rest.split(",")):
+    for item in filter(None, re.split(r",(?![^\[]*\])", rest)):  # commas outside [...]
         key, sep, value = item.partition("=")
-        try:  # an integer literal stays an int (a seed), anything else is a float
-            overrides[key.strip()] = int(value) if value.strip().lstrip("+-").isdigit() else float(value)
+        value = value.strip()
+        try:  # an integer literal stays an int (a seed), anything else is a float; [...] a list of numbers
+            value = (json.loads(value) if value.startswith("[") else
+                     int(value) if value.lstrip("+-").isdigit() else float(value))
         except ValueError:
             sep = ""
-        if not sep:
-            raise ValueError(f"bad override {item!r} in scenario {text!r}: expected key=number")
-    if "amplitude_A" in overrides and name != "sine_with_dwell":
-        raise ValueError(f"amplitude_A applies to sine_with_dwell only, not {name!r}")
+        if not sep or (isinstance(value, list) and not all(is_number(v) for v in value)):
+            raise ValueError(f"bad override {item!r} in scenario {text!r}: expected key=number or key=[numbers]")
+        overrides[key.strip()] = value
+    if "amplitude_A" in overrides:
+        if name != "sine_with_dwell":
+            raise ValueError(f"amplitude_A applies to sine_with_dwell only, not {name!r}")
+        if "amplitude_deg" in overrides:
+            raise ValueError(f"give amplitude_A or amplitude_deg, not both, in {text!r}")
+        if not (is_number(overrides["amplitude_A"]) and 0 < overrides["amplitude_A"] < math.inf):
+            raise ValueError(f"amplitude_A must be a finite number > 0, got {overrides['amplitude_A']!r} in {text!r}")
     make_scenario(name, **{k: v for k, v in overrides.items() if k != "amplitude_A"})  # validate now
     return name, overrides
 
@@ -168,6 +178,8 @@ def run_matrix(scenarios: Sequence[str] = HEADLINE, estimators: Sequence[str] = 
     names = [parse_scenario(s)[0] for s in scenarios]
     for name in estimators:
         check_estimator_name(name)
+    for kind, entries in (("scenarios", scenarios), ("estimators", estimators), ("controllers", controllers)):
+        require_distinct(kind, entries)
     _check("controller(s)", [c for c in controllers if not c.startswith(RL_PREFIX)], CONTROLLERS)
     for name in controllers:
         if name.startswith(RL_PREFIX):

@@ -23,7 +23,7 @@ from envs.simulation import Trajectory, simulate
 from estimation import ESTIMATORS, Estimate, check_estimator_name, parse_estimator_name
 from training.io import atomic_write, atomic_write_text
 from training.pool import parallel_map
-from training.tables import mean_over_seeds, write_runs_csv
+from training.tables import mean_over_seeds, require_distinct, write_runs_csv
 
 DEFAULT_ESTIMATORS = tuple(e for e in ESTIMATORS if e != "oracle")  #: the oracle is the truth itself
 MU_TOLERANCE = 0.1  #: mean |mu_hat - mu| over the wheels below which mu counts as converged
@@ -86,9 +86,7 @@ def _scenarios(scenarios: Sequence[str | Scenario]) -> list[Scenario]:
     if not scenarios:
         raise ValueError("scenarios must not be empty")
     built = [s if isinstance(s, Scenario) else make_scenario(s) for s in scenarios]  # ValueError names a bad one
-    names = [s.name for s in built]
-    if len(set(names)) != len(names):
-        raise ValueError(f"scenario names must be distinct, got {names}")
+    require_distinct("scenario names", [s.name for s in built])
     return built
 
 
@@ -103,6 +101,7 @@ def run_all(scenarios: Sequence[str | Scenario] = PAPER_SCENARIOS, estimators: S
         raise ValueError("estimators must not be empty")
     for name in estimators:
         check_estimator_name(name)
+    require_distinct("estimators", estimators)
     if not isinstance(seeds, int) or seeds < 1:
         raise ValueError(f"seeds must be an integer >= 1, got {seeds!r}")
     if jobs is not None and jobs < 1:

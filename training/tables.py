@@ -12,6 +12,14 @@ import numpy as np
 from training.io import atomic_write_text
 
 
+def require_distinct(kind: str, names: Sequence[str]) -> None:
+    """ValueError naming the repeated entries of a matrix axis (they would run twice and
+    report as one row each, identically)."""
+    repeated = sorted({name for name in names if list(names).count(name) > 1})
+    if repeated:
+        raise ValueError(f"{kind} must be distinct, got {repeated} more than once")
+
+
 def mean_over_seeds(results: Sequence[tuple[object, dict[str, float]]],
                     key: Callable[[object], Hashable]) -> dict[Hashable, dict[str, float]]:
     """Mean of every metric of the runs grouped by ``key(spec)`` (NaN stays NaN)."""
