@@ -78,9 +78,12 @@ def run_series(A: float, mu: float = 1.0, controller_factory: Callable | None = 
     return runs
 
 
-def format_table(runs: list[SeriesRun], A: float) -> str:
-    """Markdown table of a series in the regulation's terms."""
-    lines = [f"A = {math.degrees(A):.1f} deg (0.3 g at 80 km/h, dry road)", "",
+MEASURED_A = "0.3 g at 80 km/h, dry road"  #: where :func:`characterise` finds A (a table's header)
+
+
+def format_table(runs: list[SeriesRun], A: float, A_source: str = MEASURED_A) -> str:
+    """Markdown table of a series in the regulation's terms; ``A_source`` says where A came from."""
+    lines = [f"A = {math.degrees(A):.1f} deg ({A_source})", "",
              "| mu | amplitude | dir | yaw ratio @COS+1.00 s (<=35%) | @COS+1.75 s (<=20%) "
              "| displacement @BOS+1.07 s | peak beta | yaw | resp. | spin |",
              "|---:|---:|:-:|---:|---:|---:|---:|:-:|:-:|:-:|"]

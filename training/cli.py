@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import json
 import runpy
 import sys
 from collections.abc import Callable
@@ -41,13 +42,18 @@ def _scenario_overrides(args: argparse.Namespace) -> dict:
     return overrides
 
 
+def _check_seed(args: argparse.Namespace) -> None:
+    """ValueError naming a negative --seed (numpy refuses it, late and without the option's name)."""
+    if args.seed < 0:
+        raise ValueError(f"--seed must be >= 0, got {args.seed}")
+
+
 def _check_estimator_and_seed(args: argparse.Namespace) -> None:
     """ValueError naming a bad --estimator or a negative --seed (the jobs that take them)."""
     from estimation import check_estimator_name
 
     check_estimator_name(args.estimator)
-    if args.seed < 0:
-        raise ValueError(f"--seed must be >= 0, got {args.seed}")
+    _check_seed(args)
 
 
 def _simulate(args: argparse.Namespace) -> int:
@@ -71,7 +77,7 @@ def _simulate(args: argparse.Namespace) -> int:
 def _sine_with_dwell(args: argparse.Namespace) -> int:
     import math
 
-    from envs.fmvss126 import characterise, format_table, run_series
+    from envs.fmvss126 import MEASURED_A, characterise, format_table, run_series
     from training.io import atomic_write_text
 
     from envs.road import check_mu
@@ -98,7 +104,7 @@ def _sine_with_dwell(args: argparse.Namespace) -> int:
                           progress=True)
         passed = sum(run.result.passed for run in runs)
         tables.append(f"controller {args.controller}, estimator {args.estimator}: {passed} of {len(runs)} runs "
-                      f"pass\n\n" + format_table(runs, A))
+                      f"pass\n\n" + format_table(runs, A, MEASURED_A if args.A is None else "given"))
     text = "\n\n".join(tables)
     print(text)
     if args.out:
@@ -141,6 +147,7 @@ def _tune(args: argparse.Namespace) -> int:
         print("\n".join(f"| {g:g} | {e:.3f} |" for g, e in errors.items()))
         return 0
     try:
+        _check_seed(args)
         data = tune(args.agents, args.iterations, args.seed, Path(args.out) if args.out else OUTPUT, args.optimizer,
                     args.duration, criterion=args.criterion)
     except ValueError as err:
@@ -155,8 +162,6 @@ def _tune(args: argparse.Namespace) -> int:
 
 
 def _json_object(text: str) -> dict:
-    import json
-
     try:
         value = json.loads(text)
     except json.JSONDecodeError as err:
@@ -170,12 +175,15 @@ def _train(args: argparse.Namespace) -> int:
     from training.rl import train
 
     try:
+        _check_seed(args)
         path = train(args.algo, args.out, args.timesteps, args.seed, args.env_kwargs, args.n_envs,
-                     eval_every=args.eval_every, checkpoint_every=args.checkpoint_every, resume=args.resume)
+                     eval_every=args.eval_every, checkpoint_every=args.checkpoint_every, resume=args.resume,
+                     overwrite=args.overwrite)
     except (ValueError, FileNotFoundError) as err:
         raise SystemExit(f"fourwis train: {err}") from None
+    trained = json.loads((path.parent / "config.json").read_text())["timesteps"]
     others = [p.name + "/" * p.is_dir() for p in sorted(path.parent.iterdir()) if p != path and not p.name.startswith(".")]
-    print(f"wrote {path} (+ {', '.join(others)} in {path.parent})")
+    print(f"wrote {path}, trained {trained:,} env steps (+ {', '.join(others)} in {path.parent})")
     return 0
 
 
@@ -186,11 +194,34 @@ def _evaluate(args: argparse.Namespace) -> int:
                                                 args.jobs), "runs.csv", (ValueError, FileNotFoundError))
 
 
+def _positive_int(text: str) -> int:
+    """argparse type: an integer >= 1 (argparse's error names the option)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
+class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows each option's default (a list as typed on the command line), except None and False:
+    such options say in their help what happens without them."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        if action.default is None or action.default is False:
+            return action.help
+        if isinstance(action.default, list):
+            return f"{action.help} (default: {' '.join(map(str, action.default))})".replace("%", "%%")
+        return super()._get_help_string(action)
+
+
 def _add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--speed-kph", type=float, help="initial / target speed [km/h]")
+    parser.add_argument("--speed-kph", type=float, help="initial / target speed [km/h] (default: the scenario's)")
     parser.add_argument("--mu", type=float, nargs="+",
-                        help="road friction: one value (uniform) or two (left, right split)")
-    parser.add_argument("--duration", type=float, help="simulated time [s]")
+                        help="road friction: one value (uniform) or two (left, right split) (default: the scenario's)")
+    parser.add_argument("--duration", type=float, help="simulated time [s] (default: the scenario's)")
     parser.add_argument("--rear-steer", action="store_true", help="switch on the paper's 4WS law (eq. 20)")
 
 
@@ -203,84 +234,101 @@ def _add_matrix_arguments(parser: argparse.ArgumentParser, scenarios, estimators
     parser.add_argument("--estimators", nargs="+", default=list(estimators),
                         help=f"estimator names ({', '.join(ESTIMATORS)}); NAME+true-mu (groups "
                              f"{', '.join(TRUTH_GROUPS)}, joined by '-') reports those quantities from the truth")
+    _add_run_arguments(parser, seeds, out)
+
+
+def _add_run_arguments(parser: argparse.ArgumentParser, seeds: int, out: str) -> None:
+    """--seeds, --jobs and --out of the jobs that run a matrix of simulations."""
     parser.add_argument("--seeds", type=int, default=seeds, help="sensor-noise seeds per cell")
-    parser.add_argument("--jobs", type=int, help="worker processes (default: up to 2)")
+    parser.add_argument("--jobs", type=_positive_int, help="worker processes (default: up to 2)")
     parser.add_argument("--out", default=out, help="output directory")
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="fourwis", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
-    sim = sub.add_parser("simulate", help="run one scenario open loop; write CSV and a PNG plot")
+
+    def command(name: str, summary: str) -> argparse.ArgumentParser:
+        return sub.add_parser(name, help=summary, description=summary, formatter_class=_HelpFormatter)
+
+    sim = command("simulate", "run one scenario open loop; write CSV and a PNG plot")
     sim.add_argument("scenario", help="scenario name (see envs.SCENARIOS)")
     _add_scenario_arguments(sim)
-    sim.add_argument("--estimator", default="oracle", help="estimator run alongside (default: oracle)")
-    sim.add_argument("--seed", type=int, default=0, help="sensor noise seed")
+    sim.add_argument("--estimator", default="oracle", help="estimator run alongside")
+    sim.add_argument("--seed", type=int, default=0, help="sensor noise seed (>= 0)")
     sim.add_argument("--out", default="results/simulate", help="output directory")
     sim.set_defaults(func=_simulate)
+    from control import CONTROLLERS
     from training.compare import DEFAULT_CONTROLLERS, DEFAULT_ESTIMATORS, HEADLINE
 
-    cmp_ = sub.add_parser("compare", help="closed-loop matrix estimator x controller x scenario: report + plots")
+    cmp_ = command("compare", "closed-loop matrix estimator x controller x scenario: report + plots")
     _add_matrix_arguments(cmp_, HEADLINE, DEFAULT_ESTIMATORS, 2, "results/compare",
                           "scenario names, optionally with overrides: iso3888_2:mu=0.5,speed_kph=50; "
                           "sine_with_dwell:amplitude_A=6.5 ('swd_wet': SWD 5.5A, mu 0.5)")
-    cmp_.add_argument("--controllers", nargs="+", default=list(DEFAULT_CONTROLLERS))
+    cmp_.add_argument("--controllers", nargs="+", default=list(DEFAULT_CONTROLLERS),
+                      help=f"stability controllers ({', '.join(CONTROLLERS)}) or rl:<run dir> for a policy trained "
+                           f"by fourwis train")
     cmp_.set_defaults(func=_compare)
     from envs.scenarios import PAPER_SCENARIOS
     from training.estimate import DEFAULT_ESTIMATORS as ESTIMATE_ESTIMATORS
 
-    est = sub.add_parser("estimate", help="open-loop estimator accuracy (paper Table 2 form): report + plots")
+    est = command("estimate", "open-loop estimator accuracy (paper Table 2 form): report + plots")
     _add_matrix_arguments(est, PAPER_SCENARIOS, ESTIMATE_ESTIMATORS, 1, "results/estimate", "scenario names")
     est.set_defaults(func=_estimate)
     from estimation.optimizers import METHODS
     from training.tune import CRITERIA
 
-    tune = sub.add_parser("tune", help="offline tuning of alo-fkf's noise on a calibration run")
-    tune.add_argument("--agents", type=int, default=30)
-    tune.add_argument("--iterations", type=int, default=100)
+    tune = command("tune", "offline tuning of alo-fkf's noise on a calibration run")
+    tune.add_argument("--agents", type=int, default=30, help="population size (ants, CMA-ES offspring, random draws)")
+    tune.add_argument("--iterations", type=int, default=100, help="optimizer iterations")
     tune.add_argument("--duration", type=float, default=10.0, help="calibration run length [s]")
     tune.add_argument("--criterion", choices=CRITERIA, default="nll",
                       help="innovation negative log-likelihood (no truth needed) or error against the truth")
-    tune.add_argument("--seed", type=int, default=0)
+    tune.add_argument("--seed", type=int, default=0, help="optimizer seed (>= 0)")
     tune.add_argument("--optimizer", choices=METHODS, default="alo",
                       help="alo: the paper's antlion optimizer; cmaes: CMA-ES; random: random search")
-    tune.add_argument("--out", help="output JSON (default: estimation/data/tuned_noise.json)")
+    tune.add_argument("--out", help="output JSON file (default: estimation/data/tuned_noise.json)")
     tune.add_argument("--mu-noise", action="store_true",
                       help="instead: scan the joint estimator's mu_accel_std on held-out random scenarios (prints a table)")
     tune.set_defaults(func=_tune)
-    swd = sub.add_parser("swd", help="FMVSS 126 sine-with-dwell series: the regulation's table")
+    swd = command("swd", "FMVSS 126 sine-with-dwell series: the regulation's table")
     swd.add_argument("--mu", type=float, nargs="+", default=[1.0, 0.5, 0.3], help="road friction values")
     swd.add_argument("--A", type=float, help="characterisation angle [deg] (default: measured at 0.3 g)")
-    swd.add_argument("--estimator", default="oracle", help="estimator run alongside (default: oracle)")
+    swd.add_argument("--estimator", default="oracle", help="estimator run alongside")
     swd.add_argument("--controller", default="none",
-                     help="stability controller (none, dyc-lqr, ..., or rl:<run dir>), fed by the estimator")
-    swd.add_argument("--seed", type=int, default=0)
-    swd.add_argument("--out", help="directory for sine_with_dwell.md")
+                     help=f"stability controller ({', '.join(CONTROLLERS)}) or rl:<run dir>, fed by the estimator")
+    swd.add_argument("--seed", type=int, default=0, help="sensor noise seed (>= 0)")
+    swd.add_argument("--out", help="directory for sine_with_dwell.md (default: print only)")
     swd.set_defaults(func=_sine_with_dwell)
-    from training.rl import ALGOS, EVAL_SCENARIO
+    from training.rl import ALGO_CONFIGS, ALGOS, EVAL_SCENARIO
 
-    train = sub.add_parser("train", help="train an RL stability controller (stable-baselines3) on the vector env")
-    train.add_argument("--algo", choices=ALGOS, default="ppo")
+    train = command("train", "train an RL stability controller (stable-baselines3) on the vector env")
+    train.add_argument("--algo", choices=ALGOS, default="ppo", help="RL algorithm (settings: training.rl.ALGO_CONFIGS)")
     train.add_argument("--env-kwargs", type=_json_object, default={},
                        help='env keyword arguments as JSON, e.g. \'{"estimator": "joint", "observation": "true"}\'')
-    train.add_argument("--timesteps", type=int, default=400_000, help="total env steps (a resumed run counts on)")
-    train.add_argument("--seed", type=int, default=0)
+    train.add_argument("--timesteps", type=int, default=400_000,
+                       help=f"total env steps to reach (a resumed run counts on from its own, so give more); rounded "
+                            f"up to whole rollouts: multiples of {ALGO_CONFIGS['ppo']['n_steps']} x --n-envs for "
+                            f"ppo, of --n-envs for sac and td3 (config.json records both)")
+    train.add_argument("--seed", type=int, default=0, help="seed of the env draws and the network (>= 0)")
     train.add_argument("--n-envs", type=int, default=16, help="cars in the native vector env")
     train.add_argument("--eval-every", type=int, default=40_000, help=f"env steps between evaluations on "
                        f"the held-out {EVAL_SCENARIO}")
     train.add_argument("--checkpoint-every", type=int, default=50_000, help="env steps between checkpoints")
     train.add_argument("--resume", help="run directory or checkpoint .zip to continue from")
     train.add_argument("--out", default="results/train", help="run directory")
+    train.add_argument("--overwrite", action="store_true",
+                       help="replace a run already in --out (its checkpoints, evaluations and logs are deleted)")
     train.set_defaults(func=_train)
-    evaluate = sub.add_parser("evaluate", help="closed-loop evaluation of a trained policy (as in compare)")
+    evaluate = command("evaluate", "closed-loop evaluation of a trained policy (as in compare)")
     evaluate.add_argument("model", help="run directory of fourwis train (holds model.zip)")
-    evaluate.add_argument("--scenarios", nargs="+", default=["swd_wet", "iso3888_2", "mu_jump", "paper_dlc"])
-    evaluate.add_argument("--estimator", default="joint")
-    evaluate.add_argument("--seeds", type=int, default=2)
-    evaluate.add_argument("--jobs", type=int)
-    evaluate.add_argument("--out", default="results/evaluate")
+    evaluate.add_argument("--scenarios", nargs="+", default=["swd_wet", "iso3888_2", "mu_jump", "paper_dlc"],
+                          help="scenario names, with overrides as in compare")
+    evaluate.add_argument("--estimator", default="joint",
+                          help="estimator in the loop, for the policy and the uncontrolled car beside it")
+    _add_run_arguments(evaluate, 2, "results/evaluate")
     evaluate.set_defaults(func=_evaluate)
-    bench = sub.add_parser("bench", help="run the performance benchmarks in benchmarks/")
+    bench = command("bench", "run the performance benchmarks in benchmarks/")
     bench.add_argument("--only", nargs="*", help="benchmark names (default: all)")
     bench.set_defaults(func=_bench)
     return parser

@@ -104,8 +104,6 @@ def run_all(scenarios: Sequence[str | Scenario] = PAPER_SCENARIOS, estimators: S
     require_distinct("estimators", estimators)
     if not isinstance(seeds, int) or seeds < 1:
         raise ValueError(f"seeds must be an integer >= 1, got {seeds!r}")
-    if jobs is not None and jobs < 1:
-        raise ValueError(f"jobs must be >= 1, got {jobs!r}")
     specs = [RunSpec(s, e, k) for s in built for e in estimators for k in range(seeds)]
     results, series = [], {}
     for spec, metrics, keep in parallel_map(_run, specs, jobs, "open-loop estimation runs", progress):

@@ -15,7 +15,13 @@ R = TypeVar("R")
 
 def parallel_map(fn: Callable[[T], R], items: Sequence[T], jobs: int | None, desc: str,
                  progress: bool = True) -> Iterator[R]:
-    """``fn`` over ``items`` in ``jobs`` processes (default: up to 2), in order, with a tqdm bar."""
-    jobs = jobs or min(os.cpu_count() or 1, 2)
+    """``fn`` over ``items`` in ``jobs`` processes (default: up to 2), in order, with a tqdm bar;
+    a ``jobs`` below 1 raises ValueError at once, not at the first result."""
+    if jobs is not None and jobs < 1:
+        raise ValueError(f"jobs must be >= 1, got {jobs!r}")
+    return _map(fn, items, jobs or min(os.cpu_count() or 1, 2), desc, progress)
+
+
+def _map(fn: Callable[[T], R], items: Sequence[T], jobs: int, desc: str, progress: bool) -> Iterator[R]:
     with ProcessPoolExecutor(max_workers=jobs) as pool:
         yield from tqdm(pool.map(fn, items), total=len(items), disable=not progress, desc=desc, unit="run")

@@ -4,7 +4,8 @@
 :class:`SB3VecEnv` (SB3 2.x does not consume ``gymnasium.vector`` envs), with VecNormalize,
 an EvalCallback on a held-out scenario, atomic checkpoints, TensorBoard logs, a progress bar
 and resume. A run directory holds ``model.zip``, ``vecnormalize.pkl`` and ``config.json``
-(+ ``checkpoints/``, ``evaluations.npz``, ``learning_curve.png``, ``tb/``).
+(+ ``checkpoints/``, ``evaluations.npz``, ``learning_curve.png``, ``tb/``); ``train`` refuses an
+``--out`` that holds another run unless told to overwrite it.
 
 :class:`PolicyController` runs a trained policy as a stability controller inside
 :func:`envs.simulation.simulate`, so ``fourwis evaluate`` and ``fourwis compare`` judge it
@@ -22,7 +23,7 @@ import os
 import pickle
 import shutil
 import time
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -118,13 +119,21 @@ class SB3VecEnv(VecEnv):
 
 @dataclass(frozen=True)
 class RunConfig:
-    """What a run directory's ``config.json`` records: enough to rebuild env and policy."""
+    """What a run directory's ``config.json`` records: enough to rebuild env and policy.
+    ``timesteps``: env steps the model has trained (at the start of training: those of the run
+    resumed, else 0); ``requested_timesteps``: the total asked for, which SB3 rounds up to whole
+    rollouts."""
 
     algo: str
     env_kwargs: dict
     seed: int
     n_envs: int
     timesteps: int
+    requested_timesteps: int
+
+
+RUN_FILES = ("model.zip", "vecnormalize.pkl", "config.json", EVALUATIONS, "learning_curve.png", "learning_curve.csv",
+             "checkpoints", "tb", ".evaluating")  #: what ``train`` writes into a run directory
 
 
 def _vec_env(env_kwargs: dict, n_envs: int, seed: int):
@@ -197,15 +206,19 @@ def _callbacks(out: Path, eval_env, checkpoint_every: int, eval_every: int, eval
 def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs: dict | None = None,
           n_envs: int = 16, eval_scenario: str = EVAL_SCENARIO, eval_every: int = 20_000, eval_episodes: int = 4,
           checkpoint_every: int = 50_000, resume: str | Path | None = None, progress: bool = True,
-          algo_overrides: dict | None = None) -> Path:
-    """Train ``algo`` until ``timesteps`` env steps in total (counting a resumed checkpoint's);
-    writes the run directory ``out`` and returns the path of ``model.zip``."""
+          algo_overrides: dict | None = None, overwrite: bool = False) -> Path:
+    """Train ``algo`` until ``timesteps`` env steps in total (counting a resumed checkpoint's, so
+    more than it has; rounded up to whole rollouts); writes the run directory ``out`` and returns
+    the path of ``model.zip``. An ``out`` holding another run than the one resumed is refused
+    unless ``overwrite`` (which deletes that run's files first)."""
     algo_class = _algo_class(algo)
     import torch
 
     torch.set_num_threads(TORCH_THREADS)
     if not (isinstance(timesteps, int) and timesteps > 0):
         raise ValueError(f"timesteps must be a positive integer, got {timesteps!r}")
+    if not (isinstance(seed, int) and seed >= 0):
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     if not (isinstance(n_envs, int) and n_envs > 0):
         raise ValueError(f"n_envs must be a positive integer, got {n_envs!r}")
     for name, value in (("eval_every", eval_every), ("checkpoint_every", checkpoint_every),
@@ -220,13 +233,14 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs:
             from None
     if resume is not None:
         _check_resumable(resume, algo, env_kwargs)
+    out = Path(out)
+    replaces = _other_run(out, resume)
+    if replaces and not overwrite:
+        raise ValueError(f"{out} already holds a run: continue it with --resume {out}, or give a new --out "
+                         f"(--overwrite replaces it)")
     from stable_baselines3.common.noise import NormalActionNoise
     from stable_baselines3.common.vec_env import VecNormalize
 
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    config = RunConfig(algo, env_kwargs, seed, n_envs, timesteps)
-    atomic_write_json(out / "config.json", asdict(config), default=repr)
     off_policy = algo != "ppo"
     train_env = _vec_env(env_kwargs, n_envs, seed)
     eval_kwargs = {**env_kwargs, "scenario": eval_scenario}
@@ -237,6 +251,10 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs:
         model_path, normalizer_path, _ = run_files(resume)
         normalized = VecNormalize.load(str(normalizer_path), train_env)
         model = algo_class.load(str(model_path), env=normalized, device="cpu")
+        if model.num_timesteps >= timesteps:  # checked before anything is written
+            raise ValueError(f"cannot resume {resume}: it already has {model.num_timesteps} timesteps and "
+                             f"--timesteps is the total to reach, so give more than {model.num_timesteps}, "
+                             f"not {timesteps}")
     else:
         normalized = VecNormalize(train_env, norm_obs=True, norm_reward=not off_policy, clip_obs=10.0)
         settings = {**ALGO_CONFIGS[algo], **(algo_overrides or {})}
@@ -247,16 +265,37 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs:
         policy = POLICIES[algo] if env_config.privileged else "MlpPolicy"
         model = algo_class(policy, normalized, seed=seed, device="cpu", tensorboard_log=str(out / "tb"),
                            verbose=0, **settings)
-    remaining = timesteps - model.num_timesteps
-    if remaining > 0:
-        model.learn(remaining, callback=_callbacks(out, eval_env, checkpoint_every, eval_every, eval_episodes,
-                                                   resume is not None),
-                    progress_bar=progress, reset_num_timesteps=resume is None, tb_log_name=algo)
-        shutil.rmtree(out / ".evaluating", ignore_errors=True)
+    if replaces:  # no checkpoint or evaluation of the replaced run may pass for this one's
+        _delete_run(out)
+    out.mkdir(parents=True, exist_ok=True)
+    config = RunConfig(algo, env_kwargs, seed, n_envs, model.num_timesteps, timesteps)
+    atomic_write_json(out / "config.json", asdict(config), default=repr)
+    model.learn(timesteps - model.num_timesteps, callback=_callbacks(out, eval_env, checkpoint_every, eval_every,
+                                                                     eval_episodes, resume is not None),
+                progress_bar=progress, reset_num_timesteps=resume is None, tb_log_name=algo)
+    shutil.rmtree(out / ".evaluating", ignore_errors=True)
+    atomic_write_json(out / "config.json", asdict(replace(config, timesteps=model.num_timesteps)), default=repr)
     model_path = _atomic_save_model(model, out / "model.zip")
     _atomic_save_normalizer(normalized, out / "vecnormalize.pkl")
     plot_learning_curve(out)
     return model_path
+
+
+def _other_run(out: Path, resume: str | Path | None) -> bool:
+    """True if ``out`` holds a run (config.json or model.zip) other than the one ``resume`` continues."""
+    if not any((out / name).exists() for name in ("config.json", "model.zip")):
+        return False
+    return resume is None or run_files(resume)[2].parent.resolve() != out.resolve()
+
+
+def _delete_run(out: Path) -> None:
+    """Delete the files of the run in ``out`` (:data:`RUN_FILES`); anything else there stays."""
+    for name in RUN_FILES:
+        path = out / name
+        if path.is_dir():
+            shutil.rmtree(path)
+        else:
+            path.unlink(missing_ok=True)
 
 
 def _check_resumable(resume: str | Path, algo: str, env_kwargs: dict) -> None:

@@ -1,0 +1,166 @@
+"""The command line's contract: truthful step counts, no silent overwrite, bad options refused
+before any work (naming the option), the same --jobs rule everywhere, help for every option."""
+
+import argparse
+import json
+import math
+import shutil
+
+import pytest
+
+from training.cli import build_parser, main
+
+#: a PPO run of 4 cars: whole rollouts of 256 x 4 = 1024 env steps, so 1500 requested -> 2048 trained
+TRAIN = ["train", "--n-envs", "4", "--env-kwargs", '{"estimator": "oracle"}', "--eval-every", "100000",
+         "--checkpoint-every", "1024"]
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """A finished run trained with --timesteps 1500 (read-only: tests that change it copy it)."""
+    out = tmp_path_factory.mktemp("cli") / "run"
+    main([*TRAIN, "--timesteps", "1500", "--out", str(out)])
+    return out
+
+
+def _copy(run, tmp_path):
+    return shutil.copytree(run, tmp_path / "run")
+
+
+def _files(out):
+    return {p.relative_to(out): p.stat().st_mtime_ns for p in out.rglob("*")}
+
+
+def test_config_records_the_timesteps_trained_beside_the_requested(run):
+    from stable_baselines3 import PPO
+
+    config = json.loads((run / "config.json").read_text())
+    assert config["requested_timesteps"] == 1500
+    assert config["timesteps"] == 2048 == PPO.load(run / "model.zip", device="cpu").num_timesteps
+    help_text = build_parser()._subparsers._group_actions[0].choices["train"].format_help()
+    assert "rounded up to whole rollouts" in " ".join(help_text.split())
+
+
+def test_train_prints_the_steps_it_trained(tmp_path, capsys):
+    main([*TRAIN, "--timesteps", "100", "--out", str(tmp_path / "run")])
+    assert "trained 1,024 env steps" in capsys.readouterr().out
+
+
+def test_resume_to_fewer_timesteps_than_the_run_has_is_refused_and_changes_nothing(run, tmp_path):
+    out = _copy(run, tmp_path)
+    before = _files(out)
+    with pytest.raises(SystemExit, match="already has 2048 timesteps and --timesteps is the total to reach"):
+        main([*TRAIN, "--resume", str(out), "--timesteps", "1500", "--out", str(out)])
+    with pytest.raises(SystemExit, match="already has 2048"):  # reaching exactly what it has trains nothing either
+        main([*TRAIN, "--resume", str(out), "--timesteps", "2048", "--out", str(out)])
+    assert _files(out) == before
+
+
+def test_train_refuses_to_overwrite_a_run_unless_told(run, tmp_path):
+    from training.rl import train
+
+    out = _copy(run, tmp_path)
+    before = _files(out)
+    with pytest.raises(SystemExit, match=f"{out} already holds a run: continue it with --resume .*--overwrite"):
+        main([*TRAIN, "--timesteps", "1500", "--out", str(out)])
+    with pytest.raises(ValueError, match="already holds a run"):  # the Python API too
+        train("ppo", out, 1500, n_envs=4, env_kwargs={"estimator": "oracle"}, progress=False)
+    other = shutil.copytree(run, tmp_path / "other")
+    with pytest.raises(SystemExit, match=f"{out} already holds a run"):  # resumed into another run's directory
+        main([*TRAIN, "--resume", str(other), "--timesteps", "4096", "--out", str(out)])
+    assert _files(out) == before
+    stale = out / "checkpoints" / "step_000002048.zip"
+    assert stale.exists()
+    (out / "notes.txt").write_text("mine")
+    main([*TRAIN, "--timesteps", "100", "--seed", "1", "--overwrite", "--out", str(out)])
+    config = json.loads((out / "config.json").read_text())
+    assert (config["seed"], config["timesteps"]) == (1, 1024)
+    assert not stale.exists()  # the replaced run's checkpoints do not pass for the new run's
+    assert (out / "notes.txt").read_text() == "mine"  # what is not a run's file stays
+
+
+def test_negative_seed_is_refused_before_anything_is_written(tmp_path, monkeypatch):
+    import training.tune
+    from training.rl import train
+    from training.tune import tune
+
+    out = tmp_path / "run"
+    with pytest.raises(SystemExit, match="fourwis train: --seed must be >= 0, got -1"):
+        main(["train", "--seed", "-1", "--out", str(out)])
+    with pytest.raises(ValueError, match="seed must be a non-negative integer, got -1"):
+        train("ppo", out, 100, seed=-1)
+    assert not out.exists()
+    monkeypatch.setattr(training.tune, "calibration_run", lambda **kwargs: pytest.fail("tuning started"))
+    with pytest.raises(SystemExit, match="fourwis tune: --seed must be >= 0, got -1"):
+        main(["tune", "--seed", "-1", "--out", str(tmp_path / "tuned.json")])
+    with pytest.raises(ValueError, match="seed must be a non-negative integer, got -1"):
+        tune(seed=-1, out=tmp_path / "tuned.json")
+    assert not any(tmp_path.iterdir())
+
+
+def test_tune_checks_its_output_file_before_any_work(tmp_path, monkeypatch):
+    import training.tune
+
+    monkeypatch.setattr(training.tune, "calibration_run", lambda **kwargs: pytest.fail("tuning started"))
+    with pytest.raises(SystemExit, match=f"fourwis tune: --out must be a file, but {tmp_path} is a directory"):
+        main(["tune", "--out", str(tmp_path)])
+    (tmp_path / "notes.txt").write_text("a file")
+    with pytest.raises(SystemExit, match="notes.txt is not a writable directory"):
+        main(["tune", "--out", str(tmp_path / "notes.txt" / "tuned.json")])
+    monkeypatch.undo()
+    nested = tmp_path / "new" / "dir" / "tuned.json"  # a parent that can be created is fine
+    training.tune.tune(2, 1, out=nested, optimizer="random", duration=0.6, progress=False)
+    assert json.loads(nested.read_text())["optimizer"] == "random"
+
+
+@pytest.mark.parametrize("jobs", ["0", "-1"])
+@pytest.mark.parametrize("command", [["compare"], ["estimate"], ["evaluate", "some_run"]])
+def test_every_command_refuses_fewer_than_one_job_naming_the_option(command, jobs, tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main([*command, "--jobs", jobs, "--out", str(tmp_path / "out")])
+    assert exit_.value.code == 2
+    assert f"argument --jobs: must be >= 1, got {jobs}" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("jobs", [0, -1])
+def test_parallel_map_refuses_fewer_than_one_job_before_iterating(jobs, tmp_path):
+    from training.compare import compare
+    from training.pool import parallel_map
+
+    with pytest.raises(ValueError, match=f"jobs must be >= 1, got {jobs}"):
+        parallel_map(abs, [1, 2], jobs, "test")  # at the call, not at the first result
+    with pytest.raises(ValueError, match=f"jobs must be >= 1, got {jobs}"):
+        compare(tmp_path / "out", ["paper_sine"], ["oracle"], ["none"], 1, jobs)
+    assert list(parallel_map(abs, [-1, -2], 1, "test", progress=False)) == [1, 2]
+
+
+@pytest.mark.parametrize("given, header, other", [(True, "A = 10.0 deg (given)", "0.3 g at 80 km/h"),
+                                                  (False, "A = 16.6 deg (0.3 g at 80 km/h, dry road)", "given")])
+def test_swd_header_says_whether_a_was_given_or_measured(given, header, other, monkeypatch, capsys):
+    import envs.fmvss126
+
+    monkeypatch.setattr(envs.fmvss126, "run_series", lambda *args, **kwargs: [])
+    monkeypatch.setattr(envs.fmvss126, "characterise",
+                        lambda: pytest.fail("measured a given A") if given else math.radians(16.6))
+    main(["swd", "--mu", "1.0", "0.5", *(["--A", "10"] if given else [])])
+    text = capsys.readouterr().out
+    assert text.count(header) == 2 and other not in text  # one table per mu
+
+
+def test_every_option_has_help_and_shows_its_default(monkeypatch):
+    monkeypatch.setenv("COLUMNS", "1000")  # no wrapping inside the texts compared
+    commands = build_parser()._subparsers._group_actions[0].choices
+    assert set(commands) >= {"simulate", "compare", "estimate", "tune", "swd", "train", "evaluate", "bench"}
+    for name, parser in commands.items():
+        text = parser.format_help()
+        for action in parser._actions:
+            if isinstance(action, argparse._HelpAction):
+                continue
+            assert action.help, f"{name} {action.dest} has no help"
+            if action.default is not None and action.default is not False:
+                shown = " ".join(map(str, action.default)) if isinstance(action.default, list) else action.default
+                assert f"(default: {shown})" in text, f"{name} {action.dest}: default not shown"
+    compare_help = commands["compare"].format_help()
+    assert "dyc-smc-4ws" in compare_help and "rl:<run dir>" in compare_help
+    assert "(default: None)" not in "".join(p.format_help() for p in commands.values())
