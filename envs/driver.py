@@ -381,8 +381,10 @@ def _preview_steer(path, free, step, state, speed, preview_time):
             if segment == stop - 1:
                 target = _left(path, stop - 1, x, y, cos_psi, sin_psi)
             else:
-                x0, x1 = _ahead(path, segment, x, y, cos_psi, sin_psi), _ahead(path, segment + 1, x, y, cos_psi, sin_psi)
-                y0, y1 = _left(path, segment, x, y, cos_psi, sin_psi), _left(path, segment + 1, x, y, cos_psi, sin_psi)
+                x0 = _ahead(path, segment, x, y, cos_psi, sin_psi)
+                x1 = _ahead(path, segment + 1, x, y, cos_psi, sin_psi)
+                y0 = _left(path, segment, x, y, cos_psi, sin_psi)
+                y1 = _left(path, segment + 1, x, y, cos_psi, sin_psi)
                 target = y0 if distance < x0 else (y1 - y0) / (x1 - x0) * (distance - x0) + y0
         error = free[k, 2] * state[S_V] + free[k, 3] * state[S_R] - target
         gain += step[k] * error

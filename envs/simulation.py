@@ -303,14 +303,15 @@ class ClosedLoop:
         return record
 
 
-def simulate(scenario: Scenario | str, controller: Controller | str | None = None, estimator: Estimator | str | None = None,
-             seed: int = 0, sensor_params: SensorParams | None = None, faults: Sequence[Fault] = (),
-             dt: float = DT, progress: bool = False) -> Trajectory:
+def simulate(scenario: Scenario | str, controller: Controller | str | None = None,
+             estimator: Estimator | str | None = None, seed: int = 0, sensor_params: SensorParams | None = None,
+             faults: Sequence[Fault] = (), dt: float = DT, progress: bool = False) -> Trajectory:
     """Run ``scenario`` once; returns the :class:`Trajectory`.
 
     ``controller``: a controller object, a name for :func:`control.make_controller`, or None
     (no stability control). ``estimator``: an estimator object, a name for
-    :func:`estimation.make_estimator`, or None (the oracle: the controller sees the truth). ``seed`` seeds the sensor noise and faults.
+    :func:`estimation.make_estimator`, or None (the oracle: the controller sees the truth).
+    ``seed`` seeds the sensor noise and faults.
     """
     if isinstance(scenario, str):
         scenario = make_scenario(scenario)
