@@ -12,6 +12,7 @@ import numpy as np
 from control.allocation import Allocation, allocate_for_estimate, allocate_torques
 from control.dyc import LQRYawController, LQRWeights, SlidingModeYawController
 from control.reference import rear_steer_feedforward, reference_yaw_rate, sideslip_bound, yaw_time_constant
+from estimation.types import import_factory
 
 CONTROLLERS = ("none", "dyc-lqr", "dyc-smc", "dyc-lqr-4ws", "dyc-smc-4ws")
 ACTIVE_SPEED = 2.0  #: below this speed [m/s] the law's moment is zero (the allocator still shares the drive)
@@ -153,9 +154,17 @@ class StabilityController:
 
 
 def make_controller(name: str, params, dt: float = 0.002):
-    """Controller ``name`` (see :data:`CONTROLLERS`) for duck-typed vehicle ``params``; None for "none"."""
+    """Controller ``name`` (see :data:`CONTROLLERS`) for duck-typed vehicle ``params``; None for
+    "none". Your own: ``module:factory`` returns ``factory(params, dt)``, an object with the
+    interface of :class:`envs.simulation.Controller` (``reset`` and a call returning a
+    :class:`Command`); the name then works in ``fourwis compare --controllers`` too."""
     if name == "none":
         return None
+    if ":" in name:
+        controller = import_factory(name, "controller")(params, dt)
+        if not (callable(controller) and callable(getattr(controller, "reset", None))):
+            raise ValueError(f"controller {name!r} built {controller!r}, which lacks reset() or a call")
+        return controller
     if name == "dyc-lqr":
         return StabilityController(params, "lqr", dt=dt)
     if name == "dyc-smc":

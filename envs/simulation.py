@@ -22,7 +22,7 @@ from envs.sensors import Fault, SensorModel, SensorParams, SensorReading
 from envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NU, S_DELTA_F,
                           S_DELTA_R, S_OMEGA, S_R, S_TORQUE, S_U, S_V, derivatives, step)
 from control import Command
-from estimation.types import Estimate
+from estimation.types import Estimate, check_estimate
 
 DT = 0.002  #: physics, sensor and estimator step [s] (the paper samples at 2 ms)
 
@@ -170,6 +170,14 @@ class ClosedLoop:
             from estimation import make_estimator
 
             estimator = make_estimator(estimator or "oracle", params, dt)
+        if not (callable(getattr(estimator, "step", None)) and callable(getattr(estimator, "reset", None))):
+            raise ValueError(f"estimator must be an Estimator (reset() and step()), a name for "
+                             f"estimation.make_estimator or None, got {estimator!r}")
+        from estimation import Oracle, StateEstimator
+
+        # fourwis's own estimators guard their outputs; anyone else's are checked every step
+        self._check_estimates = type(estimator) not in (Oracle, StateEstimator)
+        self._needs_truth = bool(getattr(estimator, "needs_truth", False))
         if isinstance(controller, str):
             from control import make_controller
 
@@ -275,10 +283,13 @@ class ClosedLoop:
             self.estimator.reset(reading, speeds, None if self._fresh.all() else self._fresh.copy())
             self._fresh[:] = False
         if part is not None:
-            stepped = self.estimator.step(reading, _rows(truth, rows) if self.estimator.needs_truth else None, rows)
-            estimate = Estimate(*(_merged(full, new, rows) for full, new in zip(self._sample.estimate, stepped)))
+            estimate = stepped = self.estimator.step(reading, _rows(truth, rows) if self._needs_truth else None, rows)
         else:
-            estimate = self.estimator.step(reading, truth if self.estimator.needs_truth else None)
+            estimate = self.estimator.step(reading, truth if self._needs_truth else None)
+        if self._check_estimates:
+            check_estimate(estimate, self.batch_size if part is None else len(rows), self.estimator)
+        if part is not None:
+            estimate = Estimate(*(_merged(full, new, rows) for full, new in zip(self._sample.estimate, stepped)))
         self._sample = Sample(now, reading, truth, estimate, steering, base)
         self._stale[:] = False
         return self._sample

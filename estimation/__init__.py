@@ -7,23 +7,29 @@ from estimation.joint import KINDS, NoiseParams, StateEstimator, tuned_noise
 from estimation.model import ModelParams
 from estimation.online import OnlineTuner
 from estimation.oracle import TRUE_SUFFIX, TRUTH_GROUPS, Oracle, PartialOracle, parse_truth_groups
-from estimation.types import Estimate, check_step
+from estimation.types import Estimate, check_step, import_factory
 
 ESTIMATORS = ("oracle",) + KINDS  #: names accepted by make_estimator; "joint" is the paper's full system
 
 
 def parse_estimator_name(name: str) -> tuple[str, tuple[str, ...]]:
     """(base estimator, truth groups) of ``name`` (see :func:`check_estimator_name`)."""
-    base, sep, groups = str(name).partition(TRUE_SUFFIX)
-    if base not in ESTIMATORS:
-        raise ValueError(f"unknown estimator {name!r}; known: {list(ESTIMATORS)}, each optionally with "
-                         f"'{TRUE_SUFFIX}<group>[-<group>...]', groups {list(TRUTH_GROUPS)}")
+    if not isinstance(name, str):
+        raise ValueError(f"an estimator is given by name, got {name!r}: pass your own as 'module:factory' "
+                         "(factory(params, dt) -> estimator), or the object itself to envs.simulate")
+    base, sep, groups = name.partition(TRUE_SUFFIX)
+    if ":" in base:
+        import_factory(base, "estimator")
+    elif base not in ESTIMATORS:
+        raise ValueError(f"unknown estimator {name!r}; known: {list(ESTIMATORS)} or 'module:factory' for your own, "
+                         f"each optionally with '{TRUE_SUFFIX}<group>[-<group>...]', groups {list(TRUTH_GROUPS)}")
     return base, parse_truth_groups(groups) if sep else ()
 
 
 def check_estimator_name(name: str) -> str:
-    """``name`` if make_estimator accepts it: one of :data:`ESTIMATORS`, optionally followed by
-    ``+true-<group>[-<group>...]`` (:data:`TRUTH_GROUPS`); else ValueError naming it."""
+    """``name`` if make_estimator accepts it: one of :data:`ESTIMATORS` or ``module:factory``,
+    optionally followed by ``+true-<group>[-<group>...]`` (:data:`TRUTH_GROUPS`); else
+    ValueError naming it."""
     parse_estimator_name(name)
     return name
 
@@ -35,10 +41,24 @@ def make_estimator(name: str, params, dt: float = 0.002, noise: NoiseParams | No
     tune`` rewrites it; without the file they run the hand-set noise); ``noise`` overrides it.
     ``<name>+true-<group>[-<group>...]`` (e.g. ``joint+true-mu``) reports the truth for those
     groups (:class:`PartialOracle`, :data:`TRUTH_GROUPS`): which estimated quantity a
-    closed-loop loss comes from."""
+    closed-loop loss comes from.
+
+    Your own estimator: ``module:factory`` (e.g. ``my_filters:BiasedCKF``) imports ``factory``
+    and returns ``factory(params, dt)``, an object with the step interface of
+    :class:`envs.simulation.Estimator` (``reset``, ``step``, optionally ``needs_truth``); the
+    name then works wherever a name does: ``fourwis compare --estimators``, the comparison's
+    worker processes, the Gymnasium env's ``estimator``."""
     base, groups = parse_estimator_name(name)
     if groups:
         return PartialOracle(make_estimator(base, params, dt, noise, **kwargs), groups)
+    if ":" in base:
+        if noise is not None or kwargs:
+            raise ValueError(f"estimator {name!r} is built as factory(params, dt): it takes no noise or keyword "
+                             f"arguments, got {sorted(kwargs) or ['noise']}")
+        estimator = import_factory(base, "estimator")(params, dt)
+        if not (callable(getattr(estimator, "step", None)) and callable(getattr(estimator, "reset", None))):
+            raise ValueError(f"estimator {name!r} built {estimator!r}, which lacks step() and reset()")
+        return estimator
     if name == "oracle":
         check_step(dt)
         if noise is not None or kwargs:

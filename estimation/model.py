@@ -185,8 +185,7 @@ def dugoff(fz: float, slip: float, tan_alpha: float, mu: float, cx: float, cy: f
     sec. 13.9), with ``slip`` positive when driving (the SAE sign of this package):
     lambda = mu Fz (1 - eps u sqrt(Cx^2 s^2 + Cy^2 tan^2 a)) (1 + s) / (2 sqrt(Cx^2 s^2 + Cy^2 tan^2 a)),
     f = (2 - lambda) lambda if lambda < 1 else 1; Fx = Cx s/(1+s) f, Fy = Cy tan(a)/(1+s) f.
-    (Dugoff's paper and DESIGN.md write 1 - s for braking slip, positive when braking: the same
-    law.) Below lambda = 1 the force depends on mu (the tyre is saturating)."""
+    (Dugoff's paper writes 1 - s for braking slip, positive when braking: the same law.) Below lambda = 1 the force depends on mu (the tyre is saturating)."""
     one_plus_s = max(1.0 + slip, 0.05)
     demand = math.sqrt((cx * slip) ** 2 + (cy * tan_alpha) ** 2)
     lam = mu * fz * (1.0 - eps * speed * demand) * one_plus_s / (2.0 * max(demand, 1e-9))

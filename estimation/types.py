@@ -3,6 +3,7 @@ a batch a step works on."""
 
 from __future__ import annotations
 
+import importlib
 import math
 from functools import lru_cache
 from typing import NamedTuple
@@ -37,6 +38,37 @@ class Estimate(NamedTuple):
     fz: np.ndarray
     beta_std: np.ndarray
     mu_std: np.ndarray
+
+
+def import_factory(name: str, kind: str):
+    """The callable a ``module:attribute`` name points to (a user's ``kind``, e.g. "estimator",
+    built as ``factory(params, dt)``), imported; ValueError naming what is missing."""
+    module_name, _, attribute = name.partition(":")
+    try:
+        target = importlib.import_module(module_name)
+        for part in attribute.split("."):
+            target = getattr(target, part)
+    except (ImportError, AttributeError, ValueError) as err:
+        raise ValueError(f"{kind} {name!r}: cannot import {attribute!r} from {module_name!r} ({err})") from None
+    if not callable(target):
+        raise ValueError(f"{kind} {name!r} is not callable: give a factory(params, dt) -> {kind}")
+    return target
+
+
+PER_WHEEL = ("mu", "fz", "mu_std")  #: the Estimate fields with a wheel axis (B, 4)
+
+
+def check_estimate(estimate, batch: int, source) -> None:
+    """ValueError naming ``source`` (an estimator) and the field unless ``estimate`` is an
+    :class:`Estimate` of ``batch`` rows ((B,) fields, (B, 4) per wheel) with finite values."""
+    if not isinstance(estimate, Estimate):
+        raise ValueError(f"estimator {source!r} returned {type(estimate).__name__}, not an Estimate")
+    for name, value in zip(Estimate._fields, estimate):
+        shape = (batch, 4) if name in PER_WHEEL else (batch,)
+        if np.shape(value) != shape:
+            raise ValueError(f"estimator {source!r} returned {name} of shape {np.shape(value)}, expected {shape}")
+        if not np.all(np.isfinite(value)):
+            raise ValueError(f"estimator {source!r} returned a non-finite {name}: {value!r}")
 
 
 def check_step(dt) -> float:

@@ -29,6 +29,7 @@ from envs.sensors import Fault
 from envs.simulation import Trajectory, simulate
 from envs.vehicle import A_AY, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_X, S_Y
 from estimation import check_estimator_name
+from estimation.types import import_factory
 from training.io import atomic_write, atomic_write_text
 from training.pool import parallel_map
 from training.tables import mean_over_seeds, require_distinct, write_runs_csv
@@ -148,7 +149,8 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
 
 
 def build_controller(name: str, params):
-    """A fresh controller: a :data:`control.CONTROLLERS` name, or ``rl:<run dir>`` for a policy."""
+    """A fresh controller: a :data:`control.CONTROLLERS` name, ``module:factory`` for your own
+    (:func:`control.make_controller`), or ``rl:<run dir>`` for a policy."""
     if name.startswith(RL_PREFIX):
         from training.rl import PolicyController
 
@@ -178,9 +180,16 @@ def run_matrix(scenarios: Sequence[str] = HEADLINE, estimators: Sequence[str] = 
     names = [parse_scenario(s)[0] for s in scenarios]
     for name in estimators:
         check_estimator_name(name)
+    for name in controllers:
+        if not isinstance(name, str):
+            raise ValueError(f"a controller is given by name, got {name!r}: pass your own as 'module:factory' "
+                             "(factory(params, dt) -> controller), or the object itself to envs.simulate")
     for kind, entries in (("scenarios", scenarios), ("estimators", estimators), ("controllers", controllers)):
         require_distinct(kind, entries)
-    _check("controller(s)", [c for c in controllers if not c.startswith(RL_PREFIX)], CONTROLLERS)
+    user = [c for c in controllers if ":" in c and not c.startswith(RL_PREFIX)]
+    for name in user:
+        import_factory(name, "controller")
+    _check("controller(s)", [c for c in controllers if not c.startswith(RL_PREFIX) and c not in user], CONTROLLERS)
     for name in controllers:
         if name.startswith(RL_PREFIX):
             from training.rl import run_files

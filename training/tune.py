@@ -18,8 +18,8 @@ Criterion (``criterion``):
 * ``truth``: the estimation error against the simulator's truth (beta, yaw rate, speed), a
   simulation-only criterion kept for comparison.
 
-Deviation from DESIGN.md and issue 5, on purpose: they describe the offline tuning as
-"against truth". Measured (README, "Noise tuning"): the truth-error optimum is a badly
+Deviation from the project's design notes and its tuning issue (not part of this repository), on
+purpose: they describe the offline tuning as "against truth". Measured (README, "Noise tuning"): the truth-error optimum is a badly
 calibrated filter (alo-fkf's innovation NLL +10.7 against -10.7 hand-set on the slalom) and
 did not transfer to ``joint``; the likelihood optimum beats the hand-set noise on both the
 sideslip error and the NLL on every unseen paper scenario, so it is the default.

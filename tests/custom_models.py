@@ -1,0 +1,63 @@
+"""A user's own estimator and controller, for the tests that plug them in by ``module:factory``
+name (tests/test_custom_models.py): this folder is on sys.path under pytest."""
+
+import numpy as np
+
+from control import Command
+from estimation import make_estimator
+
+
+class BiasedFriction:
+    """The shipped ``ckf`` reporting mu ``bias`` too high: a friction estimator's typical error."""
+
+    needs_truth = False
+
+    def __init__(self, params, dt, bias=0.1):
+        self.inner, self.bias, self.dt = make_estimator("ckf", params, dt), bias, dt
+
+    def reset(self, reading, initial_speed, mask=None):
+        self.inner.reset(reading, initial_speed, mask)
+
+    def step(self, reading, truth=None, members=None):
+        estimate = self.inner.step(reading, truth, members)
+        return estimate._replace(mu=estimate.mu + self.bias)
+
+
+def biased_friction(params, dt):
+    return BiasedFriction(params, dt)
+
+
+class WrongShape(BiasedFriction):
+    """Returns one mu per car instead of one per wheel."""
+
+    def step(self, reading, truth=None, members=None):
+        estimate = super().step(reading, truth, members)
+        return estimate._replace(mu=estimate.mu[:, 0])
+
+
+class YawDamper:
+    """Differential torque against the estimated yaw rate: Mz = -gain r, split over the axles."""
+
+    def __init__(self, params, dt, gain=2000.0):
+        self.params, self.gain = params, gain
+
+    def reset(self):
+        pass
+
+    def __call__(self, t, estimate, front_steer, base_torques):
+        moment = -self.gain * estimate.r  # [N m]
+        force = moment / self.params.track_front / 2  # per wheel, left negative / right positive
+        torques = base_torques + np.outer(force * self.params.wheel_radius, [-1.0, 1.0, -1.0, 1.0])
+        return Command(torques, np.zeros(len(torques)))
+
+
+def yaw_damper(params, dt):
+    return YawDamper(params, dt)
+
+
+class Diverging(BiasedFriction):
+    """Loses the yaw rate: NaN from the first step."""
+
+    def step(self, reading, truth=None, members=None):
+        estimate = super().step(reading, truth, members)
+        return estimate._replace(r=estimate.r * np.nan)
