@@ -69,3 +69,19 @@ def test_bad_names_objects_and_outputs_are_named():
         simulate(scenario, "dyc-lqr", "custom_models:Diverging")
     with pytest.raises(ValueError, match=r"reset\(\) and step\(\)"):
         simulate(scenario, None, make_estimator)  # a factory, not an estimator
+
+
+def test_the_command_line_finds_a_module_in_the_working_directory(tmp_path, monkeypatch):
+    """The `fourwis` script's sys.path holds its own folder, not the user's: main adds the latter."""
+    import shutil
+    import sys
+    from pathlib import Path
+
+    from training.cli import main
+
+    shutil.copy(Path(__file__).with_name("custom_models.py"), tmp_path / "my_filters.py")
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(sys, "path", [p for p in sys.path if p not in ("", str(tmp_path))])
+    main(["compare", "--scenarios", "paper_step:duration=0.5", "--estimators", "my_filters:biased_friction",
+          "--controllers", "none", "--seeds", "1", "--jobs", "1", "--out", str(tmp_path / "out")])
+    assert "my_filters:biased_friction" in (tmp_path / "out" / "runs.csv").read_text()

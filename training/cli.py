@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import functools
 import json
+import os
 import runpy
 import sys
 from collections.abc import Callable
@@ -336,6 +337,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if "" not in sys.path and os.getcwd() not in sys.path:  # the `fourwis` script's path lacks it
+        sys.path.insert(0, os.getcwd())  # your 'module:factory' estimators and controllers live here
     return args.func(args)
 
 

@@ -275,14 +275,16 @@ def plot_report(table: dict, trajectories: dict, scenarios, estimators, controll
     paths = []
     fig, ax = plt.subplots(figsize=(12, 5))
     combos = [(c, e) for c in controllers for e in estimators]
-    width = 0.8 / len(combos)
+    width, largest = 0.8 / len(combos), 0.0
     for i, (c, e) in enumerate(combos):
         values = [math.degrees(table[(s, e, c)]["peak_beta"]) for s in scenarios]
+        largest = max(largest, *values)
         bars = ax.bar(np.arange(len(scenarios)) + i * width, values, width, label=f"{c} / {e}")
         ax.bar_label(bars, fmt="%.1f", fontsize=6, rotation=90, padding=2)  # the log scale hides small gaps
     ax.set_xticks(np.arange(len(scenarios)) + 0.4 - width / 2, scenarios, rotation=20)
-    ax.set_ylabel("peak |sideslip| [deg] (log scale)")
-    ax.set_yscale("log")
+    if largest > 0:  # (every run straight: nothing to put on a log scale)
+        ax.set_yscale("log")
+    ax.set_ylabel("peak |sideslip| [deg]" + " (log scale)" * (largest > 0))
     ax.legend(fontsize=8, ncol=2)
     ax.set_title("Peak sideslip by scenario, controller and estimator (mean over seeds)")
     fig.tight_layout()
