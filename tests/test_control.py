@@ -177,7 +177,13 @@ def test_the_controller_reports_what_the_wheels_delivered():
     assert controller.last_allocation is None
     command = controller(np.zeros(2), estimate, front, np.zeros((2, 4)))
     delivered = controller.last_allocation
-    np.testing.assert_array_equal(delivered.torques, command.torques)
+    # the moment reported is the one the torques make: wheel forces T / R along each wheel's
+    # heading (fronts steered by ``front``), about the CG (x forward, y left)
+    x = np.array([P.cg_to_front, P.cg_to_front, -P.cg_to_rear, -P.cg_to_rear])
+    y = np.array([P.track_front, -P.track_front, P.track_rear, -P.track_rear]) / 2
+    delta = np.column_stack([front, front, np.zeros(2), np.zeros(2)])
+    made = np.sum(command.torques / P.wheel_radius * (x * np.sin(delta) - y * np.cos(delta)), axis=1)
+    np.testing.assert_allclose(delivered.yaw_moment, made, rtol=1e-9)
     assert delivered.yaw_moment[0] > 0 and not delivered.feasible[0]  # ice: what the tyres allow
     assert delivered.feasible[1] and delivered.yaw_moment[1] > delivered.yaw_moment[0]
     np.testing.assert_allclose(delivered.drive_force, 0.0, atol=1e-6)
@@ -202,7 +208,7 @@ def test_the_controller_plans_with_the_lower_confidence_bound_of_the_friction():
     np.testing.assert_allclose(StabilityController(P, mu_margin=1.0).planning_mu(estimate), [[0.7, 0.8, 0.1, 0.3]])
     assert MIN_PLANNING_MU == 0.1
     np.testing.assert_array_equal(StabilityController(P, mu_margin=0.0).planning_mu(estimate), estimate.mu)
-    with pytest.raises(ValueError, match="mu_margin"):
+    with pytest.raises(ValueError, match="mu_margin must be .*, got -1.0"):
         StabilityController(P, mu_margin=-1.0)
     # closed loop: after a friction drop the cautious controller holds the sideslip lower
     peaks = []
@@ -210,7 +216,7 @@ def test_the_controller_plans_with_the_lower_confidence_bound_of_the_friction():
         controller = StabilityController(P, "lqr", mu_margin=margin)  # what make_controller("dyc-lqr") builds
         traj = simulate("mu_jump", controller=controller, estimator="joint", seed=0)
         peaks.append(np.abs(traj.truth.beta).max())
-    assert peaks[1] < 0.85 * peaks[0]
+    assert peaks[1] < 0.85 * peaks[0]  # measured 0.81 here; 0.78-0.81 over sensor seeds 0-3
 
 
 def test_sliding_mode_meets_sideslip_with_the_lqr_gains_sign():

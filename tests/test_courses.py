@@ -84,7 +84,7 @@ def test_slalom_line_passes_cones_alternately_at_the_amplitude():
 
 
 @pytest.mark.parametrize("call, bad", [(lambda: iso3888_2(float("nan")), "nan"), (lambda: iso3888_1(0.2), "0.2"),
-                                       (lambda: slalom(-3.0, 1.0, 5), "-3.0"), (lambda: slalom(18.0, 1.0, 1), "1"),
+                                       (lambda: slalom(-3.0, 1.0, 5), "-3.0"), (lambda: slalom(18.0, 1.0, 1), "n_cones must be a whole number >= 2, got 1"),
                                        (lambda: lane_change(WIDTH, direction=0), "direction"),
                                        (lambda: lane_change(WIDTH, offset=-1.0), "-1.0")])
 def test_bad_course_arguments_raise(call, bad):

@@ -26,7 +26,7 @@ def test_a_named_factory_runs_as_its_object_does_and_changes_what_the_controller
 
 
 def test_the_comparison_runs_them_in_its_worker_processes():
-    scenario = "paper_step:duration=1.5"
+    scenario = "paper_step:duration=2.0,step_time=0.5"
     results, trajectories = run_matrix([scenario], ["ckf", BIASED], ["dyc-lqr", DAMPER], seeds=1, jobs=2,
                                        progress=False)
     rows = {(spec.estimator, spec.controller): metrics for spec, metrics in results}
@@ -34,6 +34,8 @@ def test_the_comparison_runs_them_in_its_worker_processes():
     # ckf holds its nominal 0.8; the user's estimator reports it 0.1 higher, and the DYC sees that
     np.testing.assert_allclose(trajectories[(scenario, "ckf", "dyc-lqr")].estimate.mu, 0.8)
     np.testing.assert_allclose(trajectories[(scenario, BIASED, "dyc-lqr")].estimate.mu, 0.9)
+    assert not np.array_equal(trajectories[(scenario, BIASED, "dyc-lqr")].controls,
+                              trajectories[(scenario, "ckf", "dyc-lqr")].controls)
     assert rows[("ckf", DAMPER)]["yaw_tracking_rms"] != rows[("ckf", "dyc-lqr")]["yaw_tracking_rms"]
 
 

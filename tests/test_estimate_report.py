@@ -79,7 +79,7 @@ def test_markdown_has_our_table_and_the_papers_numbers(report):
 
 @pytest.mark.parametrize("kwargs, named", [({"scenarios": ["no_such_road"]}, "no_such_road"),
                                            ({"estimators": ["kalman9"]}, "kalman9"),
-                                           ({"seeds": 0}, "0"), ({"jobs": 0}, "0")])
+                                           ({"seeds": 0}, "seeds must be .*, got 0"), ({"jobs": 0}, "jobs must be >= 1, got 0")])
 def test_bad_arguments_raise_value_error_naming_the_value(tmp_path, kwargs, named):
     with pytest.raises(ValueError, match=named):
         estimate_report(tmp_path, **kwargs)

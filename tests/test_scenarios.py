@@ -94,7 +94,7 @@ def test_speed_hold_feeds_forward_the_resistance_and_coasts():
     ("paper_step", {"mu": 2.5}, "2.5"),
     ("paper_sine", {"duration": float("nan")}, "nan"),
     ("paper_sine", {"colour": "red"}, "colour"),
-    ("sine_with_dwell", {"direction": 2}, "2"),
+    ("sine_with_dwell", {"direction": 2}, "direction must be .*, got 2"),
     ("sine_with_dwell", {"start": -1.0}, "start"),
     ("paper_step", {"angle": float("nan")}, "angle"),
     ("slowly_increasing_steer", {"direction": 0}, "direction"),

@@ -1,6 +1,7 @@
 """Sensors: seeded noise and bias, fault injection exactly where configured, bad input."""
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -53,6 +54,11 @@ def test_noise_and_bias_have_the_configured_statistics():
     # the mean error is the run's drawn turn-on bias, up to the noise's standard error
     np.testing.assert_allclose(error.mean(axis=0), model.bias[0], atol=4 * np.max(params.noise_std) / math.sqrt(20000))
     assert valid.all()
+    # the turn-on biases across 4,000 cars: N(0, bias_std) per channel (standard error of a
+    # standard deviation from 4,000 draws: 1.1%)
+    fleet = SensorModel(params, (), 4000, np.random.default_rng(1)).bias
+    np.testing.assert_allclose(fleet.std(axis=0), params.bias_std, rtol=0.05)
+    np.testing.assert_allclose(fleet.mean(axis=0), 0.0, atol=5 * np.max(params.bias_std) / math.sqrt(4000))
 
 
 def test_perfect_sensors_read_the_truth():
@@ -118,7 +124,7 @@ def test_bad_truth_raises_naming_the_channel():
         model.measure(truth, 0.0)
     with pytest.raises(ValueError, match="shape"):
         model.measure(np.zeros((2, len(CHANNELS))), 0.0)
-    with pytest.raises(ValueError, match="noise_std"):
+    with pytest.raises(ValueError, match=r"noise_std must be 13 .*, got \[1. 1. 1. 1. 1. 1. 1. 1. 1. 1. 1. 1.\]"):
         SensorParams(noise_std=(1.0,) * 12)
 
 
@@ -126,6 +132,6 @@ def test_bad_truth_raises_naming_the_channel():
 def test_bad_members_raise_instead_of_reading_outside_the_batch(members):
     model = SensorModel(SensorParams(), (), 2, np.random.default_rng(0))
     before = model._cursor.copy()
-    with pytest.raises(ValueError, match="members"):
+    with pytest.raises(ValueError, match=f"members must be .*, got {re.escape(str(members))}"):
         model.measure(np.zeros((len(members), len(CHANNELS))), 0.0, members)
     np.testing.assert_array_equal(model._cursor, before)  # no stream advanced

@@ -15,14 +15,14 @@ P = VehicleParams()
 DT = 0.002
 
 
-def speed_hold(state: np.ndarray, target: float, gain: float = 0.5) -> np.ndarray:
+def speed_hold(state: np.ndarray, target: float, gain: float = 0.5, params: VehicleParams = P) -> np.ndarray:
     """Equal wheel torques that hold ``target`` speed [m/s] (a proportional test driver)."""
-    force = P.mass * gain * (target - state[:, S_U]) + P.rolling_resistance * P.mass * GRAVITY
-    return np.repeat((force * P.wheel_radius / 4.0)[:, None], 4, axis=1)
+    force = params.mass * gain * (target - state[:, S_U]) + params.rolling_resistance * params.mass * GRAVITY
+    return np.repeat((force * params.wheel_radius / 4.0)[:, None], 4, axis=1)
 
 
-def run(state, steer, seconds, road=1.0, target=None, dt=DT, torque=None):
-    """Simulate with ``steer(t)`` [rad] road-wheel angle; returns (times, states, aux)."""
+def run(state, steer, seconds, road=1.0, target=None, dt=DT, torque=None, params=P):
+    """Simulate car ``params`` with ``steer(t)`` [rad] road-wheel angle; returns (times, states, aux)."""
     tables = RoadTables.from_roads(uniform(road) if isinstance(road, float) else road, state.shape[0])
     n = int(round(seconds / dt))
     states, auxs = [], []
@@ -32,8 +32,8 @@ def run(state, steer, seconds, road=1.0, target=None, dt=DT, torque=None):
         if torque is not None:
             controls[:, C_TORQUE:C_TORQUE + 4] = torque
         elif target is not None:
-            controls[:, C_TORQUE:C_TORQUE + 4] = speed_hold(state, target)
-        state, aux = step(state, controls, P, tables, dt)
+            controls[:, C_TORQUE:C_TORQUE + 4] = speed_hold(state, target, params=params)
+        state, aux = step(state, controls, params, tables, dt)
         states.append(state)
         auxs.append(aux)
     return np.arange(1, n + 1) * dt, np.array(states), np.array(auxs)
@@ -54,6 +54,22 @@ def test_steady_state_yaw_gain_matches_linear_bicycle_model():
     k_us = P.mass / P.wheelbase * (P.cg_to_rear / c_f - P.cg_to_front / c_r)  # zero: neutral steer
     assert abs(k_us) < 1e-12
     assert r / delta == pytest.approx(u / (P.wheelbase + k_us * u**2), rel=0.05)
+
+
+@pytest.mark.parametrize("cg_to_front", [0.95, 1.39])  # CG 0.22 m ahead of / behind the paper car's
+def test_steady_state_yaw_gain_follows_the_understeer_gradient_of_a_car_off_neutral(cg_to_front):
+    """Moving the CG forward makes the car understeer, backward oversteer: the steady yaw gain
+    is u / (L + K u^2), K = m / L (b / C_f - a / C_r) with the axle stiffnesses at the static
+    loads (Rajamani 2012, sec. 3.3); at 20 m/s K u^2 is ~10% of L either way (3x the tolerance)."""
+    params = P.replace(cg_to_front=cg_to_front, cg_to_rear=P.wheelbase - cg_to_front)
+    delta, speed = 0.005, 20.0  # ~0.1 g: the tyres' linear range
+    _, states, _ = run(initial_state(params, speed), lambda t: delta, 6.0, target=speed, params=params)
+    u, r = states[-1, 0, S_U], states[-1, 0, S_R]
+    c_f, c_r = params.axle_cornering_stiffness
+    a, b, L = params.cg_to_front, params.cg_to_rear, params.wheelbase
+    k_us = params.mass / L * (b / c_f - a / c_r)
+    assert abs(k_us * u**2 / L) > 0.09 and np.sign(k_us) == np.sign(b - a)  # understeer with the CG forward
+    assert r / delta == pytest.approx(u / (L + k_us * u**2), rel=0.03)
 
 
 @pytest.mark.parametrize("mu", [0.3, 0.6, 1.0])
@@ -235,7 +251,10 @@ def test_tyre_peak_and_stiffness_at_reference_load():
         assert fx.max() == pytest.approx(mu * fz, rel=1e-4)
     _, fy_small = tyre_forces(tyre, fz, 0.0, 1e-5, 1.0, fz)
     assert -fy_small / 1e-5 == pytest.approx(tyre.cornering_stiffness(fz), rel=1e-4)
-    assert tyre.cornering_stiffness(fz) == pytest.approx(32.0e3, rel=0.01)
+    # PAC2002 at zero camber: K_y = PKY1 Fz0 sin(2 atan(Fz / (PKY2 Fz0))) (Pacejka, Tire and
+    # Vehicle Dynamics, 3rd ed., eq. 4.E25)
+    pacejka = tyre.pky1 * tyre.nominal_load * math.sin(2.0 * math.atan(fz / (tyre.pky2 * tyre.nominal_load)))
+    assert tyre.cornering_stiffness(fz) == pytest.approx(pacejka, rel=1e-12)
 
 
 def test_bad_input_raises_value_error_naming_the_value():
@@ -263,16 +282,16 @@ def test_bad_input_raises_value_error_naming_the_value():
         P.replace(wheelbass=2.0)
     with pytest.raises(ValueError, match="-830"):
         VehicleParams(mass=-830.0)
-    with pytest.raises(ValueError, match="dt"):
+    with pytest.raises(ValueError, match="dt must be .*, got nan"):
         step(state, controls, P, uniform(1.0), dt=float("nan"))
 
 
 def test_bad_tyre_coefficients_and_road_friction_are_named():
     from envs.tyre import TyreParams, tyre_forces
 
-    with pytest.raises(ValueError, match="nominal_load"):  # it divides every load
+    with pytest.raises(ValueError, match="nominal_load must be > 0, got 0.0"):  # it divides every load
         TyreParams(nominal_load=0.0)
     with pytest.raises(ValueError, match="pdy2"):
         TyreParams(pdy2=float("nan"))
-    with pytest.raises(ValueError, match="mu_road"):  # -1 mirrored the forces
+    with pytest.raises(ValueError, match=r"mu_road must be .*, got \[-1.\]"):  # -1 mirrored the forces
         tyre_forces(TyreParams(), 3000.0, 0.0, 0.1, mu_road=-1.0)
