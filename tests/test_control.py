@@ -191,11 +191,10 @@ def test_the_controller_reports_what_the_wheels_delivered():
 
 @pytest.mark.parametrize("name", ["dyc-lqr", "dyc-smc"])
 def test_dyc_makes_the_car_pass_sine_with_dwell_it_fails_without(name):
+    """(Without: tests/test_metrics.py, the uncontrolled car spins on this run.)"""
     A = characterise()
-    amplitude = np.array([5.5 * A])
-    open_loop = run_series(A, mu=1.0, amplitude_list=amplitude)[0]
-    closed = run_series(A, mu=1.0, amplitude_list=amplitude, controller_factory=lambda: make_controller(name, P))[0]
-    assert not open_loop.result.passed_yaw and open_loop.result.spun_out
+    closed = run_series(A, mu=1.0, amplitude_list=np.array([5.5 * A]),
+                        controller_factory=lambda: make_controller(name, P))[0]
     assert closed.result.passed and not closed.result.spun_out
     assert closed.peak_sideslip < math.radians(5.0)
 

@@ -153,8 +153,10 @@ def test_a_10_sigma_spike_moves_the_robust_estimate_less_than_20_percent_of_the_
     z = np.array([[10 * math.sqrt(0.011)]])  # 10 sigma of the innovation
     plain = ckf_update(x, P, z, lambda pts: pts @ H_LIN.T, R)
     robust = ckf_update(x, P, z, lambda pts: pts @ H_LIN.T, R, huber_c=1.5)
-    assert abs(robust.x[0, 0]) < 0.2 * abs(plain.x[0, 0])
-    assert abs(robust.x[0, 0]) > 0.1 * abs(plain.x[0, 0])  # down-weighted, not discarded
+    ratio = robust.x[0, 0] / plain.x[0, 0]
+    assert 0.1 < ratio < 0.2  # down-weighted, not discarded
+    w = 1.5 / 10  # the gains P / (P + R / w) and P / (P + R) on the observed state
+    assert ratio == pytest.approx((1e-3 / (1e-3 + 0.01 / w)) / (1e-3 / (1e-3 + 0.01)), rel=1e-6)
 
 
 def test_huber_update_limits_an_outlier():
