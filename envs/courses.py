@@ -70,6 +70,15 @@ class Course:
         return float(self.centreline[-1, 0] - self.centreline[0, 0])
 
 
+def stack_polylines(paths) -> tuple[np.ndarray, np.ndarray]:
+    """Polylines (N_b, 2) of B cars (None: none) in one array: (points (sum N_b, 2), offsets
+    (B + 1,) int64), car b's polyline being ``points[offsets[b]:offsets[b + 1]]``; for compiled
+    kernels over a batch."""
+    polylines = [np.zeros((0, 2)) if path is None else np.asarray(path, dtype=float) for path in paths]
+    points = np.ascontiguousarray(np.concatenate([np.zeros((0, 2)), *polylines]))
+    return points, np.concatenate([[0], np.cumsum([len(path) for path in polylines])]).astype(np.int64)
+
+
 def _check_width(width: float) -> float:
     if not (isinstance(width, (int, float)) and math.isfinite(width) and 1.0 <= width <= 3.0):
         raise ValueError(f"vehicle width must be in [1, 3] m, got {width!r}")

@@ -21,6 +21,7 @@ import numba
 import numpy as np
 from scipy.linalg import expm
 
+from envs.courses import stack_polylines
 from envs.vehicle import GRAVITY, S_PSI, S_R, S_U, S_V, S_X, S_Y, VehicleParams
 from estimation.jit import JIT
 
@@ -273,9 +274,7 @@ class PathFollowerBatch:
         """Drive vehicle b by ``followers[b]`` (vehicles 0..max(b)); the batch's vehicles without
         one must not be called."""
         rows = max(followers, default=-1) + 1
-        paths = [followers[b].path if b in followers else np.zeros((0, 2)) for b in range(rows)]
-        self.paths = np.ascontiguousarray(np.concatenate([np.zeros((0, 2)), *paths]))
-        self.offsets = np.concatenate([[0], np.cumsum([len(path) for path in paths])]).astype(np.int64)
+        self.paths, self.offsets = stack_polylines([followers[b].path if b in followers else None for b in range(rows)])
 
     def __call__(self, states: np.ndarray, members: np.ndarray, out: np.ndarray) -> None:
         """Write the steering-wheel angles [rad] of vehicles ``members`` (M,) int64 at plant

@@ -19,6 +19,7 @@ import numba
 import numpy as np
 from scipy.signal import butter, find_peaks, sosfiltfilt
 
+from envs.courses import stack_polylines
 from estimation.jit import JIT
 
 STEERING_CUTOFF = 10.0  #: S7.11.1: steering-wheel angle filter cutoff [Hz]
@@ -368,13 +369,11 @@ class CoursePaths:
         self._stack()
 
     def _stack(self) -> None:
-        polylines = [np.zeros((0, 2)) if path is None else np.asarray(path, dtype=float) for path in self.paths]
-        self.points = np.ascontiguousarray(np.concatenate([np.zeros((0, 2)), *polylines]))
-        self.offsets = np.concatenate([[0], np.cumsum([len(path) for path in polylines])]).astype(np.int64)
-        self.ends = np.full((len(polylines), 2, 2), np.nan)  # each path's first and last point
-        for b, path in enumerate(polylines):
-            if len(path):
-                self.ends[b] = path[[0, -1]]
+        self.points, self.offsets = stack_polylines(self.paths)
+        self.ends = np.full((len(self.paths), 2, 2), np.nan)  # each path's first and last point
+        for b, path in enumerate(self.paths):
+            if path is not None:
+                self.ends[b] = np.asarray(path, dtype=float)[[0, -1]]
 
     def deviation(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Distance [m] (B,) of the cars at ``x, y`` (B,) [m] from their paths where they are
