@@ -233,8 +233,9 @@ def _add_matrix_arguments(parser: argparse.ArgumentParser, scenarios, estimators
 
     parser.add_argument("--scenarios", nargs="+", default=list(scenarios), help=scenarios_help)
     parser.add_argument("--estimators", nargs="+", default=list(estimators),
-                        help=f"estimator names ({', '.join(ESTIMATORS)}); NAME+true-mu (groups "
-                             f"{', '.join(TRUTH_GROUPS)}, joined by '-') reports those quantities from the truth")
+                        help=f"estimator names ({', '.join(ESTIMATORS)}, or module:factory for your own); "
+                             f"NAME+true-mu (groups {', '.join(TRUTH_GROUPS)}, joined by '-') reports those quantities "
+                             f"from the truth")
     _add_run_arguments(parser, seeds, out)
 
 
@@ -267,8 +268,8 @@ def build_parser() -> argparse.ArgumentParser:
                           "scenario names, optionally with overrides: iso3888_2:mu=0.5,speed_kph=50; "
                           "sine_with_dwell:amplitude_A=6.5 ('swd_wet': SWD 5.5A, mu 0.5)")
     cmp_.add_argument("--controllers", nargs="+", default=list(DEFAULT_CONTROLLERS),
-                      help=f"stability controllers ({', '.join(CONTROLLERS)}) or rl:<run dir> for a policy trained "
-                           f"by fourwis train")
+                      help=f"stability controllers ({', '.join(CONTROLLERS)}, or module:factory for your own) or "
+                           f"rl:<run dir> for a policy trained by fourwis train")
     cmp_.set_defaults(func=_compare)
     from envs.scenarios import PAPER_SCENARIOS
     from training.estimate import DEFAULT_ESTIMATORS as ESTIMATE_ESTIMATORS
