@@ -217,7 +217,10 @@ class PathFollower:
     that asks for ~0.7 g (ISO 3888-2 at 60 km/h). Responses are cached per 0.1 m/s of speed.
 
     Returns the steering-wheel angle ``ratio * delta`` [rad], delta within the steering limit.
-    Beyond the path's end the driver follows the last segment's line. The default 0.4 s
+    Beyond the path's end the driver follows the last segment's line. The path must not turn
+    back on itself: the driver aims at the first stretch ahead of the car counting from the
+    path's start, so on a U-turn's return leg it would find the outbound leg (every course of
+    envs.courses runs forward along X). The default 0.4 s
     preview (MacAdam: 0.5-1.5 s for normal drivers; shorter previews track tighter) clears
     ISO 3888-2 at 60 km/h on mu 1.0 and 50 km/h on mu 0.6 (tests; measured 0.2-0.4 s clean,
     0.5 s one cone, longer previews cut the corners).
@@ -235,8 +238,10 @@ class PathFollower:
         if path.ndim != 2 or path.shape[1] != 2 or path.shape[0] < 2 or not np.all(np.isfinite(path)):
             raise ValueError(f"path must be a finite (N >= 2, 2) polyline, got shape {path.shape}")
         for name in ("preview_time", "points", "spacing"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"PathFollower.{name} must be > 0, got {getattr(self, name)!r}")
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise ValueError(f"PathFollower.{name} must be finite and > 0, got {getattr(self, name)!r}")
+        if int(self.points) != self.points:
+            raise ValueError(f"PathFollower.points must be a whole number, got {self.points!r}")
         segment = np.hypot(*np.diff(path, axis=0).T)
         if np.any(segment <= 0):
             raise ValueError("path has repeated points")
@@ -285,9 +290,9 @@ class PathFollowerBatch:
                                         states, self.preview_time, p.steering_ratio, p.max_front_steer, out)
             if code == _DONE:
                 return
-            if code == _BAD_SPEED:
-                raise ValueError(f"vehicle {value}'s forward speed is {float(states[value, S_U])!r}; the path follower "
-                                 "needs a finite one")
+            if code == _BAD_STATE:
+                raise ValueError(f"vehicle {value}'s pose or speed is not finite or its speed beyond "
+                                 f"{MAX_FOLLOW_SPEED:g} m/s: {states[value, [S_X, S_Y, S_PSI, S_U, S_V, S_R]]!r}")
             if value >= len(self.response_row):  # _MISSING beyond the table: grow it
                 self.response_row = np.concatenate([self.response_row, np.full(value + 1, -1, dtype=np.int64)])
             free, step = _preview_responses(p, value / 10.0, self.preview_time, self.points)
@@ -295,7 +300,8 @@ class PathFollowerBatch:
             self.free, self.step = np.concatenate([self.free, free[None]]), np.concatenate([self.step, step[None]])
 
 
-_DONE, _MISSING, _BAD_SPEED = 0, 1, 2
+_DONE, _MISSING, _BAD_STATE = 0, 1, 2
+MAX_FOLLOW_SPEED = 150.0  #: fastest speed the path follower steers at [m/s] (its response table grows with it)
 
 
 @numba.njit(**JIT)
@@ -303,11 +309,12 @@ def _follow_paths(paths, offsets, members, response_row, free, step, states, pre
     """:class:`PathFollowerBatch`'s kernel: (_DONE, 0) once every member's steering-wheel angle
     is in ``out``, (_MISSING, tenths) if the preview responses at a speed of ``tenths`` x 0.1 m/s
     are not in the table yet (the speed is |u| floored at 1 m/s, rounded as np.round(u, 1)), or
-    (_BAD_SPEED, vehicle) for a forward speed that is not finite."""
+    (_BAD_STATE, vehicle) for a pose or speed that is not finite or beyond MAX_FOLLOW_SPEED."""
     for b in members:
         speed = max(abs(states[b, S_U]), 1.0)
-        if not math.isfinite(speed):
-            return _BAD_SPEED, b
+        pose = states[b, S_X] + states[b, S_Y] + states[b, S_PSI] + states[b, S_V] + states[b, S_R]
+        if not (speed <= MAX_FOLLOW_SPEED and math.isfinite(pose)):
+            return _BAD_STATE, b
         tenths = int(np.rint(speed * 10.0))
         if tenths >= response_row.shape[0] or response_row[tenths] < 0:
             return _MISSING, tenths

@@ -246,9 +246,15 @@ def mu_jump(speed_kph=60.0, mu=0.9, duration=6.0, steering=None, mu_patch=0.3, l
     if steering is None:
         delta = _positive("lateral_g", lateral_g) * GRAVITY * params.wheelbase / speed**2
         steering = Constant(delta * params.steering_ratio)
-        radius = params.wheelbase / delta  # of the neutral-steer circle from X = 0 heading +X [m]
+        # the circle the steering is designed for (neutral steer, front axle only) from X = 0
+        # heading +X [m]: a scenario whose designed path misses its patch is refused, even if a
+        # sliding or rear-steered car would happen to reach it
+        radius = params.wheelbase / delta
         reach = radius * math.sin(reach / radius) if reach < 0.5 * math.pi * radius else radius
-    if reach <= _finite("patch_x", patch_x):
+    if not _finite("patch_x", patch_x) > params.cg_to_front:
+        raise ValueError(f"mu_jump: patch_x must lie ahead of the front axle at the start (X > "
+                         f"{params.cg_to_front:g} m), got {patch_x!r}: the car would start on the patch")
+    if reach <= patch_x:
         raise ValueError(f"mu_jump: at {speed_kph!r} km/h for {duration!r} s the car reaches X = {reach:.1f} m at "
                          f"most, short of the patch at X = {patch_x!r} m; raise speed_kph or duration (or lower "
                          "lateral_g)")

@@ -166,6 +166,7 @@ class ClosedLoop:
         self.batch_size = len(self.scenarios)
         self.params = params = self.scenarios[0].vehicle_params
         self._check_params(self.scenarios)
+        self._labels = (estimator, controller)  # how errors name a user's estimator and controller: as given
         if isinstance(estimator, str) or estimator is None:
             from estimation import make_estimator
 
@@ -175,7 +176,8 @@ class ClosedLoop:
                              f"estimation.make_estimator or None, got {estimator!r}")
         from estimation import Oracle, StateEstimator
 
-        # fourwis's own estimators guard their outputs; anyone else's are checked every step
+        # fourwis's own estimators and controllers guard their outputs; anyone else's are
+        # checked every step
         self._check_estimates = type(estimator) not in (Oracle, StateEstimator)
         self._needs_truth = bool(getattr(estimator, "needs_truth", False))
         if isinstance(controller, str):
@@ -185,6 +187,7 @@ class ClosedLoop:
         if controller is not None and not (callable(controller) and callable(getattr(controller, "reset", None))):
             raise ValueError(f"controller must be a Controller (reset() and a call), a name from control.CONTROLLERS "
                              f"or None, got {controller!r}")
+        self._check_commands = type(controller).__module__.split(".")[0] not in ("control", "envs", "training")
         estimator_dt = getattr(estimator, "dt", None)
         if estimator_dt is not None and not math.isclose(estimator_dt, dt, rel_tol=1e-12):
             raise ValueError(f"the estimator steps at dt = {estimator_dt!r} s, the simulation at {dt!r} s: build it with "
@@ -287,7 +290,7 @@ class ClosedLoop:
         else:
             estimate = self.estimator.step(reading, truth if self._needs_truth else None)
         if self._check_estimates:
-            check_estimate(estimate, self.batch_size if part is None else len(rows), self.estimator)
+            check_estimate(estimate, self.batch_size if part is None else len(rows), self._labels[0])
         if part is not None:
             estimate = Estimate(*(_merged(full, new, rows) for full, new in zip(self._sample.estimate, stepped)))
         self._sample = Sample(now, reading, truth, estimate, steering, base)
@@ -303,6 +306,8 @@ class ClosedLoop:
         controls[:, C_DELTA_F] = s.steering_wheel / self.params.steering_ratio
         if self.controller is not None:
             command = self.controller(s.t, s.estimate, controls[:, C_DELTA_F].copy(), s.base_torques.copy())
+            if self._check_commands:
+                _check_command(command, self.batch_size, self._labels[1])
             controls[:, C_TORQUE:C_TORQUE + 4] = command.torques
             controls[:, C_DELTA_R] = command.rear_steer
         record = StepRecord(s.t, self.state.copy(), self.aux.copy(), controls, s.steering_wheel, s.reading, s.truth,
@@ -312,6 +317,18 @@ class ClosedLoop:
             self.k += 1
             self._stale[:] = True
         return record
+
+
+def _check_command(command, batch: int, source) -> None:
+    """ValueError naming ``source`` (a user's controller) unless ``command`` is a Command of
+    finite torques (B, 4) [N m] and rear steer (B,) [rad]."""
+    if not isinstance(command, Command):
+        raise ValueError(f"controller {source!r} returned {type(command).__name__}, not a control.Command")
+    for name, shape in (("torques", (batch, 4)), ("rear_steer", (batch,))):
+        value = getattr(command, name)
+        if np.shape(value) != shape or np.asarray(value).dtype.kind not in "fiu" or not np.all(np.isfinite(value)):
+            raise ValueError(f"controller {source!r} returned {name} {value!r}: expected finite real numbers of "
+                             f"shape {shape}")
 
 
 def simulate(scenario: Scenario | str, controller: Controller | str | None = None,

@@ -48,8 +48,9 @@ def import_factory(name: str, kind: str):
         target = importlib.import_module(module_name)
         for part in attribute.split("."):
             target = getattr(target, part)
-    except (ImportError, AttributeError, ValueError) as err:
-        raise ValueError(f"{kind} {name!r}: cannot import {attribute!r} from {module_name!r} ({err})") from None
+    except Exception as err:  # a missing or broken module (a syntax error in it too), a missing attribute
+        raise ValueError(f"{kind} {name!r}: cannot import {attribute!r} from {module_name!r} "
+                         f"({type(err).__name__}: {err})") from None
     if not callable(target):
         raise ValueError(f"{kind} {name!r} is not callable: give a factory(params, dt) -> {kind}")
     return target
@@ -67,6 +68,8 @@ def check_estimate(estimate, batch: int, source) -> None:
         shape = (batch, 4) if name in PER_WHEEL else (batch,)
         if np.shape(value) != shape:
             raise ValueError(f"estimator {source!r} returned {name} of shape {np.shape(value)}, expected {shape}")
+        if np.asarray(value).dtype.kind not in "fiu":
+            raise ValueError(f"estimator {source!r} returned {name} of dtype {np.asarray(value).dtype}, not real numbers")
         if not np.all(np.isfinite(value)):
             raise ValueError(f"estimator {source!r} returned a non-finite {name}: {value!r}")
 

@@ -56,6 +56,13 @@ def test_resume_to_fewer_timesteps_than_the_run_has_is_refused_and_changes_nothi
     assert _files(out) == before
 
 
+def test_a_run_resumed_into_a_new_folder_logs_there_and_leaves_the_old_one_alone(run, tmp_path):
+    before = _files(run)
+    main([*TRAIN, "--resume", str(run), "--timesteps", "3000", "--out", str(tmp_path / "next")])
+    assert _files(run) == before  # TensorBoard wrote into the resumed run's tb/ before
+    assert any((tmp_path / "next" / "tb").rglob("events.out.tfevents.*"))
+
+
 def test_train_refuses_to_overwrite_a_run_unless_told(run, tmp_path):
     from training.rl import train
 

@@ -129,3 +129,20 @@ def test_the_phase_plane_peak_tells_a_spin_and_a_fixed_mu_slide_from_a_held_car(
     assert peak[("oracle", "none")] > 5.0 and spun[("oracle", "none")] == 1.0
     assert peak[("oracle", "dyc-lqr")] < 0.7
     assert peak[("ckf", "dyc-lqr")] > 1.0 and spun[("ckf", "dyc-lqr")] == 0.0
+
+
+def test_a_car_that_stops_short_of_the_course_end_has_not_passed_it():
+    """ISO 3888-2 at 10 km/h: the coasting car stops at X ~ 31 m of a course to X = 91 m, with
+    no cone touched; at 60 km/h it drives through."""
+    results, _ = run_matrix(["iso3888_2:speed_kph=10", "iso3888_2"], ["oracle"], ["none"], seeds=1, jobs=2,
+                            progress=False)
+    verdict = {spec.scenario: (m["course_completed"], m["passed"], m["cone_hits"]) for spec, m in results}
+    assert verdict == {"iso3888_2:speed_kph=10": (0.0, 0.0, 0.0), "iso3888_2": (1.0, 1.0, 0.0)}
+
+
+def test_spellings_of_one_scenario_and_a_key_given_twice_are_refused():
+    with pytest.raises(ValueError, match=r"\['paper_step: duration=0.2', 'paper_step:duration=0.20'\] run the same"):
+        run_matrix(["paper_step: duration=0.2", "paper_step:duration=0.20"], ["oracle"], ["none"], seeds=1, jobs=1,
+                   progress=False)
+    with pytest.raises(ValueError, match="mu is given twice"):
+        parse_scenario("iso3888_2:mu=0.5,mu=0.3")

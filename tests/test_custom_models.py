@@ -87,3 +87,24 @@ def test_the_command_line_finds_a_module_in_the_working_directory(tmp_path, monk
     main(["compare", "--scenarios", "paper_step:duration=0.5", "--estimators", "my_filters:biased_friction",
           "--controllers", "none", "--seeds", "1", "--jobs", "1", "--out", str(tmp_path / "out")])
     assert "my_filters:biased_friction" in (tmp_path / "out" / "runs.csv").read_text()
+
+
+def test_a_users_controller_and_broken_modules_are_named():
+    from control import Command
+
+    class NaNTorques:
+        def reset(self):
+            pass
+
+        def __call__(self, t, estimate, front_steer, base_torques):
+            return Command(np.full_like(base_torques, np.nan), np.zeros(len(base_torques)))
+
+    scenario = make_scenario("paper_step", duration=0.1)
+    with pytest.raises(ValueError, match="NaNTorques.*returned torques"):
+        simulate(scenario, NaNTorques())
+    with pytest.raises(ValueError, match="returned NoneType, not a control.Command"):
+        simulate(scenario, type("Silent", (NaNTorques,), {"__call__": lambda self, *a: None})())
+    with pytest.raises(ValueError, match="custom_models:WrongShape' returned mu"):  # named as given
+        simulate(scenario, None, "custom_models:WrongShape")
+    with pytest.raises(ValueError, match=r"cannot import .*\(TypeError"):
+        simulate(scenario, None, "..x:y")

@@ -109,6 +109,7 @@ def test_speed_hold_feeds_forward_the_resistance_and_coasts():
     ("mu_jump", {"speed_kph": 2.0}, "short of the patch"),  # 1.4 m in 6 s
     ("mu_jump", {"speed_kph": 30.0}, "short of the patch"),  # circles 17.7 m across at 0.4 g
     ("mu_jump", {"duration": 1.2}, "short of the patch"),
+    ("mu_jump", {"patch_x": 0.5}, "start on the patch"),  # under the front wheels at the start
 ])
 def test_bad_scenario_arguments_raise_value_error_naming_the_value(name, kwargs, bad):
     with pytest.raises(ValueError, match=bad):
@@ -229,7 +230,9 @@ def test_driver_settles_on_a_circle_at_the_neutral_steer_angle():
 
 @pytest.mark.parametrize("kwargs, match", [({"path": np.zeros((3, 2))}, "repeated"),
                                            ({"path": np.ones((1, 2))}, "shape"),
-                                           ({"preview_time": 0.0}, "preview_time")])
+                                           ({"preview_time": 0.0}, "preview_time"),
+                                           ({"preview_time": math.inf}, "preview_time .*, got inf"),
+                                           ({"points": 0.5}, "points must be a whole number, got 0.5")])
 def test_path_follower_rejects_bad_arguments(kwargs, match):
     from envs.driver import PathFollower
 
@@ -283,5 +286,8 @@ def test_path_follower_names_a_speed_it_cannot_steer_at():
     states = np.zeros((2, NX))
     states[:, S_U] = 20.0, np.nan
     assert np.isfinite(follower(0.0, states[0]))
-    with pytest.raises(ValueError, match="vehicle 1's forward speed is nan"):
+    with pytest.raises(ValueError, match="vehicle 1's pose or speed is not finite"):
+        DriverBatch([follower, follower])(np.zeros(2), states)
+    states[1, S_U] = 1e18  # overflowed the speed table's index (a crash)
+    with pytest.raises(ValueError, match="beyond 150 m/s"):
         DriverBatch([follower, follower])(np.zeros(2), states)

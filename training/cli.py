@@ -65,9 +65,9 @@ def _simulate(args: argparse.Namespace) -> int:
     try:
         scenario = make_scenario(args.scenario, **_scenario_overrides(args))
         _check_estimator_and_seed(args)
-    except ValueError as err:
+        traj = simulate(scenario, estimator=args.estimator, seed=args.seed, progress=True)
+    except ValueError as err:  # a bad argument, or a user's estimator returning garbage
         raise SystemExit(f"fourwis simulate: {err}") from None
-    traj = simulate(scenario, estimator=args.estimator, seed=args.seed, progress=True)
     out = Path(args.out)
     csv_path = write_trajectory_csv(traj, out / f"{scenario.name}.csv")
     png_path = plot_trajectory(traj, out / f"{scenario.name}.png")
@@ -101,8 +101,11 @@ def _sine_with_dwell(args: argparse.Namespace) -> int:
         factory = functools.partial(build_controller, args.controller, VehicleParams())
     tables = []
     for mu in args.mu:
-        runs = run_series(A, mu=mu, controller_factory=factory, estimator=args.estimator, seed=args.seed,
-                          progress=True)
+        try:
+            runs = run_series(A, mu=mu, controller_factory=factory, estimator=args.estimator, seed=args.seed,
+                              progress=True)
+        except ValueError as err:  # a user's estimator or controller returning garbage
+            raise SystemExit(f"fourwis swd: {err}") from None
         passed = sum(run.result.passed for run in runs)
         tables.append(f"controller {args.controller}, estimator {args.estimator}: {passed} of {len(runs)} runs "
                       f"pass\n\n" + format_table(runs, A, MEASURED_A if args.A is None else "given"))
@@ -256,7 +259,7 @@ def build_parser() -> argparse.ArgumentParser:
     sim = command("simulate", "run one scenario open loop; write CSV and a PNG plot")
     sim.add_argument("scenario", help="scenario name (see envs.SCENARIOS)")
     _add_scenario_arguments(sim)
-    sim.add_argument("--estimator", default="oracle", help="estimator run alongside")
+    sim.add_argument("--estimator", default="oracle", help="estimator run alongside (a name or module:factory)")
     sim.add_argument("--seed", type=int, default=0, help="sensor noise seed (>= 0)")
     sim.add_argument("--out", default="results/simulate", help="output directory")
     sim.set_defaults(func=_simulate)
@@ -296,9 +299,10 @@ def build_parser() -> argparse.ArgumentParser:
     swd = command("swd", "FMVSS 126 sine-with-dwell series: the regulation's table")
     swd.add_argument("--mu", type=float, nargs="+", default=[1.0, 0.5, 0.3], help="road friction values")
     swd.add_argument("--A", type=float, help="characterisation angle [deg] (default: measured at 0.3 g)")
-    swd.add_argument("--estimator", default="oracle", help="estimator run alongside")
+    swd.add_argument("--estimator", default="oracle", help="estimator run alongside (a name or module:factory)")
     swd.add_argument("--controller", default="none",
-                     help=f"stability controller ({', '.join(CONTROLLERS)}) or rl:<run dir>, fed by the estimator")
+                     help=f"stability controller ({', '.join(CONTROLLERS)}, or module:factory) or rl:<run dir>, fed "
+                          f"by the estimator")
     swd.add_argument("--seed", type=int, default=0, help="sensor noise seed (>= 0)")
     swd.add_argument("--out", help="directory for sine_with_dwell.md (default: print only)")
     swd.set_defaults(func=_sine_with_dwell)

@@ -69,6 +69,7 @@ def parse_scenario(text: str) -> tuple[str, dict]:
     text = text.removesuffix(FAULT_SUFFIX)
     name, _, rest = text.partition(":")
     overrides: dict = {"mu": SWD_MU, "amplitude_A": SWD_MULTIPLE} if name == "swd_wet" else {}
+    given: set[str] = set()
     name = "sine_with_dwell" if name == "swd_wet" else name
     if name not in SCENARIOS:
         raise ValueError(f"unknown scenario {name!r} in {text!r}; known: {sorted(SCENARIOS) + ['swd_wet']}")
@@ -82,6 +83,9 @@ def parse_scenario(text: str) -> tuple[str, dict]:
             sep = ""
         if not sep or (isinstance(value, list) and not all(is_number(v) for v in value)):
             raise ValueError(f"bad override {item!r} in scenario {text!r}: expected key=number or key=[numbers]")
+        if key.strip() in given:
+            raise ValueError(f"{key.strip()} is given twice in scenario {text!r}")
+        given.add(key.strip())
         overrides[key.strip()] = value
     if "amplitude_A" in overrides:
         if name != "sine_with_dwell":
@@ -131,14 +135,18 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
                                            scenario.course.cones, params.width,
                                            params.cg_to_front + params.front_overhang,
                                            params.cg_to_rear + params.rear_overhang))
+        # a car that stopped short (a coasting car at walking pace) has not driven the course
+        out["course_completed"] = float(traj.state[-1, S_X] >= path[-1, 0])
     if scenario.name == "sine_with_dwell":
         res = sine_with_dwell_metrics(traj.t, traj.steering_wheel, traj.state[:, S_R], traj.aux[:, A_AY],
                                       sideslip=beta, A=swd_A)
         out.update(swd_ratio_1000=res.yaw_rate_ratio_1000, swd_ratio_1750=res.yaw_rate_ratio_1750,
                    swd_displacement=res.lateral_displacement, swd_passed=float(res.passed))
-    # the pass-rate map's verdict: no spin-out and, on sine with dwell, FMVSS 126 passed (the yaw
-    # ratios and the responsiveness displacement: a stable car can still fail the latter)
-    out["passed"] = float(not out["spin_out"] and out.get("swd_passed", 1.0) == 1.0)
+    # the pass-rate map's verdict: no spin-out, on a course its end reached, and on sine with
+    # dwell FMVSS 126 passed (the yaw ratios and the responsiveness displacement: a stable car
+    # can still fail the latter)
+    out["passed"] = float(not out["spin_out"] and out.get("course_completed", 1.0) == 1.0
+                          and out.get("swd_passed", 1.0) == 1.0)
     for name in ("u", "v", "beta", "r"):
         out[f"rmse_{name}"] = rmse(getattr(E, name), getattr(T, name))
         out[f"mae_{name}"] = mae(getattr(E, name), getattr(T, name))
@@ -184,7 +192,11 @@ def run_matrix(scenarios: Sequence[str] = HEADLINE, estimators: Sequence[str] = 
         if not isinstance(name, str):
             raise ValueError(f"a controller is given by name, got {name!r}: pass your own as 'module:factory' "
                              "(factory(params, dt) -> controller), or the object itself to envs.simulate")
-    for kind, entries in (("scenarios", scenarios), ("estimators", estimators), ("controllers", controllers)):
+    runs = [repr((parse_scenario(s), s.endswith(FAULT_SUFFIX))) for s in scenarios]  # what each one runs
+    repeated = [s for s, run in zip(scenarios, runs) if runs.count(run) > 1]
+    if repeated:
+        raise ValueError(f"scenarios must be distinct: {repeated} run the same scenario")
+    for kind, entries in (("estimators", estimators), ("controllers", controllers)):
         require_distinct(kind, entries)
     user = [c for c in controllers if ":" in c and not c.startswith(RL_PREFIX)]
     for name in user:
@@ -231,7 +243,8 @@ def markdown_report(table: dict, scenarios: Sequence[str], estimators: Sequence[
     lines = ["# fourwis closed-loop comparison", "",
              f"Runs: {len(scenarios)} scenarios x {len(estimators)} estimators x {len(controllers)} controllers "
              f"x {seeds} seeds (means over seeds). The controller sees only the estimate.",
-             *([f"`swd_wet`: FMVSS 126 sine with dwell at {SWD_MULTIPLE}A on mu {SWD_MU} from 80 km/h."]
+             *([f"`swd_wet`: FMVSS 126 sine with dwell at {SWD_MULTIPLE}A on mu {SWD_MU} from 80 km/h "
+                 "(overrides after its ':' replace these)."]
                if any(s.startswith("swd_wet") for s in scenarios)
                else []),
              "Phase-plane peak: the largest index of the car's sideslip phase-plane stability region "

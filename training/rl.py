@@ -251,6 +251,7 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs:
         model_path, normalizer_path, _ = run_files(resume)
         normalized = VecNormalize.load(str(normalizer_path), train_env)
         model = algo_class.load(str(model_path), env=normalized, device="cpu")
+        model.tensorboard_log = str(out / "tb")  # this run's logs in its own folder, not the resumed one's
         if model.num_timesteps >= timesteps:  # checked before anything is written
             raise ValueError(f"cannot resume {resume}: it already has {model.num_timesteps} timesteps and "
                              f"--timesteps is the total to reach, so give more than {model.num_timesteps}, "
