@@ -153,6 +153,14 @@ class StabilityController:
         return Command(self.last_allocation.torques, rear.copy())
 
 
+def check_controller(controller, source) -> None:
+    """ValueError naming ``source`` (a name, or the object) unless ``controller`` has the
+    interface of :class:`envs.simulation.Controller` (``reset`` and a call)."""
+    if not (callable(controller) and callable(getattr(controller, "reset", None))):
+        raise ValueError(f"controller {source!r} lacks reset() or a call, got {controller!r}: give a Controller, "
+                         "a name from control.CONTROLLERS or None")
+
+
 def make_controller(name: str, params, dt: float = 0.002):
     """Controller ``name`` (see :data:`CONTROLLERS`) for duck-typed vehicle ``params``; None for
     "none". Your own: ``module:factory`` returns ``factory(params, dt)``, an object with the
@@ -162,8 +170,7 @@ def make_controller(name: str, params, dt: float = 0.002):
         return None
     if ":" in name:
         controller = import_factory(name, "controller")(params, dt)
-        if not (callable(controller) and callable(getattr(controller, "reset", None))):
-            raise ValueError(f"controller {name!r} built {controller!r}, which lacks reset() or a call")
+        check_controller(controller, name)
         return controller
     if name == "dyc-lqr":
         return StabilityController(params, "lqr", dt=dt)
@@ -177,4 +184,4 @@ def make_controller(name: str, params, dt: float = 0.002):
 
 
 __all__ = ["CONTROLLERS", "Allocation", "Command", "StabilityController", "allocate_for_estimate", "allocate_torques",
-           "make_controller"]
+           "check_controller", "make_controller"]

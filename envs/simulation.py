@@ -21,8 +21,8 @@ from envs.scenarios import Scenario, make_scenario
 from envs.sensors import Fault, SensorModel, SensorParams, SensorReading
 from envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NU, S_DELTA_F,
                           S_DELTA_R, S_OMEGA, S_R, S_TORQUE, S_U, S_V, derivatives, step)
-from control import Command
-from estimation.types import Estimate, check_estimate
+from control import Command, check_controller
+from estimation.types import Estimate, check_estimate, check_estimator
 
 DT = 0.002  #: physics, sensor and estimator step [s] (the paper samples at 2 ms)
 
@@ -171,9 +171,8 @@ class ClosedLoop:
             from estimation import make_estimator
 
             estimator = make_estimator(estimator or "oracle", params, dt)
-        if not (callable(getattr(estimator, "step", None)) and callable(getattr(estimator, "reset", None))):
-            raise ValueError(f"estimator must be an Estimator (reset() and step()), a name for "
-                             f"estimation.make_estimator or None, got {estimator!r}")
+        else:
+            check_estimator(estimator, estimator)
         from estimation import Oracle, StateEstimator
 
         # fourwis's own estimators and controllers guard their outputs; anyone else's are
@@ -184,9 +183,8 @@ class ClosedLoop:
             from control import make_controller
 
             controller = make_controller(controller, params, dt)
-        if controller is not None and not (callable(controller) and callable(getattr(controller, "reset", None))):
-            raise ValueError(f"controller must be a Controller (reset() and a call), a name from control.CONTROLLERS "
-                             f"or None, got {controller!r}")
+        elif controller is not None:
+            check_controller(controller, controller)
         self._check_commands = type(controller).__module__.split(".")[0] not in ("control", "envs", "training")
         estimator_dt = getattr(estimator, "dt", None)
         if estimator_dt is not None and not math.isclose(estimator_dt, dt, rel_tol=1e-12):
@@ -286,13 +284,13 @@ class ClosedLoop:
             self.estimator.reset(reading, speeds, None if self._fresh.all() else self._fresh.copy())
             self._fresh[:] = False
         if part is not None:
-            estimate = stepped = self.estimator.step(reading, _rows(truth, rows) if self._needs_truth else None, rows)
+            estimate = self.estimator.step(reading, _rows(truth, rows) if self._needs_truth else None, rows)
         else:
             estimate = self.estimator.step(reading, truth if self._needs_truth else None)
         if self._check_estimates:
             check_estimate(estimate, self.batch_size if part is None else len(rows), self._labels[0])
         if part is not None:
-            estimate = Estimate(*(_merged(full, new, rows) for full, new in zip(self._sample.estimate, stepped)))
+            estimate = Estimate(*(_merged(full, new, rows) for full, new in zip(self._sample.estimate, estimate)))
         self._sample = Sample(now, reading, truth, estimate, steering, base)
         self._stale[:] = False
         return self._sample

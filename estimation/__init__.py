@@ -7,7 +7,7 @@ from estimation.joint import KINDS, NoiseParams, StateEstimator, tuned_noise
 from estimation.model import ModelParams
 from estimation.online import OnlineTuner
 from estimation.oracle import TRUE_SUFFIX, TRUTH_GROUPS, Oracle, PartialOracle, parse_truth_groups
-from estimation.types import Estimate, check_step, import_factory
+from estimation.types import Estimate, check_estimator, check_step, import_factory
 
 ESTIMATORS = ("oracle",) + KINDS  #: names accepted by make_estimator; "joint" is the paper's full system
 
@@ -56,8 +56,7 @@ def make_estimator(name: str, params, dt: float = 0.002, noise: NoiseParams | No
             raise ValueError(f"estimator {name!r} is built as factory(params, dt): it takes no noise or keyword "
                              f"arguments, got {sorted(kwargs) or ['noise']}")
         estimator = import_factory(base, "estimator")(params, dt)
-        if not (callable(getattr(estimator, "step", None)) and callable(getattr(estimator, "reset", None))):
-            raise ValueError(f"estimator {name!r} built {estimator!r}, which lacks step() and reset()")
+        check_estimator(estimator, name)
         return estimator
     if name == "oracle":
         check_step(dt)

@@ -56,6 +56,14 @@ def import_factory(name: str, kind: str):
     return target
 
 
+def check_estimator(estimator, source) -> None:
+    """ValueError naming ``source`` (a name, or the object) unless ``estimator`` has the step
+    interface of :class:`envs.simulation.Estimator` (``reset`` and ``step``)."""
+    if not (callable(getattr(estimator, "step", None)) and callable(getattr(estimator, "reset", None))):
+        raise ValueError(f"estimator {source!r} lacks reset() and step(), got {estimator!r}: give an Estimator, "
+                         "a name for estimation.make_estimator or None")
+
+
 PER_WHEEL = ("mu", "fz", "mu_std")  #: the Estimate fields with a wheel axis (B, 4)
 
 

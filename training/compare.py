@@ -68,11 +68,11 @@ def parse_scenario(text: str) -> tuple[str, dict]:
     a ``+faults`` suffix runs it with :data:`SENSOR_FAULTS`."""
     text = text.removesuffix(FAULT_SUFFIX)
     name, _, rest = text.partition(":")
-    overrides: dict = {"mu": SWD_MU, "amplitude_A": SWD_MULTIPLE} if name == "swd_wet" else {}
-    given: set[str] = set()
+    defaults = {"mu": SWD_MU, "amplitude_A": SWD_MULTIPLE} if name == "swd_wet" else {}
     name = "sine_with_dwell" if name == "swd_wet" else name
     if name not in SCENARIOS:
         raise ValueError(f"unknown scenario {name!r} in {text!r}; known: {sorted(SCENARIOS) + ['swd_wet']}")
+    given = {}
     for item in filter(None, re.split(r",(?![^\[]*\])", rest)):  # commas outside [...]
         key, sep, value = item.partition("=")
         value = value.strip()
@@ -85,8 +85,8 @@ def parse_scenario(text: str) -> tuple[str, dict]:
             raise ValueError(f"bad override {item!r} in scenario {text!r}: expected key=number or key=[numbers]")
         if key.strip() in given:
             raise ValueError(f"{key.strip()} is given twice in scenario {text!r}")
-        given.add(key.strip())
-        overrides[key.strip()] = value
+        given[key.strip()] = value
+    overrides = {**defaults, **given}
     if "amplitude_A" in overrides:
         if name != "sine_with_dwell":
             raise ValueError(f"amplitude_A applies to sine_with_dwell only, not {name!r}")
@@ -185,14 +185,14 @@ def run_matrix(scenarios: Sequence[str] = HEADLINE, estimators: Sequence[str] = 
                controllers: Sequence[str] = DEFAULT_CONTROLLERS, seeds: int = 2, jobs: int | None = None,
                progress: bool = True) -> tuple[list[tuple[RunSpec, dict]], dict]:
     """Run the matrix in parallel processes; returns per-run (spec, metrics) and seed-0 trajectories."""
-    names = [parse_scenario(s)[0] for s in scenarios]
+    parsed = [parse_scenario(s) for s in scenarios]
     for name in estimators:
         check_estimator_name(name)
     for name in controllers:
         if not isinstance(name, str):
             raise ValueError(f"a controller is given by name, got {name!r}: pass your own as 'module:factory' "
                              "(factory(params, dt) -> controller), or the object itself to envs.simulate")
-    runs = [repr((parse_scenario(s), s.endswith(FAULT_SUFFIX))) for s in scenarios]  # what each one runs
+    runs = [repr((run, s.endswith(FAULT_SUFFIX))) for s, run in zip(scenarios, parsed)]  # what each one runs
     repeated = [s for s, run in zip(scenarios, runs) if runs.count(run) > 1]
     if repeated:
         raise ValueError(f"scenarios must be distinct: {repeated} run the same scenario")
@@ -212,7 +212,7 @@ def run_matrix(scenarios: Sequence[str] = HEADLINE, estimators: Sequence[str] = 
                 raise ValueError(f"controller {name!r}: {err}") from None
     if seeds < 1:
         raise ValueError(f"seeds must be >= 1, got {seeds!r}")
-    A = characterise() if "sine_with_dwell" in names else float("nan")
+    A = characterise() if any(name == "sine_with_dwell" for name, _ in parsed) else float("nan")
     specs = [RunSpec(s, e, c, k, A) for s in scenarios for c in controllers for e in estimators for k in range(seeds)]
     results, trajectories = [], {}
     for spec, metrics, traj in parallel_map(_run, specs, jobs, "closed-loop runs", progress):
