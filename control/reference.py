@@ -17,7 +17,7 @@ import numpy as np
 
 from estimation.jit import JIT
 
-GRAVITY = 9.81  #: [m/s^2]
+GRAVITY = 9.81  #: [m/s^2] (the plant uses standard gravity 9.80665; the model's own value)
 FRICTION_USE = 0.85  #: share of mu*g the reference may ask for (Rajamani 2012, sec. 8.5)
 MIN_SPEED = 1.0  #: speed floor in divisions [m/s]
 MAX_YAW_TIME_CONSTANT = 0.5  #: cap of yaw_time_constant [s] (this car: 0.25 s at 40 m/s)

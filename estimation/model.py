@@ -17,7 +17,16 @@ the paper (standard textbook forms, Rajamani 2012 ch. 13; Dugoff, Fancher & Sege
 * eq. 14: the rear normal loads carry a/l (the paper writes b/l), :func:`wheel_load`;
 * eq. 15: one slip ratio, (R omega - u_w) / max(|R omega|, |u_w|), positive when driving, for
   drive and brake alike (the paper's drive case flips the sign and divides by the wheel-centre
-  speed instead of R omega).
+  speed instead of R omega);
+* eq. 4-7 leave out the resistances; with ``ModelParams.from_vehicle(..., resistances=True)``
+  the wheel's torque balance subtracts its rolling resistance f_r Fz (J omega_dot = T - R Fx -
+  R f_r Fz) and the body's longitudinal balance the aerodynamic drag (1/2) rho Cd A u|u|
+  (Kiencke & Nielsen 2005, ch. 7). Without them the model reads a car cruising at 20 m/s as
+  accelerating at 0.27 m/s^2; the shipped estimators keep the paper's model all the same
+  (README, "Known limitations": the friction gate);
+* eq. 10: Dugoff's speed reduction of friction is mu (1 - eps u sqrt(s^2 + tan^2 alpha))
+  (Dugoff, Fancher & Segel 1970: the sliding speed; the paper's form puts the stiffnesses
+  inside the root, which makes eps carry newtons).
 """
 
 from __future__ import annotations
@@ -34,7 +43,7 @@ import numpy as np
 
 from estimation.jit import JIT, fixed_tuple, scratch
 
-GRAVITY = 9.81  #: [m/s^2]
+GRAVITY = 9.81  #: [m/s^2] (the plant uses standard gravity 9.80665; the model's own value)
 MIN_SPEED = 1.0  #: denominator floor for slip quantities [m/s]
 
 
@@ -48,7 +57,8 @@ class ModelParams:
     longitudinal [N/unit slip per N], m2, n2 lateral [N/rad per N]; eps: Dugoff's speed
     reduction of friction [s/m]; mu_scale: Dugoff's friction scale k, the tyre model using
     k mu on a road of friction mu (fitted to the plant tyre, training/tyre_fit.py: Dugoff
-    saturates more gently than the Magic Formula, so with k = 1 the estimated mu reads high)."""
+    saturates more gently than the Magic Formula, so with k = 1 the estimated mu reads high);
+    rolling_resistance: f_r [-]; drag_factor: (1/2) rho Cd A [kg/m], drag = drag_factor u|u|."""
 
     mass: float
     yaw_inertia: float
@@ -65,14 +75,21 @@ class ModelParams:
     n2: float
     eps: float = 0.0
     mu_scale: float = 1.0
+    rolling_resistance: float = 0.0
+    drag_factor: float = 0.0
 
     @classmethod
-    def from_vehicle(cls, vehicle, fit: dict | None = None) -> "ModelParams":
-        """From a duck-typed VehicleParams and the eq. 17 fit (estimation/data/dugoff_fit.json)."""
+    def from_vehicle(cls, vehicle, fit: dict | None = None, resistances: bool = False) -> "ModelParams":
+        """From a duck-typed VehicleParams and the eq. 17 fit (estimation/data/dugoff_fit.json).
+        ``resistances``: also the car's rolling resistance and drag, which the paper's model
+        (and the shipped estimators) leave out: with them u and beta are more accurate, but the
+        joint estimator's friction gate misses more friction drops (README, "Known limitations")."""
         fit = fit or _load_fit()
         return cls(vehicle.mass, vehicle.yaw_inertia, vehicle.cg_to_front, vehicle.cg_to_rear, vehicle.track_front,
                    vehicle.track_rear, vehicle.wheel_radius, vehicle.cg_height, vehicle.wheel_inertia,
-                   fit["m1"], fit["n1"], fit["m2"], fit["n2"], mu_scale=fit["mu_scale"])
+                   fit["m1"], fit["n1"], fit["m2"], fit["n2"], mu_scale=fit["mu_scale"],
+                   rolling_resistance=vehicle.rolling_resistance if resistances else 0.0,
+                   drag_factor=0.5 * vehicle.air_density * vehicle.drag_area if resistances else 0.0)
 
     @property
     def wheelbase(self) -> float:
@@ -85,9 +102,9 @@ class ModelParams:
 
 
 PACKED_FIELDS = ("mass", "yaw_inertia", "cg_to_front", "cg_to_rear", "track_front", "track_rear", "wheel_radius",
-                 "cg_height", "wheel_inertia", "m1", "n1", "m2", "n2", "eps", "mu_scale")
+                 "cg_height", "wheel_inertia", "m1", "n1", "m2", "n2", "eps", "mu_scale", "rolling_resistance", "drag_factor")
 (P_MASS, P_IZ, P_A, P_B, P_TF, P_TR, P_RW, P_H, P_IW, P_M1, P_N1, P_M2, P_N2, P_EPS,
- P_MU_SCALE) = range(len(PACKED_FIELDS))
+ P_MU_SCALE, P_FRR, P_DRAG) = range(len(PACKED_FIELDS))
 N_PARAMS = len(PACKED_FIELDS)
 
 
@@ -183,12 +200,13 @@ def dugoff(fz: float, slip: float, tan_alpha: float, mu: float, cx: float, cy: f
            eps: float) -> tuple[float, float, float]:
     """Dugoff combined-slip forces Fx, Fy [N] and Dugoff's lambda (standard form, Rajamani 2012
     sec. 13.9), with ``slip`` positive when driving (the SAE sign of this package):
-    lambda = mu Fz (1 - eps u sqrt(Cx^2 s^2 + Cy^2 tan^2 a)) (1 + s) / (2 sqrt(Cx^2 s^2 + Cy^2 tan^2 a)),
+    lambda = mu Fz (1 - eps u sqrt(s^2 + tan^2 a)) (1 + s) / (2 sqrt(Cx^2 s^2 + Cy^2 tan^2 a)),
     f = (2 - lambda) lambda if lambda < 1 else 1; Fx = Cx s/(1+s) f, Fy = Cy tan(a)/(1+s) f.
     (Dugoff's paper writes 1 - s for braking slip, positive when braking: the same law.) Below lambda = 1 the force depends on mu (the tyre is saturating)."""
     one_plus_s = max(1.0 + slip, 0.05)
     demand = math.sqrt((cx * slip) ** 2 + (cy * tan_alpha) ** 2)
-    lam = mu * fz * (1.0 - eps * speed * demand) * one_plus_s / (2.0 * max(demand, 1e-9))
+    lam = mu * fz * (1.0 - eps * speed * math.sqrt(slip * slip + tan_alpha * tan_alpha)) * one_plus_s / (
+        2.0 * max(demand, 1e-9))
     f = (2.0 - lam) * lam if lam < 1.0 else 1.0
     return cx * slip / one_plus_s * f, cy * tan_alpha / one_plus_s * f, lam
 
@@ -209,8 +227,10 @@ def body_forces(state: np.ndarray, mu: np.ndarray, steer: np.ndarray, omega: np.
     """Body accelerations ax, ay [m/s^2] and yaw moment Gamma [N m] from the tyre forces (eq. 4-6,
     corrected) for K model evaluations at once: ``state`` (5, K) rows u, v, r, ax, ay and
     ``mu`` (4, K) per wheel; writes the rows of out (3, K). Fx from the wheel's torque balance
-    (eq. 7, a measured force: torque and wheel acceleration), limited to +/- k mu Fz against
-    sensor noise; Fy from Dugoff with the slip angle and mu.
+    (eq. 7, a measured force: torque and wheel acceleration, less the rolling resistance
+    f_r Fz with the sign of the wheel speed, smoothed below 0.05 m/s as in the plant), limited
+    to +/- k mu Fz against sensor noise; Fy from Dugoff with the slip angle and mu; the drag
+    drag_factor u|u| against ax.
     Loads from the (previous) ax, ay; ``steer``: :func:`steer_trig` of the steer angles.
 
     Wheel by wheel over all K evaluations (the K loop innermost and branch-free, so the
@@ -225,6 +245,8 @@ def body_forces(state: np.ndarray, mu: np.ndarray, steer: np.ndarray, omega: np.
         drive = (torque[w] - params[P_IW] * omega_dot[w]) / params[P_RW]
         trig, spin = wheel_trig(steer, w), omega[w]
         c, s = trig[0], trig[1]
+        wheel_speed = spin * params[P_RW]
+        rolling = params[P_FRR] * wheel_speed / math.sqrt(wheel_speed * wheel_speed + 0.0025)
         for k in range(K):
             u, v, r = state[0, k], state[1, k], state[2, k]
             fz = wheel_load(state[3, k], state[4, k], params, w)
@@ -232,13 +254,14 @@ def body_forces(state: np.ndarray, mu: np.ndarray, steer: np.ndarray, omega: np.
             tyre_mu = params[P_MU_SCALE] * mu[w, k]
             _, fy, _ = dugoff(fz, slip, tan_alpha, tyre_mu, cx, cy, u, params[P_EPS])
             limit = tyre_mu * fz
-            fx = min(max(drive, -limit), limit)
+            fx = min(max(drive - rolling * fz, -limit), limit)
             f_long, f_lat = fx * c - fy * s, fx * s + fy * c
             out[0, k] += f_long
             out[1, k] += f_lat
             out[2, k] += x_w * f_lat - y_w * f_long
     for k in range(K):
-        out[0, k] /= params[P_MASS]
+        u = state[0, k]
+        out[0, k] = (out[0, k] - params[P_DRAG] * u * abs(u)) / params[P_MASS]
         out[1, k] /= params[P_MASS]
 
 

@@ -7,7 +7,7 @@ import pytest
 
 from control import CONTROLLERS, MIN_PLANNING_MU, StabilityController, make_controller
 from control.dyc import LQRWeights, LQRYawController, SlidingModeYawController, bicycle_matrices
-from control.reference import rear_steer_gain, reference_yaw_rate, sideslip_bound, understeer_gradient
+from control.reference import GRAVITY, rear_steer_gain, reference_yaw_rate, sideslip_bound, understeer_gradient
 from envs.fmvss126 import characterise, run_series
 from envs.simulation import simulate
 from envs.vehicle import VehicleParams
@@ -22,7 +22,7 @@ def test_reference_is_kinematic_at_low_speed_and_friction_bounded():
     r = reference_yaw_rate(np.array([3.0]), delta, np.full((1, 4), 1.0), P)
     assert r[0] == pytest.approx(3.0 * 0.05 / P.wheelbase)
     fast = reference_yaw_rate(np.array([30.0]), delta, np.full((1, 4), 0.3), P)
-    assert fast[0] == pytest.approx(0.85 * 0.3 * 9.81 / 30.0)
+    assert fast[0] == pytest.approx(0.85 * 0.3 * GRAVITY / 30.0)
     mirrored = reference_yaw_rate(np.array([30.0]), -delta, np.full((1, 4), 0.3), P)
     assert mirrored[0] == -fast[0]
     assert sideslip_bound(np.full((1, 4), 1.0))[0] > sideslip_bound(np.full((1, 4), 0.2))[0]

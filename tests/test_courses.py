@@ -14,13 +14,13 @@ def test_iso3888_2_gates_match_the_standard_for_this_car():
             g5.x_start - g3.x_end, g5.x_end - g5.x_start) == pytest.approx((12.0, 13.5, 11.0, 12.5, 12.0))
     assert g1.width == pytest.approx(1.1 * WIDTH + 0.25)
     assert g3.width == pytest.approx(WIDTH + 1.0)
-    assert g5.width == pytest.approx(min(1.3 * WIDTH + 0.25, 3.0))
+    assert g5.width == pytest.approx(3.0)  # 1.3 w + 0.25 = 2.33 m, but at least 3 m
     assert g3.y_right - g1.y_left == pytest.approx(1.0)  # lane 3 starts 1 m beyond lane 1's edge
     assert g5.y_right == pytest.approx(g1.y_right)
 
 
-def test_iso3888_2_lane5_width_is_capped_at_3m_for_wide_cars():
-    assert iso3888_2(2.5).gates[2].width == pytest.approx(3.0)
+def test_iso3888_2_lane5_width_grows_with_a_wide_car():
+    assert iso3888_2(2.5).gates[2].width == pytest.approx(1.3 * 2.5 + 0.25)
 
 
 def test_iso3888_1_gates_match_the_standard_for_this_car():

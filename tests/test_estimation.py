@@ -14,7 +14,7 @@ from estimation import ESTIMATORS, make_estimator
 from estimation.joint import ZERO_POINT_TIME_CONSTANT, ZP_OFFSET
 from estimation.ckf import ckf_predict, ckf_update
 from estimation.federated import SubMeasurement, federated_step, fuse
-from estimation.model import ModelParams, dugoff, normal_loads, state_transition, Inputs
+from estimation.model import GRAVITY, ModelParams, dugoff, normal_loads, state_transition, Inputs
 from envs.metrics import rmse
 
 RNG = np.random.default_rng(0)
@@ -237,9 +237,9 @@ def test_normal_loads_follow_the_quasi_static_closed_form():
     """estimation.model.wheel_load: static share m g b/L (front) and m g a/L (rear), a pitch
     shift m ax h / L from the front axle to the rear, and a roll moment m ay h shared by the
     axles in proportion to their static loads (front b/L, rear a/L), each axle's left-right
-    difference times half its track balancing its share; the loads sum to m g (model g = 9.81)."""
+    difference times half its track balancing its share; the loads sum to m g (the model's g)."""
     m, a, b, h = PARAMS.mass, PARAMS.cg_to_front, PARAMS.cg_to_rear, PARAMS.cg_height
-    L, g = PARAMS.wheelbase, 9.81
+    L, g = PARAMS.wheelbase, GRAVITY
     for ax, ay in ((0.0, 0.0), (-5.0, 0.0), (0.0, 4.0), (2.0, -3.0), (-3.0, 5.0)):
         fz = normal_loads(np.array(ax), np.array(ay), PARAMS)
         assert fz.sum() == pytest.approx(m * g, rel=1e-12)
@@ -371,6 +371,34 @@ def test_dugoff_at_the_true_state_matches_the_plant_force_near_saturation(scenar
     assert np.mean(np.abs(fitted)) < np.mean(np.abs(unscaled))  # the fitted k beats k = 1
     if stays_below:
         assert np.mean(fitted) < 0.0
+
+
+@pytest.mark.parametrize("speed, torque", [(10.0, 0.0), (25.0, 0.0), (35.0, 0.0), (25.0, 150.0)])
+def test_the_model_loses_speed_to_drag_and_rolling_resistance_as_the_plant_does(speed, torque):
+    """On a straight (coasting, or driving with 150 N m per wheel) the estimation model with
+    resistances (``from_vehicle(..., resistances=True)``), at the plant's true state and
+    measured wheel inputs, gives the plant's ax within 0.01 m/s^2:
+    both lose (1/2) rho Cd A u^2 to drag and f_r Fz to rolling resistance (at 25 m/s coasting:
+    -0.33 m/s^2). Without them (the paper's model) its ax is off by the whole loss (> 0.1 m/s^2)."""
+    from envs.vehicle import A_AX, C_TORQUE, NU, S_OMEGA, S_TORQUE, derivatives, initial_state
+
+    vehicle = VehicleParams()
+    state = initial_state(vehicle, speed)
+    state[0, S_TORQUE:S_TORQUE + 4] = torque
+    controls = np.zeros((1, NU))
+    controls[0, C_TORQUE:C_TORQUE + 4] = torque
+    dx, aux = derivatives(state, controls, np.ones((1, 4)), vehicle)
+    plant_ax = aux[0, A_AX]
+    inputs = Inputs(np.zeros(4), state[0, S_OMEGA:S_OMEGA + 4], state[0, S_TORQUE:S_TORQUE + 4],
+                    dx[0, S_OMEGA:S_OMEGA + 4])
+    x = np.array([speed, 0.0, plant_ax, 0.0, 0.0, 0.0])
+
+    def model_ax(params: ModelParams) -> float:
+        return state_transition(x, np.ones(4), inputs, params, 1e-9)[2]
+
+    assert PARAMS.rolling_resistance == PARAMS.drag_factor == 0.0  # the paper's model, shipped
+    assert model_ax(ModelParams.from_vehicle(vehicle, resistances=True)) == pytest.approx(plant_ax, abs=0.01)
+    assert abs(model_ax(PARAMS) - plant_ax) > 0.1
 
 
 def test_the_dugoff_fit_reproduces_the_plant_tyre():
