@@ -132,12 +132,15 @@ def test_the_phase_plane_peak_tells_a_spin_and_a_fixed_mu_slide_from_a_held_car(
 
 
 def test_a_car_that_stops_short_of_the_course_end_has_not_passed_it():
-    """ISO 3888-2 at 10 km/h: the coasting car stops at X ~ 31 m of a course to X = 91 m, with
-    no cone touched; at 60 km/h it drives through."""
-    results, _ = run_matrix(["iso3888_2:speed_kph=10", "iso3888_2"], ["oracle"], ["none"], seeds=1, jobs=2,
-                            progress=False)
+    """ISO 3888-2 at 10 km/h: the coasting car stops at X ~ 31 m of a course whose last cones
+    stand at X = 61 m, with no cone touched; at 60 km/h it drives through, and it has also
+    when the run ends 7 s in, past the last cones (X ~ 72 m) but short of the end of the
+    driver's line, which runs on to X = 91 m (a car slowed by its controller ends there)."""
+    results, _ = run_matrix(["iso3888_2:speed_kph=10", "iso3888_2", "iso3888_2:duration=7"], ["oracle"], ["none"],
+                            seeds=1, jobs=2, progress=False)
     verdict = {spec.scenario: (m["course_completed"], m["passed"], m["cone_hits"]) for spec, m in results}
-    assert verdict == {"iso3888_2:speed_kph=10": (0.0, 0.0, 0.0), "iso3888_2": (1.0, 1.0, 0.0)}
+    assert verdict == {"iso3888_2:speed_kph=10": (0.0, 0.0, 0.0), "iso3888_2": (1.0, 1.0, 0.0),
+                       "iso3888_2:duration=7": (1.0, 1.0, 0.0)}
 
 
 def test_spellings_of_one_scenario_and_a_key_given_twice_are_refused():

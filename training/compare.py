@@ -135,8 +135,10 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
                                            scenario.course.cones, params.width,
                                            params.cg_to_front + params.front_overhang,
                                            params.cg_to_rear + params.rear_overhang))
-        # a car that stopped short (a coasting car at walking pace) has not driven the course
-        out["course_completed"] = float(traj.state[-1, S_X] >= path[-1, 0])
+        # a car that stopped short of the last cones (a coasting car at walking pace) has not
+        # driven the course; the driver's line runs on beyond them, which a car slowed by its
+        # controller need not reach within the scenario's time
+        out["course_completed"] = float(traj.state[-1, S_X] >= scenario.course.cones[:, 0].max())
     if scenario.name == "sine_with_dwell":
         res = sine_with_dwell_metrics(traj.t, traj.steering_wheel, traj.state[:, S_R], traj.aux[:, A_AY],
                                       sideslip=beta, A=swd_A)
