@@ -26,6 +26,9 @@ estimator's 3-DOF Dugoff model (no "inverse crime"):
   body accelerations through a first-order lag that stands for pitch/roll dynamics
   (and removes the algebraic loop between loads and forces); the lateral transfer is
   split between the axles in proportion to their static loads;
+* aerodynamic drag (1/2) rho Cd A u|u| along the body's x axis, acting at ground level (it
+  neither pitches the car nor pushes it sideways when it slides: at 100 km/h the pitch
+  moment left out shifts ~90 N, 2% of an axle's load, from front to rear);
 * four in-wheel motors: first-order torque lag, peak torque and peak power limits;
 * front and rear steering servos with angle and rate limits; the paper's proportional
   4WS law (eq. 20) as a switchable rear-steer feed-forward.
