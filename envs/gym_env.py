@@ -559,7 +559,7 @@ class YawStabilityVectorEnv(VectorEnv):
             seeds = None
         if seeds is None or len(seeds) != self.num_envs or not all(s is None or _is_integer(s) for s in seeds):
             raise ValueError(f"seed must be None, an integer or {self.num_envs} integers (or None), got {seed!r}")
-        return seeds
+        return [None if s is None else int(s) for s in seeds]  # numpy integers too (gymnasium wants int)
 
     def _reset_mask(self, options: dict | None) -> np.ndarray:
         options = dict(options or {})

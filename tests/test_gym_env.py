@@ -208,6 +208,12 @@ def test_numpy_scalars_sequences_of_seeds_and_masked_resets_are_accepted():
     np.testing.assert_array_equal(again[[0, 2]], after[[0, 2]])  # untouched cars go on
     assert not np.array_equal(again[1], after[1])
     np.testing.assert_array_equal(info["_truth"], [False, True, False])
+    # numpy integers in a sequence, through gym.make_vec (gymnasium itself wants Python ints)
+    vec = gym.make_vec("envs:FourWIS/YawStability-v0", num_envs=3, vectorization_mode="vector_entry_point",
+                       scenario="random", estimator="ckf")
+    by_numpy, _ = vec.reset(seed=np.array([4, 5, 6]))
+    np.testing.assert_array_equal(by_numpy, vec.reset(seed=[4, 5, 6])[0])
+    vec.close()
 
 
 def test_scenario_durations_fit_the_registered_time_limit():

@@ -114,6 +114,29 @@ def test_resume_continues_the_step_count_and_the_evaluations(tmp_path):
     assert (out / "config.json").read_text() == saved  # a refused resume leaves the run as it was
 
 
+def test_an_off_policy_resume_keeps_its_replay_buffer_and_a_checkpoint_refills_it(tmp_path):
+    """SAC resumed from its run directory trains on with the saved replay buffer (256 rows of 4
+    cars after 1024 steps, not the resumed part's 128); resumed from a checkpoint, which holds
+    no buffer, it waits ALGO_CONFIGS' learning_starts past the checkpoint before training on
+    the refilled one. Rolling a run back into its own folder past later checkpoints is refused."""
+    from stable_baselines3 import SAC
+
+    from training.rl import ALGO_CONFIGS, REPLAY_BUFFER
+
+    out = tmp_path / "run"
+    _train("sac", out, 512)
+    assert (out / REPLAY_BUFFER).exists()
+    _train("sac", out, 1024, resume=out)
+    model = SAC.load(out / "model.zip")
+    model.load_replay_buffer(out / REPLAY_BUFFER)
+    assert model.replay_buffer.size() == 1024 // 4
+    with pytest.raises(ValueError, match=r"later checkpoints \['step_000001024.zip'\]"):
+        _train("sac", out, 2048, resume=out / "checkpoints" / "step_000000512.zip")
+    branch = tmp_path / "branch"
+    _train("sac", branch, 1024, resume=out / "checkpoints" / "step_000000512.zip")
+    assert SAC.load(branch / "model.zip").learning_starts == 512 + ALGO_CONFIGS["sac"]["learning_starts"]
+
+
 def test_bad_arguments_give_clear_errors(tmp_path):
     with pytest.raises(ValueError, match="dqn"):
         train("dqn", tmp_path, 100)

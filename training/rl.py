@@ -4,8 +4,15 @@
 :class:`SB3VecEnv` (SB3 2.x does not consume ``gymnasium.vector`` envs), with VecNormalize,
 an EvalCallback on a held-out scenario, atomic checkpoints, TensorBoard logs, a progress bar
 and resume. A run directory holds ``model.zip``, ``vecnormalize.pkl`` and ``config.json``
-(+ ``checkpoints/``, ``evaluations.npz``, ``learning_curve.png``, ``tb/``); ``train`` refuses an
-``--out`` that holds another run unless told to overwrite it.
+(+ ``checkpoints/``, ``evaluations.npz``, ``learning_curve.png``, ``tb/``, and for SAC / TD3
+the replay buffer ``replay_buffer.pkl``); ``train`` refuses an ``--out`` that holds another
+run unless told to overwrite it.
+
+Resume: a run continues from its ``model.zip`` (with its replay buffer) or from a checkpoint.
+Checkpoints leave the replay buffer out (200k transitions, ~35 MB each), so an off-policy run
+resumed from one refills its buffer for ``learning_starts`` steps before it trains again. The
+resumed part reseeds its cars with ``seed`` + the steps already trained, so its episodes carry
+on through the training distribution instead of replaying the run's first ones.
 
 :class:`PolicyController` runs a trained policy as a stability controller inside
 :func:`envs.simulation.simulate`, so ``fourwis evaluate`` and ``fourwis compare`` judge it
@@ -132,7 +139,9 @@ class RunConfig:
     requested_timesteps: int
 
 
-RUN_FILES = ("model.zip", "vecnormalize.pkl", "config.json", EVALUATIONS, "learning_curve.png", "learning_curve.csv",
+REPLAY_BUFFER = "replay_buffer.pkl"  #: an off-policy run's replay buffer, saved with its final model
+RUN_FILES = ("model.zip", "vecnormalize.pkl", "config.json", REPLAY_BUFFER, EVALUATIONS, "learning_curve.png",
+             "learning_curve.csv",
              "checkpoints", "tb", ".evaluating")  #: what ``train`` writes into a run directory
 
 
@@ -204,7 +213,7 @@ def _callbacks(out: Path, eval_env, checkpoint_every: int, eval_every: int, eval
 
 
 def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs: dict | None = None,
-          n_envs: int = 16, eval_scenario: str = EVAL_SCENARIO, eval_every: int = 20_000, eval_episodes: int = 4,
+          n_envs: int = 16, eval_scenario: str = EVAL_SCENARIO, eval_every: int = 40_000, eval_episodes: int = 4,
           checkpoint_every: int = 50_000, resume: str | Path | None = None, progress: bool = True,
           algo_overrides: dict | None = None, overwrite: bool = False) -> Path:
     """Train ``algo`` until ``timesteps`` env steps in total (counting a resumed checkpoint's, so
@@ -231,9 +240,10 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs:
     except TypeError as err:
         raise ValueError(f"bad env_kwargs {env_kwargs!r}: {err}; known: {[f.name for f in fields(EnvConfig)]}") \
             from None
+    out = Path(out)
     if resume is not None:
         _check_resumable(resume, algo, env_kwargs)
-    out = Path(out)
+        _check_no_abandoned_branch(resume, out)
     replaces = _other_run(out, resume)
     if replaces and not overwrite:
         raise ValueError(f"{out} already holds a run: continue it with --resume {out}, or give a new --out "
@@ -244,7 +254,8 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs:
     off_policy = algo != "ppo"
     train_env = _vec_env(env_kwargs, n_envs, seed)
     eval_kwargs = {**env_kwargs, "scenario": eval_scenario}
-    eval_kwargs.pop("speed_kph", None), eval_kwargs.pop("mu", None), eval_kwargs.pop("scenario_kwargs", None)
+    for name in ("speed_kph", "mu", "scenario_kwargs", "max_episode_steps"):  # the held-out scenario, run whole
+        eval_kwargs.pop(name, None)
     eval_env = VecNormalize(_vec_env(eval_kwargs, min(eval_episodes, 4), seed + 10_000), training=False,
                             norm_reward=False)
     if resume is not None:
@@ -256,9 +267,18 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs:
             raise ValueError(f"cannot resume {resume}: it already has {model.num_timesteps} timesteps and "
                              f"--timesteps is the total to reach, so give more than {model.num_timesteps}, "
                              f"not {timesteps}")
+        if off_policy:
+            buffer = model_path.parent / REPLAY_BUFFER
+            if model_path.name == "model.zip" and buffer.exists():
+                model.load_replay_buffer(str(buffer))
+            else:  # a checkpoint: refill the empty buffer before training on it
+                model.learning_starts = model.num_timesteps + ALGO_CONFIGS[algo]["learning_starts"]
+        train_env.seed(seed + model.num_timesteps)  # carry on through the distribution, not replay its start
     else:
         normalized = VecNormalize(train_env, norm_obs=True, norm_reward=not off_policy, clip_obs=10.0)
         settings = {**ALGO_CONFIGS[algo], **(algo_overrides or {})}
+        if algo == "ppo":  # a minibatch no larger than the rollout (16 cars x 256 steps by default)
+            settings["batch_size"] = min(settings["batch_size"], settings["n_steps"] * n_envs)
         noise_std = settings.pop("action_noise_std", None)
         if noise_std is not None:
             dim = train_env.action_space.shape[0]
@@ -278,6 +298,8 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs:
     atomic_write_json(out / "config.json", asdict(replace(config, timesteps=model.num_timesteps)), default=repr)
     model_path = _atomic_save_model(model, out / "model.zip")
     _atomic_save_normalizer(normalized, out / "vecnormalize.pkl")
+    if off_policy:
+        atomic_write(out / REPLAY_BUFFER, lambda tmp: model.save_replay_buffer(tmp))
     plot_learning_curve(out)
     return model_path
 
@@ -311,6 +333,18 @@ def _check_resumable(resume: str | Path, algo: str, env_kwargs: dict) -> None:
     if saved["env_kwargs"] != json.loads(json.dumps(env_kwargs, default=repr)):
         raise ValueError(f"cannot resume {resume}: it was trained with env_kwargs {saved['env_kwargs']!r}, "
                          f"not {env_kwargs!r} (pass the same --env-kwargs)")
+
+
+def _check_no_abandoned_branch(resume: str | Path, out: Path) -> None:
+    """ValueError if resuming the checkpoint ``resume`` into its own run ``out`` would leave that
+    run's later checkpoints (a branch the new training abandons) beside the new ones."""
+    model_path = run_files(resume)[0]
+    if model_path.name == "model.zip" or model_path.parent.parent.resolve() != out.resolve():
+        return
+    later = sorted(p.name for p in model_path.parent.glob("step_*.zip") if p.name > model_path.name)
+    if later:
+        raise ValueError(f"resuming {resume} into its own run {out} would leave the run's later checkpoints "
+                         f"{later} beside the new branch's: give a new --out")
 
 
 def run_files(path: str | Path) -> tuple[Path, Path, Path]:
