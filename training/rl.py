@@ -291,8 +291,12 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs:
     out.mkdir(parents=True, exist_ok=True)
     config = RunConfig(algo, env_kwargs, seed, n_envs, model.num_timesteps, timesteps)
     atomic_write_json(out / "config.json", asdict(config), default=repr)
-    model.learn(timesteps - model.num_timesteps, callback=_callbacks(out, eval_env, checkpoint_every, eval_every,
-                                                                     eval_episodes, resume is not None),
+    # the steps SB3 will take: whole rollouts for PPO, whole vector steps otherwise (so that the
+    # progress bar's total is what is trained, not what was asked)
+    chunk = model.n_steps * n_envs if algo == "ppo" else n_envs
+    remaining = -(-(timesteps - model.num_timesteps) // chunk) * chunk
+    model.learn(remaining, callback=_callbacks(out, eval_env, checkpoint_every, eval_every, eval_episodes,
+                                               resume is not None),
                 progress_bar=progress, reset_num_timesteps=resume is None, tb_log_name=algo)
     shutil.rmtree(out / ".evaluating", ignore_errors=True)
     atomic_write_json(out / "config.json", asdict(replace(config, timesteps=model.num_timesteps)), default=repr)
