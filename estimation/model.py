@@ -198,8 +198,9 @@ def wheel_kinematics(u: float, v: float, r: float, trig: tuple, pk, w: int) -> t
 @numba.njit(inline="always", **JIT)
 def dugoff(fz: float, slip: float, tan_alpha: float, mu: float, cx: float, cy: float, speed: float,
            eps: float) -> tuple[float, float, float]:
-    """Dugoff combined-slip forces Fx, Fy [N] and Dugoff's lambda (standard form, Rajamani 2012
-    sec. 13.9), with ``slip`` positive when driving (the SAE sign of this package):
+    """Dugoff combined-slip forces Fx, Fy [N] and Dugoff's lambda (Dugoff, Fancher & Segel 1970;
+    Rajamani 2012 sec. 13.9), with ``slip`` positive when driving (the SAE sign of this package)
+    and the speed reduction of friction on the sliding speed u sqrt(s^2 + tan^2 a):
     lambda = mu Fz (1 - eps u sqrt(s^2 + tan^2 a)) (1 + s) / (2 sqrt(Cx^2 s^2 + Cy^2 tan^2 a)),
     f = (2 - lambda) lambda if lambda < 1 else 1; Fx = Cx s/(1+s) f, Fy = Cy tan(a)/(1+s) f.
     (Dugoff's paper writes 1 - s for braking slip, positive when braking: the same law.) Below lambda = 1 the force depends on mu (the tyre is saturating)."""

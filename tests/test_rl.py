@@ -114,11 +114,12 @@ def test_resume_continues_the_step_count_and_the_evaluations(tmp_path):
     assert (out / "config.json").read_text() == saved  # a refused resume leaves the run as it was
 
 
-def test_an_off_policy_resume_keeps_its_replay_buffer_and_a_checkpoint_refills_it(tmp_path):
+def test_an_off_policy_resume_keeps_its_replay_buffer_and_an_earlier_checkpoint_refills_it(tmp_path):
     """SAC resumed from its run directory trains on with the saved replay buffer (256 rows of 4
-    cars after 1024 steps, not the resumed part's 128); resumed from a checkpoint, which holds
-    no buffer, it waits ALGO_CONFIGS' learning_starts past the checkpoint before training on
-    the refilled one. Rolling a run back into its own folder past later checkpoints is refused."""
+    cars after 1024 steps, not the resumed part's 128), and so does one resumed from the latest
+    checkpoint (the only one that keeps a buffer); resumed from an earlier checkpoint it waits
+    ALGO_CONFIGS' learning_starts past it before training on a refilled buffer. Resuming into
+    the run's own folder past later checkpoints, or with another seed or car count, is refused."""
     from stable_baselines3 import SAC
 
     from training.rl import ALGO_CONFIGS, REPLAY_BUFFER
@@ -130,11 +131,28 @@ def test_an_off_policy_resume_keeps_its_replay_buffer_and_a_checkpoint_refills_i
     model = SAC.load(out / "model.zip")
     model.load_replay_buffer(out / REPLAY_BUFFER)
     assert model.replay_buffer.size() == 1024 // 4
+    assert sorted(p.name for p in (out / "checkpoints").glob("replay_buffer_*")) == ["replay_buffer_step_000001024.pkl"]
     with pytest.raises(ValueError, match=r"later checkpoints \['step_000001024.zip'\]"):
         _train("sac", out, 2048, resume=out / "checkpoints" / "step_000000512.zip")
+    for name, value in (("seed", 1), ("n_envs", 2)):
+        with pytest.raises(ValueError, match=f"trained with {name} "):
+            train("sac", tmp_path / "other", 2048, resume=out, progress=False, env_kwargs={"estimator": "oracle"},
+                  **{name: value})
+    latest = tmp_path / "latest"
+    _train("sac", latest, 1536, resume=out / "checkpoints" / "step_000001024.zip")
+    assert SAC.load(latest / "model.zip").learning_starts == 256  # trained on the checkpoint's buffer
     branch = tmp_path / "branch"
     _train("sac", branch, 1024, resume=out / "checkpoints" / "step_000000512.zip")
     assert SAC.load(branch / "model.zip").learning_starts == 512 + ALGO_CONFIGS["sac"]["learning_starts"]
+
+
+def test_ppo_minibatches_split_the_rollout_evenly():
+    from training.rl import _minibatch
+
+    assert _minibatch(1024, 16 * 256) == 1024  # the shipped configuration
+    assert _minibatch(1024, 6 * 256) == 768
+    assert _minibatch(1024, 2 * 256) == 512
+    assert _minibatch(1024, 7 * 256) == 896
 
 
 def test_bad_arguments_give_clear_errors(tmp_path):

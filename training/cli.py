@@ -179,7 +179,8 @@ def _train(args: argparse.Namespace) -> int:
     from training.rl import train
 
     try:
-        _check_seed(args)
+        if args.seed is not None:
+            _check_seed(args)
         path = train(args.algo, args.out, args.timesteps, args.seed, args.env_kwargs, args.n_envs,
                      eval_every=args.eval_every, checkpoint_every=args.checkpoint_every, resume=args.resume,
                      overwrite=args.overwrite)
@@ -316,8 +317,10 @@ def build_parser() -> argparse.ArgumentParser:
                        help=f"total env steps to reach (a resumed run counts on from its own, so give more); rounded "
                             f"up to whole rollouts: multiples of {ALGO_CONFIGS['ppo']['n_steps']} x --n-envs for "
                             f"ppo, of --n-envs for sac and td3 (config.json records both)")
-    train.add_argument("--seed", type=int, default=0, help="seed of the env draws and the network (>= 0)")
-    train.add_argument("--n-envs", type=int, default=16, help="cars in the native vector env")
+    train.add_argument("--seed", type=int, default=None,
+                       help="seed of the env draws and the network (>= 0; default 0, or the resumed run's)")
+    train.add_argument("--n-envs", type=int, default=None,
+                       help="cars in the native vector env (default 16, or the resumed run's)")
     train.add_argument("--eval-every", type=int, default=40_000, help=f"env steps between evaluations on "
                        f"the held-out {EVAL_SCENARIO}")
     train.add_argument("--checkpoint-every", type=int, default=50_000, help="env steps between checkpoints")

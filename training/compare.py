@@ -131,14 +131,16 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
         on_course = alongside_path(traj.state[:, S_X], path)
         rms_dev, max_dev = path_deviation(traj.state[on_course, S_X], traj.state[on_course, S_Y], path)
         out.update(path_rms=rms_dev, path_max=max_dev)
-        out["cone_hits"] = float(cone_hits(traj.state[:, S_X], traj.state[:, S_Y], traj.state[:, S_PSI],
-                                           scenario.course.cones, params.width,
-                                           params.cg_to_front + params.front_overhang,
-                                           params.cg_to_rear + params.rear_overhang))
+        cones = scenario.course.cones if scenario.course is not None else np.empty((0, 2))
+        out["cone_hits"] = float(cone_hits(traj.state[:, S_X], traj.state[:, S_Y], traj.state[:, S_PSI], cones,
+                                           params.width, params.cg_to_front + params.front_overhang,
+                                           params.cg_to_rear + params.rear_overhang)) if len(cones) else 0.0
         # a car that stopped short of the last cones (a coasting car at walking pace) has not
         # driven the course; the driver's line runs on beyond them, which a car slowed by its
-        # controller need not reach within the scenario's time
-        out["course_completed"] = float(traj.state[-1, S_X] >= scenario.course.cones[:, 0].max())
+        # controller need not reach within the scenario's time (no cones: the line's end). Where
+        # the car passed them laterally is what cone_hits and path_* measure, not this.
+        end = cones[:, 0].max() if len(cones) else path[-1, 0]
+        out["course_completed"] = float(traj.state[-1, S_X] >= end)
     if scenario.name == "sine_with_dwell":
         res = sine_with_dwell_metrics(traj.t, traj.steering_wheel, traj.state[:, S_R], traj.aux[:, A_AY],
                                       sideslip=beta, A=swd_A)

@@ -8,11 +8,12 @@ and resume. A run directory holds ``model.zip``, ``vecnormalize.pkl`` and ``conf
 the replay buffer ``replay_buffer.pkl``); ``train`` refuses an ``--out`` that holds another
 run unless told to overwrite it.
 
-Resume: a run continues from its ``model.zip`` (with its replay buffer) or from a checkpoint.
-Checkpoints leave the replay buffer out (200k transitions, ~35 MB each), so an off-policy run
-resumed from one refills its buffer for ``learning_starts`` steps before it trains again. The
-resumed part reseeds its cars with ``seed`` + the steps already trained, so its episodes carry
-on through the training distribution instead of replaying the run's first ones.
+Resume: a run continues from its ``model.zip`` or a checkpoint, with the run's seed and number
+of cars. An off-policy run's replay buffer (~26 MB) is saved with the final model and with the
+latest checkpoint only; resumed from an earlier checkpoint, the run refills its buffer with
+``learning_starts`` steps of random actions (SB3's warm-up) before it trains again. The
+resumed part reseeds its cars from (seed, steps trained), so its episodes carry on through
+the training distribution instead of replaying the run's first ones.
 
 :class:`PolicyController` runs a trained policy as a stability controller inside
 :func:`envs.simulation.simulate`, so ``fourwis evaluate`` and ``fourwis compare`` judge it
@@ -141,8 +142,7 @@ class RunConfig:
 
 REPLAY_BUFFER = "replay_buffer.pkl"  #: an off-policy run's replay buffer, saved with its final model
 RUN_FILES = ("model.zip", "vecnormalize.pkl", "config.json", REPLAY_BUFFER, EVALUATIONS, "learning_curve.png",
-             "learning_curve.csv",
-             "checkpoints", "tb", ".evaluating")  #: what ``train`` writes into a run directory
+             "learning_curve.csv", "checkpoints", "tb", ".evaluating")  #: what ``train`` writes into a run directory
 
 
 def _vec_env(env_kwargs: dict, n_envs: int, seed: int):
@@ -180,8 +180,14 @@ def _callbacks(out: Path, eval_env, checkpoint_every: int, eval_every: int, eval
         def _on_step(self) -> bool:
             if due(self, checkpoint_every):
                 stem = out / "checkpoints" / f"step_{self.num_timesteps:09d}"
-                _atomic_save_model(self.model, stem.with_suffix(".zip"))
+                model_path = _atomic_save_model(self.model, stem.with_suffix(".zip"))
                 _atomic_save_normalizer(self.model.get_vec_normalize_env(), stem.with_suffix(".pkl"))
+                if hasattr(self.model, "replay_buffer"):  # the latest checkpoint's only (~26 MB each)
+                    buffer = _replay_buffer_path(model_path)
+                    atomic_write(buffer, lambda tmp: self.model.save_replay_buffer(tmp))
+                    for old in buffer.parent.glob("replay_buffer_step_*.pkl"):
+                        if old != buffer:
+                            old.unlink()
             return True
 
     class Evaluation(EvalCallback):
@@ -212,20 +218,28 @@ def _callbacks(out: Path, eval_env, checkpoint_every: int, eval_every: int, eval
     return [AtomicCheckpoint(), Evaluation()]
 
 
-def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs: dict | None = None,
-          n_envs: int = 16, eval_scenario: str = EVAL_SCENARIO, eval_every: int = 40_000, eval_episodes: int = 4,
+def train(algo: str, out: str | Path, timesteps: int, seed: int | None = None, env_kwargs: dict | None = None,
+          n_envs: int | None = None, eval_scenario: str = EVAL_SCENARIO, eval_every: int = 40_000, eval_episodes: int = 4,
           checkpoint_every: int = 50_000, resume: str | Path | None = None, progress: bool = True,
           algo_overrides: dict | None = None, overwrite: bool = False) -> Path:
     """Train ``algo`` until ``timesteps`` env steps in total (counting a resumed checkpoint's, so
     more than it has; rounded up to whole rollouts); writes the run directory ``out`` and returns
     the path of ``model.zip``. An ``out`` holding another run than the one resumed is refused
-    unless ``overwrite`` (which deletes that run's files first)."""
+    unless ``overwrite`` (which deletes that run's files first). ``seed`` and ``n_envs``
+    default to 0 and 16, or to the resumed run's (other values are refused there)."""
     algo_class = _algo_class(algo)
     import torch
 
     torch.set_num_threads(TORCH_THREADS)
     if not (isinstance(timesteps, int) and timesteps > 0):
         raise ValueError(f"timesteps must be a positive integer, got {timesteps!r}")
+    env_kwargs = dict(env_kwargs or {})
+    out = Path(out)
+    if resume is not None:
+        seed, n_envs = _check_resumable(resume, algo, env_kwargs, seed, n_envs)
+        _check_no_abandoned_branch(resume, out)
+    seed = 0 if seed is None else seed
+    n_envs = 16 if n_envs is None else n_envs
     if not (isinstance(seed, int) and seed >= 0):
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     if not (isinstance(n_envs, int) and n_envs > 0):
@@ -234,16 +248,11 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs:
                         ("eval_episodes", eval_episodes)):
         if not (isinstance(value, int) and value > 0):
             raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    env_kwargs = dict(env_kwargs or {})
     try:
         env_config = EnvConfig(**env_kwargs)  # validate now, with clear errors
     except TypeError as err:
         raise ValueError(f"bad env_kwargs {env_kwargs!r}: {err}; known: {[f.name for f in fields(EnvConfig)]}") \
             from None
-    out = Path(out)
-    if resume is not None:
-        _check_resumable(resume, algo, env_kwargs)
-        _check_no_abandoned_branch(resume, out)
     replaces = _other_run(out, resume)
     if replaces and not overwrite:
         raise ValueError(f"{out} already holds a run: continue it with --resume {out}, or give a new --out "
@@ -268,17 +277,19 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs:
                              f"--timesteps is the total to reach, so give more than {model.num_timesteps}, "
                              f"not {timesteps}")
         if off_policy:
-            buffer = model_path.parent / REPLAY_BUFFER
-            if model_path.name == "model.zip" and buffer.exists():
+            buffer = _replay_buffer_path(model_path)
+            if buffer.exists():
                 model.load_replay_buffer(str(buffer))
-            else:  # a checkpoint: refill the empty buffer before training on it
+            else:  # an earlier checkpoint's buffer is gone: refill it (random actions) before training
                 model.learning_starts = model.num_timesteps + ALGO_CONFIGS[algo]["learning_starts"]
-        train_env.seed(seed + model.num_timesteps)  # carry on through the distribution, not replay its start
+        # carry on through the training distribution rather than replay its start (a seed of its
+        # own: seed + steps could meet the evaluation cars' seed + 10,000)
+        train_env.seed(int(np.random.SeedSequence([seed, model.num_timesteps]).generate_state(1)[0]))
     else:
         normalized = VecNormalize(train_env, norm_obs=True, norm_reward=not off_policy, clip_obs=10.0)
         settings = {**ALGO_CONFIGS[algo], **(algo_overrides or {})}
-        if algo == "ppo":  # a minibatch no larger than the rollout (16 cars x 256 steps by default)
-            settings["batch_size"] = min(settings["batch_size"], settings["n_steps"] * n_envs)
+        if algo == "ppo" and "batch_size" not in (algo_overrides or {}):
+            settings["batch_size"] = _minibatch(settings["batch_size"], settings["n_steps"] * n_envs)
         noise_std = settings.pop("action_noise_std", None)
         if noise_std is not None:
             dim = train_env.action_space.shape[0]
@@ -300,10 +311,10 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int = 0, env_kwargs:
                 progress_bar=progress, reset_num_timesteps=resume is None, tb_log_name=algo)
     shutil.rmtree(out / ".evaluating", ignore_errors=True)
     atomic_write_json(out / "config.json", asdict(replace(config, timesteps=model.num_timesteps)), default=repr)
+    if off_policy:  # before the model: a kill in between leaves an old model with a newer buffer
+        atomic_write(out / REPLAY_BUFFER, lambda tmp: model.save_replay_buffer(tmp))
     model_path = _atomic_save_model(model, out / "model.zip")
     _atomic_save_normalizer(normalized, out / "vecnormalize.pkl")
-    if off_policy:
-        atomic_write(out / REPLAY_BUFFER, lambda tmp: model.save_replay_buffer(tmp))
     plot_learning_curve(out)
     return model_path
 
@@ -325,9 +336,11 @@ def _delete_run(out: Path) -> None:
             path.unlink(missing_ok=True)
 
 
-def _check_resumable(resume: str | Path, algo: str, env_kwargs: dict) -> None:
-    """A resumed run continues the same algorithm on the same env: ValueError naming what differs
-    from the resumed run's config.json (checked before anything is written)."""
+def _check_resumable(resume: str | Path, algo: str, env_kwargs: dict, seed: int | None,
+                     n_envs: int | None) -> tuple[int, int]:
+    """A resumed run continues the same algorithm on the same env with the same seed and cars
+    (an off-policy replay buffer holds rows of n_envs cars): ValueError naming what differs from
+    the resumed run's config.json (checked before anything is written). Returns its (seed, n_envs)."""
     config_path = run_files(resume)[2]
     if not config_path.exists():
         raise ValueError(f"cannot resume {resume}: {config_path} is missing (its algorithm and env are unknown)")
@@ -337,18 +350,39 @@ def _check_resumable(resume: str | Path, algo: str, env_kwargs: dict) -> None:
     if saved["env_kwargs"] != json.loads(json.dumps(env_kwargs, default=repr)):
         raise ValueError(f"cannot resume {resume}: it was trained with env_kwargs {saved['env_kwargs']!r}, "
                          f"not {env_kwargs!r} (pass the same --env-kwargs)")
+    for name, value in (("seed", seed), ("n_envs", n_envs)):
+        if value is not None and value != saved[name]:
+            raise ValueError(f"cannot resume {resume}: it was trained with {name} {saved[name]}, not {value} "
+                             f"(leave it out to continue with the run's)")
+    return saved["seed"], saved["n_envs"]
+
+
+def _minibatch(largest: int, rollout: int) -> int:
+    """PPO's minibatch: the largest divisor of the rollout (steps x cars) not above ``largest``,
+    so that every epoch splits the rollout into equal minibatches (1024 of 16 x 256 steps)."""
+    return max(d for d in range(1, min(largest, rollout) + 1) if rollout % d == 0)
+
+
+def _replay_buffer_path(model_path: Path) -> Path:
+    """The replay buffer saved with a run's model.zip, or with a checkpoint step_N.zip."""
+    if model_path.name == "model.zip":
+        return model_path.parent / REPLAY_BUFFER
+    return model_path.with_name(f"replay_buffer_{model_path.stem}.pkl")
 
 
 def _check_no_abandoned_branch(resume: str | Path, out: Path) -> None:
-    """ValueError if resuming the checkpoint ``resume`` into its own run ``out`` would leave that
-    run's later checkpoints (a branch the new training abandons) beside the new ones."""
-    model_path = run_files(resume)[0]
-    if model_path.name == "model.zip" or model_path.parent.parent.resolve() != out.resolve():
+    """ValueError if resuming into the resumed run's own folder ``out`` would leave checkpoints
+    beyond the resumed step (a branch the new training abandons: a checkpoint resumed past later
+    ones, or a run killed after checkpoints its model.zip predates) beside the new ones."""
+    model_path, _, config_path = run_files(resume)
+    if config_path.parent.resolve() != out.resolve():
         return
-    later = sorted(p.name for p in model_path.parent.glob("step_*.zip") if p.name > model_path.name)
+    step = json.loads(config_path.read_text())["timesteps"] if model_path.name == "model.zip" \
+        else int(model_path.stem.removeprefix("step_"))
+    later = sorted(p.name for p in (out / "checkpoints").glob("step_*.zip") if int(p.stem.removeprefix("step_")) > step)
     if later:
         raise ValueError(f"resuming {resume} into its own run {out} would leave the run's later checkpoints "
-                         f"{later} beside the new branch's: give a new --out")
+                         f"{later} beside the new branch's: resume the latest checkpoint, or give a new --out")
 
 
 def run_files(path: str | Path) -> tuple[Path, Path, Path]:

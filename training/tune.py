@@ -49,7 +49,7 @@ BOUNDS = [(-1.5, 1.5)] * 4  #: log10 factors on (process, accelerometer, gyro, w
 CALIBRATION_SEED = 1000  #: the randomised calibration scenario's seed
 
 
-def calibration_run(seed: int = CALIBRATION_SEED, duration: float = 6.0) -> Trajectory:
+def calibration_run(seed: int = CALIBRATION_SEED, duration: float = 10.0) -> Trajectory:
     """An open-loop run of the randomised scenario (truth + sensor readings)."""
     return simulate(make_scenario("random", seed=seed, duration=duration), seed=seed)
 
