@@ -146,6 +146,32 @@ def test_an_off_policy_resume_keeps_its_replay_buffer_and_an_earlier_checkpoint_
     assert SAC.load(branch / "model.zip").learning_starts == 512 + ALGO_CONFIGS["sac"]["learning_starts"]
 
 
+def test_a_resumed_run_reseeds_its_cars_and_evaluates_its_held_out_scenario_whole(tmp_path, monkeypatch):
+    """The resumed part's cars are seeded from (seed, steps trained), not the run's seed again
+    (which replayed its first episodes); the evaluation env drops a training max_episode_steps
+    (it would cut the held-out sine with dwell before the FMVSS 126 checks)."""
+    import training.rl as rl
+
+    seeds, made = [], []
+    original_seed, original_vec_env = rl.SB3VecEnv.seed, rl._vec_env
+
+    def recording_seed(self, seed=None):
+        seeds.append(seed)
+        return original_seed(self, seed)
+
+    def recording_vec_env(env_kwargs, n_envs, seed):
+        made.append(dict(env_kwargs))
+        return original_vec_env(env_kwargs, n_envs, seed)
+
+    monkeypatch.setattr(rl.SB3VecEnv, "seed", recording_seed)
+    monkeypatch.setattr(rl, "_vec_env", recording_vec_env)
+    out = tmp_path / "run"
+    _train("ppo", out, 512, max_episode_steps=40)
+    _train("ppo", out, 1024, resume=out, max_episode_steps=40)
+    assert seeds[0] == 0 and seeds[-1] == int(np.random.SeedSequence([0, 512]).generate_state(1)[0])
+    assert made[0]["max_episode_steps"] == 40 and "max_episode_steps" not in made[1]  # training, evaluation
+
+
 def test_ppo_minibatches_split_the_rollout_evenly():
     from training.rl import _minibatch
 
