@@ -134,7 +134,7 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
         cones = scenario.course.cones if scenario.course is not None else np.empty((0, 2))
         out["cone_hits"] = float(cone_hits(traj.state[:, S_X], traj.state[:, S_Y], traj.state[:, S_PSI], cones,
                                            params.width, params.cg_to_front + params.front_overhang,
-                                           params.cg_to_rear + params.rear_overhang)) if len(cones) else 0.0
+                                           params.cg_to_rear + params.rear_overhang))
         # a car that stopped short of the last cones (a coasting car at walking pace) has not
         # driven the course; the driver's line runs on beyond them, which a car slowed by its
         # controller need not reach within the scenario's time (no cones: the line's end). Where

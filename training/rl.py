@@ -159,6 +159,10 @@ def _atomic_save_normalizer(normalizer, path: Path) -> Path:
     return atomic_write(path, lambda tmp: normalizer.save(tmp))
 
 
+def _atomic_save_replay_buffer(model, path: Path) -> Path:
+    return atomic_write(path, lambda tmp: model.save_replay_buffer(tmp))
+
+
 def _callbacks(out: Path, eval_env, checkpoint_every: int, eval_every: int, eval_episodes: int, resumed: bool):
     from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 
@@ -183,8 +187,7 @@ def _callbacks(out: Path, eval_env, checkpoint_every: int, eval_every: int, eval
                 model_path = _atomic_save_model(self.model, stem.with_suffix(".zip"))
                 _atomic_save_normalizer(self.model.get_vec_normalize_env(), stem.with_suffix(".pkl"))
                 if hasattr(self.model, "replay_buffer"):  # the latest checkpoint's only (~26 MB each)
-                    buffer = _replay_buffer_path(model_path)
-                    atomic_write(buffer, lambda tmp: self.model.save_replay_buffer(tmp))
+                    buffer = _atomic_save_replay_buffer(self.model, _replay_buffer_path(model_path))
                     for old in buffer.parent.glob("replay_buffer_step_*.pkl"):
                         if old != buffer:
                             old.unlink()
@@ -312,7 +315,7 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int | None = None, e
     shutil.rmtree(out / ".evaluating", ignore_errors=True)
     atomic_write_json(out / "config.json", asdict(replace(config, timesteps=model.num_timesteps)), default=repr)
     if off_policy:  # before the model: a kill in between leaves an old model with a newer buffer
-        atomic_write(out / REPLAY_BUFFER, lambda tmp: model.save_replay_buffer(tmp))
+        _atomic_save_replay_buffer(model, out / REPLAY_BUFFER)
     model_path = _atomic_save_model(model, out / "model.zip")
     _atomic_save_normalizer(normalized, out / "vecnormalize.pkl")
     plot_learning_curve(out)
@@ -370,6 +373,11 @@ def _replay_buffer_path(model_path: Path) -> Path:
     return model_path.with_name(f"replay_buffer_{model_path.stem}.pkl")
 
 
+def _checkpoint_step(path: Path) -> int:
+    """The env steps of a checkpoint ``checkpoints/step_<steps>.zip``."""
+    return int(path.stem.removeprefix("step_"))
+
+
 def _check_no_abandoned_branch(resume: str | Path, out: Path) -> None:
     """ValueError if resuming into the resumed run's own folder ``out`` would leave checkpoints
     beyond the resumed step (a branch the new training abandons: a checkpoint resumed past later
@@ -378,8 +386,8 @@ def _check_no_abandoned_branch(resume: str | Path, out: Path) -> None:
     if config_path.parent.resolve() != out.resolve():
         return
     step = json.loads(config_path.read_text())["timesteps"] if model_path.name == "model.zip" \
-        else int(model_path.stem.removeprefix("step_"))
-    later = sorted(p.name for p in (out / "checkpoints").glob("step_*.zip") if int(p.stem.removeprefix("step_")) > step)
+        else _checkpoint_step(model_path)
+    later = sorted(p.name for p in (out / "checkpoints").glob("step_*.zip") if _checkpoint_step(p) > step)
     if later:
         raise ValueError(f"resuming {resume} into its own run {out} would leave the run's later checkpoints "
                          f"{later} beside the new branch's: resume the latest checkpoint, or give a new --out")
