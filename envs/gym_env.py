@@ -4,7 +4,7 @@ Each env step (``control_dt``, 20 ms) holds the agent's command for ten 2 ms sub
 closed loop (driver, noisy sensors, estimator, allocation, truth plant): the same
 :class:`envs.simulation.ClosedLoop` the rest of fourwis runs. One batched core
 (:class:`YawStabilityCore`) serves both :class:`YawStabilityEnv` (batch of one) and the native
-:class:`YawStabilityVectorEnv` (batch of N, autoreset by masks in the same step).
+:class:`YawStabilityVectorEnv` (batch of N, autoreset by masks, in the same step or the next).
 
 The observation table, actions, reward, termination and ``info`` are documented in
 :class:`YawStabilityEnv`; :class:`YawStabilityVectorEnv` batches them.
@@ -247,13 +247,17 @@ class YawStabilityCore:
             raise FloatingPointError(f"non-finite observation for vehicle {b}: the estimator diverged")
         return obs.astype(np.float32)
 
-    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
-        """Advance every vehicle one control step under ``actions`` (B, n) (already validated)."""
+    def step(self, actions: np.ndarray, moving: np.ndarray | None = None
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
+        """Advance every vehicle, or those selected by ``moving`` (B,) bool, one control step
+        under ``actions`` (B, n) (already validated). A vehicle held still earns reward 0 and
+        neither terminates nor truncates; its episode statistics stand."""
         clipped = np.clip(actions, -1.0, 1.0)
         self.controller.action[:] = clipped
-        swd = [b for b, s in enumerate(self.loop.scenarios) if s.name == "sine_with_dwell"]
+        moved = np.ones(self.batch_size, dtype=bool) if moving is None else moving
+        swd = [b for b, s in enumerate(self.loop.scenarios) if s.name == "sine_with_dwell" and moved[b]]
         for _ in range(self.config.substeps):
-            rec = self.loop.advance()
+            rec = self.loop.advance(moving=moving)
             for b in swd:
                 self.stats.series[b].append((rec.t[b], rec.steering_wheel[b], rec.state[b, S_R], rec.aux[b, A_AY],
                                              rec.truth.beta[b]))
@@ -268,19 +272,19 @@ class YawStabilityCore:
         reward = -self.config.control_dt * ((yaw_error / 0.1) ** 2 + (beta / 0.05) ** 2
                                             + 0.1 * np.sum(clipped**2, axis=1) + deviation**2)
         spin = np.abs(beta) > SPIN_OUT_SIDESLIP
-        terminated = spin | (deviation > MAX_PATH_DEVIATION)
-        reward = reward - TERMINATION_PENALTY * terminated
-        st = self.stats
-        st.length += 1
+        terminated = (spin | (deviation > MAX_PATH_DEVIATION)) & moved
+        reward = (reward - TERMINATION_PENALTY * terminated) * moved
+        st = self.stats  # (the held vehicles' statistics add 0: non-negative peaks times False)
+        st.length += moved
         st.ret += reward
-        st.yaw_sq += yaw_error**2
-        st.peak_beta = np.maximum(st.peak_beta, np.abs(beta))
-        st.peak_phase_plane = np.maximum(st.peak_phase_plane, phase_plane)
-        st.max_deviation = np.maximum(st.max_deviation, deviation)
-        truncated = self.loop.k >= self._ends
+        st.yaw_sq += yaw_error**2 * moved
+        st.peak_beta = np.maximum(st.peak_beta, np.abs(beta) * moved)
+        st.peak_phase_plane = np.maximum(st.peak_phase_plane, phase_plane * moved)
+        st.max_deviation = np.maximum(st.max_deviation, deviation * moved)
+        truncated = (self.loop.k >= self._ends) & moved
         if self.config.max_episode_steps is not None:
-            truncated |= st.length >= self.config.max_episode_steps
-        if self.keep_trace:  # vehicle 0's t, r, r_ref, beta for the strip charts of render()
+            truncated |= (st.length >= self.config.max_episode_steps) & moved
+        if self.keep_trace and moved[0]:  # vehicle 0's t, r, r_ref, beta for the strip charts of render()
             self._trace.append((s.t[0], truth.r[0], r_ref[0], beta[0]))
         info = {"truth": truth, "estimate": s.estimate, "action_clipped": np.any(clipped != actions, axis=1),
                 "beta": beta, "yaw_rate_error": yaw_error, "path_deviation": deviation, "spin_out": spin,
@@ -516,16 +520,25 @@ def _show(frame: np.ndarray, window):
 class YawStabilityVectorEnv(VectorEnv):
     """``num_envs`` cars in one batched core: the native vector env of ``FourWIS/YawStability-v0``.
 
-    Autoreset in the same step (``AutoresetMode.SAME_STEP``): a finished car is reset at once,
-    and step for step the env matches a ``SyncVectorEnv`` of single envs seeded ``seed + i``.
-    ``info`` follows gymnasium's vector convention, each key with a ``_key`` mask: a finished
-    car's last observation is in ``info["final_obs"]`` (object array) and its last step's info
-    in ``info["final_info"]`` (the per-step keys as (num_envs,) arrays, plus
-    ``episode_metrics``, an object array); the top-level per-step keys then hold the new
-    episode's (zero, masked out, as SyncVectorEnv's reset info has none). ``truth`` and
-    ``estimate`` are batched Estimates (one per step, not an object array of per-car ones),
-    in ``final_info`` those of the last step. ``reset(options={"reset_mask": mask})`` resets
-    only the selected cars; ``max_episode_steps`` truncates here, with episode metrics.
+    Step for step the env matches a ``SyncVectorEnv`` of single envs seeded ``seed + i`` with
+    the same ``autoreset_mode`` (gymnasium's ``AutoresetMode`` or its value):
+
+    - ``SAME_STEP`` (default; SB3's convention): a finished car is reset at once. Its last
+      observation is in ``info["final_obs"]`` (object array) and its last step's info in
+      ``info["final_info"]`` (the per-step keys as (num_envs,) arrays, plus
+      ``episode_metrics``, an object array); the top-level per-step keys then hold the new
+      episode's (zero, masked out, as SyncVectorEnv's reset info has none).
+    - ``NEXT_STEP`` (gymnasium's default, which its stateful vector wrappers such as
+      ``NormalizeObservation`` need): a finished car returns its last observation and
+      ``info["episode_metrics"]``; the next step resets it instead of moving it (its action
+      is ignored; reward 0, no termination, per-step keys masked out).
+    - ``DISABLED``: stepping a finished car is an error until ``reset`` with a
+      ``reset_mask`` restarts it.
+
+    ``info`` follows gymnasium's vector convention, each key with a ``_key`` mask. ``truth``
+    and ``estimate`` are batched Estimates (one per step, not an object array of per-car
+    ones), in ``final_info`` those of the last step. ``reset(options={"reset_mask": mask})``
+    resets only the selected cars; ``max_episode_steps`` truncates here, with episode metrics.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": list(RENDER_MODES), "render_fps": 50}
@@ -534,21 +547,27 @@ class YawStabilityVectorEnv(VectorEnv):
                  estimator: str = "joint", observation: str = "estimated", action: str = "yaw_moment",
                  control_dt: float = 0.02, sensor_faults: tuple[Fault, ...] = (), render_mode: str | None = None,
                  max_episode_steps: int | None = None, scenario_kwargs: dict | None = None, rear_steer: bool = True,
-                 privileged: bool = False, **unknown):
+                 privileged: bool = False, autoreset_mode: AutoresetMode | str = AutoresetMode.SAME_STEP, **unknown):
         _unknown_arguments(unknown)
         if not (_is_integer(num_envs) and num_envs >= 1):
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+        try:
+            self.autoreset_mode = AutoresetMode(autoreset_mode)
+        except ValueError:
+            raise ValueError(f"unknown autoreset_mode {autoreset_mode!r}; known: "
+                             f"{[m.value for m in AutoresetMode]}") from None
         self.config = EnvConfig(scenario, speed_kph, mu, estimator, observation, action, control_dt, sensor_faults,
                                 max_episode_steps, scenario_kwargs, rear_steer, privileged)
         _check_render_mode(render_mode)
         self.num_envs, self.render_mode = int(num_envs), render_mode
-        self.metadata = {**self.metadata, "render_fps": self.config.render_fps}
+        self.metadata = {**self.metadata, "render_fps": self.config.render_fps, "autoreset_mode": self.autoreset_mode}
         self.single_observation_space, self.single_action_space = _spaces(self.config)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._rngs = [seeding.np_random()[0] for _ in range(self.num_envs)]
         self._core: YawStabilityCore | None = None
         self._window = None
+        self._finished = np.zeros(self.num_envs, dtype=bool)  # ended, not yet reset (NEXT_STEP, DISABLED)
 
     def _seeds(self, seed) -> list:
         if seed is None or _is_integer(seed):
@@ -587,6 +606,7 @@ class YawStabilityVectorEnv(VectorEnv):
             self._core.keep_trace = self.render_mode is not None
         else:
             self._core.reset_members(mask, [self._rngs[i] for i in members])
+        self._finished[members] = False
         s = self._core.loop.sample()
         return self._core.observe(), {"truth": s.truth, "_truth": mask.copy(), "estimate": s.estimate,
                                       "_estimate": mask.copy()}
@@ -595,6 +615,8 @@ class YawStabilityVectorEnv(VectorEnv):
         if self._core is None:
             raise RuntimeError("call reset() before step()")
         actions = _check_actions(actions, self.action_space.shape)
+        if self.autoreset_mode != AutoresetMode.SAME_STEP:
+            return self._step_later_reset(actions)
         obs, reward, terminated, truncated, info = self._core.step(actions)
         metrics = info.pop("episode_metrics")
         done = terminated | truncated
@@ -616,6 +638,31 @@ class YawStabilityVectorEnv(VectorEnv):
                         final_info=final_info, _final_info=done.copy())
         info.update({f"_{k}": ~done for k in per_step})
         info.update(_truth=np.ones(self.num_envs, dtype=bool), _estimate=np.ones(self.num_envs, dtype=bool))
+        if self.render_mode == "human":
+            self.render()
+        return obs, reward, terminated, truncated, info
+
+    def _step_later_reset(self, actions: np.ndarray):
+        """:meth:`step` in ``NEXT_STEP`` and ``DISABLED`` autoreset modes (see the class docstring)."""
+        restarting = self._finished.copy()
+        if restarting.any():
+            if self.autoreset_mode == AutoresetMode.DISABLED:
+                raise RuntimeError(f"cars {np.flatnonzero(restarting).tolist()} ended their episodes: with "
+                                   "autoreset_mode DISABLED, reset them first (reset(options={'reset_mask': mask}))")
+            self._core.reset_members(restarting, [self._rngs[b] for b in np.flatnonzero(restarting)])
+        obs, reward, terminated, truncated, info = self._core.step(actions, ~restarting if restarting.any() else None)
+        metrics = info.pop("episode_metrics")
+        done = terminated | truncated
+        for k in [k for k in info if k not in ("truth", "estimate")]:
+            info[k] = np.where(restarting, np.zeros_like(info[k]), info[k])
+            info[f"_{k}"] = ~restarting
+        info.update(_truth=np.ones(self.num_envs, dtype=bool), _estimate=np.ones(self.num_envs, dtype=bool))
+        if done.any():
+            info["episode_metrics"] = np.full(self.num_envs, None, dtype=object)
+            for b in np.flatnonzero(done):
+                info["episode_metrics"][b] = metrics[b]
+            info["_episode_metrics"] = done.copy()
+        self._finished = done
         if self.render_mode == "human":
             self.render()
         return obs, reward, terminated, truncated, info

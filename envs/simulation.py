@@ -295,9 +295,10 @@ class ClosedLoop:
         self._stale[:] = False
         return self._sample
 
-    def advance(self, integrate: bool = True) -> StepRecord:
+    def advance(self, integrate: bool = True, moving: np.ndarray | None = None) -> StepRecord:
         """Control at the current time from :meth:`sample`; then (if ``integrate``) advance the
-        plant one step. Returns the sample taken before the plant moved."""
+        plant one step: every vehicle, or those selected by ``moving`` (B,) bool (the others
+        keep their time, state and sample). Returns the sample taken before the plant moved."""
         s = self.sample()
         controls = np.zeros((self.batch_size, NU))
         controls[:, C_TORQUE:C_TORQUE + 4] = s.base_torques
@@ -311,9 +312,16 @@ class ClosedLoop:
         record = StepRecord(s.t, self.state.copy(), self.aux.copy(), controls, s.steering_wheel, s.reading, s.truth,
                             s.estimate)
         if integrate:
-            self.state, self.aux = step(self.state, controls, self.params, self.road, self.dt)
-            self.k += 1
-            self._stale[:] = True
+            state, aux = step(self.state, controls, self.params, self.road, self.dt)
+            if moving is None:
+                self.state, self.aux = state, aux
+                self.k += 1
+                self._stale[:] = True
+            else:
+                self.state = np.where(moving[:, None], state, self.state)
+                self.aux = np.where(moving[:, None], aux, self.aux)
+                self.k += moving
+                self._stale |= moving
         return record
 
 

@@ -214,6 +214,23 @@ def test_sb3_adapter_reports_terminal_observations_and_time_limits():
     np.testing.assert_array_equal(new_obs, obs)  # autoreset: paper_sine starts the same every time
 
 
+def test_sb3_video_recorder_records_car_0_and_the_adapter_refuses_a_later_reset(tmp_path):
+    from stable_baselines3.common.vec_env import VecVideoRecorder
+
+    native = YawStabilityVectorEnv(num_envs=2, scenario="paper_sine", estimator="oracle", render_mode="rgb_array")
+    env = VecVideoRecorder(SB3VecEnv(native), str(tmp_path), record_video_trigger=lambda step: step == 0,
+                           video_length=20)
+    env.reset()
+    for _ in range(25):
+        env.step(np.zeros((2, 2), dtype=np.float32))
+    env.close()
+    movies = list(tmp_path.glob("*.mp4"))
+    assert len(movies) == 1 and movies[0].stat().st_size > 1000
+    assert SB3VecEnv(native).get_images()[0].shape == native.render()[0].shape
+    with pytest.raises(ValueError, match="same step.*'NextStep'"):
+        SB3VecEnv(YawStabilityVectorEnv(num_envs=2, autoreset_mode="NextStep"))
+
+
 def test_evaluate_puts_the_policy_into_the_comparison(tmp_path):
     from training.rl import evaluate
 

@@ -35,6 +35,7 @@ from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
+from gymnasium.vector import AutoresetMode
 from stable_baselines3.common.vec_env import VecEnv
 
 from envs.gym_env import N_OBS, EnvConfig, YawStabilityVectorEnv, _AgentController, state_observation
@@ -69,13 +70,18 @@ def _algo_class(algo: str):
 
 
 class SB3VecEnv(VecEnv):
-    """A :class:`YawStabilityVectorEnv` as an SB3 ``VecEnv``: same-step autoreset with
+    """A :class:`YawStabilityVectorEnv` (same-step autoreset) as an SB3 ``VecEnv``:
     ``terminal_observation`` and ``TimeLimit.truncated`` in the infos, Monitor-style
-    ``episode`` records (r, l, t) and the env's ``episode_metrics``."""
+    ``episode`` records (r, l, t) and the env's ``episode_metrics``. Rendered, it shows car 0
+    (``get_images`` gives its one frame), so SB3's ``VecVideoRecorder`` records car 0."""
 
     def __init__(self, env: YawStabilityVectorEnv):
+        if env.autoreset_mode != AutoresetMode.SAME_STEP:
+            raise ValueError(f"SB3 needs a vector env that resets in the same step; got autoreset_mode "
+                             f"{env.autoreset_mode.value!r}")
         self.env = env
         super().__init__(env.num_envs, env.single_observation_space, env.single_action_space)
+        self.metadata = {**self.metadata, "render_fps": env.metadata["render_fps"]}
         self._actions: np.ndarray | None = None
         self._start = time.time()
 
@@ -103,6 +109,10 @@ class SB3VecEnv(VecEnv):
 
     def close(self) -> None:
         self.env.close()
+
+    def get_images(self) -> list[np.ndarray | None]:
+        """Car 0's frame as a one-element list ([None] unless ``render_mode`` is rgb_array)."""
+        return list(self.env.render()) if self.env.render_mode == "rgb_array" else [None]
 
     def get_attr(self, attr_name: str, indices=None) -> list:
         return [getattr(self.env, attr_name)] * len(self._indices(indices))
