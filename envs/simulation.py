@@ -36,11 +36,19 @@ class Controller(Protocol):
 
 
 class Estimator(Protocol):
-    """A batched estimator: sensor readings (B, 13) in, estimate out (``needs_truth``: oracle only).
+    """A batched estimator: sensor readings in, estimate out (``needs_truth``: oracle only).
 
-    ``reset`` (re)initialises the members selected by ``mask`` (B,) bool (all if None) from a
-    reading and the initial speed [m/s] (B,) (a car starts from a known speed, like a
-    vehicle's speed estimate that has been running since standstill).
+    ``reading`` is an :class:`envs.sensors.SensorReading`: ``values`` (B, 13) in
+    :data:`envs.sensors.CHANNELS` order and units, ``valid`` (B, 13) bool (False: a dropout or
+    a stuck sensor the fault model flags; ``values`` then holds the last good value), ``t``
+    (B,) [s]. ``reset`` (re)initialises the members selected by ``mask`` (B,) bool (all if
+    None) from a reading and the initial speed [m/s] (B,) (a car starts from a known speed,
+    like a vehicle's speed estimate that has been running since standstill). ``step`` with
+    ``members`` (M,) row indices (the vector env's partial resets) steps only those rows: the
+    reading still has all B rows, ``truth`` only the M, and the estimate must have M rows.
+    The estimate's mu, mu_std and fz steer the DYC (it plans with a cautious mu_hat - k
+    mu_std), so a friction estimator's mu_std should be calibrated; an estimator holding a
+    nominal mu keeps mu_hat constant (the reports read a constant mu_hat as 'not estimated').
     """
 
     needs_truth: bool
@@ -287,8 +295,9 @@ class ClosedLoop:
             estimate = self.estimator.step(reading, _rows(truth, rows) if self._needs_truth else None, rows)
         else:
             estimate = self.estimator.step(reading, truth if self._needs_truth else None)
-        if self._check_estimates:
+        if self._check_estimates:  # and copied: records handed out earlier stay intact if it reuses its arrays
             check_estimate(estimate, self.batch_size if part is None else len(rows), self._labels[0])
+            estimate = Estimate(*(np.array(field, dtype=float) for field in estimate))
         if part is not None:
             estimate = Estimate(*(_merged(full, new, rows) for full, new in zip(self._sample.estimate, estimate)))
         self._sample = Sample(now, reading, truth, estimate, steering, base)

@@ -71,12 +71,12 @@ def sharing_coefficients(confidence: np.ndarray, beta: np.ndarray) -> None:
 # ---- batched entry point from Python ------------------------------------------------------
 class SubMeasurement(NamedTuple):
     """One sub-filter's measurement: z (B, m), h(points (B, K, n)) -> (B, K, m), R (m, m) or
-    (B, m, m), valid (B, m) bool or None."""
+    (B, m, m), valid (B, m) bool or None (every channel valid)."""
 
     z: np.ndarray
     h: Callable[[np.ndarray], np.ndarray]
     R: np.ndarray
-    valid: np.ndarray | None
+    valid: np.ndarray | None = None
 
 
 class FederatedStep(NamedTuple):

@@ -318,7 +318,12 @@ def normal_loads(ax, ay, p: ModelParams) -> np.ndarray:
 def state_transition(x: np.ndarray, mu: np.ndarray, inputs: Inputs, p: ModelParams, dt: float) -> np.ndarray:
     """:func:`transition` of one state x (6,) with mu (4,) and ``inputs``; returns the new state."""
     out = np.empty((1, 6))
+    x = np.ascontiguousarray(x, dtype=np.float64)
     mu, delta, omega, torque, omega_dot = (np.ascontiguousarray(q, dtype=np.float64) for q in (mu, *inputs))
-    transition(np.ascontiguousarray(x, dtype=np.float64).reshape(1, 6), out,
+    for name, value, shape in (("x", x, (6,)), ("mu", mu, (4,)), *zip(Inputs._fields, (delta, omega, torque, omega_dot),
+                                                                       [(4,)] * 4)):
+        if value.shape != shape:  # (the kernel indexes without bounds checks)
+            raise ValueError(f"{name} must have shape {shape}, got {value.shape}: {value!r}")
+    transition(x.reshape(1, 6), out,
                (mu, steer_trig(delta), omega, torque, omega_dot, p.packed, float(dt)))
     return out[0]

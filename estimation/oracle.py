@@ -74,6 +74,7 @@ class PartialOracle:
     def step(self, reading, truth: Estimate | None = None, members=None) -> Estimate:
         if truth is None:
             raise ValueError("a partial oracle needs the truth; run it through envs.simulate")
-        estimate = self.estimator.step(reading, truth if self.estimator.needs_truth else None, members)
+        estimate = self.estimator.step(reading, truth if getattr(self.estimator, "needs_truth", False) else None,
+                                       members)
         return estimate._replace(**{f: np.zeros_like(getattr(estimate, f)) if f.endswith("_std") else getattr(truth, f)
                                     for f in self._fields})

@@ -4,6 +4,7 @@ a batch a step works on."""
 from __future__ import annotations
 
 import importlib
+import inspect
 import math
 from functools import lru_cache
 from typing import NamedTuple
@@ -19,13 +20,15 @@ class Estimate(NamedTuple):
 
     u, v: body velocities [m/s] (B,); beta = atan2(v, |u|) [rad] (B,) (the filters floor |u| at
     1 m/s: a car at rest has no defined sideslip); r: yaw rate [rad/s] (B,); ax, ay: body
-    specific forces [m/s^2] (B,); mu: road friction per wheel (B, 4); fz: normal loads per
+    specific forces [m/s^2] (B,) (the joint estimator's are its model's, whose lack of rolling
+    resistance and drag reads ~0.1 m/s^2 high on the paper's sine); mu: road friction per wheel (B, 4); fz: normal loads per
     wheel [N] (B, 4); beta_std [rad] (B,) and mu_std (B, 4): the filter's own one-sigma
     uncertainty, from its covariance (zero for the oracle; mu_std also zero for the filters that
     assume a nominal mu). The state filters' covariance does not model the estimation model's
     error, so beta_std is far too confident where the tyres work (RMS of error / beta_std 12-36
     on the paper's step, sine and slalom); the joint estimator's mu_std matches its mu error
-    (0.75-1.5; README, "Estimators").
+    (0.75-1.5; README, "Estimators"). The DYC plans with mu - k mu_std (control.MU_MARGIN), so
+    an estimator's mu_std moves the closed loop.
     """
 
     u: np.ndarray
@@ -53,6 +56,12 @@ def import_factory(name: str, kind: str):
                          f"({type(err).__name__}: {err})") from None
     if not callable(target):
         raise ValueError(f"{kind} {name!r} is not callable: give a factory(params, dt) -> {kind}")
+    try:
+        inspect.signature(target).bind(None, None)
+    except TypeError as err:
+        raise ValueError(f"{kind} {name!r} cannot be called as factory(params, dt): {err}") from None
+    except ValueError:  # no signature to read (a builtin): the call will tell
+        pass
     return target
 
 

@@ -108,3 +108,28 @@ def test_a_users_controller_and_broken_modules_are_named():
         simulate(scenario, None, "custom_models:WrongShape")
     with pytest.raises(ValueError, match=r"cannot import .*\(TypeError"):
         simulate(scenario, None, "..x:y")
+
+
+def test_an_estimator_reusing_its_arrays_keeps_its_history_and_can_be_partly_oracled():
+    """simulate keeps every step's estimate though the estimator writes into the same arrays;
+    a +true-<group> wrapper works without the optional needs_truth."""
+    from training.estimate import run_metrics
+
+    scenario = make_scenario("paper_sine", duration=1.0)
+    traj = simulate(scenario, None, "custom_models:ReusesArrays", seed=0)
+    np.testing.assert_allclose(traj.estimate.r, traj.sensors[:, 2])  # step by step, not the last value repeated
+    assert len(np.unique(traj.estimate.r)) > 100
+    partly = simulate(scenario, None, "custom_models:ReusesArrays+true-mu", seed=0)
+    np.testing.assert_array_equal(partly.estimate.mu, partly.truth.mu)
+    np.testing.assert_array_equal(partly.estimate.r, traj.estimate.r)
+    assert run_metrics(traj)["mu_estimated"] == 0.0  # a constant mu_hat is a nominal mu
+    joint = simulate(make_scenario("paper_step", duration=6.0), None, "joint", seed=0)  # (steps at 5 s)
+    joint = joint._replace(estimate=joint.estimate._replace(mu_std=np.zeros_like(joint.estimate.mu_std)))
+    assert run_metrics(joint)["mu_estimated"] == 1.0  # a moving mu_hat is estimated, covariance or not
+
+
+def test_a_factory_that_cannot_take_params_and_dt_is_named():
+    from estimation import make_estimator
+
+    with pytest.raises(ValueError, match=r"'custom_models:takes_params_only' cannot be called as factory\(params, dt\)"):
+        make_estimator("custom_models:takes_params_only", make_scenario("paper_step").vehicle_params, 0.002)

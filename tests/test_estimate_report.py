@@ -35,7 +35,7 @@ def _metrics_of(traj):
         out[f"mae_{q}"], out[f"rmse_{q}"] = mae(estimate, true), rmse(estimate, true)
     mu_error = np.abs(est.mu - truth.mu).mean(axis=1)
     out["mu_error_last_half"] = mu_error[len(mu_error) // 2:].mean()
-    estimated = bool(np.any(est.mu_std > 0))
+    estimated = bool(np.any(est.mu != est.mu[0]))
     out["mu_convergence_time"] = convergence_time(traj.t, mu_error) if estimated else math.nan
     out["mu_estimated"] = float(estimated)
     return out
@@ -78,6 +78,8 @@ def test_markdown_has_our_table_and_the_papers_numbers(report):
 
 
 @pytest.mark.parametrize("kwargs, named", [({"scenarios": ["no_such_road"]}, "no_such_road"),
+                                           ({"scenarios": ["paper_step:mu=-1"]}, "-1"),
+                                           ({"scenarios": ["paper_step+faults"]}, r"\+faults"),
                                            ({"estimators": ["kalman9"]}, "kalman9"),
                                            ({"seeds": 0}, "seeds must be .*, got 0"), ({"jobs": 0}, "jobs must be >= 1, got 0")])
 def test_bad_arguments_raise_value_error_naming_the_value(tmp_path, kwargs, named):
@@ -113,3 +115,12 @@ def test_the_convergence_column_tells_a_true_mu_from_a_nominal_one():
     assert _convergence(held, "joint+true-mu") == _convergence(held, "oracle") == "n/a (true mu)"
     assert _convergence(held, "joint+true-beta") == _convergence(held, "ckf") == "n/a (nominal mu)"
     assert _convergence({"mu_estimated": 1.0, "mu_convergence_time": 1.25}, "joint") == "1.25"
+
+
+def test_scenarios_take_the_comparisons_overrides_and_are_named_by_them():
+    from training.estimate import _scenarios
+
+    wet, dry, swd = _scenarios(["paper_step:mu=0.5", "paper_step", "swd_wet"])
+    assert (wet.name, dry.name, swd.name) == ("paper_step:mu=0.5", "paper_step", "swd_wet")
+    assert wet.road.mu_at(np.array([50.0]), np.array([0.0]))[0] == 0.5
+    assert wet.road != dry.road and swd.road.mu_at(np.array([0.0]), np.array([0.0]))[0] == 0.5

@@ -261,6 +261,16 @@ def test_normal_loads_follow_the_quasi_static_closed_form():
     np.testing.assert_allclose(fz[[0, 2]], [0.05 * m * g * b / (2 * L), 0.05 * m * g * a / (2 * L)], rtol=1e-12)
 
 
+def test_one_state_transition_names_a_wrong_shape():
+    inputs = Inputs(np.zeros(4), np.full(4, 30.0), np.zeros(4), np.zeros(4))
+    x = np.array([10.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    for kwargs, named in (({"mu": 0.8}, r"mu must have shape \(4,\), got \(1,\)"),
+                          ({"inputs": inputs._replace(delta=np.zeros(2))}, r"delta must have shape \(4,\)"),
+                          ({"x": x[:5]}, r"x must have shape \(6,\)")):
+        with pytest.raises(ValueError, match=named):
+            state_transition(**({"x": x, "mu": np.full(4, 0.8), "inputs": inputs, "p": PARAMS, "dt": 0.002} | kwargs))
+
+
 def test_model_yaw_rate_is_kinematic_at_low_speed():
     delta = 0.05
     inputs = Inputs(np.array([delta, delta, 0.0, 0.0]), np.full(4, 3.0 / PARAMS.wheel_radius), np.zeros(4),

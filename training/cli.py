@@ -279,7 +279,8 @@ def build_parser() -> argparse.ArgumentParser:
     from training.estimate import DEFAULT_ESTIMATORS as ESTIMATE_ESTIMATORS
 
     est = command("estimate", "open-loop estimator accuracy (paper Table 2 form): report + plots")
-    _add_matrix_arguments(est, PAPER_SCENARIOS, ESTIMATE_ESTIMATORS, 1, "results/estimate", "scenario names")
+    _add_matrix_arguments(est, PAPER_SCENARIOS, ESTIMATE_ESTIMATORS, 1, "results/estimate",
+                          "scenario names, optionally with overrides as in compare (no +faults)")
     est.set_defaults(func=_estimate)
     from estimation.optimizers import METHODS
     from training.tune import CRITERIA

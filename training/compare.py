@@ -98,11 +98,23 @@ def parse_scenario(text: str) -> tuple[str, dict]:
     return name, overrides
 
 
-def _scenario(spec: RunSpec):
-    name, overrides = parse_scenario(spec.scenario)
+def file_stem(entry: str) -> str:
+    """A scenario entry as a portable file name stem (``iso3888_2:speed_kph=70`` ->
+    ``iso3888_2_speed_kph_70``)."""
+    return "".join(ch if ch.isalnum() or ch in "._-" else "_" for ch in entry)
+
+
+def build_scenario(text: str, swd_A: float):
+    """The Scenario of a comparison entry (see :func:`parse_scenario`; its ``+faults`` suffix is
+    the caller's), ``amplitude_A`` in units of ``swd_A`` [rad] (:func:`envs.fmvss126.characterise`)."""
+    name, overrides = parse_scenario(text)
     if "amplitude_A" in overrides:
-        overrides["amplitude_deg"] = math.degrees(overrides.pop("amplitude_A") * spec.swd_A)
+        overrides["amplitude_deg"] = math.degrees(overrides.pop("amplitude_A") * swd_A)
     return make_scenario(name, **overrides)
+
+
+def _scenario(spec: RunSpec):
+    return build_scenario(spec.scenario, spec.swd_A)
 
 
 def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float]:
@@ -362,8 +374,7 @@ def plot_report(table: dict, trajectories: dict, scenarios, estimators, controll
         axes[2].legend(fontsize=7)
         fig.suptitle(s)
         fig.tight_layout()
-        stem = "".join(ch if ch.isalnum() or ch in "._-" else "_" for ch in s)
-        paths.append(atomic_write(out / f"{stem}.png", lambda p: fig.savefig(p, format="png", dpi=100)))
+        paths.append(atomic_write(out / f"{file_stem(s)}.png", lambda p: fig.savefig(p, format="png", dpi=100)))
         plt.close(fig)
     return paths
 

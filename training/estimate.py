@@ -12,15 +12,17 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
+from envs.fmvss126 import characterise
 from envs.metrics import mae, rmse
-from envs.scenarios import PAPER_SCENARIOS, Scenario, make_scenario
+from envs.scenarios import PAPER_SCENARIOS, Scenario
 from envs.simulation import Trajectory, simulate
 from estimation import ESTIMATORS, Estimate, check_estimator_name, parse_estimator_name
+from training.compare import FAULT_SUFFIX, build_scenario, file_stem, parse_scenario
 from training.io import atomic_write, atomic_write_text
 from training.pool import parallel_map
 from training.tables import mean_over_seeds, require_distinct, write_runs_csv
@@ -61,7 +63,8 @@ def convergence_time(t: np.ndarray, error: np.ndarray, tolerance: float = MU_TOL
 def run_metrics(traj: Trajectory) -> dict[str, float]:
     """Table 2 metrics of one run: MAE/RMSE of u, v [m/s] and beta [rad]; mu error and convergence time [s].
 
-    Estimators holding a nominal mu report mu_std = 0; their convergence time is NaN (not meaningful).
+    An estimator whose mu_hat never moves from its first value holds a nominal mu: its
+    convergence time is NaN (not meaningful).
     """
     T, E = traj.truth, traj.estimate
     out: dict[str, float] = {}
@@ -70,7 +73,7 @@ def run_metrics(traj: Trajectory) -> dict[str, float]:
         out[f"rmse_{name}"] = rmse(getattr(E, name), getattr(T, name))
     mu_error = np.mean(np.abs(E.mu - T.mu), axis=1)  # (T,) mean over the wheels
     out["mu_error_last_half"] = float(np.mean(mu_error[mu_error.size // 2:]))
-    estimated = bool(np.any(E.mu_std > 0))
+    estimated = bool(np.any(E.mu != E.mu[0]))
     out["mu_convergence_time"] = convergence_time(traj.t, mu_error) if estimated else math.nan
     out["mu_estimated"] = float(estimated)
     return out
@@ -83,9 +86,18 @@ def _run(spec: RunSpec) -> tuple[RunSpec, dict[str, float], tuple[np.ndarray, Es
 
 
 def _scenarios(scenarios: Sequence[str | Scenario]) -> list[Scenario]:
+    """Scenarios as given, or built from compare's entries (``iso3888_2:mu=0.6``, ``swd_wet``;
+    an entry with overrides is named by its text)."""
     if not scenarios:
         raise ValueError("scenarios must not be empty")
-    built = [s if isinstance(s, Scenario) else make_scenario(s) for s in scenarios]  # ValueError names a bad one
+    texts = [s for s in scenarios if not isinstance(s, Scenario)]
+    for text in texts:
+        if not isinstance(text, str) or text.endswith(FAULT_SUFFIX):
+            raise ValueError(f"scenario {text!r}: give a Scenario or a name with optional overrides "
+                             f"(the {FAULT_SUFFIX} variant is the closed-loop comparison's)")
+    swd = any(parse_scenario(t)[0] == "sine_with_dwell" and "amplitude_A" in parse_scenario(t)[1] for t in texts)
+    A = characterise() if swd else math.nan
+    built = [s if isinstance(s, Scenario) else replace(build_scenario(s, A), name=s) for s in scenarios]
     require_distinct("scenario names", [s.name for s in built])
     return built
 
@@ -233,7 +245,9 @@ def estimate_report(out: str | Path, scenarios: Sequence[str | Scenario] = PAPER
                     estimators: Sequence[str] = DEFAULT_ESTIMATORS, seeds: int = 1, jobs: int | None = None) -> Path:
     """Run the open-loop matrix; write estimate.csv, estimate.md and <scenario>.png into ``out``.
 
-    ``scenarios``: names or Scenario objects; returns the path of estimate.md.
+    ``scenarios``: Scenario objects, or names with optional overrides as in compare
+    (``paper_step:mu=0.5``; the plot's file name replaces ':', ',' and '=' by '_'); returns
+    the path of estimate.md.
     """
     out = Path(out)
     results, series = run_all(scenarios, estimators, seeds, jobs)
@@ -241,5 +255,5 @@ def estimate_report(out: str | Path, scenarios: Sequence[str | Scenario] = PAPER
     table = aggregate(results)
     write_csv(results, out / "estimate.csv")
     for s in built:
-        plot_scenario(s.name, series, estimators, out / f"{s.name}.png")
+        plot_scenario(s.name, series, estimators, out / f"{file_stem(s.name)}.png")
     return atomic_write_text(out / "estimate.md", markdown_report(table, built, estimators, seeds))
