@@ -48,7 +48,7 @@ class Estimator(Protocol):
     reading still has all B rows, ``truth`` only the M, and the estimate must have M rows.
     The estimate's mu, mu_std and fz steer the DYC (it plans with a cautious mu_hat - k
     mu_std), so a friction estimator's mu_std should be calibrated; an estimator holding a
-    nominal mu keeps mu_hat constant (the reports read a constant mu_hat as 'not estimated').
+    nominal mu keeps mu_hat constant (the reports read a constant mu_hat without mu_std as 'not estimated').
     """
 
     needs_truth: bool

@@ -35,7 +35,7 @@ def _metrics_of(traj):
         out[f"mae_{q}"], out[f"rmse_{q}"] = mae(estimate, true), rmse(estimate, true)
     mu_error = np.abs(est.mu - truth.mu).mean(axis=1)
     out["mu_error_last_half"] = mu_error[len(mu_error) // 2:].mean()
-    estimated = bool(np.any(est.mu != est.mu[0]))
+    estimated = bool(np.any(est.mu_std > 0) or np.any(est.mu != est.mu[0]))
     out["mu_convergence_time"] = convergence_time(traj.t, mu_error) if estimated else math.nan
     out["mu_estimated"] = float(estimated)
     return out

@@ -63,8 +63,8 @@ def convergence_time(t: np.ndarray, error: np.ndarray, tolerance: float = MU_TOL
 def run_metrics(traj: Trajectory) -> dict[str, float]:
     """Table 2 metrics of one run: MAE/RMSE of u, v [m/s] and beta [rad]; mu error and convergence time [s].
 
-    An estimator whose mu_hat never moves from its first value holds a nominal mu: its
-    convergence time is NaN (not meaningful).
+    An estimator with neither a mu_std nor a mu_hat that moves from its first value holds a
+    nominal mu: its convergence time is NaN (not meaningful).
     """
     T, E = traj.truth, traj.estimate
     out: dict[str, float] = {}
@@ -73,7 +73,7 @@ def run_metrics(traj: Trajectory) -> dict[str, float]:
         out[f"rmse_{name}"] = rmse(getattr(E, name), getattr(T, name))
     mu_error = np.mean(np.abs(E.mu - T.mu), axis=1)  # (T,) mean over the wheels
     out["mu_error_last_half"] = float(np.mean(mu_error[mu_error.size // 2:]))
-    estimated = bool(np.any(E.mu != E.mu[0]))
+    estimated = bool(np.any(E.mu_std > 0) or np.any(E.mu != E.mu[0]))
     out["mu_convergence_time"] = convergence_time(traj.t, mu_error) if estimated else math.nan
     out["mu_estimated"] = float(estimated)
     return out
