@@ -12,7 +12,7 @@ import numpy as np
 from control.allocation import Allocation, allocate_for_estimate, allocate_torques
 from control.dyc import LQRYawController, LQRWeights, SlidingModeYawController
 from control.reference import rear_steer_feedforward, reference_yaw_rate, sideslip_bound, yaw_time_constant
-from estimation.types import import_factory
+from estimation.types import check_step, check_vehicle_params, import_factory
 
 CONTROLLERS = ("none", "dyc-lqr", "dyc-smc", "dyc-lqr-4ws", "dyc-smc-4ws")
 ACTIVE_SPEED = 2.0  #: below this speed [m/s] the law's moment is zero (the allocator still shares the drive)
@@ -92,6 +92,11 @@ class StabilityController:
     reference_understeer: float | None = None
 
     def __post_init__(self) -> None:
+        check_vehicle_params(self.params)
+        check_step(self.dt)
+        for name in ("rear_steer", "friction_ellipse"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
         if not (np.isfinite(self.mu_margin) and self.mu_margin >= 0.0):
             raise ValueError(f"mu_margin must be a finite number >= 0, got {self.mu_margin!r}")
         if self.reference_understeer is not None and not (np.isfinite(self.reference_understeer)
@@ -170,8 +175,11 @@ def make_controller(name: str, params, dt: float = 0.002):
     "none". Your own: ``module:factory`` returns ``factory(params, dt)``, an object with the
     interface of :class:`envs.simulation.Controller` (``reset`` and a call returning a
     :class:`Command`); the name then works in ``fourwis compare --controllers`` too."""
+    if not isinstance(name, str):
+        raise ValueError(f"controller must be a name (str; 'none' for none), got {name!r}; known: {list(CONTROLLERS)}")
     if name == "none":
         return None
+    check_vehicle_params(params)
     if ":" in name:
         controller = import_factory(name, "controller")(params, dt)
         check_controller(controller, name)

@@ -2,7 +2,10 @@
 sine-with-dwell amplitude series, on any road and with any controller/estimator.
 
 1. Slowly increasing steer (S7.6) at 80 km/h, 13.5 deg/s, to the left and to the right on a
-   dry road (mu 1.0): A = the steering-wheel angle at 0.3 g, the mean of both directions.
+   dry road (mu 1.0): A = the steering-wheel angle at 0.3 g, the mean of both directions. The
+   regulation runs three tests per direction and rounds A to 0.1 deg; a deterministic
+   simulation needs one run per direction, and A is kept unrounded (16.554 deg for the
+   shipped car: rounding would move every amplitude by 0.3%).
 2. Sine with dwell (S7.9) from 80 km/h, coasting, at 1.5A, 2A, 2.5A, ... up to the larger of
    6.5A and 270 deg, no run above 300 deg; each amplitude steered left-first and right-first.
    On low-mu roads we keep the dry-road A (the regulation only defines the dry test; the same
@@ -25,6 +28,7 @@ from envs.vehicle import A_AY, S_R, VehicleParams
 
 MAX_AMPLITUDE = math.radians(300.0)  #: no sine-with-dwell run above this [rad]
 MIN_LAST_AMPLITUDE = math.radians(270.0)  #: the series reaches at least this unless 6.5A is larger [rad]
+MAX_A_DEG = 200.0  #: largest A [deg] with a series: its first run, 1.5A, at most 300 deg
 
 
 def characterise(params: VehicleParams = VehicleParams(), mu: float = 1.0, seed: int = 0) -> float:
@@ -38,8 +42,9 @@ def characterise(params: VehicleParams = VehicleParams(), mu: float = 1.0, seed:
 
 def amplitudes(A: float) -> np.ndarray:
     """The series' steering-wheel amplitudes [rad]: 1.5A in steps of 0.5A up to max(6.5A, 270 deg), <= 300 deg."""
-    if not (math.isfinite(A) and A > 0):
-        raise ValueError(f"A must be a positive angle [rad], got {A!r}")
+    if not (math.isfinite(A) and 0 < A <= math.radians(MAX_A_DEG)):
+        raise ValueError(f"A must be an angle in (0, {MAX_A_DEG:g} deg] (the series starts at 1.5A, at most 300 "
+                         f"deg), got {A!r} rad")
     last = max(6.5 * A, MIN_LAST_AMPLITUDE)
     series = np.arange(1.5, last / A + 1e-9, 0.5) * A
     series = series[series <= MAX_AMPLITUDE + 1e-9]

@@ -45,6 +45,7 @@ RENDER_MODES = ("rgb_array", "human")
 N_OBS = 14
 SENSOR_SCALE = np.array([10, 10, 1, 100, 100, 100, 100, 0.3, 0.3, 600, 600, 600, 600], dtype=float)
 NOMINAL_MU = 0.8  #: friction assumed for r_ref in the sensors observation
+MAX_CONTROL_DT = 1.0  #: longest control step [s] (render_fps, 1 / control_dt, stays >= 1)
 
 
 def _is_integer(value) -> bool:
@@ -84,8 +85,8 @@ class EnvConfig:
         check_estimator_name(self.estimator)
         dt = self.control_dt
         substeps = dt / DT if is_number(dt) and math.isfinite(dt) else math.nan
-        if not (substeps >= 1 - 1e-9 and abs(substeps - round(substeps)) < 1e-9):
-            raise ValueError(f"control_dt must be a positive multiple of {DT} s, got {dt!r}")
+        if not (1 - 1e-9 <= substeps <= MAX_CONTROL_DT / DT + 1e-9 and abs(substeps - round(substeps)) < 1e-9):
+            raise ValueError(f"control_dt must be a multiple of {DT} s up to {MAX_CONTROL_DT} s, got {dt!r}")
         try:
             faults = tuple(self.sensor_faults or ())
         except TypeError:
@@ -443,6 +444,8 @@ class YawStabilityEnv(gym.Env):
         return self._core
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        if options is not None and not isinstance(options, dict):
+            raise ValueError(f"options must be a dict or None, got {options!r}")
         if options:
             raise ValueError(f"unknown reset option(s) {sorted(options)}; this env takes none")
         super().reset(seed=seed)
@@ -581,6 +584,8 @@ class YawStabilityVectorEnv(VectorEnv):
         return [None if s is None else int(s) for s in seeds]  # numpy integers too (gymnasium wants int)
 
     def _reset_mask(self, options: dict | None) -> np.ndarray:
+        if options is not None and not isinstance(options, dict):
+            raise ValueError(f"options must be a dict or None, got {options!r}")
         options = dict(options or {})
         mask = options.pop("reset_mask", None)
         if options:

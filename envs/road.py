@@ -122,7 +122,12 @@ class CallableMap(FrictionMap):
     def mu_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         mu = np.asarray(self.fn(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)),
                         dtype=np.float64)
-        mu = np.broadcast_to(mu, np.broadcast(x, y).shape)
+        shape = np.broadcast(x, y).shape
+        try:
+            mu = np.broadcast_to(mu, shape)
+        except ValueError:
+            raise ValueError(f"friction map returned shape {mu.shape} for positions of shape {shape}: give one mu "
+                             "per position (or a scalar)") from None
         bad = ~((mu > 0.0) & (mu <= MU_MAX))
         if np.any(bad):
             raise ValueError(f"friction map returned mu {mu[bad].flat[0]!r} outside (0, {MU_MAX}]")

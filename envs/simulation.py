@@ -9,6 +9,7 @@ torques and rear steer using the estimate only, and the plant advances one RK4 s
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Sequence
 from typing import NamedTuple, Protocol
 
@@ -19,10 +20,10 @@ from envs.driver import DriverBatch
 from envs.road import RoadTables, contact_points
 from envs.scenarios import Scenario, make_scenario
 from envs.sensors import Fault, SensorModel, SensorParams, SensorReading
-from envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NU, S_DELTA_F,
+from envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, MAX_DT, NU, S_DELTA_F,
                           S_DELTA_R, S_OMEGA, S_R, S_TORQUE, S_U, S_V, derivatives, step)
 from control import Command, check_controller
-from estimation.types import Estimate, check_estimate, check_estimator
+from estimation.types import Estimate, check_estimate, check_estimator, check_step
 
 DT = 0.002  #: physics, sensor and estimator step [s] (the paper samples at 2 ms)
 
@@ -170,7 +171,25 @@ class ClosedLoop:
     def __init__(self, scenarios: Scenario | Sequence[Scenario], controller: Controller | str | None,
                  estimator: Estimator | str | None, rng: np.random.Generator | Sequence[np.random.Generator],
                  sensor_params: SensorParams | None = None, faults: Sequence[Fault] = (), dt: float = DT):
-        self.scenarios = [scenarios] if isinstance(scenarios, Scenario) else list(scenarios)
+        self.scenarios = [scenarios] if isinstance(scenarios, Scenario) else \
+            list(scenarios) if isinstance(scenarios, Sequence) else []
+        if not self.scenarios or not all(isinstance(s, Scenario) for s in self.scenarios):
+            raise ValueError(f"scenarios must be a Scenario or a non-empty sequence of them, got {scenarios!r}")
+        dt = check_step(dt)
+        if dt > MAX_DT:
+            raise ValueError(f"dt must be a step in (0, {MAX_DT}] s (the plant's largest RK4 step), got {dt!r}")
+        sensor_params = SensorParams() if sensor_params is None else sensor_params
+        if not isinstance(sensor_params, SensorParams):
+            raise ValueError(f"sensor_params must be an envs.sensors.SensorParams or None, got {sensor_params!r}")
+        if not math.isclose(sensor_params.sample_time, dt, rel_tol=1e-12):
+            raise ValueError(f"the sensors sample every {sensor_params.sample_time!r} s, the simulation steps at "
+                             f"dt = {dt!r} s: they are sampled once per step (give SensorParams(sample_time=dt))")
+        try:
+            fault_list = tuple(faults)
+        except TypeError:
+            fault_list = (None,)
+        if not all(isinstance(f, Fault) for f in fault_list):
+            raise ValueError(f"faults must be a sequence of envs.sensors.Fault (empty for none), got {faults!r}")
         self.batch_size = len(self.scenarios)
         self.params = params = self.scenarios[0].vehicle_params
         self._check_params(self.scenarios)
@@ -194,15 +213,16 @@ class ClosedLoop:
         elif controller is not None:
             check_controller(controller, controller)
         self._check_commands = type(controller).__module__.split(".")[0] not in ("control", "envs", "training")
-        estimator_dt = getattr(estimator, "dt", None)
-        if estimator_dt is not None and not math.isclose(estimator_dt, dt, rel_tol=1e-12):
-            raise ValueError(f"the estimator steps at dt = {estimator_dt!r} s, the simulation at {dt!r} s: build it with "
-                             "the simulation's dt (it integrates its model over its own step)")
+        for kind, part in (("estimator", estimator), ("controller", controller)):
+            part_dt = getattr(part, "dt", None)
+            if part_dt is not None and not math.isclose(part_dt, dt, rel_tol=1e-12):
+                raise ValueError(f"the {kind} steps at dt = {part_dt!r} s, the simulation at {dt!r} s: build it with "
+                                 "the simulation's dt (it integrates over its own step)")
         if getattr(controller, "rear_steer", False) and any(s.rear_steer_feedforward for s in self.scenarios):
             raise ValueError("the controller steers the rear axle (eq. 20) and the scenario's "
                              "rear_steer_feedforward would add the same law again: use one of them")
         self.controller, self.estimator, self.dt = controller, estimator, dt
-        self.sensors = SensorModel(sensor_params or SensorParams(), tuple(faults), self.batch_size, rng)
+        self.sensors = SensorModel(sensor_params, fault_list, self.batch_size, rng)
         self.state = np.concatenate([s.initial_state() for s in self.scenarios])
         self.steering_drivers = DriverBatch([s.steering for s in self.scenarios])
         self.speed_drivers = DriverBatch([s.speed_driver() for s in self.scenarios])
@@ -358,6 +378,8 @@ def simulate(scenario: Scenario | str, controller: Controller | str | None = Non
     """
     if isinstance(scenario, str):
         scenario = make_scenario(scenario)
+    if not (isinstance(seed, numbers.Integral) and not isinstance(seed, bool) and seed >= 0):
+        raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
     loop = ClosedLoop(scenario, controller, estimator, np.random.default_rng(seed), sensor_params, faults, dt)
     n = int(math.ceil(scenario.duration / dt - 1e-9))
     records = [loop.advance(integrate=k < n)

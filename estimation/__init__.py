@@ -3,11 +3,13 @@ estimator, its building blocks and baselines, behind one factory and one step in
 
 from __future__ import annotations
 
+from dataclasses import fields
+
 from estimation.joint import KINDS, NoiseParams, StateEstimator, tuned_noise
 from estimation.model import ModelParams
 from estimation.online import OnlineTuner
 from estimation.oracle import TRUE_SUFFIX, TRUTH_GROUPS, Oracle, PartialOracle, parse_truth_groups
-from estimation.types import Estimate, check_estimator, check_step, import_factory
+from estimation.types import Estimate, check_estimator, check_step, check_vehicle_params, import_factory
 
 ESTIMATORS = ("oracle",) + KINDS  #: names accepted by make_estimator; "joint" is the paper's full system
 
@@ -49,6 +51,9 @@ def make_estimator(name: str, params, dt: float = 0.002, noise: NoiseParams | No
     name then works wherever a name does: ``fourwis compare --estimators``, the comparison's
     worker processes, the Gymnasium env's ``estimator``."""
     base, groups = parse_estimator_name(name)
+    check_vehicle_params(params)
+    if noise is not None and not isinstance(noise, NoiseParams):
+        raise ValueError(f"noise must be an estimation.NoiseParams or None, got {noise!r}")
     if groups:
         return PartialOracle(make_estimator(base, params, dt, noise, **kwargs), groups)
     if ":" in base:
@@ -63,6 +68,10 @@ def make_estimator(name: str, params, dt: float = 0.002, noise: NoiseParams | No
         if noise is not None or kwargs:
             raise ValueError(f"the oracle takes no noise or keyword arguments, got {sorted(kwargs) or ['noise']}")
         return Oracle()
+    options = {f.name for f in fields(StateEstimator) if f.init} - {"params", "kind", "dt", "noise", "needs_truth"}
+    if set(kwargs) - options:
+        raise ValueError(f"unknown keyword argument(s) {sorted(set(kwargs) - options)} for estimator {name!r}; "
+                         f"known: {sorted(options)}")
     if noise is None:
         noise = (tuned_noise() if name in ("alo-fkf", "joint") else None) or NoiseParams()
     return StateEstimator(ModelParams.from_vehicle(params), kind=name, dt=dt, noise=noise, **kwargs)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import importlib
 import inspect
 import math
+import numbers
 from functools import lru_cache
 from typing import NamedTuple
 
@@ -65,6 +66,13 @@ def import_factory(name: str, kind: str):
     return target
 
 
+def check_vehicle_params(params) -> None:
+    """ValueError unless ``params`` looks like vehicle parameters (duck-typed
+    :class:`envs.vehicle.VehicleParams`: mass, wheel radius, steering ratio)."""
+    if not all(hasattr(params, name) for name in ("mass", "wheel_radius", "steering_ratio")):
+        raise ValueError(f"params must be vehicle parameters (an envs.vehicle.VehicleParams), got {params!r}")
+
+
 def check_estimator(estimator, source) -> None:
     """ValueError naming ``source`` (a name, or the object) unless ``estimator`` has the step
     interface of :class:`envs.simulation.Estimator` (``reset`` and ``step``)."""
@@ -74,6 +82,10 @@ def check_estimator(estimator, source) -> None:
 
 
 PER_WHEEL = ("mu", "fz", "mu_std")  #: the Estimate fields with a wheel axis (B, 4)
+#: (low, high, rule) of the Estimate fields with physical bounds: a road friction coefficient
+#: (the plant's range), a normal load, one-sigma uncertainties
+ESTIMATE_BOUNDS = {"mu": (0.0, 2.0, "in (0, 2]"), "fz": (0.0, math.inf, ">= 0 N"),
+                   "beta_std": (0.0, math.inf, ">= 0"), "mu_std": (0.0, math.inf, ">= 0")}
 
 
 def check_estimate(estimate, batch: int, source) -> None:
@@ -89,11 +101,17 @@ def check_estimate(estimate, batch: int, source) -> None:
             raise ValueError(f"estimator {source!r} returned {name} of dtype {np.asarray(value).dtype}, not real numbers")
         if not np.all(np.isfinite(value)):
             raise ValueError(f"estimator {source!r} returned a non-finite {name}: {value!r}")
+        if name in ESTIMATE_BOUNDS:
+            low, high, rule = ESTIMATE_BOUNDS[name]
+            value = np.asarray(value)
+            outside = ~(((value > low) if name == "mu" else (value >= low)) & (value <= high))
+            if np.any(outside):
+                raise ValueError(f"estimator {source!r} returned {name} {float(value[outside].flat[0])!r}: it must be {rule}")
 
 
 def check_step(dt) -> float:
     """An estimator's step ``dt`` [s] if finite and > 0; else ValueError naming it."""
-    if not (math.isfinite(dt) and dt > 0):
+    if not (isinstance(dt, numbers.Real) and not isinstance(dt, bool) and math.isfinite(dt) and dt > 0):
         raise ValueError(f"dt must be a finite step > 0 [s], got {dt!r}")
     return float(dt)
 

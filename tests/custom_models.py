@@ -86,3 +86,11 @@ class ReusesArrays:
 
 def takes_params_only(params):
     return ReusesArrays(params, 0.002)
+
+
+class NegativeLoads(BiasedFriction):
+    """Reports the normal loads with the wrong sign."""
+
+    def step(self, reading, truth=None, members=None):
+        estimate = super().step(reading, truth, members)
+        return estimate._replace(fz=-estimate.fz)

@@ -120,6 +120,27 @@ def test_tune_checks_its_output_file_before_any_work(tmp_path, monkeypatch):
     assert json.loads(nested.read_text())["optimizer"] == "random"
 
 
+@pytest.mark.parametrize("command", [["compare"], ["estimate"], ["simulate", "paper_step"], ["swd", "--A", "20"],
+                                     ["train"]])
+def test_every_command_checks_its_output_folder_before_any_work(command, tmp_path, monkeypatch):
+    import envs.simulation
+
+    monkeypatch.setattr(envs.simulation.ClosedLoop, "__init__", lambda *a, **k: pytest.fail("a run started"))
+    (tmp_path / "notes.txt").write_text("a file")
+    for out, named in ((tmp_path / "notes.txt", "must be a directory, but .*notes.txt is a file"),
+                       (tmp_path / "notes.txt" / "sub", "notes.txt is not a writable directory")):
+        with pytest.raises(SystemExit, match=f"fourwis {command[0]}: --out .*{named}"):
+            main([*command, "--out", str(out)])
+
+
+def test_simulate_takes_the_comparisons_overrides_and_swd_an_a_with_a_series(tmp_path):
+    main(["simulate", "paper_step:duration=0.2,mu=0.5", "--speed-kph", "30", "--out", str(tmp_path)])
+    header, first, *rows = (tmp_path / "paper_step_duration_0.2_mu_0.5.csv").read_text().splitlines()
+    assert len(rows) == 100  # 0.2 s at 2 ms
+    with pytest.raises(SystemExit, match=r"fourwis swd: --A must be a steering-wheel angle in \(0, 200\] deg"):
+        main(["swd", "--A", "201"])  # 1.5A above 300 deg: no run in the series
+
+
 @pytest.mark.parametrize("jobs", ["0", "-1"])
 @pytest.mark.parametrize("command", [["compare"], ["estimate"], ["evaluate", "some_run"]])
 def test_every_command_refuses_fewer_than_one_job_naming_the_option(command, jobs, tmp_path, capsys):

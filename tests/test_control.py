@@ -122,6 +122,13 @@ def test_bad_input_raises():
     assert set(CONTROLLERS) >= {"none", "dyc-lqr", "dyc-smc"}
     with pytest.raises(ValueError, match="-0.01"):
         StabilityController(P, reference_understeer=-0.01)
+    for bad, named in (({"dt": 0.0}, "dt must be .*, got 0.0"), ({"dt": "x"}, "got 'x'"),
+                       ({"friction_ellipse": "yes"}, "friction_ellipse must be True or False, got 'yes'"),
+                       ({"params": None}, "params must be vehicle parameters")):
+        with pytest.raises(ValueError, match=named):
+            StabilityController(**({"params": P} | bad))
+    with pytest.raises(ValueError, match="controller must be a name .*, got None"):
+        make_controller(None, P)
 
 
 def test_a_reference_understeer_gradient_lowers_the_yaw_reference_the_controller_tracks():

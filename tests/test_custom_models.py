@@ -71,6 +71,12 @@ def test_bad_names_objects_and_outputs_are_named():
         simulate(scenario, "dyc-lqr", "custom_models:Diverging")
     with pytest.raises(ValueError, match=r"reset\(\) and step\(\)"):
         simulate(scenario, None, make_estimator)  # a factory, not an estimator
+    with pytest.raises(ValueError, match="NegativeLoads.*returned fz -.*: it must be >= 0 N"):
+        simulate(scenario, "dyc-lqr", "custom_models:NegativeLoads")
+    with pytest.raises(ValueError, match=r"run paper_step:duration=0.1 x custom_models:NegativeLoads x dyc-lqr, seed 0: "
+                                         "estimator .* returned fz"):  # the comparison names the failing run
+        run_matrix(["paper_step:duration=0.1"], ["oracle", "custom_models:NegativeLoads"], ["dyc-lqr"], seeds=1,
+                   jobs=1, progress=False)
 
 
 def test_the_command_line_finds_a_module_in_the_working_directory(tmp_path, monkeypatch):

@@ -328,6 +328,13 @@ def test_estimator_is_deterministic_under_a_seed_and_names_are_checked():
     assert "joint" in ESTIMATORS
     with pytest.raises(ValueError, match="kalman9000"):
         make_estimator("kalman9000", VehicleParams())
+    for args, kwargs, named in (((None,), {}, "params must be vehicle parameters"),
+                                ((VehicleParams(),), {"noise": "x"}, "noise must be an estimation.NoiseParams"),
+                                ((VehicleParams(),), {"foo": 1}, r"unknown keyword argument\(s\) \['foo'\]"),
+                                ((VehicleParams(), "0.002"), {}, "dt must be .*, got '0.002'")):
+        for name in ("joint", "joint+true-mu"):
+            with pytest.raises(ValueError, match=named):
+                make_estimator(name, *args, **kwargs)
 
 
 def test_a_partial_oracle_reports_the_true_groups_and_the_estimators_own_rest():

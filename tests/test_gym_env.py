@@ -243,7 +243,7 @@ def test_vector_env_rejects_bad_actions_and_arguments():
     np.testing.assert_array_equal(info["action_clipped"], [True, False])
     for bad, word in (({"num_envs": 0}, "num_envs must be a positive integer, got 0"), ({"max_episode_steps": -3}, "-3"), ({"render_mode": "ascii"}, "ascii"),
                       ({"estimator": "psychic"}, "psychic"), ({"warp": 9}, "warp"), ({"control_dt": 1e-12}, "1e-12"),
-                      ({"control_dt": True}, "True"), ({"control_dt": "0.02"}, "'0.02'"), ({"control_dt": math.inf}, "inf"),
+                      ({"control_dt": True}, "True"), ({"control_dt": 2.0}, "up to 1.0 s, got 2.0"), ({"control_dt": "0.02"}, "'0.02'"), ({"control_dt": math.inf}, "inf"),
                       ({"scenario": ["random"]}, "random"), ({"sensor_faults": 3}, "sensor_faults .*, got 3"),
                       ({"scenario_kwargs": [1]}, r"scenario_kwargs .*, got \[1\]"), ({"rear_steer": "no"}, "no"), ({"speed_kph": "fast"}, "fast")):
         with pytest.raises(ValueError, match=word):
@@ -255,6 +255,8 @@ def test_vector_env_rejects_bad_actions_and_arguments():
         env.reset(options={"reset_mask": np.array([1, 0])})
     with pytest.raises(ValueError, match="teleport"):
         env.reset(options={"teleport": True})
+    with pytest.raises(ValueError, match="options must be a dict or None, got 'abc'"):
+        env.reset(options="abc")
 
 
 def test_numpy_scalars_sequences_of_seeds_and_masked_resets_are_accepted():

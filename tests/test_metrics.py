@@ -129,6 +129,11 @@ def test_lateral_displacement_is_the_double_integral_from_bos():
     assert sine_with_dwell_metrics(T, steer, 1e-3 * steer, smooth, A=A).passed_responsiveness == (
         res.lateral_displacement >= 1.83)
     assert sine_with_dwell_metrics(T, steer, 1e-3 * steer, smooth, A=1.2 * A).passed_responsiveness is None
+    for limit in (0.9, 1.1):  # a heavy vehicle's lower limit (S5.2.3) around the displacement reached
+        assert sine_with_dwell_metrics(T, steer, 1e-3 * steer, smooth, A=A, displacement_limit=limit * (
+            res.lateral_displacement)).passed_responsiveness == (limit < 1)
+    with pytest.raises(ValueError, match="displacement_limit must be a distance > 0 .*, got -1.52"):
+        sine_with_dwell_metrics(T, steer, 1e-3 * steer, smooth, A=A, displacement_limit=-1.52)
 
 
 def test_mirror_symmetry():

@@ -8,7 +8,7 @@ import pytest
 from envs import simulate
 from envs.driver import SWD_DWELL, SWD_FREQUENCY, Constant, DriverBatch, Ramp, Sine, SineWithDwell, SpeedHold, Step
 from envs.scenarios import PAPER_SCENARIOS, SCENARIOS, make_scenario
-from envs.vehicle import S_U, GRAVITY, VehicleParams
+from envs.vehicle import S_DELTA_R, S_U, GRAVITY, VehicleParams
 
 STATE = np.zeros(26)
 
@@ -110,10 +110,41 @@ def test_speed_hold_feeds_forward_the_resistance_and_coasts():
     ("mu_jump", {"speed_kph": 30.0}, "short of the patch"),  # circles 17.7 m across at 0.4 g
     ("mu_jump", {"duration": 1.2}, "short of the patch"),
     ("mu_jump", {"patch_x": 0.5}, "start on the patch"),  # under the front wheels at the start
+    ("random", {"seed": -1}, "seed must be an integer >= 0, got -1"),
+    ("random", {"seed": 1.5}, "seed must be an integer >= 0, got 1.5"),
 ])
 def test_bad_scenario_arguments_raise_value_error_naming_the_value(name, kwargs, bad):
     with pytest.raises(ValueError, match=bad):
         make_scenario(name, **kwargs)
+
+
+def test_the_parameters_rear_steer_switch_reaches_the_scenario():
+    on = make_scenario("paper_sine", duration=3.0, params=VehicleParams(rear_steer_feedforward=True))
+    assert on.rear_steer_feedforward and on.vehicle_params.rear_steer_feedforward
+    assert np.abs(simulate(on).state[:, S_DELTA_R]).max() > 1e-3  # the 4WS law steers the rear axle
+
+
+def test_bad_simulation_arguments_are_named():
+    from control import StabilityController
+    from envs.sensors import Fault, SensorParams
+
+    scenario = make_scenario("paper_step", duration=0.1)
+    params = scenario.vehicle_params
+    for kwargs, named in (({"dt": 0.05}, r"dt must be a step in \(0, 0.01\] s .*, got 0.05"),
+                          ({"dt": "0.002"}, "dt must be .*, got '0.002'"),
+                          ({"dt": 0.001}, "the sensors sample every 0.002 s, the simulation steps at dt = 0.001 s"),
+                          ({"controller": StabilityController(params, dt=0.004)}, "the controller steps at dt = 0.004"),
+                          ({"seed": -1}, "seed must be an integer >= 0, got -1"), ({"seed": None}, "got None"),
+                          ({"faults": None}, "faults must be a sequence of envs.sensors.Fault"),
+                          ({"faults": Fault("yaw_rate", "stuck")}, "faults must be a sequence"),
+                          ({"sensor_params": "x"}, "sensor_params must be an envs.sensors.SensorParams"),
+                          ({"scenario": None}, "scenarios must be a Scenario")):
+        with pytest.raises(ValueError, match=named):
+            simulate(**({"scenario": scenario} | kwargs))
+    with pytest.raises(ValueError, match=r"friction map returned shape \(7,\) for positions of shape \(4,\)"):
+        simulate(make_scenario("paper_step", duration=0.1, mu=lambda x, y: np.full(7, 0.5)))
+    finer = simulate(scenario, dt=0.001, sensor_params=SensorParams(sample_time=0.001))  # the two agree: fine
+    assert len(finer.t) == 101
 
 
 def test_mu_jump_lays_its_patch_over_the_given_road_and_numpy_frictions_are_numbers():

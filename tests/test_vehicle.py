@@ -7,7 +7,7 @@ import pytest
 
 from envs.road import RoadTables, split, uniform
 from envs.tyre import TyreParams, tyre_forces
-from envs.vehicle import (A_AX, A_AY, A_FZ, C_DELTA_F, C_DELTA_R, C_TORQUE, GRAVITY, NU, NX, S_AX, S_AY, S_DELTA_F,
+from envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, GRAVITY, NU, NX, S_AX, S_AY, S_DELTA_F,
                           S_DELTA_R, S_OMEGA, S_PSI, S_R, S_U, S_V, S_Y, VehicleParams, derivatives, initial_state,
                           step)
 
@@ -284,6 +284,40 @@ def test_bad_input_raises_value_error_naming_the_value():
         VehicleParams(mass=-830.0)
     with pytest.raises(ValueError, match="dt must be .*, got nan"):
         step(state, controls, P, uniform(1.0), dt=float("nan"))
+    with pytest.raises(ValueError, match=r"dt must be a step in \(0, 0.01\] s, got 0.05"):  # RK4 unstable
+        step(state, controls, P, uniform(1.0), dt=0.05)
+    with pytest.raises(ValueError, match="n_steps must be a positive integer, got True"):
+        step(state, controls, P, uniform(1.0), n_steps=True)
+
+
+def test_a_callable_road_gives_the_diagnostics_a_table_road_gives():
+    """The same friction as a table map and as a function: identical states, and diagnostics
+    (mu, forces, ay) at the returned state see the friction there in both, also across the
+    jump, so a controller fed the truth acts identically."""
+    from dataclasses import replace
+
+    from envs.road import CallableMap
+    from envs.scenarios import make_scenario
+    from envs.simulation import simulate
+
+    table = make_scenario("mu_jump", duration=2.5)
+    function = replace(table, road=CallableMap(lambda x, y: table.road.mu_at(x, y)))
+    for controller in (None, "dyc-lqr"):
+        a, b = simulate(table, controller, "oracle"), simulate(function, controller, "oracle")
+        assert np.ptp(a.aux[:, A_MU]) > 0.5  # the car crossed the jump
+        np.testing.assert_array_equal(a.state, b.state)
+        np.testing.assert_allclose(b.aux, a.aux, rtol=1e-12, atol=1e-9)
+
+
+def test_resistances_and_low_speed_damping_may_be_switched_off():
+    """A coast-down without drag and rolling resistance keeps its speed (the low-speed damping
+    only acts below 1 m/s); negative values are still refused."""
+    free = P.replace(rolling_resistance=0.0, drag_area=0.0, low_speed_damping=0.0)
+    state = initial_state(free, 20.0)
+    out = step(state, np.zeros((1, NU)), free, uniform(1.0), n_steps=500).state
+    assert out[0, S_U] == pytest.approx(20.0, abs=1e-9)
+    with pytest.raises(ValueError, match="drag_area must be a finite number >= 0, got -0.1"):
+        P.replace(drag_area=-0.1)
 
 
 def test_bad_tyre_coefficients_and_road_friction_are_named():

@@ -60,17 +60,27 @@ def _check_estimator_and_seed(args: argparse.Namespace) -> None:
 def _simulate(args: argparse.Namespace) -> int:
     from envs.scenarios import make_scenario
     from envs.simulation import simulate
+    from training.compare import FAULT_SUFFIX, build_controller, file_stem, parse_scenario
+    from training.io import check_writable
     from training.trajectory_io import plot_trajectory, write_trajectory_csv
 
     try:
-        scenario = make_scenario(args.scenario, **_scenario_overrides(args))
+        name, overrides = parse_scenario(args.scenario)
+        if args.scenario.endswith(FAULT_SUFFIX):
+            raise ValueError(f"scenario {args.scenario!r}: the {FAULT_SUFFIX} variant is the comparison's")
+        if "amplitude_A" in overrides:
+            raise ValueError(f"scenario {args.scenario!r}: give sine with dwell's amplitude_deg (amplitude_A needs "
+                             "the comparison's characterisation)")
+        scenario = make_scenario(name, **overrides | _scenario_overrides(args))
         _check_estimator_and_seed(args)
-        traj = simulate(scenario, estimator=args.estimator, seed=args.seed, progress=True)
-    except ValueError as err:  # a bad argument, or a user's estimator returning garbage
+        out = check_writable(args.out)
+        controller = build_controller(args.controller, scenario.vehicle_params)
+        traj = simulate(scenario, controller, args.estimator, seed=args.seed, progress=True)
+    except (ValueError, FileNotFoundError) as err:  # a bad argument or run, a user's estimator returning garbage
         raise SystemExit(f"fourwis simulate: {err}") from None
-    out = Path(args.out)
-    csv_path = write_trajectory_csv(traj, out / f"{scenario.name}.csv")
-    png_path = plot_trajectory(traj, out / f"{scenario.name}.png")
+    stem = file_stem(args.scenario)
+    csv_path = write_trajectory_csv(traj, out / f"{stem}.csv")
+    png_path = plot_trajectory(traj, out / f"{stem}.png")
     print(f"wrote {csv_path} and {png_path}")
     return 0
 
@@ -78,16 +88,19 @@ def _simulate(args: argparse.Namespace) -> int:
 def _sine_with_dwell(args: argparse.Namespace) -> int:
     import math
 
-    from envs.fmvss126 import MEASURED_A, characterise, format_table, run_series
-    from training.io import atomic_write_text
+    from envs.fmvss126 import MAX_A_DEG, MEASURED_A, characterise, format_table, run_series
+    from training.io import atomic_write_text, check_writable
 
     from envs.road import check_mu
     from envs.vehicle import VehicleParams
     from training.compare import build_controller
 
     try:  # fail early, before the characterisation, on every argument
-        if args.A is not None and not (math.isfinite(args.A) and args.A > 0):
-            raise ValueError(f"--A must be a positive steering-wheel angle [deg], got {args.A!r}")
+        if args.A is not None and not (math.isfinite(args.A) and 0 < args.A <= MAX_A_DEG):
+            raise ValueError(f"--A must be a steering-wheel angle in (0, {MAX_A_DEG:g}] deg (the series starts at "
+                             f"1.5A, at most 300 deg), got {args.A!r}")
+        if args.out:
+            check_writable(args.out)
         for mu in args.mu:
             check_mu("--mu", mu)
         _check_estimator_and_seed(args)
@@ -257,14 +270,19 @@ def build_parser() -> argparse.ArgumentParser:
     def command(name: str, summary: str) -> argparse.ArgumentParser:
         return sub.add_parser(name, help=summary, description=summary, formatter_class=_HelpFormatter)
 
-    sim = command("simulate", "run one scenario open loop; write CSV and a PNG plot")
-    sim.add_argument("scenario", help="scenario name (see envs.SCENARIOS)")
+    sim = command("simulate", "run one scenario (open loop, or with --controller); write CSV and a PNG plot")
+    sim.add_argument("scenario", help="scenario name (see envs.SCENARIOS), optionally with overrides as in compare "
+                                      "(iso3888_2:mu=0.6,speed_kph=50; the options below apply on top)")
     _add_scenario_arguments(sim)
     sim.add_argument("--estimator", default="oracle", help="estimator run alongside (a name or module:factory)")
+    from control import CONTROLLERS
+
+    sim.add_argument("--controller", default="none",
+                     help=f"stability controller ({', '.join(CONTROLLERS)}, or module:factory) or rl:<run dir>, fed "
+                          f"by the estimator")
     sim.add_argument("--seed", type=int, default=0, help="sensor noise seed (>= 0)")
     sim.add_argument("--out", default="results/simulate", help="output directory")
     sim.set_defaults(func=_simulate)
-    from control import CONTROLLERS
     from training.compare import DEFAULT_CONTROLLERS, DEFAULT_ESTIMATORS, HEADLINE
 
     cmp_ = command("compare", "closed-loop matrix estimator x controller x scenario: report + plots")

@@ -10,10 +10,11 @@ of u, v, beta, r and mu.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,7 +31,7 @@ from envs.simulation import Trajectory, simulate
 from envs.vehicle import A_AY, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_X, S_Y
 from estimation import check_estimator_name
 from estimation.types import import_factory
-from training.io import atomic_write, atomic_write_text
+from training.io import atomic_write, atomic_write_text, check_writable
 from training.pool import parallel_map
 from training.tables import mean_over_seeds, require_distinct, write_runs_csv
 
@@ -182,6 +183,23 @@ def build_controller(name: str, params):
     return make_controller(name, params)
 
 
+def naming_the_run(run: Callable):
+    """``run(spec)`` whose ValueError / FloatingPointError (a user's estimator or controller
+    returning garbage, a diverging filter) names the run: scenario, estimator, controller, seed."""
+
+    @functools.wraps(run)
+    def named(spec):
+        try:
+            return run(spec)
+        except (ValueError, FloatingPointError) as err:
+            parts = [getattr(spec, f) for f in ("scenario", "estimator", "controller") if hasattr(spec, f)]
+            where = " x ".join(str(getattr(part, "name", part)) for part in parts)  # (a Scenario by its name)
+            raise type(err)(f"run {where}, seed {spec.seed}: {err}") from err
+
+    return named
+
+
+@naming_the_run
 def _run(spec: RunSpec) -> tuple[RunSpec, dict[str, float], Trajectory | None]:
     scenario = _scenario(spec)
     controller = build_controller(spec.controller, scenario.vehicle_params)
@@ -382,7 +400,7 @@ def plot_report(table: dict, trajectories: dict, scenarios, estimators, controll
 def compare(out: str | Path, scenarios: Sequence[str] = HEADLINE, estimators: Sequence[str] = DEFAULT_ESTIMATORS,
             controllers: Sequence[str] = DEFAULT_CONTROLLERS, seeds: int = 2, jobs: int | None = None) -> Path:
     """Run the matrix and write report.md, runs.csv and PNG plots into ``out``; returns the report path."""
-    out = Path(out)
+    out = check_writable(out)
     results, trajectories = run_matrix(scenarios, estimators, controllers, seeds, jobs)
     table = aggregate(results)
     write_csv(results, out / "runs.csv")

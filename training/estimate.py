@@ -22,8 +22,8 @@ from envs.metrics import mae, rmse
 from envs.scenarios import PAPER_SCENARIOS, Scenario
 from envs.simulation import Trajectory, simulate
 from estimation import ESTIMATORS, Estimate, check_estimator_name, parse_estimator_name
-from training.compare import FAULT_SUFFIX, build_scenario, file_stem, parse_scenario
-from training.io import atomic_write, atomic_write_text
+from training.compare import FAULT_SUFFIX, build_scenario, file_stem, naming_the_run, parse_scenario
+from training.io import atomic_write, atomic_write_text, check_writable
 from training.pool import parallel_map
 from training.tables import mean_over_seeds, require_distinct, write_runs_csv
 
@@ -79,6 +79,7 @@ def run_metrics(traj: Trajectory) -> dict[str, float]:
     return out
 
 
+@naming_the_run
 def _run(spec: RunSpec) -> tuple[RunSpec, dict[str, float], tuple[np.ndarray, Estimate, Estimate] | None]:
     traj = simulate(spec.scenario, controller=None, estimator=spec.estimator, seed=spec.seed)
     keep = (traj.t, traj.truth, traj.estimate) if spec.seed == 0 else None  # seed 0 feeds the plots
@@ -249,7 +250,7 @@ def estimate_report(out: str | Path, scenarios: Sequence[str | Scenario] = PAPER
     (``paper_step:mu=0.5``; the plot's file name replaces ':', ',' and '=' by '_'); returns
     the path of estimate.md.
     """
-    out = Path(out)
+    out = check_writable(out)
     results, series = run_all(scenarios, estimators, seeds, jobs)
     built = list({spec.scenario.name: spec.scenario for spec, _ in results}.values())
     table = aggregate(results)

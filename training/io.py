@@ -9,6 +9,26 @@ from collections.abc import Callable
 from pathlib import Path
 
 
+def check_writable(out: str | Path, kind: str = "directory", name: str = "--out") -> Path:
+    """``out`` as a Path if it can be written as a ``kind`` ("directory" or "file"): not the
+    other kind already, in a directory that exists or can be created (its nearest existing
+    ancestor a writable directory); else ValueError naming ``name`` and the path. Jobs call it
+    before they run, so a bad path does not cost the results."""
+    out = Path(out)
+    if str(out) == "":
+        raise ValueError(f"{name} must not be empty")
+    if kind == "directory" and out.exists() and not out.is_dir():
+        raise ValueError(f"{name} must be a directory, but {out} is a file")
+    if kind == "file" and out.is_dir():
+        raise ValueError(f"{name} must be a file, but {out} is a directory")
+    ancestor = out if kind == "directory" and out.is_dir() else out.parent
+    while not ancestor.exists():
+        ancestor = ancestor.parent
+    if not (ancestor.is_dir() and os.access(ancestor, os.W_OK)):
+        raise ValueError(f"{name} {out} cannot be written: {ancestor} is not a writable directory")
+    return out
+
+
 def atomic_write(path: str | Path, write: Callable[[Path], None]) -> Path:
     """Call ``write(tmp_path)`` on a temporary file beside ``path``, then rename it into place."""
     path = Path(path)

@@ -40,7 +40,7 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from envs.gym_env import N_OBS, EnvConfig, YawStabilityVectorEnv, _AgentController, state_observation
 from training.asymmetric import POLICIES
-from training.io import atomic_write, atomic_write_json, atomic_write_text
+from training.io import atomic_write, atomic_write_json, atomic_write_text, check_writable
 
 EVALUATIONS = "evaluations.npz"  #: the run's evaluation log (SB3's EvalCallback format)
 
@@ -247,7 +247,7 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int | None = None, e
     if not (isinstance(timesteps, int) and timesteps > 0):
         raise ValueError(f"timesteps must be a positive integer, got {timesteps!r}")
     env_kwargs = dict(env_kwargs or {})
-    out = Path(out)
+    out = check_writable(out)
     if resume is not None:
         seed, n_envs = _check_resumable(resume, algo, env_kwargs, seed, n_envs)
         _check_no_abandoned_branch(resume, out)

@@ -9,14 +9,21 @@ from pathlib import Path
 import numpy as np
 
 from envs.simulation import Trajectory
-from envs.vehicle import A_AX, A_AY, A_MU, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_V, S_X, S_Y
+from envs.vehicle import A_AX, A_AY, A_FZ, A_MU, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_V, S_X, S_Y
 from training.io import atomic_write, atomic_write_text
 
 WHEELS = ("fl", "fr", "rl", "rr")
 
 
 def trajectory_columns(traj: Trajectory) -> dict[str, np.ndarray]:
-    """Named time series (SI units) of a trajectory, truth and estimate side by side."""
+    """Named time series of a trajectory, truth and estimate side by side, in SI units (angles
+    in rad, also steering_wheel, beta, delta_f/r and est_beta_std; the PNG plots degrees):
+    t [s]; pose x, y [m], psi; body u, v [m/s], r [rad/s], sideslip beta; specific forces ax,
+    ay [m/s^2]; the driver's steering_wheel angle; road-wheel steer delta_f, delta_r (the
+    servos' actual angles); torque_<wheel> [N m] (the motors' actual torques, after their lag
+    and limits, not the commands); per wheel the road's mu_<wheel> and normal load fz_<wheel>
+    [N]; est_<quantity> for every field of the estimate (est_mu_<wheel>, est_fz_<wheel>,
+    est_mu_std_<wheel>, ...)."""
     s, a, est = traj.state, traj.aux, traj.estimate
     cols = {
         "t": traj.t, "x": s[:, S_X], "y": s[:, S_Y], "psi": s[:, S_PSI], "u": s[:, S_U], "v": s[:, S_V],
@@ -27,10 +34,13 @@ def trajectory_columns(traj: Trajectory) -> dict[str, np.ndarray]:
         cols[f"torque_{w}"] = s[:, S_TORQUE + i]
     for i, w in enumerate(WHEELS):
         cols[f"mu_{w}"] = a[:, A_MU + i]
-    for name in ("u", "v", "beta", "r"):
-        cols[f"est_{name}"] = getattr(est, name)
     for i, w in enumerate(WHEELS):
-        cols[f"est_mu_{w}"] = est.mu[:, i]
+        cols[f"fz_{w}"] = a[:, A_FZ + i]
+    for name in ("u", "v", "beta", "r", "ax", "ay", "beta_std"):
+        cols[f"est_{name}"] = getattr(est, name)
+    for name in ("mu", "fz", "mu_std"):
+        for i, w in enumerate(WHEELS):
+            cols[f"est_{name}_{w}"] = getattr(est, name)[:, i]
     return cols
 
 

@@ -28,7 +28,6 @@ sideslip error and the NLL on every unseen paper scenario, so it is the default.
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -41,7 +40,7 @@ from envs.sensors import SensorReading
 from envs.simulation import Trajectory, simulate
 from estimation import NoiseParams, make_estimator, tuned_noise
 from estimation.optimizers import minimize
-from training.io import atomic_write_json
+from training.io import atomic_write_json, check_writable
 from training.pool import parallel_map
 
 OUTPUT = Path(__file__).resolve().parent.parent / "estimation" / "data" / "tuned_noise.json"
@@ -138,18 +137,6 @@ def mu_noise_scan(grid: Sequence[float] = MU_NOISE_GRID, seeds: Sequence[int] = 
     return {float(g): float(np.mean(errors[i * len(seeds):(i + 1) * len(seeds)])) for i, g in enumerate(grid)}
 
 
-def _check_output_file(out: Path) -> None:
-    """ValueError unless ``out`` can be written as a file: not a directory, in a directory that
-    exists or can be created (its nearest existing ancestor a writable directory)."""
-    if out.is_dir():
-        raise ValueError(f"--out must be a file, but {out} is a directory")
-    ancestor = out.parent
-    while not ancestor.exists():
-        ancestor = ancestor.parent
-    if not (ancestor.is_dir() and os.access(ancestor, os.W_OK)):
-        raise ValueError(f"--out {out} cannot be written: {ancestor} is not a writable directory")
-
-
 def tune(n_agents: int = 30, iterations: int = 100, seed: int = 0, out: Path = OUTPUT, optimizer: str = "alo",
          duration: float = 10.0, progress: bool = True, criterion: str = "nll") -> dict:
     """Tune alo-fkf's noise with ``optimizer`` (see estimation.optimizers) by ``criterion`` on a
@@ -159,7 +146,7 @@ def tune(n_agents: int = 30, iterations: int = 100, seed: int = 0, out: Path = O
     cannot be written as a file raises ValueError before any work."""
     if not (isinstance(seed, int) and seed >= 0):
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
-    _check_output_file(Path(out))
+    check_writable(out, "file")
     traj = calibration_run(duration=duration)
 
     def objective(X: np.ndarray) -> np.ndarray:
