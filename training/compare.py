@@ -110,7 +110,10 @@ def build_scenario(text: str, swd_A: float):
     the caller's), ``amplitude_A`` in units of ``swd_A`` [rad] (:func:`envs.fmvss126.characterise`)."""
     name, overrides = parse_scenario(text)
     if "amplitude_A" in overrides:
-        overrides["amplitude_deg"] = math.degrees(overrides.pop("amplitude_A") * swd_A)
+        multiple = overrides.pop("amplitude_A")
+        overrides["amplitude_deg"] = math.degrees(multiple * swd_A)
+        if not math.isfinite(overrides["amplitude_deg"]):
+            raise ValueError(f"amplitude_A={multiple!r} in {text!r} gives no finite amplitude (A = {swd_A!r} rad)")
     return make_scenario(name, **overrides)
 
 
