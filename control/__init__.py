@@ -95,7 +95,7 @@ class StabilityController:
         check_vehicle_params(self.params)
         check_step(self.dt)
         for name in ("rear_steer", "friction_ellipse"):
-            if not isinstance(getattr(self, name), bool):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
         if not (np.isfinite(self.mu_margin) and self.mu_margin >= 0.0):
             raise ValueError(f"mu_margin must be a finite number >= 0, got {self.mu_margin!r}")

@@ -224,8 +224,8 @@ def sine_with_dwell_metrics(t, steering_wheel_angle, yaw_rate, lateral_accelerat
         raise ValueError(f"direction must be +1 (left), -1 (right) or None, got {direction!r}")
     if A is not None and not (math.isfinite(A) and A > 0):
         raise ValueError(f"A must be a positive angle [rad], got {A!r}")
-    if not (isinstance(displacement_limit, (int, float)) and math.isfinite(displacement_limit)
-            and displacement_limit > 0):
+    if not (isinstance(displacement_limit, (int, float)) and not isinstance(displacement_limit, bool)
+            and math.isfinite(displacement_limit) and displacement_limit > 0):
         raise ValueError(f"displacement_limit must be a distance > 0 [m], got {displacement_limit!r}")
 
     end = _zeroing_end(t, steer)

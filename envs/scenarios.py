@@ -72,8 +72,6 @@ class Scenario:
             raise ValueError(f"rear_steer_feedforward must be True or False, got {self.rear_steer_feedforward!r}")
         if not isinstance(self.params, VehicleParams):
             raise ValueError(f"params must be a VehicleParams, got {self.params!r}")
-        if self.params.rear_steer_feedforward:  # either switch turns the 4WS law on
-            object.__setattr__(self, "rear_steer_feedforward", True)
         if not (is_number(self.speed_kph) and 0.0 < self.speed_kph <= MAX_SPEED_KPH):
             raise ValueError(f"speed_kph must lie in (0, {MAX_SPEED_KPH:g}], got {self.speed_kph!r}")
 
@@ -86,7 +84,8 @@ class Scenario:
     def vehicle_params(self) -> VehicleParams:
         """The plant parameters with this scenario's 4WS feed-forward switch (on if the
         scenario's or the given parameters' switch is)."""
-        return self.params.replace(rear_steer_feedforward=self.rear_steer_feedforward)
+        return self.params.replace(rear_steer_feedforward=self.rear_steer_feedforward
+                                    or self.params.rear_steer_feedforward)
 
     def initial_state(self, batch_size: int = 1) -> np.ndarray:
         """Plant state (batch_size, NX) at the start: straight at ``speed`` from ``start_x``."""
@@ -289,8 +288,9 @@ def random(speed_kph=None, mu=None, duration=10.0, steering=None, seed=0, rear_s
     demand_low, demand_high = _interval("lateral_demand", lateral_demand)
     if not (is_number(course_share) and 0.0 <= course_share <= 1.0):
         raise ValueError(f"course_share must be a probability in [0, 1], got {course_share!r}")
-    if not (isinstance(seed, numbers.Integral) and not isinstance(seed, bool) and seed >= 0):
-        raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+    if not (isinstance(seed, (np.random.SeedSequence, np.random.Generator))
+            or (isinstance(seed, numbers.Integral) and not isinstance(seed, (bool, np.bool_)) and seed >= 0)):
+        raise ValueError(f"seed must be an integer >= 0 (or a numpy SeedSequence or Generator), got {seed!r}")
     rng = np.random.default_rng(seed)
     speed_kph = float(rng.uniform(speed_low, speed_high)) if speed_kph is None else _positive("speed_kph", speed_kph)
     if mu is None:

@@ -22,7 +22,7 @@ from envs.scenarios import Scenario, make_scenario
 from envs.sensors import Fault, SensorModel, SensorParams, SensorReading
 from envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, MAX_DT, NU, S_DELTA_F,
                           S_DELTA_R, S_OMEGA, S_R, S_TORQUE, S_U, S_V, derivatives, step)
-from control import Command, check_controller
+from control import Command, StabilityController, check_controller
 from estimation.types import Estimate, check_estimate, check_estimator, check_step
 
 DT = 0.002  #: physics, sensor and estimator step [s] (the paper samples at 2 ms)
@@ -171,8 +171,10 @@ class ClosedLoop:
     def __init__(self, scenarios: Scenario | Sequence[Scenario], controller: Controller | str | None,
                  estimator: Estimator | str | None, rng: np.random.Generator | Sequence[np.random.Generator],
                  sensor_params: SensorParams | None = None, faults: Sequence[Fault] = (), dt: float = DT):
-        self.scenarios = [scenarios] if isinstance(scenarios, Scenario) else \
-            list(scenarios) if isinstance(scenarios, Sequence) else []
+        try:
+            self.scenarios = [scenarios] if isinstance(scenarios, Scenario) else list(scenarios)
+        except TypeError:  # not iterable
+            self.scenarios = []
         if not self.scenarios or not all(isinstance(s, Scenario) for s in self.scenarios):
             raise ValueError(f"scenarios must be a Scenario or a non-empty sequence of them, got {scenarios!r}")
         dt = check_step(dt)
@@ -181,7 +183,7 @@ class ClosedLoop:
         sensor_params = SensorParams() if sensor_params is None else sensor_params
         if not isinstance(sensor_params, SensorParams):
             raise ValueError(f"sensor_params must be an envs.sensors.SensorParams or None, got {sensor_params!r}")
-        if not math.isclose(sensor_params.sample_time, dt, rel_tol=1e-12):
+        if not math.isclose(sensor_params.sample_time, dt, rel_tol=1e-6):  # (a float32 dt too)
             raise ValueError(f"the sensors sample every {sensor_params.sample_time!r} s, the simulation steps at "
                              f"dt = {dt!r} s: they are sampled once per step (give SensorParams(sample_time=dt))")
         try:
@@ -213,12 +215,14 @@ class ClosedLoop:
         elif controller is not None:
             check_controller(controller, controller)
         self._check_commands = type(controller).__module__.split(".")[0] not in ("control", "envs", "training")
-        for kind, part in (("estimator", estimator), ("controller", controller)):
+        # an estimator integrates over its dt; so does our DYC (a user's controller's dt is its own business)
+        own_controller = controller if isinstance(controller, StabilityController) else None
+        for kind, part in (("estimator", estimator), ("controller", own_controller)):
             part_dt = getattr(part, "dt", None)
             if part_dt is not None and not math.isclose(part_dt, dt, rel_tol=1e-12):
                 raise ValueError(f"the {kind} steps at dt = {part_dt!r} s, the simulation at {dt!r} s: build it with "
                                  "the simulation's dt (it integrates over its own step)")
-        if getattr(controller, "rear_steer", False) and any(s.rear_steer_feedforward for s in self.scenarios):
+        if getattr(controller, "rear_steer", False) and any(s.vehicle_params.rear_steer_feedforward for s in self.scenarios):
             raise ValueError("the controller steers the rear axle (eq. 20) and the scenario's "
                              "rear_steer_feedforward would add the same law again: use one of them")
         self.controller, self.estimator, self.dt = controller, estimator, dt
@@ -328,6 +332,10 @@ class ClosedLoop:
         """Control at the current time from :meth:`sample`; then (if ``integrate``) advance the
         plant one step: every vehicle, or those selected by ``moving`` (B,) bool (the others
         keep their time, state and sample). Returns the sample taken before the plant moved."""
+        if moving is not None:
+            moving = np.asarray(moving)
+            if moving.dtype != np.bool_ or moving.shape != (self.batch_size,):
+                raise ValueError(f"moving must be a bool array of shape ({self.batch_size},), got {moving!r}")
         s = self.sample()
         controls = np.zeros((self.batch_size, NU))
         controls[:, C_TORQUE:C_TORQUE + 4] = s.base_torques
@@ -374,7 +382,9 @@ def simulate(scenario: Scenario | str, controller: Controller | str | None = Non
     ``controller``: a controller object, a name for :func:`control.make_controller`, or None
     (no stability control). ``estimator``: an estimator object, a name for
     :func:`estimation.make_estimator`, or None (the oracle: the controller sees the truth).
-    ``seed`` seeds the sensor noise and faults.
+    ``seed`` seeds the sensor noise and faults. ``dt`` [s] at most :data:`envs.vehicle.MAX_DT`
+    (10 ms); the sensors sample once per step, so another ``dt`` than 2 ms needs
+    ``SensorParams(sample_time=dt)``.
     """
     if isinstance(scenario, str):
         scenario = make_scenario(scenario)

@@ -62,6 +62,11 @@ from estimation.jit import JIT
 GRAVITY = 9.80665  #: standard gravity [m/s^2]
 
 
+def _is_real(value) -> bool:
+    """A real number (numpy's too), not a bool."""
+    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+
+
 #: VehicleParams fields that may be 0 (switching off a resistance or the low-speed damping);
 #: every other number must be > 0
 MAY_BE_ZERO = ("rolling_resistance", "drag_area", "air_density", "low_speed_damping")
@@ -117,9 +122,9 @@ class VehicleParams:
             if f.name in ("tyre", "rear_steer_feedforward"):
                 continue
             if f.name in MAY_BE_ZERO:
-                if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0.0):
+                if not (_is_real(value) and math.isfinite(value) and value >= 0.0):
                     raise ValueError(f"VehicleParams.{f.name} must be a finite number >= 0, got {value!r}")
-            elif not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0.0):
+            elif not (_is_real(value) and math.isfinite(value) and value > 0.0):
                 raise ValueError(f"VehicleParams.{f.name} must be a finite number > 0, got {value!r}")
 
     def replace(self, **overrides) -> "VehicleParams":
@@ -632,8 +637,11 @@ def step(state: np.ndarray, controls: np.ndarray, params: VehicleParams, road, d
 
     ``road``: a friction map (:mod:`envs.road`: one for the whole batch, or a sequence of B maps)
     or precomputed :class:`envs.road.RoadTables` (the fast path for repeated calls). Table maps
-    are evaluated inside the kernel at every step; user callables are evaluated in Python once
-    per call, so call with ``n_steps=1`` for them when a wheel may cross a friction boundary.
+    are evaluated inside the kernel at every step; user callables are evaluated in Python at
+    the start of the call (held over its steps: call with ``n_steps=1`` for them when a wheel
+    may cross a friction boundary) and again at the returned state for the diagnostics (not
+    when handed in as precomputed tables, which hold the start's friction). ``dt`` at most
+    :data:`MAX_DT` (10 ms).
     Non-finite controls or road friction outside (0, 2] raise ValueError; a state that turns
     non-finite raises FloatingPointError (a run never silently produces NaN).
     """
@@ -646,7 +654,7 @@ def step(state: np.ndarray, controls: np.ndarray, params: VehicleParams, road, d
     batch = state.shape[0]
     if controls.shape != (batch, NU):
         raise ValueError(f"controls must have shape ({batch}, {NU}), got {controls.shape}")
-    if not (isinstance(dt, numbers.Real) and not isinstance(dt, bool) and 0.0 < dt <= MAX_DT):
+    if not (_is_real(dt) and 0.0 < dt <= MAX_DT):
         raise ValueError(f"dt must be a step in (0, {MAX_DT}] s, got {dt!r}")
     if not (isinstance(n_steps, numbers.Integral) and not isinstance(n_steps, bool) and n_steps >= 1):
         raise ValueError(f"n_steps must be a positive integer, got {n_steps!r}")
@@ -670,8 +678,8 @@ def step(state: np.ndarray, controls: np.ndarray, params: VehicleParams, road, d
         if not np.all(np.isfinite(state[b])):
             raise ValueError(f"state[{b}] has a non-finite value: {state[b]!r}")
         raise FloatingPointError(f"plant state of vehicle {b} became non-finite (last finite state {state[b]!r})")
-    if not tables.use_map:  # a callable map: the diagnostics see the friction where the car now is, as tables do
-        aux = derivatives(out, controls, road_tables(road, out, params).mu_given, params)[1]
+    if not tables.use_map and not isinstance(road, RoadTables):  # a callable map: the diagnostics see the
+        aux = derivatives(out, controls, road_tables(road, out, params).mu_given, params)[1]  # friction here now
     return PlantStep(out, aux)
 
 

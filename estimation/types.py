@@ -90,7 +90,8 @@ ESTIMATE_BOUNDS = {"mu": (0.0, 2.0, "in (0, 2]"), "fz": (0.0, math.inf, ">= 0 N"
 
 def check_estimate(estimate, batch: int, source) -> None:
     """ValueError naming ``source`` (an estimator) and the field unless ``estimate`` is an
-    :class:`Estimate` of ``batch`` rows ((B,) fields, (B, 4) per wheel) with finite values."""
+    :class:`Estimate` of ``batch`` rows ((B,) fields, (B, 4) per wheel) with finite values
+    inside :data:`ESTIMATE_BOUNDS` (mu in (0, 2], loads and sigmas >= 0)."""
     if not isinstance(estimate, Estimate):
         raise ValueError(f"estimator {source!r} returned {type(estimate).__name__}, not an Estimate")
     for name, value in zip(Estimate._fields, estimate):

@@ -149,3 +149,30 @@ def test_spellings_of_one_scenario_and_a_key_given_twice_are_refused():
                    progress=False)
     with pytest.raises(ValueError, match="mu is given twice"):
         parse_scenario("iso3888_2:mu=0.5,mu=0.3")
+
+
+def test_a_failing_run_is_named_and_keeps_its_error_type():
+    """A plain ValueError gets the run in its message (the command line prints that); an error
+    type built from more than a message keeps itself and gets the run as a note."""
+    from types import SimpleNamespace
+
+    from training.compare import naming_the_run
+
+    spec = SimpleNamespace(scenario="paper_step", estimator="joint", controller="dyc-lqr", seed=3)
+
+    def failing(error):
+        return naming_the_run(lambda spec: (_ for _ in ()).throw(error))
+
+    with pytest.raises(ValueError, match="^run paper_step x joint x dyc-lqr, seed 3: loads must be >= 0$"):
+        failing(ValueError("loads must be >= 0"))(spec)
+    with pytest.raises(UnicodeDecodeError) as raised:
+        failing(UnicodeDecodeError("utf-8", b"\xff", 0, 1, "invalid start byte"))(spec)
+    assert raised.value.__notes__ == ["in run paper_step x joint x dyc-lqr, seed 3"]
+
+
+def test_output_folders_must_be_named():
+    from training.io import check_writable
+
+    for empty in ("", "  "):
+        with pytest.raises(ValueError, match="--out must not be empty"):
+            check_writable(empty)

@@ -117,6 +117,15 @@ def test_the_convergence_column_tells_a_true_mu_from_a_nominal_one():
     assert _convergence({"mu_estimated": 1.0, "mu_convergence_time": 1.25}, "joint") == "1.25"
 
 
+def test_a_true_mu_is_not_counted_as_estimated_where_the_road_changes(tmp_path):
+    from training.estimate import run_all
+
+    results, _ = run_all([make_scenario("mu_jump", duration=2.5)], ["oracle", "ckf+true-mu"], 1, jobs=1,
+                         progress=False)
+    for spec, metrics in results:
+        assert metrics["mu_estimated"] == 0.0 and math.isnan(metrics["mu_convergence_time"]), spec.estimator
+
+
 def test_scenarios_take_the_comparisons_overrides_and_are_named_by_them():
     from training.estimate import _scenarios
 

@@ -168,10 +168,13 @@ def test_native_vector_env_resetting_in_the_next_step_matches_sync_vector_env():
         for x, y in zip(out_n[:4], out_s[:4]):
             np.testing.assert_array_equal(x, y)
         info_n, info_s = out_n[4], out_s[4]
-        np.testing.assert_array_equal(info_n["_beta"], ~finished)  # a restarting car has no step info
         np.testing.assert_array_equal(out_n[1][finished], 0.0)
-        if not finished.all():
-            np.testing.assert_array_equal(info_n["beta"][~finished], info_s["beta"][~finished])
+        for key in ("beta", "yaw_rate_error", "path_deviation", "spin_out", "phase_plane_index", "action_clipped"):
+            np.testing.assert_array_equal(info_n[f"_{key}"], ~finished)  # a restarting car has no step info
+            if not finished.all():
+                np.testing.assert_array_equal(info_s[f"_{key}"], ~finished)
+                np.testing.assert_array_equal(info_n[key][~finished],
+                                              info_s[key][~finished].astype(info_n[key].dtype))
         np.testing.assert_array_equal(info_n["truth"].beta, [e.beta for e in info_s["truth"]])
         restarts += finished.sum()
         finished = out_n[2] | out_n[3]

@@ -218,6 +218,7 @@ def test_sb3_video_recorder_records_car_0_and_the_adapter_refuses_a_later_reset(
     from stable_baselines3.common.vec_env import VecVideoRecorder
 
     native = YawStabilityVectorEnv(num_envs=2, scenario="paper_sine", estimator="oracle", render_mode="rgb_array")
+    assert SB3VecEnv(native).get_images() == [None]  # nothing to show before a reset
     env = VecVideoRecorder(SB3VecEnv(native), str(tmp_path), record_video_trigger=lambda step: step == 0,
                            video_length=20)
     env.reset()

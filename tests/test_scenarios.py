@@ -110,8 +110,8 @@ def test_speed_hold_feeds_forward_the_resistance_and_coasts():
     ("mu_jump", {"speed_kph": 30.0}, "short of the patch"),  # circles 17.7 m across at 0.4 g
     ("mu_jump", {"duration": 1.2}, "short of the patch"),
     ("mu_jump", {"patch_x": 0.5}, "start on the patch"),  # under the front wheels at the start
-    ("random", {"seed": -1}, "seed must be an integer >= 0, got -1"),
-    ("random", {"seed": 1.5}, "seed must be an integer >= 0, got 1.5"),
+    ("random", {"seed": -1}, r"seed must be an integer >= 0 \(or a numpy SeedSequence or Generator\), got -1"),
+    ("random", {"seed": 1.5}, r"seed must be an integer >= 0 .*, got 1.5"),
 ])
 def test_bad_scenario_arguments_raise_value_error_naming_the_value(name, kwargs, bad):
     with pytest.raises(ValueError, match=bad):
@@ -120,8 +120,11 @@ def test_bad_scenario_arguments_raise_value_error_naming_the_value(name, kwargs,
 
 def test_the_parameters_rear_steer_switch_reaches_the_scenario():
     on = make_scenario("paper_sine", duration=3.0, params=VehicleParams(rear_steer_feedforward=True))
-    assert on.rear_steer_feedforward and on.vehicle_params.rear_steer_feedforward
+    assert on.vehicle_params.rear_steer_feedforward
     assert np.abs(simulate(on).state[:, S_DELTA_R]).max() > 1e-3  # the 4WS law steers the rear axle
+    from dataclasses import replace
+
+    assert not replace(on, params=VehicleParams()).vehicle_params.rear_steer_feedforward  # the switch is the params'
 
 
 def test_bad_simulation_arguments_are_named():
@@ -145,6 +148,14 @@ def test_bad_simulation_arguments_are_named():
         simulate(make_scenario("paper_step", duration=0.1, mu=lambda x, y: np.full(7, 0.5)))
     finer = simulate(scenario, dt=0.001, sensor_params=SensorParams(sample_time=0.001))  # the two agree: fine
     assert len(finer.t) == 101
+    from envs.simulation import ClosedLoop
+
+    loop = ClosedLoop((s for s in [scenario, scenario]), None, "oracle", [np.random.default_rng(k) for k in (0, 1)])
+    for bad in ([1, 0], np.array([True]), np.array([1, 0])):
+        with pytest.raises(ValueError, match=r"moving must be a bool array of shape \(2,\)"):
+            loop.advance(moving=bad)
+    loop.advance(moving=[True, False])  # a list of bools is a mask
+    np.testing.assert_array_equal(loop.k, [1, 0])
 
 
 def test_mu_jump_lays_its_patch_over_the_given_road_and_numpy_frictions_are_numbers():

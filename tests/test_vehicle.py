@@ -309,6 +309,17 @@ def test_a_callable_road_gives_the_diagnostics_a_table_road_gives():
         np.testing.assert_allclose(b.aux, a.aux, rtol=1e-12, atol=1e-9)
 
 
+def test_precomputed_tables_of_a_callable_road_step_with_the_start_friction():
+    from envs.road import CallableMap, road_tables
+
+    road = CallableMap(lambda x, y: np.full(np.shape(x), 0.7))
+    state = initial_state(P, 20.0)
+    controls = np.zeros((1, NU))
+    by_map, by_tables = step(state, controls, P, road), step(state, controls, P, road_tables(road, state, P))
+    np.testing.assert_array_equal(by_tables.state, by_map.state)
+    np.testing.assert_array_equal(by_tables.aux, by_map.aux)  # a uniform road: the friction is the same here
+
+
 def test_resistances_and_low_speed_damping_may_be_switched_off():
     """A coast-down without drag and rolling resistance keeps its speed (the low-speed damping
     only acts below 1 m/s); negative values are still refused."""

@@ -105,6 +105,14 @@ def file_stem(entry: str) -> str:
     return "".join(ch if ch.isalnum() or ch in "._-" else "_" for ch in entry)
 
 
+def check_file_stems(entries: Sequence[str]) -> None:
+    """ValueError unless the scenario entries' plots get distinct file names."""
+    stems = [file_stem(e) for e in entries]
+    clashing = [e for e, stem in zip(entries, stems) if stems.count(stem) > 1]
+    if clashing:
+        raise ValueError(f"scenarios {clashing} would write the same plot file {file_stem(clashing[0])}.png")
+
+
 def build_scenario(text: str, swd_A: float):
     """The Scenario of a comparison entry (see :func:`parse_scenario`; its ``+faults`` suffix is
     the caller's), ``amplitude_A`` in units of ``swd_A`` [rad] (:func:`envs.fmvss126.characterise`)."""
@@ -197,6 +205,9 @@ def naming_the_run(run: Callable):
         except (ValueError, FloatingPointError) as err:
             parts = [getattr(spec, f) for f in ("scenario", "estimator", "controller") if hasattr(spec, f)]
             where = " x ".join(str(getattr(part, "name", part)) for part in parts)  # (a Scenario by its name)
+            if type(err) not in (ValueError, FloatingPointError):  # a subclass may need more to be built
+                err.add_note(f"in run {where}, seed {spec.seed}")
+                raise
             raise type(err)(f"run {where}, seed {spec.seed}: {err}") from err
 
     return named
@@ -233,6 +244,7 @@ def run_matrix(scenarios: Sequence[str] = HEADLINE, estimators: Sequence[str] = 
     repeated = [s for s, run in zip(scenarios, runs) if runs.count(run) > 1]
     if repeated:
         raise ValueError(f"scenarios must be distinct: {repeated} run the same scenario")
+    check_file_stems(scenarios)
     for kind, entries in (("estimators", estimators), ("controllers", controllers)):
         require_distinct(kind, entries)
     user = [c for c in controllers if ":" in c and not c.startswith(RL_PREFIX)]

@@ -22,7 +22,8 @@ from envs.metrics import mae, rmse
 from envs.scenarios import PAPER_SCENARIOS, Scenario
 from envs.simulation import Trajectory, simulate
 from estimation import ESTIMATORS, Estimate, check_estimator_name, parse_estimator_name
-from training.compare import FAULT_SUFFIX, build_scenario, file_stem, naming_the_run, parse_scenario
+from training.compare import (FAULT_SUFFIX, build_scenario, check_file_stems, file_stem, naming_the_run,
+                              parse_scenario)
 from training.io import atomic_write, atomic_write_text, check_writable
 from training.pool import parallel_map
 from training.tables import mean_over_seeds, require_distinct, write_runs_csv
@@ -83,7 +84,15 @@ def run_metrics(traj: Trajectory) -> dict[str, float]:
 def _run(spec: RunSpec) -> tuple[RunSpec, dict[str, float], tuple[np.ndarray, Estimate, Estimate] | None]:
     traj = simulate(spec.scenario, controller=None, estimator=spec.estimator, seed=spec.seed)
     keep = (traj.t, traj.truth, traj.estimate) if spec.seed == 0 else None  # seed 0 feeds the plots
-    return spec, run_metrics(traj), keep
+    metrics = run_metrics(traj)
+    if _reports_true_mu(spec.estimator):  # not an estimate of mu, however the road's friction moves
+        metrics.update(mu_estimated=0.0, mu_convergence_time=math.nan)
+    return spec, metrics, keep
+
+
+def _reports_true_mu(estimator: str) -> bool:
+    base, groups = parse_estimator_name(estimator)
+    return base == "oracle" or "mu" in groups
 
 
 def _scenarios(scenarios: Sequence[str | Scenario]) -> list[Scenario]:
@@ -100,6 +109,7 @@ def _scenarios(scenarios: Sequence[str | Scenario]) -> list[Scenario]:
     A = characterise() if swd else math.nan
     built = [s if isinstance(s, Scenario) else replace(build_scenario(s, A), name=s) for s in scenarios]
     require_distinct("scenario names", [s.name for s in built])
+    check_file_stems([s.name for s in built])
     return built
 
 
@@ -141,8 +151,7 @@ def _fmt(value: float, digits: int = 5) -> str:
 
 
 def _convergence(m: dict[str, float], estimator: str) -> str:
-    base, groups = parse_estimator_name(estimator)
-    if base == "oracle" or "mu" in groups:
+    if _reports_true_mu(estimator):
         return "n/a (true mu)"
     if not m["mu_estimated"]:
         return "n/a (nominal mu)"

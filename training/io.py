@@ -14,9 +14,9 @@ def check_writable(out: str | Path, kind: str = "directory", name: str = "--out"
     other kind already, in a directory that exists or can be created (its nearest existing
     ancestor a writable directory); else ValueError naming ``name`` and the path. Jobs call it
     before they run, so a bad path does not cost the results."""
-    out = Path(out)
-    if str(out) == "":
+    if not str(out).strip():
         raise ValueError(f"{name} must not be empty")
+    out = Path(out)
     if kind == "directory" and out.exists() and not out.is_dir():
         raise ValueError(f"{name} must be a directory, but {out} is a file")
     if kind == "file" and out.is_dir():

@@ -112,7 +112,8 @@ class SB3VecEnv(VecEnv):
 
     def get_images(self) -> list[np.ndarray | None]:
         """Car 0's frame as a one-element list ([None] unless ``render_mode`` is rgb_array)."""
-        return list(self.env.render()) if self.env.render_mode == "rgb_array" else [None]
+        frames = self.env.render() if self.env.render_mode == "rgb_array" else None  # (None before a reset)
+        return list(frames) if frames is not None else [None]
 
     def get_attr(self, attr_name: str, indices=None) -> list:
         return [getattr(self.env, attr_name)] * len(self._indices(indices))
