@@ -53,7 +53,8 @@ def fourwis_single(estimator: str) -> float:
 def fourwis_vector(estimator: str, n: int, course_share: float = 0.0) -> float:
     from envs.gym_env import YawStabilityVectorEnv
 
-    env = YawStabilityVectorEnv(num_envs=n, estimator=estimator, scenario_kwargs={"course_share": course_share})
+    env = YawStabilityVectorEnv(num_envs=n, estimator=estimator, scenario_kwargs={"course_share": course_share},
+                                autoreset_mode="SameStep")
     env.reset(seed=0)
     action = np.zeros((n, 2), dtype=np.float32)
 

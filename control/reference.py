@@ -186,8 +186,9 @@ def _bilinear(speeds, frictions, grid, u, mu, out) -> None:
 def rear_steer_gain(u: np.ndarray, params) -> np.ndarray:
     """Paper eq. 20 (zero-sideslip proportional 4WS), with positive per-axle stiffnesses:
     k = (-b + m a u^2 / (C_r L)) / (a + m b u^2 / (C_f L)). Opposite phase (k < 0) below
-    u0 = sqrt(b C_r L / (m a)), in phase above. (The paper prints the stiffnesses with the
-    sign convention of negative cornering stiffness; this is the same law.)"""
+    u0 = sqrt(b C_r L / (m a)), in phase above. (The paper leaves its k1, k2 undefined; read as
+    the front and rear axle cornering stiffnesses, positive as in Abe, sec. 9.2, its eq. 20
+    is this law.)"""
     c_f, c_r = params.axle_cornering_stiffness
     m, a, b, L = params.mass, params.cg_to_front, params.cg_to_rear, params.wheelbase
     u2 = np.asarray(u, dtype=float) ** 2

@@ -16,6 +16,7 @@ import math
 import numbers
 import os
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import gymnasium as gym
@@ -210,9 +211,9 @@ class YawStabilityCore:
         self.stats = _EpisodeStats(self.batch_size)
         self._ends = self._end_steps(scenarios)
         self._paths = CoursePaths([s.reference_path for s in scenarios])
-        self.keep_trace = False  #: record vehicle 0's strip-chart history (set by envs that render)
+        self.keep_trace = False  #: record every vehicle's strip-chart history (set by envs that render)
         self._renderer = None
-        self._trace: list[tuple[float, float, float, float]] = []
+        self._traces: list[list[tuple[float, float, float, float]]] = [[] for _ in range(self.batch_size)]
 
     @staticmethod
     def _end_steps(scenarios) -> np.ndarray:
@@ -226,8 +227,8 @@ class YawStabilityCore:
         self._ends[members] = self._end_steps(scenarios)
         self._paths.replace(members, [s.reference_path for s in scenarios])
         self.stats.clear(members)
-        if mask[0]:
-            self._trace = []
+        for b in members:
+            self._traces[b] = []
 
     def observe(self) -> np.ndarray:
         """Observations (B, observation_size) float32 at the current time."""
@@ -285,8 +286,9 @@ class YawStabilityCore:
         truncated = (self.loop.k >= self._ends) & moved
         if self.config.max_episode_steps is not None:
             truncated |= (st.length >= self.config.max_episode_steps) & moved
-        if self.keep_trace and moved[0]:  # vehicle 0's t, r, r_ref, beta for the strip charts of render()
-            self._trace.append((s.t[0], truth.r[0], r_ref[0], beta[0]))
+        if self.keep_trace:  # each vehicle's t, r, r_ref, beta for the strip charts of render()
+            for b in np.flatnonzero(moved):
+                self._traces[b].append((s.t[b], truth.r[b], r_ref[b], beta[b]))
         info = {"truth": truth, "estimate": s.estimate, "action_clipped": np.any(clipped != actions, axis=1),
                 "beta": beta, "yaw_rate_error": yaw_error, "path_deviation": deviation, "spin_out": spin,
                 "phase_plane_index": phase_plane,
@@ -320,13 +322,32 @@ class YawStabilityCore:
                 out.update(fmvss126_passed=False)
         return out
 
-    def render(self) -> np.ndarray:
-        """A frame of vehicle 0 (see :mod:`envs.render`)."""
+    def render(self, b: int = 0) -> np.ndarray:
+        """A frame of vehicle ``b`` (see :mod:`envs.render`)."""
         if self._renderer is None:
             from envs.render import Renderer
 
             self._renderer = Renderer()
-        return self._renderer.frame(self.loop, 0, np.array(self._trace).reshape(-1, 4))
+        return self._renderer.frame(self.loop, b, np.array(self._traces[b]).reshape(-1, 4))
+
+
+class _CarFrames(Sequence):
+    """The native vector env's rgb_array frames, one per car, each drawn when first read (one
+    frame costs tens of ms: gymnasium's RecordVideo with ``record_first_only`` draws car 0 alone)."""
+
+    def __init__(self, core: YawStabilityCore):
+        self._core, self._frames = core, {}
+
+    def __len__(self) -> int:
+        return self._core.batch_size
+
+    def __getitem__(self, b):
+        if isinstance(b, slice):
+            return [self[i] for i in range(*b.indices(len(self)))]
+        b = range(len(self))[b]  # (IndexError past the end; negative indices count from the end)
+        if b not in self._frames:
+            self._frames[b] = self._core.render(b)
+        return self._frames[b]
 
 
 def _first(estimate: Estimate) -> Estimate:
@@ -526,15 +547,17 @@ class YawStabilityVectorEnv(VectorEnv):
     Step for step the env matches a ``SyncVectorEnv`` of single envs seeded ``seed + i`` with
     the same ``autoreset_mode`` (gymnasium's ``AutoresetMode`` or its value):
 
-    - ``SAME_STEP`` (default; SB3's convention): a finished car is reset at once. Its last
+    - ``NEXT_STEP`` (default, gymnasium's, which its stateful vector wrappers such as
+      ``NormalizeObservation`` need): a finished car returns its last observation and
+      ``info["episode_metrics"]`` (an object array of per-car dicts, masked by
+      ``_episode_metrics``); the next step resets it instead of moving it (its action is
+      ignored; reward 0, no termination, per-step keys masked out).
+    - ``SAME_STEP`` (SB3's convention; :class:`training.rl.SB3VecEnv` needs it): a finished
+      car is reset at once. Its last
       observation is in ``info["final_obs"]`` (object array) and its last step's info in
       ``info["final_info"]`` (the per-step keys as (num_envs,) arrays, plus
       ``episode_metrics``, an object array); the top-level per-step keys then hold the new
       episode's (zero, masked out, as SyncVectorEnv's reset info has none).
-    - ``NEXT_STEP`` (gymnasium's default, which its stateful vector wrappers such as
-      ``NormalizeObservation`` need): a finished car returns its last observation and
-      ``info["episode_metrics"]``; the next step resets it instead of moving it (its action
-      is ignored; reward 0, no termination, per-step keys masked out).
     - ``DISABLED``: stepping a finished car is an error until ``reset`` with a
       ``reset_mask`` restarts it.
 
@@ -544,13 +567,13 @@ class YawStabilityVectorEnv(VectorEnv):
     resets only the selected cars; ``max_episode_steps`` truncates here, with episode metrics.
     """
 
-    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": list(RENDER_MODES), "render_fps": 50}
+    metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": list(RENDER_MODES), "render_fps": 50}
 
     def __init__(self, num_envs: int = 1, scenario: str = "random", speed_kph: float | None = None, mu=None,
                  estimator: str = "joint", observation: str = "estimated", action: str = "yaw_moment",
                  control_dt: float = 0.02, sensor_faults: tuple[Fault, ...] = (), render_mode: str | None = None,
                  max_episode_steps: int | None = None, scenario_kwargs: dict | None = None, rear_steer: bool = True,
-                 privileged: bool = False, autoreset_mode: AutoresetMode | str = AutoresetMode.SAME_STEP, **unknown):
+                 privileged: bool = False, autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, **unknown):
         _unknown_arguments(unknown)
         if not (_is_integer(num_envs) and num_envs >= 1):
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
@@ -567,7 +590,7 @@ class YawStabilityVectorEnv(VectorEnv):
         self.single_observation_space, self.single_action_space = _spaces(self.config)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
-        self._rngs = [seeding.np_random()[0] for _ in range(self.num_envs)]
+        self._rngs, self._car_seeds = map(list, zip(*(seeding.np_random() for _ in range(self.num_envs))))
         self._core: YawStabilityCore | None = None
         self._window = None
         self._finished = np.zeros(self.num_envs, dtype=bool)  # ended, not yet reset (NEXT_STEP, DISABLED)
@@ -582,6 +605,11 @@ class YawStabilityVectorEnv(VectorEnv):
         if seeds is None or len(seeds) != self.num_envs or not all(s is None or _is_integer(s) for s in seeds):
             raise ValueError(f"seed must be None, an integer or {self.num_envs} integers (or None), got {seed!r}")
         return [None if s is None else int(s) for s in seeds]  # numpy integers too (gymnasium wants int)
+
+    @property
+    def np_random_seed(self) -> tuple[int, ...]:
+        """Each car's generator seed (what a SyncVectorEnv's ``np_random_seed`` gives)."""
+        return tuple(self._car_seeds)
 
     def _reset_mask(self, options: dict | None) -> np.ndarray:
         if options is not None and not isinstance(options, dict):
@@ -605,7 +633,7 @@ class YawStabilityVectorEnv(VectorEnv):
         members = np.flatnonzero(mask)
         for i in members:
             if seeds[i] is not None or self._core is None:
-                self._rngs[i] = seeding.np_random(seeds[i])[0]
+                self._rngs[i], self._car_seeds[i] = seeding.np_random(seeds[i])
         if self._core is None:
             self._core = YawStabilityCore(self.config, self._rngs)
             self._core.keep_trace = self.render_mode is not None
@@ -673,10 +701,10 @@ class YawStabilityVectorEnv(VectorEnv):
         return obs, reward, terminated, truncated, info
 
     def render(self):
+        """rgb_array: a sequence of every car's frame, each drawn when read; human: car 0 in a window."""
         if self.render_mode is None or self._core is None:
             return None
-        frame = self._core.render()
         if self.render_mode == "rgb_array":
-            return (frame,)
-        self._window = _show(frame, self._window)
+            return _CarFrames(self._core)
+        self._window = _show(self._core.render(), self._window)
         return None

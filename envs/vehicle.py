@@ -265,8 +265,8 @@ def rear_steer_gain(u: float, a: float, b: float, mass: float, c_f: float, c_r: 
     """Paper eq. 20, proportional 4WS gain k = delta_r / delta_f for zero steady-state sideslip.
 
     ``k = (-b + m a u^2 / (C_r L)) / (a + m b u^2 / (C_f L))`` with positive axle cornering
-    stiffnesses C_f, C_r [N/rad] (Abe, *Vehicle Handling Dynamics*, sec. 9.2). The paper
-    writes k1, k2 in the convention where cornering stiffnesses are negative.
+    stiffnesses C_f, C_r [N/rad] (Abe, *Vehicle Handling Dynamics*, sec. 9.2): the paper's k1,
+    k2, which it leaves undefined, read as the front and rear axle stiffnesses.
     """
     wheelbase = a + b
     u2 = u * u

@@ -11,7 +11,9 @@ the paper (standard textbook forms, Rajamani 2012 ch. 13; Dugoff, Fancher & Sege
 * eq. 4-6: each wheel's force is rotated by its own steer angle and the moment arms are
   +/- t/2 laterally and +a / -b longitudinally with the signs of ISO 8855 (the paper's rear-
   wheel signs slip);
-* eq. 8-10: the Dugoff parameter carries mu*Fz (the paper's eq. 10 omits it);
+* eq. 8-10: the Dugoff parameter L carries mu*Fz and the factor 2, and the force is
+  C tan(alpha)/(1+s) f(L) (the paper's eq. 8 multiplies the force by mu*Fz, its eq. 10 leaves
+  both out of L);
 * eq. 11-12: the wheel-centre speeds carry -/+ (t/2) r for the left / right wheels, and the
   rear slip angles' lateral speed is v - b r (eq. 12 prints -v + b r);
 * eq. 14: the rear normal loads carry a/l (the paper writes b/l), :func:`wheel_load`;

@@ -66,6 +66,9 @@ def test_integer_overrides_stay_integers():
     from training.compare import parse_scenario
 
     assert parse_scenario("random:seed=3,speed_kph=50.5") == ("random", {"seed": 3, "speed_kph": 50.5})
+    assert parse_scenario("paper_step:rear_steer_feedforward=1") == ("paper_step", {"rear_steer_feedforward": True})
+    with pytest.raises(ValueError, match="rear_steer_feedforward must be True or False, got 2"):
+        parse_scenario("paper_step:rear_steer_feedforward=2")
 
 
 def test_report_is_reproducible_byte_for_byte_in_one_or_two_processes_and_the_fault_variant_bites(tmp_path):

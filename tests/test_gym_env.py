@@ -155,6 +155,7 @@ def test_native_vector_env_resetting_in_the_next_step_matches_sync_vector_env():
                                 max_episode_steps=20)
     assert native.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP
     np.testing.assert_array_equal(native.reset(seed=3)[0], sync.reset(seed=3)[0])
+    assert native.unwrapped.np_random_seed == sync.np_random_seed == (3, 4, 5)
     rng = np.random.default_rng(1)
     restarts, finished = 0, np.zeros(3, dtype=bool)
     for k in range(52):
@@ -206,7 +207,7 @@ def test_gymnasium_stateful_vector_wrappers_take_the_next_step_native_env():
     from gymnasium.wrappers.vector import NormalizeObservation, RecordEpisodeStatistics
 
     with pytest.raises(ValueError, match="NEXT_STEP"):
-        NormalizeObservation(YawStabilityVectorEnv(num_envs=2, estimator="oracle"))
+        NormalizeObservation(YawStabilityVectorEnv(num_envs=2, estimator="oracle", autoreset_mode="SameStep"))
     env = RecordEpisodeStatistics(NormalizeObservation(YawStabilityVectorEnv(
         num_envs=2, scenario="paper_sine", estimator="oracle", max_episode_steps=5, autoreset_mode="NextStep")))
     env.reset(seed=0)
@@ -412,6 +413,29 @@ def test_rgb_array_frames_show_the_car_and_work_with_record_video(tmp_path):
     video.close()
     movies = list(tmp_path.glob("*.mp4"))
     assert movies and movies[0].stat().st_size > 1000
+
+
+def test_the_vector_env_draws_each_cars_frame_when_read_and_records_with_gymnasium(tmp_path):
+    from gymnasium.wrappers.vector import RecordVideo
+
+    env = YawStabilityVectorEnv(num_envs=3, scenario="random", estimator="oracle", render_mode="rgb_array")
+    env.reset(seed=0)
+    for _ in range(10):
+        env.step(np.zeros((3, 2), dtype=np.float32))
+    frames = env.render()
+    assert len(frames) == 3 and frames[-1].shape == (FRAME_HEIGHT, FRAME_WIDTH, 3)
+    assert not np.array_equal(frames[0], frames[1])  # different cars on different roads
+    with pytest.raises(IndexError):
+        frames[3]
+    video = RecordVideo(YawStabilityVectorEnv(num_envs=3, scenario="paper_sine", estimator="oracle",
+                                              render_mode="rgb_array"), str(tmp_path),
+                        episode_trigger=lambda episode: episode == 0, video_length=15, record_first_only=True)
+    video.reset(seed=0)
+    for _ in range(20):
+        video.step(np.zeros((3, 2), dtype=np.float32))
+    video.close()
+    movies = list(tmp_path.glob("*.mp4"))
+    assert len(movies) == 1 and movies[0].stat().st_size > 1000
 
 
 def test_human_mode_without_a_display_warns(monkeypatch):

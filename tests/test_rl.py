@@ -81,11 +81,12 @@ def test_asymmetric_policies_refuse_an_observation_without_the_truth_or_a_shared
     from training.asymmetric import POLICIES
     from training.rl import _algo_class
 
-    plain = SB3VecEnv(YawStabilityVectorEnv(num_envs=2, estimator="oracle"))
+    plain = SB3VecEnv(YawStabilityVectorEnv(num_envs=2, estimator="oracle", autoreset_mode="SameStep"))
     for algo in ALGOS:
         with pytest.raises(ValueError, match="privileged"):
             _algo_class(algo)(POLICIES[algo], plain, device="cpu")
-    privileged = SB3VecEnv(YawStabilityVectorEnv(num_envs=2, estimator="oracle", privileged=True))
+    privileged = SB3VecEnv(YawStabilityVectorEnv(num_envs=2, estimator="oracle", privileged=True,
+                                                autoreset_mode="SameStep"))
     with pytest.raises(ValueError, match="share_features_extractor"):
         _algo_class("sac")(POLICIES["sac"], privileged, device="cpu", policy_kwargs={"share_features_extractor": True})
 
@@ -199,8 +200,8 @@ def test_bad_arguments_give_clear_errors(tmp_path):
 
 
 def test_sb3_adapter_reports_terminal_observations_and_time_limits():
-    env = SB3VecEnv(YawStabilityVectorEnv(num_envs=2, scenario="paper_sine", estimator="oracle",
-                                          max_episode_steps=5))
+    env = SB3VecEnv(YawStabilityVectorEnv(num_envs=2, scenario="paper_sine", estimator="oracle", max_episode_steps=5,
+                                          autoreset_mode="SameStep"))
     env.seed(3)
     obs = env.reset()
     for k in range(5):
@@ -217,7 +218,8 @@ def test_sb3_adapter_reports_terminal_observations_and_time_limits():
 def test_sb3_video_recorder_records_car_0_and_the_adapter_refuses_a_later_reset(tmp_path):
     from stable_baselines3.common.vec_env import VecVideoRecorder
 
-    native = YawStabilityVectorEnv(num_envs=2, scenario="paper_sine", estimator="oracle", render_mode="rgb_array")
+    native = YawStabilityVectorEnv(num_envs=2, scenario="paper_sine", estimator="oracle", render_mode="rgb_array",
+                                   autoreset_mode="SameStep")
     assert SB3VecEnv(native).get_images() == [None]  # nothing to show before a reset
     env = VecVideoRecorder(SB3VecEnv(native), str(tmp_path), record_video_trigger=lambda step: step == 0,
                            video_length=20)
@@ -229,7 +231,7 @@ def test_sb3_video_recorder_records_car_0_and_the_adapter_refuses_a_later_reset(
     assert len(movies) == 1 and movies[0].stat().st_size > 1000
     assert SB3VecEnv(native).get_images()[0].shape == native.render()[0].shape
     with pytest.raises(ValueError, match="same step.*'NextStep'"):
-        SB3VecEnv(YawStabilityVectorEnv(num_envs=2, autoreset_mode="NextStep"))
+        SB3VecEnv(YawStabilityVectorEnv(num_envs=2))  # gymnasium's default
 
 
 def test_evaluate_puts_the_policy_into_the_comparison(tmp_path):

@@ -66,6 +66,7 @@ def parse_scenario(text: str) -> tuple[str, dict]:
     e.g. ``iso3888_2:mu=0.5,speed_kph=50``; a value is a number or a JSON list (a split road:
     ``mu=[0.5,0.3]``, left and right); ``amplitude_A=k`` gives sine with dwell k times A;
     ``swd_wet`` stands for ``sine_with_dwell:mu=0.5,amplitude_A=5.5`` (overrides apply on top);
+    ``rear_steer_feedforward=1`` switches the paper's 4WS law on;
     a ``+faults`` suffix runs it with :data:`SENSOR_FAULTS`."""
     text = text.removesuffix(FAULT_SUFFIX)
     name, _, rest = text.partition(":")
@@ -87,6 +88,8 @@ def parse_scenario(text: str) -> tuple[str, dict]:
         if key.strip() in given:
             raise ValueError(f"{key.strip()} is given twice in scenario {text!r}")
         given[key.strip()] = value
+    if given.get("rear_steer_feedforward") in (0, 1):  # a switch written as a number
+        given["rear_steer_feedforward"] = bool(given["rear_steer_feedforward"])
     overrides = {**defaults, **given}
     if "amplitude_A" in overrides:
         if name != "sine_with_dwell":

@@ -78,7 +78,7 @@ class SB3VecEnv(VecEnv):
     def __init__(self, env: YawStabilityVectorEnv):
         if env.autoreset_mode != AutoresetMode.SAME_STEP:
             raise ValueError(f"SB3 needs a vector env that resets in the same step; got autoreset_mode "
-                             f"{env.autoreset_mode.value!r}")
+                             f"{env.autoreset_mode.value!r}: build it with autoreset_mode='SameStep'")
         self.env = env
         super().__init__(env.num_envs, env.single_observation_space, env.single_action_space)
         self.metadata = {**self.metadata, "render_fps": env.metadata["render_fps"]}
@@ -113,7 +113,7 @@ class SB3VecEnv(VecEnv):
     def get_images(self) -> list[np.ndarray | None]:
         """Car 0's frame as a one-element list ([None] unless ``render_mode`` is rgb_array)."""
         frames = self.env.render() if self.env.render_mode == "rgb_array" else None  # (None before a reset)
-        return list(frames) if frames is not None else [None]
+        return [frames[0]] if frames is not None else [None]
 
     def get_attr(self, attr_name: str, indices=None) -> list:
         return [getattr(self.env, attr_name)] * len(self._indices(indices))
@@ -157,7 +157,7 @@ RUN_FILES = ("model.zip", "vecnormalize.pkl", "config.json", REPLAY_BUFFER, EVAL
 
 
 def _vec_env(env_kwargs: dict, n_envs: int, seed: int):
-    env = SB3VecEnv(YawStabilityVectorEnv(num_envs=n_envs, **env_kwargs))
+    env = SB3VecEnv(YawStabilityVectorEnv(num_envs=n_envs, autoreset_mode=AutoresetMode.SAME_STEP, **env_kwargs))
     env.seed(seed)
     return env
 

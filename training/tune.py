@@ -12,9 +12,9 @@ Criterion (``criterion``):
   0.5 (nu^T S^-1 nu + log det S + m log 2 pi) of both sub-filters per step, i.e. maximum-
   likelihood noise identification (Mehra 1970). It needs no truth, so it is what a car can
   run on its own data (the online tuner uses it too). The paper's eq. 31/62, a fixed-weight
-  sum of squared measurement residuals, is minimised by shrinking Q and R together (the
-  filter grows overconfident and the residuals barely change); the log det S term is what
-  prevents that.
+  sum of squared measurement residuals, cannot set the noise's level: Q and R scaled together
+  leave the gain, hence the residuals, unchanged, so the filter's confidence is free; the
+  log det S term is what pins it.
 * ``truth``: the estimation error against the simulator's truth (beta, yaw rate, speed), a
   simulation-only criterion kept for comparison.
 
