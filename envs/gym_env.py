@@ -18,6 +18,7 @@ import os
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import gymnasium as gym
 import numpy as np
@@ -211,7 +212,8 @@ class YawStabilityCore:
         self.stats = _EpisodeStats(self.batch_size)
         self._ends = self._end_steps(scenarios)
         self._paths = CoursePaths([s.reference_path for s in scenarios])
-        self.keep_trace = False  #: record every vehicle's strip-chart history (set by envs that render)
+        #: the vehicles whose strip-chart history is recorded (B,) bool (set by envs that render)
+        self.traced = np.zeros(self.batch_size, dtype=bool)
         self._renderer = None
         self._traces: list[list[tuple[float, float, float, float]]] = [[] for _ in range(self.batch_size)]
 
@@ -286,8 +288,8 @@ class YawStabilityCore:
         truncated = (self.loop.k >= self._ends) & moved
         if self.config.max_episode_steps is not None:
             truncated |= (st.length >= self.config.max_episode_steps) & moved
-        if self.keep_trace:  # each vehicle's t, r, r_ref, beta for the strip charts of render()
-            for b in np.flatnonzero(moved):
+        if self.traced.any():  # t, r, r_ref, beta for the strip charts of render()
+            for b in np.flatnonzero(moved & self.traced):
                 self._traces[b].append((s.t[b], truth.r[b], r_ref[b], beta[b]))
         info = {"truth": truth, "estimate": s.estimate, "action_clipped": np.any(clipped != actions, axis=1),
                 "beta": beta, "yaw_rate_error": yaw_error, "path_deviation": deviation, "spin_out": spin,
@@ -322,21 +324,44 @@ class YawStabilityCore:
                 out.update(fmvss126_passed=False)
         return out
 
-    def render(self, b: int = 0) -> np.ndarray:
-        """A frame of vehicle ``b`` (see :mod:`envs.render`)."""
+    def render(self, b: int = 0, moment: "_Moment | None" = None) -> np.ndarray:
+        """A frame of vehicle ``b`` (see :mod:`envs.render`) now, or at a ``moment`` taken earlier."""
         if self._renderer is None:
             from envs.render import Renderer
 
             self._renderer = Renderer()
-        return self._renderer.frame(self.loop, b, np.array(self._traces[b]).reshape(-1, 4))
+        moment = moment or self.moment()
+        trace = moment.traces[b][:moment.trace_lengths[b]]
+        return self._renderer.frame(moment, b, np.array(trace).reshape(-1, 4))
+
+    def moment(self) -> "_Moment":
+        """What a frame draws, as it is now: copies, and each trace list with its length (a
+        trace only grows until a reset replaces the list)."""
+        loop = self.loop
+        return _Moment(loop.state.copy(), loop.aux.copy(), loop.t, list(loop.scenarios), loop.params,
+                       list(self._traces), [len(trace) for trace in self._traces])
+
+
+class _Moment(NamedTuple):
+    """The closed loop's state, diagnostics, clocks, scenarios and parameters at one instant,
+    and each vehicle's trace length then: what :class:`envs.render.Renderer` draws from."""
+
+    state: np.ndarray
+    aux: np.ndarray
+    t: np.ndarray
+    scenarios: list
+    params: object
+    traces: list
+    trace_lengths: list[int]
 
 
 class _CarFrames(Sequence):
-    """The native vector env's rgb_array frames, one per car, each drawn when first read (one
-    frame costs tens of ms: gymnasium's RecordVideo with ``record_first_only`` draws car 0 alone)."""
+    """The native vector env's rgb_array frames, one per car, of the moment ``render()`` was
+    called, each drawn when first read (~90 ms a frame: gymnasium's RecordVideo with
+    ``record_first_only`` draws car 0 alone)."""
 
     def __init__(self, core: YawStabilityCore):
-        self._core, self._frames = core, {}
+        self._core, self._moment, self._frames = core, core.moment(), {}
 
     def __len__(self) -> int:
         return self._core.batch_size
@@ -346,7 +371,7 @@ class _CarFrames(Sequence):
             return [self[i] for i in range(*b.indices(len(self)))]
         b = range(len(self))[b]  # (IndexError past the end; negative indices count from the end)
         if b not in self._frames:
-            self._frames[b] = self._core.render(b)
+            self._frames[b] = self._core.render(b, self._moment)
         return self._frames[b]
 
 
@@ -472,7 +497,7 @@ class YawStabilityEnv(gym.Env):
         super().reset(seed=seed)
         if self._core is None:
             self._core = YawStabilityCore(self.config, [self.np_random])
-            self._core.keep_trace = self.render_mode is not None
+            self._core.traced[:] = self.render_mode is not None
         else:
             self._core.reset_members(np.ones(1, dtype=bool), [self.np_random])
         self._ended = False
@@ -632,11 +657,12 @@ class YawStabilityVectorEnv(VectorEnv):
         seeds, mask = self._seeds(seed), self._reset_mask(options)
         members = np.flatnonzero(mask)
         for i in members:
-            if seeds[i] is not None or self._core is None:
+            if seeds[i] is not None:  # (unseeded, a car keeps the generator it has, as SyncVectorEnv's do)
                 self._rngs[i], self._car_seeds[i] = seeding.np_random(seeds[i])
         if self._core is None:
             self._core = YawStabilityCore(self.config, self._rngs)
-            self._core.keep_trace = self.render_mode is not None
+            self._core.traced[:] = self.render_mode == "rgb_array"  # (human mode shows car 0)
+            self._core.traced[0] = self.render_mode is not None
         else:
             self._core.reset_members(mask, [self._rngs[i] for i in members])
         self._finished[members] = False

@@ -46,7 +46,9 @@ class Renderer:
         self.beta_axes = self.figure.add_subplot(grid[1, 1])
 
     def frame(self, loop, b: int, trace: np.ndarray) -> np.ndarray:
-        """The frame of vehicle ``b``; ``trace`` (n, 4) rows t, r, r_ref, beta of its episode."""
+        """The frame of vehicle ``b`` of ``loop`` (a ClosedLoop, or anything with its state, aux,
+        t, scenarios and params: a moment of one); ``trace`` (n, 4) rows t, r, r_ref, beta of
+        its episode."""
         import matplotlib.patches as mpatches
 
         state, aux, scenario, params = loop.state[b], loop.aux[b], loop.scenarios[b], loop.params

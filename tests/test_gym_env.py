@@ -156,6 +156,10 @@ def test_native_vector_env_resetting_in_the_next_step_matches_sync_vector_env():
     assert native.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP
     np.testing.assert_array_equal(native.reset(seed=3)[0], sync.reset(seed=3)[0])
     assert native.unwrapped.np_random_seed == sync.np_random_seed == (3, 4, 5)
+    unseeded = YawStabilityVectorEnv(num_envs=2, estimator="oracle")
+    drawn = unseeded.np_random_seed
+    unseeded.reset()
+    assert unseeded.np_random_seed == drawn  # an unseeded reset keeps the generators, as SyncVectorEnv does
     rng = np.random.default_rng(1)
     restarts, finished = 0, np.zeros(3, dtype=bool)
     for k in range(52):
@@ -415,18 +419,32 @@ def test_rgb_array_frames_show_the_car_and_work_with_record_video(tmp_path):
     assert movies and movies[0].stat().st_size > 1000
 
 
-def test_the_vector_env_draws_each_cars_frame_when_read_and_records_with_gymnasium(tmp_path):
+def test_the_vector_env_draws_each_cars_frame_when_read_and_records_with_gymnasium(tmp_path, monkeypatch):
+    """Every car's frame, of the moment render() was called, drawn only when read: gymnasium's
+    RecordVideo with record_first_only draws car 0 alone."""
     from gymnasium.wrappers.vector import RecordVideo
+
+    from envs.gym_env import YawStabilityCore
 
     env = YawStabilityVectorEnv(num_envs=3, scenario="random", estimator="oracle", render_mode="rgb_array")
     env.reset(seed=0)
     for _ in range(10):
         env.step(np.zeros((3, 2), dtype=np.float32))
-    frames = env.render()
+    frames, later = env.render(), env.render()
     assert len(frames) == 3 and frames[-1].shape == (FRAME_HEIGHT, FRAME_WIDTH, 3)
     assert not np.array_equal(frames[0], frames[1])  # different cars on different roads
+    assert all(len(env._core._traces[b]) == 10 for b in range(3))  # every car's strip chart
     with pytest.raises(IndexError):
         frames[3]
+    first = frames[1]
+    env.step(np.ones((3, 2), dtype=np.float32))
+    env.reset(options={"reset_mask": np.array([False, True, False])})
+    np.testing.assert_array_equal(later[1], first)  # read after a step and a reset: still that moment
+    assert not np.array_equal(env.render()[1], first)
+    drawn = []
+    original = YawStabilityCore.render
+    monkeypatch.setattr(YawStabilityCore, "render", lambda self, b=0, moment=None: drawn.append(b) or
+                        original(self, b, moment))
     video = RecordVideo(YawStabilityVectorEnv(num_envs=3, scenario="paper_sine", estimator="oracle",
                                               render_mode="rgb_array"), str(tmp_path),
                         episode_trigger=lambda episode: episode == 0, video_length=15, record_first_only=True)
@@ -436,6 +454,7 @@ def test_the_vector_env_draws_each_cars_frame_when_read_and_records_with_gymnasi
     video.close()
     movies = list(tmp_path.glob("*.mp4"))
     assert len(movies) == 1 and movies[0].stat().st_size > 1000
+    assert drawn and set(drawn) == {0}
 
 
 def test_human_mode_without_a_display_warns(monkeypatch):

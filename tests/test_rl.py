@@ -229,7 +229,8 @@ def test_sb3_video_recorder_records_car_0_and_the_adapter_refuses_a_later_reset(
     env.close()
     movies = list(tmp_path.glob("*.mp4"))
     assert len(movies) == 1 and movies[0].stat().st_size > 1000
-    assert SB3VecEnv(native).get_images()[0].shape == native.render()[0].shape
+    images = SB3VecEnv(native).get_images()
+    assert len(images) == 1 and images[0].shape == native.render()[0].shape  # car 0 alone, not the cars tiled
     with pytest.raises(ValueError, match="same step.*'NextStep'"):
         SB3VecEnv(YawStabilityVectorEnv(num_envs=2))  # gymnasium's default
 
