@@ -537,11 +537,16 @@ class YawStabilityEnv(gym.Env):
         return None
 
     def close(self):
-        if isinstance(self._window, tuple):
-            import matplotlib.pyplot as plt
+        self._window = _close_window(self._window)
 
-            plt.close(self._window[0])
-        self._window = None
+
+def _close_window(window) -> None:
+    """Close a human-mode window of :func:`_show` (if one opened); returns the cleared handle."""
+    if isinstance(window, tuple):
+        import matplotlib.pyplot as plt
+
+        plt.close(window[0])
+    return None
 
 
 def _show(frame: np.ndarray, window):
@@ -667,8 +672,14 @@ class YawStabilityVectorEnv(VectorEnv):
             self._core.reset_members(mask, [self._rngs[i] for i in members])
         self._finished[members] = False
         s = self._core.loop.sample()
+        if self.render_mode == "human":
+            self.render()
         return self._core.observe(), {"truth": s.truth, "_truth": mask.copy(), "estimate": s.estimate,
                                       "_estimate": mask.copy()}
+
+    def close_extras(self, **kwargs) -> None:
+        """Close the human-mode window (gymnasium's VectorEnv.close calls this once)."""
+        self._window = _close_window(self._window)
 
     def step(self, actions):
         if self._core is None:

@@ -460,13 +460,16 @@ def test_the_vector_env_draws_each_cars_frame_when_read_and_records_with_gymnasi
 def test_human_mode_without_a_display_warns(monkeypatch):
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
-    env = YawStabilityEnv(scenario="paper_sine", estimator="oracle", render_mode="human")
-    with pytest.warns(UserWarning, match="display"):
-        env.reset(seed=0)
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")  # warned once: stepping and closing go on quietly
-        env.step(np.zeros(2, dtype=np.float32))
-        env.close()
+    for env, action in ((YawStabilityEnv(scenario="paper_sine", estimator="oracle", render_mode="human"),
+                         np.zeros(2, dtype=np.float32)),
+                        (YawStabilityVectorEnv(num_envs=2, scenario="paper_sine", estimator="oracle",
+                                               render_mode="human"), np.zeros((2, 2), dtype=np.float32))):
+        with pytest.warns(UserWarning, match="display"):
+            env.reset(seed=0)  # (the reset shows the first frame)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # warned once: stepping and closing go on quietly
+            env.step(action)
+            env.close()
 
 
 @pytest.mark.parametrize("amplitude_deg", [40.0, 180.0])
