@@ -152,7 +152,7 @@ def _estimate(args: argparse.Namespace) -> int:
     from training.estimate import estimate_report
 
     return _report("estimate", lambda: estimate_report(args.out, args.scenarios, args.estimators, args.seeds,
-                                                       args.jobs), "estimate.csv")
+                                                       args.jobs, road_mu=args.road_mu), "estimate.csv")
 
 
 def _tune(args: argparse.Namespace) -> int:
@@ -299,6 +299,9 @@ def build_parser() -> argparse.ArgumentParser:
     est = command("estimate", "open-loop estimator accuracy (paper Table 2 form): report + plots")
     _add_matrix_arguments(est, PAPER_SCENARIOS, ESTIMATE_ESTIMATORS, 1, "results/estimate",
                           "scenario names, optionally with overrides as in compare (no +faults)")
+    est.add_argument("--road-mu", action="store_true",
+                     help="the fixed-mu filters (ekf, ckf, fkf, alo-fkf) assume the road's friction at the start "
+                          "instead of 0.8 (the paper's section-3 reading)")
     est.set_defaults(func=_estimate)
     from estimation.optimizers import METHODS
     from training.tune import CRITERIA

@@ -19,9 +19,10 @@ import numpy as np
 
 from envs.fmvss126 import characterise
 from envs.metrics import mae, rmse
+from envs.road import contact_points
 from envs.scenarios import PAPER_SCENARIOS, Scenario
 from envs.simulation import Trajectory, simulate
-from estimation import ESTIMATORS, Estimate, check_estimator_name, parse_estimator_name
+from estimation import ESTIMATORS, Estimate, check_estimator_name, make_estimator, parse_estimator_name
 from training.compare import (FAULT_SUFFIX, build_scenario, check_file_stems, file_stem, naming_the_run,
                               parse_scenario)
 from training.io import atomic_write, atomic_write_text, check_writable
@@ -46,11 +47,23 @@ PAPER_TABLE2 = {
 PAPER_TABLE2_SCENARIO = "paper_dlc"
 
 
+#: the estimators that hold a nominal mu (``road_mu`` sets it to the road's)
+FIXED_MU = ("ekf", "ckf", "fkf", "alo-fkf")
+
+
 @dataclass(frozen=True)
 class RunSpec:
     scenario: Scenario
     estimator: str
     seed: int
+    nominal_mu: float | None = None  #: a fixed-mu filter's friction (None: its default, 0.8)
+
+
+def road_friction(scenario: Scenario) -> float:
+    """The mean friction under the four wheels at the scenario's start."""
+    params = scenario.vehicle_params
+    gx, gy = contact_points(scenario.initial_state(), params)
+    return float(np.mean(scenario.road.mu_at(gx[0], gy[0])))
 
 
 def convergence_time(t: np.ndarray, error: np.ndarray, tolerance: float = MU_TOLERANCE) -> float:
@@ -82,7 +95,9 @@ def run_metrics(traj: Trajectory) -> dict[str, float]:
 
 @naming_the_run
 def _run(spec: RunSpec) -> tuple[RunSpec, dict[str, float], tuple[np.ndarray, Estimate, Estimate] | None]:
-    traj = simulate(spec.scenario, controller=None, estimator=spec.estimator, seed=spec.seed)
+    estimator = spec.estimator if spec.nominal_mu is None else \
+        make_estimator(spec.estimator, spec.scenario.vehicle_params, nominal_mu=spec.nominal_mu)
+    traj = simulate(spec.scenario, controller=None, estimator=estimator, seed=spec.seed)
     keep = (traj.t, traj.truth, traj.estimate) if spec.seed == 0 else None  # seed 0 feeds the plots
     metrics = run_metrics(traj)
     if _reports_true_mu(spec.estimator):  # not an estimate of mu, however the road's friction moves
@@ -114,8 +129,11 @@ def _scenarios(scenarios: Sequence[str | Scenario]) -> list[Scenario]:
 
 
 def run_all(scenarios: Sequence[str | Scenario] = PAPER_SCENARIOS, estimators: Sequence[str] = DEFAULT_ESTIMATORS,
-            seeds: int = 1, jobs: int | None = None, progress: bool = True) -> tuple[list[tuple[RunSpec, dict]], dict]:
-    """Run every (scenario, estimator, seed) open loop in parallel processes.
+            seeds: int = 1, jobs: int | None = None, progress: bool = True,
+            road_mu: bool = False) -> tuple[list[tuple[RunSpec, dict]], dict]:
+    """Run every (scenario, estimator, seed) open loop in parallel processes. ``road_mu``: the
+    fixed-mu filters (:data:`FIXED_MU`) assume the road's friction at the start
+    (:func:`road_friction`) instead of 0.8, as the paper's section-3 filters presumably do.
 
     Returns per-run (spec, metrics) and the seed-0 series {(scenario name, estimator): (t, truth, estimate)}.
     """
@@ -127,7 +145,10 @@ def run_all(scenarios: Sequence[str | Scenario] = PAPER_SCENARIOS, estimators: S
     require_distinct("estimators", estimators)
     if not isinstance(seeds, int) or seeds < 1:
         raise ValueError(f"seeds must be an integer >= 1, got {seeds!r}")
-    specs = [RunSpec(s, e, k) for s in built for e in estimators for k in range(seeds)]
+    if not isinstance(road_mu, bool):
+        raise ValueError(f"road_mu must be True or False, got {road_mu!r}")
+    specs = [RunSpec(s, e, k, road_friction(s) if road_mu and e in FIXED_MU else None)
+             for s in built for e in estimators for k in range(seeds)]
     results, series = [], {}
     for spec, metrics, keep in parallel_map(_run, specs, jobs, "open-loop estimation runs", progress):
         results.append((spec, metrics))
@@ -158,14 +179,18 @@ def _convergence(m: dict[str, float], estimator: str) -> str:
     return "never" if not math.isfinite(m["mu_convergence_time"]) else f"{m['mu_convergence_time']:.2f}"
 
 
-def markdown_report(table: dict, scenarios: Sequence[Scenario], estimators: Sequence[str], seeds: int) -> str:
+def markdown_report(table: dict, scenarios: Sequence[Scenario], estimators: Sequence[str], seeds: int,
+                    road_mu: bool = False) -> str:
     """estimate.md: per-scenario tables (means over seeds) and the paper's Table 2 beside ours."""
     lines = ["# fourwis open-loop estimation accuracy (paper Table 2 form)", "",
              f"Runs: {len(scenarios)} scenarios x {len(estimators)} estimators x {seeds} seeds, no controller "
              "(scripted steering or the path-following driver; the estimator only observes). Values are "
              "means over seeds. mu error: mean over wheels of |mu_hat - mu| over the last half of the run; "
              f"mu convergence: first time after which that error stays below {MU_TOLERANCE} to the end "
-             "(estimators that hold a nominal mu: n/a).", ""]
+             "(estimators that hold a nominal mu: n/a). "
+             + (f"The fixed-mu filters ({', '.join(FIXED_MU)}) assume the road's friction at the start "
+                "(--road-mu)." if road_mu else f"The fixed-mu filters ({', '.join(FIXED_MU)}) assume mu 0.8 "
+                                               "(--road-mu: the road's)."), ""]
     for s in scenarios:
         lines += [f"## {s.name} ({s.speed_kph:g} km/h, {s.duration:.1f} s)", "",
                   "| estimator | MAE u [m/s] | RMSE u [m/s] | MAE v [m/s] | RMSE v [m/s] | MAE beta [rad] "
@@ -252,18 +277,19 @@ def plot_scenario(name: str, series: dict, estimators: Sequence[str], path: Path
 
 
 def estimate_report(out: str | Path, scenarios: Sequence[str | Scenario] = PAPER_SCENARIOS,
-                    estimators: Sequence[str] = DEFAULT_ESTIMATORS, seeds: int = 1, jobs: int | None = None) -> Path:
+                    estimators: Sequence[str] = DEFAULT_ESTIMATORS, seeds: int = 1, jobs: int | None = None,
+                    road_mu: bool = False) -> Path:
     """Run the open-loop matrix; write estimate.csv, estimate.md and <scenario>.png into ``out``.
 
     ``scenarios``: Scenario objects, or names with optional overrides as in compare
     (``paper_step:mu=0.5``; the plot's file name replaces ':', ',' and '=' by '_'); returns
-    the path of estimate.md.
+    the path of estimate.md. ``road_mu``: see :func:`run_all`.
     """
     out = check_writable(out)
-    results, series = run_all(scenarios, estimators, seeds, jobs)
+    results, series = run_all(scenarios, estimators, seeds, jobs, road_mu=road_mu)
     built = list({spec.scenario.name: spec.scenario for spec, _ in results}.values())
     table = aggregate(results)
     write_csv(results, out / "estimate.csv")
     for s in built:
         plot_scenario(s.name, series, estimators, out / f"{file_stem(s.name)}.png")
-    return atomic_write_text(out / "estimate.md", markdown_report(table, built, estimators, seeds))
+    return atomic_write_text(out / "estimate.md", markdown_report(table, built, estimators, seeds, road_mu))
