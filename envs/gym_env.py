@@ -13,7 +13,6 @@ The observation table, actions, reward, termination and ``info`` are documented 
 from __future__ import annotations
 
 import math
-import numbers
 import os
 import warnings
 from collections.abc import Sequence
@@ -34,7 +33,7 @@ from envs.metrics import SPIN_OUT_SIDESLIP, CoursePaths, sine_with_dwell_metrics
 from envs.scenarios import SCENARIOS, Scenario, is_number, make_scenario
 from envs.sensors import Fault
 from envs.simulation import DT, ClosedLoop
-from envs.vehicle import A_AY, S_R, S_X, S_Y
+from envs.vehicle import A_AY, S_R, S_X, S_Y, is_integer
 from estimation import check_estimator_name
 from estimation.types import Estimate
 
@@ -48,10 +47,6 @@ N_OBS = 14
 SENSOR_SCALE = np.array([10, 10, 1, 100, 100, 100, 100, 0.3, 0.3, 600, 600, 600, 600], dtype=float)
 NOMINAL_MU = 0.8  #: friction assumed for r_ref in the sensors observation
 MAX_CONTROL_DT = 1.0  #: longest control step [s] (render_fps, 1 / control_dt, stays >= 1)
-
-
-def _is_integer(value) -> bool:
-    return isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_))
 
 
 def _unknown_arguments(unknown: dict) -> None:
@@ -96,7 +91,7 @@ class EnvConfig:
         if faults is None or not all(isinstance(f, Fault) for f in faults):
             raise ValueError(f"sensor_faults must be a sequence of envs.sensors.Fault, got {self.sensor_faults!r}")
         object.__setattr__(self, "sensor_faults", faults)
-        if self.max_episode_steps is not None and not (_is_integer(self.max_episode_steps)
+        if self.max_episode_steps is not None and not (is_integer(self.max_episode_steps)
                                                        and self.max_episode_steps > 0):
             raise ValueError(f"max_episode_steps must be a positive integer, got {self.max_episode_steps!r}")
         if self.scenario_kwargs is not None and not (isinstance(self.scenario_kwargs, dict)
@@ -540,6 +535,22 @@ class YawStabilityEnv(gym.Env):
         self._window = _close_window(self._window)
 
 
+def _shown(info: dict, keys: list[str], shown: np.ndarray) -> dict:
+    """The per-step ``keys`` of ``info`` for the cars ``shown`` (B,) bool, zero for the others,
+    each with its gymnasium ``_key`` mask."""
+    out = {k: np.where(shown, info[k], np.zeros_like(info[k])) for k in keys}
+    out.update({f"_{k}": shown.copy() for k in keys})
+    return out
+
+
+def _per_car(n: int, rows: np.ndarray, item) -> np.ndarray:
+    """An object array of ``n`` entries: ``item(b)`` for the cars ``rows``, None for the others."""
+    out = np.full(n, None, dtype=object)
+    for b in rows:
+        out[b] = item(b)
+    return out
+
+
 def _close_window(window) -> None:
     """Close a human-mode window of :func:`_show` (if one opened); returns the cleared handle."""
     if isinstance(window, tuple):
@@ -605,7 +616,7 @@ class YawStabilityVectorEnv(VectorEnv):
                  max_episode_steps: int | None = None, scenario_kwargs: dict | None = None, rear_steer: bool = True,
                  privileged: bool = False, autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, **unknown):
         _unknown_arguments(unknown)
-        if not (_is_integer(num_envs) and num_envs >= 1):
+        if not (is_integer(num_envs) and num_envs >= 1):
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
         try:
             self.autoreset_mode = AutoresetMode(autoreset_mode)
@@ -626,13 +637,13 @@ class YawStabilityVectorEnv(VectorEnv):
         self._finished = np.zeros(self.num_envs, dtype=bool)  # ended, not yet reset (NEXT_STEP, DISABLED)
 
     def _seeds(self, seed) -> list:
-        if seed is None or _is_integer(seed):
+        if seed is None or is_integer(seed):
             return [None if seed is None else int(seed) + i for i in range(self.num_envs)]
         try:
             seeds = list(seed)
         except TypeError:
             seeds = None
-        if seeds is None or len(seeds) != self.num_envs or not all(s is None or _is_integer(s) for s in seeds):
+        if seeds is None or len(seeds) != self.num_envs or not all(s is None or is_integer(s) for s in seeds):
             raise ValueError(f"seed must be None, an integer or {self.num_envs} integers (or None), got {seed!r}")
         return [None if s is None else int(s) for s in seeds]  # numpy integers too (gymnasium wants int)
 
@@ -685,31 +696,33 @@ class YawStabilityVectorEnv(VectorEnv):
         if self._core is None:
             raise RuntimeError("call reset() before step()")
         actions = _check_actions(actions, self.action_space.shape)
-        if self.autoreset_mode != AutoresetMode.SAME_STEP:
-            return self._step_later_reset(actions)
+        same_step = self.autoreset_mode == AutoresetMode.SAME_STEP
+        obs, reward, terminated, truncated, info = (self._step_same_reset if same_step else
+                                                    self._step_later_reset)(actions)
+        info.update(_truth=np.ones(self.num_envs, dtype=bool), _estimate=np.ones(self.num_envs, dtype=bool))
+        if self.render_mode == "human":
+            self.render()
+        return obs, reward, terminated, truncated, info
+
+    def _step_same_reset(self, actions: np.ndarray):
+        """:meth:`step` in ``SAME_STEP`` autoreset mode (see the class docstring)."""
         obs, reward, terminated, truncated, info = self._core.step(actions)
         metrics = info.pop("episode_metrics")
         done = terminated | truncated
         per_step = [k for k in info if k not in ("truth", "estimate")]
         if done.any():
-            final_obs = np.full(self.num_envs, None, dtype=object)
-            episode_metrics = np.full(self.num_envs, None, dtype=object)
-            for b in np.flatnonzero(done):
-                final_obs[b] = obs[b].copy()
-                episode_metrics[b] = metrics[b]
-            final_info = {"truth": info["truth"], "estimate": info["estimate"], "episode_metrics": episode_metrics}
-            final_info.update({k: np.where(done, info[k], np.zeros_like(info[k])) for k in per_step})
-            final_info.update({f"_{k}": done.copy() for k in list(final_info)})
-            self._core.reset_members(done, [self._rngs[b] for b in np.flatnonzero(done)])
+            rows = np.flatnonzero(done)
+            final_info = {"truth": info["truth"], "estimate": info["estimate"],
+                          "episode_metrics": _per_car(self.num_envs, rows, metrics.__getitem__),
+                          "_truth": done.copy(), "_estimate": done.copy(), "_episode_metrics": done.copy(),
+                          **_shown(info, per_step, done)}
+            final_obs = _per_car(self.num_envs, rows, lambda b: obs[b].copy())
+            self._core.reset_members(done, [self._rngs[b] for b in rows])
             obs = self._core.observe()
             s = self._core.loop.sample()
-            info.update({k: np.where(done, np.zeros_like(info[k]), info[k]) for k in per_step})
             info.update(truth=s.truth, estimate=s.estimate, final_obs=final_obs, _final_obs=done.copy(),
                         final_info=final_info, _final_info=done.copy())
-        info.update({f"_{k}": ~done for k in per_step})
-        info.update(_truth=np.ones(self.num_envs, dtype=bool), _estimate=np.ones(self.num_envs, dtype=bool))
-        if self.render_mode == "human":
-            self.render()
+        info.update(_shown(info, per_step, ~done))
         return obs, reward, terminated, truncated, info
 
     def _step_later_reset(self, actions: np.ndarray):
@@ -723,18 +736,11 @@ class YawStabilityVectorEnv(VectorEnv):
         obs, reward, terminated, truncated, info = self._core.step(actions, ~restarting if restarting.any() else None)
         metrics = info.pop("episode_metrics")
         done = terminated | truncated
-        for k in [k for k in info if k not in ("truth", "estimate")]:
-            info[k] = np.where(restarting, np.zeros_like(info[k]), info[k])
-            info[f"_{k}"] = ~restarting
-        info.update(_truth=np.ones(self.num_envs, dtype=bool), _estimate=np.ones(self.num_envs, dtype=bool))
+        info.update(_shown(info, [k for k in info if k not in ("truth", "estimate")], ~restarting))
         if done.any():
-            info["episode_metrics"] = np.full(self.num_envs, None, dtype=object)
-            for b in np.flatnonzero(done):
-                info["episode_metrics"][b] = metrics[b]
-            info["_episode_metrics"] = done.copy()
+            info.update(episode_metrics=_per_car(self.num_envs, np.flatnonzero(done), metrics.__getitem__),
+                        _episode_metrics=done.copy())
         self._finished = done
-        if self.render_mode == "human":
-            self.render()
         return obs, reward, terminated, truncated, info
 
     def render(self):

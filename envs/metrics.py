@@ -20,6 +20,7 @@ import numpy as np
 from scipy.signal import butter, find_peaks, sosfiltfilt
 
 from envs.courses import stack_polylines
+from envs.vehicle import is_number
 from estimation.jit import JIT
 
 STEERING_CUTOFF = 10.0  #: S7.11.1: steering-wheel angle filter cutoff [Hz]
@@ -224,8 +225,7 @@ def sine_with_dwell_metrics(t, steering_wheel_angle, yaw_rate, lateral_accelerat
         raise ValueError(f"direction must be +1 (left), -1 (right) or None, got {direction!r}")
     if A is not None and not (math.isfinite(A) and A > 0):
         raise ValueError(f"A must be a positive angle [rad], got {A!r}")
-    if not (isinstance(displacement_limit, (int, float)) and not isinstance(displacement_limit, bool)
-            and math.isfinite(displacement_limit) and displacement_limit > 0):
+    if not (is_number(displacement_limit) and math.isfinite(displacement_limit) and displacement_limit > 0):
         raise ValueError(f"displacement_limit must be a distance > 0 [m], got {displacement_limit!r}")
 
     end = _zeroing_end(t, steer)

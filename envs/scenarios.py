@@ -23,7 +23,6 @@ Readings of the paper (section 3.3.3, 4.3), where it leaves details open:
 from __future__ import annotations
 
 import math
-import numbers
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
@@ -33,7 +32,7 @@ import numpy as np
 from envs import courses
 from envs.driver import Constant, PathFollower, Ramp, Sine, SineWithDwell, SpeedHold, Step, VectorisedDriver
 from envs.road import FrictionMap, PatchMap, as_friction_map, check_mu, patch, split, uniform
-from envs.vehicle import GRAVITY, VehicleParams, initial_state
+from envs.vehicle import GRAVITY, VehicleParams, initial_state, is_integer, is_number
 from estimation.jit import JIT
 
 Steering = Callable[[float, np.ndarray], float]
@@ -93,11 +92,6 @@ class Scenario:
 
     def speed_driver(self) -> SpeedHold:
         return SpeedHold(self.speed, self.vehicle_params, coast_after=self.coast_after)
-
-
-def is_number(value) -> bool:
-    """A real number (Python's or numpy's), not a bool."""
-    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
 
 
 def _positive(name: str, value) -> float:
@@ -289,7 +283,7 @@ def random(speed_kph=None, mu=None, duration=10.0, steering=None, seed=0, rear_s
     if not (is_number(course_share) and 0.0 <= course_share <= 1.0):
         raise ValueError(f"course_share must be a probability in [0, 1], got {course_share!r}")
     if not (isinstance(seed, (np.random.SeedSequence, np.random.Generator))
-            or (isinstance(seed, numbers.Integral) and not isinstance(seed, (bool, np.bool_)) and seed >= 0)):
+            or (is_integer(seed) and seed >= 0)):
         raise ValueError(f"seed must be an integer >= 0 (or a numpy SeedSequence or Generator), got {seed!r}")
     rng = np.random.default_rng(seed)
     speed_kph = float(rng.uniform(speed_low, speed_high)) if speed_kph is None else _positive("speed_kph", speed_kph)

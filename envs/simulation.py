@@ -9,7 +9,6 @@ torques and rear steer using the estimate only, and the plant advances one RK4 s
 from __future__ import annotations
 
 import math
-import numbers
 from collections.abc import Sequence
 from typing import NamedTuple, Protocol
 
@@ -20,10 +19,10 @@ from envs.driver import DriverBatch
 from envs.road import RoadTables, contact_points
 from envs.scenarios import Scenario, make_scenario
 from envs.sensors import Fault, SensorModel, SensorParams, SensorReading
-from envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, MAX_DT, NU, S_DELTA_F,
-                          S_DELTA_R, S_OMEGA, S_R, S_TORQUE, S_U, S_V, derivatives, step)
+from envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NU, S_DELTA_F, S_DELTA_R,
+                          S_OMEGA, S_R, S_TORQUE, S_U, S_V, check_plant_step, derivatives, is_integer, step)
 from control import Command, StabilityController, check_controller
-from estimation.types import Estimate, check_estimate, check_estimator, check_step
+from estimation.types import Estimate, check_estimate, check_estimator
 
 DT = 0.002  #: physics, sensor and estimator step [s] (the paper samples at 2 ms)
 
@@ -49,7 +48,8 @@ class Estimator(Protocol):
     reading still has all B rows, ``truth`` only the M, and the estimate must have M rows.
     The estimate's mu, mu_std and fz steer the DYC (it plans with a cautious mu_hat - k
     mu_std), so a friction estimator's mu_std should be calibrated; an estimator holding a
-    nominal mu keeps mu_hat constant (the reports read a constant mu_hat without mu_std as 'not estimated').
+    nominal mu keeps mu_hat constant (the reports read a constant mu_hat without mu_std as
+    'not estimated').
     """
 
     needs_truth: bool
@@ -177,9 +177,7 @@ class ClosedLoop:
             self.scenarios = []
         if not self.scenarios or not all(isinstance(s, Scenario) for s in self.scenarios):
             raise ValueError(f"scenarios must be a Scenario or a non-empty sequence of them, got {scenarios!r}")
-        dt = check_step(dt)
-        if dt > MAX_DT:
-            raise ValueError(f"dt must be a step in (0, {MAX_DT}] s (the plant's largest RK4 step), got {dt!r}")
+        dt = check_plant_step(dt)
         sensor_params = SensorParams() if sensor_params is None else sensor_params
         if not isinstance(sensor_params, SensorParams):
             raise ValueError(f"sensor_params must be an envs.sensors.SensorParams or None, got {sensor_params!r}")
@@ -222,7 +220,8 @@ class ClosedLoop:
             if part_dt is not None and not math.isclose(part_dt, dt, rel_tol=1e-12):
                 raise ValueError(f"the {kind} steps at dt = {part_dt!r} s, the simulation at {dt!r} s: build it with "
                                  "the simulation's dt (it integrates over its own step)")
-        if getattr(controller, "rear_steer", False) and any(s.vehicle_params.rear_steer_feedforward for s in self.scenarios):
+        if getattr(controller, "rear_steer", False) and any(s.vehicle_params.rear_steer_feedforward
+                                                            for s in self.scenarios):
             raise ValueError("the controller steers the rear axle (eq. 20) and the scenario's "
                              "rear_steer_feedforward would add the same law again: use one of them")
         self.controller, self.estimator, self.dt = controller, estimator, dt
@@ -388,7 +387,7 @@ def simulate(scenario: Scenario | str, controller: Controller | str | None = Non
     """
     if isinstance(scenario, str):
         scenario = make_scenario(scenario)
-    if not (isinstance(seed, numbers.Integral) and not isinstance(seed, bool) and seed >= 0):
+    if not (is_integer(seed) and seed >= 0):
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
     loop = ClosedLoop(scenario, controller, estimator, np.random.default_rng(seed), sensor_params, faults, dt)
     n = int(math.ceil(scenario.duration / dt - 1e-9))

@@ -62,9 +62,14 @@ from estimation.jit import JIT
 GRAVITY = 9.80665  #: standard gravity [m/s^2]
 
 
-def _is_real(value) -> bool:
-    """A real number (numpy's too), not a bool (the plain types first: the ABC check is slow)."""
+def is_number(value) -> bool:
+    """A real number (Python's or numpy's), not a bool (plain types first: the ABC check is slow)."""
     return type(value) in (float, int) or (isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)))
+
+
+def is_integer(value) -> bool:
+    """An integer (Python's or numpy's), not a bool."""
+    return type(value) is int or (isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_)))
 
 
 #: VehicleParams fields that may be 0 (switching off a resistance or the low-speed damping);
@@ -122,9 +127,9 @@ class VehicleParams:
             if f.name in ("tyre", "rear_steer_feedforward"):
                 continue
             if f.name in MAY_BE_ZERO:
-                if not (_is_real(value) and math.isfinite(value) and value >= 0.0):
+                if not (is_number(value) and math.isfinite(value) and value >= 0.0):
                     raise ValueError(f"VehicleParams.{f.name} must be a finite number >= 0, got {value!r}")
-            elif not (_is_real(value) and math.isfinite(value) and value > 0.0):
+            elif not (is_number(value) and math.isfinite(value) and value > 0.0):
                 raise ValueError(f"VehicleParams.{f.name} must be a finite number > 0, got {value!r}")
 
     def replace(self, **overrides) -> "VehicleParams":
@@ -590,6 +595,13 @@ PARALLEL_MIN_BATCH = 64  #: batches at least this large run on all cores
 MAX_DT = 0.01
 
 
+def check_plant_step(dt) -> float:
+    """``dt`` [s] as a float if it is a step in (0, :data:`MAX_DT`]; else ValueError naming it."""
+    if not (is_number(dt) and 0.0 < dt <= MAX_DT):
+        raise ValueError(f"dt must be a step in (0, {MAX_DT}] s (the plant's largest RK4 step), got {dt!r}")
+    return float(dt)
+
+
 def _check_array(name: str, value: np.ndarray, width: int) -> np.ndarray:
     value = np.ascontiguousarray(value, dtype=np.float64)
     if value.ndim != 2 or value.shape[1] != width:
@@ -654,10 +666,8 @@ def step(state: np.ndarray, controls: np.ndarray, params: VehicleParams, road, d
     batch = state.shape[0]
     if controls.shape != (batch, NU):
         raise ValueError(f"controls must have shape ({batch}, {NU}), got {controls.shape}")
-    if not (_is_real(dt) and 0.0 < dt <= MAX_DT):
-        raise ValueError(f"dt must be a step in (0, {MAX_DT}] s, got {dt!r}")
-    if not ((type(n_steps) is int or isinstance(n_steps, numbers.Integral) and not isinstance(n_steps, bool))
-            and n_steps >= 1):
+    check_plant_step(dt)
+    if not (is_integer(n_steps) and n_steps >= 1):
         raise ValueError(f"n_steps must be a positive integer, got {n_steps!r}")
     tables = road if isinstance(road, RoadTables) else road_tables(road, state, params)
     if tables.base_mu.shape[0] != batch:

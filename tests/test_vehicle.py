@@ -284,7 +284,8 @@ def test_bad_input_raises_value_error_naming_the_value():
         VehicleParams(mass=-830.0)
     with pytest.raises(ValueError, match="dt must be .*, got nan"):
         step(state, controls, P, uniform(1.0), dt=float("nan"))
-    with pytest.raises(ValueError, match=r"dt must be a step in \(0, 0.01\] s, got 0.05"):  # RK4 unstable
+    with pytest.raises(ValueError,  # RK4 goes unstable
+                       match=r"dt must be a step in \(0, 0.01\] s \(the plant's largest RK4 step\), got 0.05"):
         step(state, controls, P, uniform(1.0), dt=0.05)
     with pytest.raises(ValueError, match="n_steps must be a positive integer, got True"):
         step(state, controls, P, uniform(1.0), n_steps=True)

@@ -120,7 +120,8 @@ def _scenarios(scenarios: Sequence[str | Scenario]) -> list[Scenario]:
         if not isinstance(text, str) or text.endswith(FAULT_SUFFIX):
             raise ValueError(f"scenario {text!r}: give a Scenario or a name with optional overrides "
                              f"(the {FAULT_SUFFIX} variant is the closed-loop comparison's)")
-    swd = any(parse_scenario(t)[0] == "sine_with_dwell" and "amplitude_A" in parse_scenario(t)[1] for t in texts)
+    swd = any(name == "sine_with_dwell" and "amplitude_A" in overrides
+              for name, overrides in map(parse_scenario, texts))
     A = characterise() if swd else math.nan
     built = [s if isinstance(s, Scenario) else replace(build_scenario(s, A), name=s) for s in scenarios]
     require_distinct("scenario names", [s.name for s in built])
