@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
-from envs.metrics import SineWithDwellResult, sine_with_dwell_metrics, steering_angle_at_lateral_acceleration
+from envs.metrics import SineWithDwellResult, peak_abs, sine_with_dwell_metrics, steering_angle_at_lateral_acceleration
 from envs.scenarios import make_scenario
 from envs.simulation import simulate
 from envs.vehicle import A_AY, S_R, VehicleParams
@@ -79,7 +79,7 @@ def run_series(A: float, mu: float = 1.0, controller_factory: Callable | None = 
         beta = traj.truth.beta
         result = sine_with_dwell_metrics(traj.t, traj.steering_wheel, traj.state[:, S_R], traj.aux[:, A_AY],
                                          sideslip=beta, A=A)
-        runs.append(SeriesRun(mu, float(amplitude), direction, result, float(np.max(np.abs(beta)))))
+        runs.append(SeriesRun(mu, float(amplitude), direction, result, peak_abs(beta)))
     return runs
 
 

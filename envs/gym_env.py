@@ -56,7 +56,7 @@ def _unknown_arguments(unknown: dict) -> None:
 
 @dataclass(frozen=True)
 class EnvConfig:
-    """Validated keyword arguments of the environments (see the module docstring)."""
+    """Validated keyword arguments of the environments (see :class:`YawStabilityEnv`)."""
 
     scenario: str = "random"
     speed_kph: float | None = None

@@ -19,7 +19,7 @@ import numba
 import numpy as np
 from scipy.signal import butter, find_peaks, sosfiltfilt
 
-from envs.courses import stack_polylines
+from envs.courses import CONE_RADIUS, stack_polylines
 from envs.vehicle import is_number
 from estimation.jit import JIT
 
@@ -42,7 +42,6 @@ AMPLITUDE_MARGIN = 0.01  #: the measured amplitude stands in for the commanded o
 G_UNIT = 9.80665  #: the unit "g" of the regulation's thresholds (standard gravity) [m/s^2]
 SPIN_OUT_SIDESLIP = math.radians(20.0)  #: default |beta| spin-out threshold [rad]
 SPIN_OUT_HEADING = math.pi / 2  #: heading this far from the course counts as a spin-out [rad]
-CONE_RADIUS = 0.15  #: base radius of a road cone [m] (300 mm base, ISO 3888 course marking)
 TINY = np.finfo(float).tiny  #: floor of a path segment's squared length [m^2]
 
 

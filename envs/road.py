@@ -22,8 +22,6 @@ import numpy as np
 
 from envs.vehicle import MU_MAX, S_PSI, S_X, S_Y, VehicleParams
 
-DRY, WET, SNOW, ICE = 0.9, 0.6, 0.25, 0.1  #: representative mu of common surfaces
-
 
 def check_mu(name: str, value: float) -> float:
     """``value`` as a float if it is a friction coefficient in (0, MU_MAX] (any real number type,

@@ -60,7 +60,6 @@ class Scenario:
     start_x: float = 0.0
     course: courses.Course | None = None
     reference_path: np.ndarray | None = None
-    amplitude_deg: float | None = None
     params: VehicleParams = field(default_factory=VehicleParams)
 
     def __post_init__(self) -> None:
@@ -202,8 +201,7 @@ def sine_with_dwell(speed_kph=80.0, mu=1.0, duration=5.0, steering=None, amplitu
     start = _finite("start", start, 0.0)
     steering = steering if steering is not None else SineWithDwell(amplitude, start)
     return Scenario("sine_with_dwell", _positive("speed_kph", speed_kph), _road(mu), _positive("duration", duration),
-                    steering, coast_after=start, rear_steer_feedforward=rear_steer_feedforward,
-                    amplitude_deg=float(amplitude_deg), params=params)
+                    steering, coast_after=start, rear_steer_feedforward=rear_steer_feedforward, params=params)
 
 
 def slowly_increasing_steer(speed_kph=80.0, mu=1.0, duration=None, steering=None, rate_deg=13.5, direction=1,

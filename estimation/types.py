@@ -12,10 +12,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-#: Order of the state vector x_s of the paper's state filter.
-STATE_NAMES = ("u", "v", "ax", "ay", "r", "gamma")
-
-
 class Estimate(NamedTuple):
     """One estimator step's output for a batch of B vehicles (SI units).
 

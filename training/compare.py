@@ -24,7 +24,8 @@ from control import CONTROLLERS, make_controller
 from control.allocation import wheel_force_map
 from control.reference import PhasePlaneRegion, reference_yaw_rate
 from envs.fmvss126 import characterise
-from envs.metrics import alongside_path, cone_hits, mae, path_deviation, rms, rmse, sine_with_dwell_metrics, spin_out
+from envs.metrics import (alongside_path, cone_hits, mae, path_deviation, peak_abs, rms, rmse, sine_with_dwell_metrics,
+                           spin_out, yaw_rate_tracking_rms)
 from envs.scenarios import SCENARIOS, is_number, make_scenario
 from envs.sensors import Fault
 from envs.simulation import Trajectory, simulate
@@ -139,7 +140,7 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
     T, E = traj.truth, traj.estimate
     beta = T.beta
     r_ref = reference_yaw_rate(traj.state[:, S_U], traj.state[:, S_DELTA_F], T.mu, params)
-    out = {"peak_beta": float(np.max(np.abs(beta))), "yaw_tracking_rms": rmse(traj.state[:, S_R], r_ref),
+    out = {"peak_beta": peak_abs(beta), "yaw_tracking_rms": yaw_rate_tracking_rms(traj.state[:, S_R], r_ref),
            "spin_out": float(spin_out(beta))}
     # how far the car left the sideslip phase-plane region it recovers from by itself (> 1:
     # outside), over the samples at speeds the region is tabulated for

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from envs.simulation import Trajectory
-from envs.vehicle import A_AX, A_AY, A_FZ, A_MU, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_V, S_X, S_Y
+from envs.vehicle import A_AX, A_AY, A_FZ, A_MU, GRAVITY, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_V, S_X, S_Y
 from training.io import atomic_write, atomic_write_text
 
 WHEELS = ("fl", "fr", "rl", "rr")
@@ -92,8 +92,8 @@ def plot_trajectory(traj: Trajectory, path: str | Path, title: str | None = None
         ax.set(xlabel="t [s]", ylabel=label)
         ax.legend(loc="best")
     ax = axes[2, 0]
-    ax.plot(t, cols["ay"] / 9.80665, label="ay")
-    ax.plot(t, cols["ax"] / 9.80665, label="ax")
+    ax.plot(t, cols["ay"] / GRAVITY, label="ay")
+    ax.plot(t, cols["ax"] / GRAVITY, label="ax")
     ax.set(xlabel="t [s]", ylabel="[g]", title="accelerations")
     ax.legend(loc="best")
     ax = axes[2, 1]
