@@ -15,9 +15,10 @@ from importlib import resources
 import numba
 import numpy as np
 
+from envs.vehicle import rear_steer_gain as _eq20_gain
 from estimation.jit import JIT
+from estimation.model import GRAVITY  # the controller plans with the estimation model's g
 
-GRAVITY = 9.81  #: [m/s^2] (the plant uses standard gravity 9.80665; the model's own value)
 FRICTION_USE = 0.85  #: share of mu*g the reference may ask for (Rajamani 2012, sec. 8.5)
 MIN_SPEED = 1.0  #: speed floor in divisions [m/s]
 MAX_YAW_TIME_CONSTANT = 0.5  #: cap of yaw_time_constant [s] (this car: 0.25 s at 40 m/s)
@@ -184,15 +185,13 @@ def _bilinear(speeds, frictions, grid, u, mu, out) -> None:
 
 
 def rear_steer_gain(u: np.ndarray, params) -> np.ndarray:
-    """Paper eq. 20 (zero-sideslip proportional 4WS), with positive per-axle stiffnesses:
-    k = (-b + m a u^2 / (C_r L)) / (a + m b u^2 / (C_f L)). Opposite phase (k < 0) below
-    u0 = sqrt(b C_r L / (m a)), in phase above. (The paper leaves its k1, k2 undefined; read as
-    the front and rear axle cornering stiffnesses, positive as in Abe, sec. 9.2, its eq. 20
-    is this law.)"""
+    """Paper eq. 20 (zero-sideslip proportional 4WS) at speeds ``u`` [m/s] (scalar or (B,)):
+    the plant's law :func:`envs.vehicle.rear_steer_gain` (written once; its Python function,
+    which numpy broadcasts over arrays). Opposite phase (k < 0) below u0 = sqrt(b C_r L / (m a)),
+    in phase above."""
     c_f, c_r = params.axle_cornering_stiffness
-    m, a, b, L = params.mass, params.cg_to_front, params.cg_to_rear, params.wheelbase
-    u2 = np.asarray(u, dtype=float) ** 2
-    return (-b + m * a * u2 / (c_r * L)) / (a + m * b * u2 / (c_f * L))
+    law = getattr(_eq20_gain, "py_func", _eq20_gain)  # (the function itself under NUMBA_DISABLE_JIT)
+    return law(np.asarray(u, dtype=float), params.cg_to_front, params.cg_to_rear, params.mass, c_f, c_r)
 
 
 def rear_steer_feedforward(u: np.ndarray, delta_f: np.ndarray, params) -> np.ndarray:

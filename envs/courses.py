@@ -26,16 +26,19 @@ lane-centre line: the lanes of ISO 3888-2 are too short for that at any useful s
 from __future__ import annotations
 
 import math
-import numbers
 from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import sparse
 from scipy.optimize import linprog
 
+from envs.vehicle import VehicleParams
+from estimation.types import is_integer, is_number
+
 CONE_SPACING = 3.0  #: largest distance between cones along a lane edge [m]
 CONE_RADIUS = 0.15  #: cone base radius [m]; cone centres stand this far outside the lane edge
 PATH_MARGIN = 0.05  #: least clearance of the driver's line from each lane edge [m]
+_CAR = VehicleParams()  #: the default car, whose body extents the courses' driver line assumes unless given
 
 
 @dataclass(frozen=True)
@@ -81,7 +84,7 @@ def stack_polylines(paths) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _check_width(width: float) -> float:
-    if not (isinstance(width, (int, float)) and math.isfinite(width) and 1.0 <= width <= 3.0):
+    if not (is_number(width) and math.isfinite(width) and 1.0 <= width <= 3.0):
         raise ValueError(f"vehicle width must be in [1, 3] m, got {width!r}")
     return float(width)
 
@@ -180,14 +183,14 @@ def _lane_change(name: str, lengths: tuple[float, ...], widths: tuple[float, flo
     return Course(name, gates, cones, _least_curvature_path(gates, width, front_extent, rear_extent))
 
 
-def iso3888_1(width: float, front_extent: float = 1.77, rear_extent: float = 1.67) -> Course:
+def iso3888_1(width: float, front_extent: float = _CAR.front_extent, rear_extent: float = _CAR.rear_extent) -> Course:
     """ISO 3888-1 double lane change for a vehicle ``width`` [m] wide whose body reaches
     ``front_extent`` ahead of and ``rear_extent`` behind its CG [m] (for the driver's line)."""
     return replace(lane_change(width, front_extent=front_extent, rear_extent=rear_extent), name="iso3888_1")
 
 
 def lane_change(width: float, scale: float = 1.0, offset: float = 3.5, direction: int = 1,
-                front_extent: float = 1.77, rear_extent: float = 1.67) -> Course:
+                front_extent: float = _CAR.front_extent, rear_extent: float = _CAR.rear_extent) -> Course:
     """A double lane change of ISO 3888-1's lane widths with its section lengths times
     ``scale`` and lane 3's right-hand cone row ``offset`` [m] from lane 1's, to the left
     (``direction`` 1) or mirrored to the right (-1): the family the randomised training scenario
@@ -207,7 +210,7 @@ def lane_change(width: float, scale: float = 1.0, offset: float = 3.5, direction
     return Course(course.name, gates, course.cones * mirror, course.centreline * mirror)
 
 
-def iso3888_2(width: float, front_extent: float = 1.77, rear_extent: float = 1.67) -> Course:
+def iso3888_2(width: float, front_extent: float = _CAR.front_extent, rear_extent: float = _CAR.rear_extent) -> Course:
     """ISO 3888-2 obstacle-avoidance lane change for a vehicle ``width`` [m] wide whose body
     reaches ``front_extent`` ahead of and ``rear_extent`` behind its CG [m]."""
     w = _check_width(width)
@@ -224,7 +227,7 @@ def slalom(spacing: float, amplitude: float, n_cones: int) -> Course:
     for name, value in (("spacing", spacing), ("amplitude", amplitude)):
         if not (math.isfinite(value) and value > 0):
             raise ValueError(f"slalom {name} must be a finite number > 0, got {value!r}")
-    if not (isinstance(n_cones, numbers.Integral) and not isinstance(n_cones, bool) and n_cones >= 2):
+    if not (is_integer(n_cones) and n_cones >= 2):
         raise ValueError(f"slalom n_cones must be a whole number >= 2, got {n_cones!r}")
     last = (n_cones - 1) * spacing
     x = np.arange(-spacing, last + 2 * spacing + 0.125, 0.25)

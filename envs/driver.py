@@ -21,6 +21,7 @@ import numba
 import numpy as np
 from scipy.linalg import expm
 
+from control.reference import bicycle_state_matrix
 from envs.courses import stack_polylines
 from envs.vehicle import GRAVITY, S_PSI, S_R, S_U, S_V, S_X, S_Y, VehicleParams
 from estimation.jit import JIT
@@ -183,11 +184,10 @@ def _preview_responses(params: VehicleParams, speed: float, preview_time: float,
     """Lateral-position responses of the linear single-track model at ``speed`` [m/s] at the
     ``points`` preview instants: (free (P, 4) rows mapping [y, psi, v, r] at t = 0 to y(t_k),
     step (P,) y(t_k) per radian of road-wheel steer held from t = 0), in the car's own frame."""
-    c_f, c_r = params.axle_cornering_stiffness
-    m, iz, a, b, u = params.mass, params.yaw_inertia, params.cg_to_front, params.cg_to_rear, speed
-    A = np.array([[0.0, u, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0],
-                  [0.0, 0.0, -(c_f + c_r) / (m * u), (b * c_r - a * c_f) / (m * u) - u],
-                  [0.0, 0.0, (b * c_r - a * c_f) / (iz * u), -(a * a * c_f + b * b * c_r) / (iz * u)]])
+    c_f = params.axle_cornering_stiffness[0]
+    m, iz, a, u = params.mass, params.yaw_inertia, params.cg_to_front, speed
+    a11, a12, a21, a22 = bicycle_state_matrix(u, params)  # [beta, r] rows; here v = u beta
+    A = np.array([[0.0, u, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0], [0.0, 0.0, a11, u * a12], [0.0, 0.0, a21 / u, a22]])
     augmented = np.zeros((5, 5))
     augmented[:4, :4] = A * preview_time / points
     augmented[:4, 4] = np.array([0.0, 0.0, c_f / m, a * c_f / iz]) * preview_time / points

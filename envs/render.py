@@ -67,8 +67,8 @@ class Renderer:
         if scenario.course is not None:
             cones = np.asarray(scenario.course.cones)
             ax.plot(cones[:, 0], cones[:, 1], "^", color="tab:orange", ms=4)
-        body_length = params.wheelbase + params.front_overhang + params.rear_overhang
-        centre_offset = (params.cg_to_front + params.front_overhang - body_length / 2)
+        body_length = params.front_extent + params.rear_extent
+        centre_offset = params.front_extent - body_length / 2
         ax.add_patch(mpatches.Polygon(_box(x + centre_offset * math.cos(psi), y + centre_offset * math.sin(psi),
                                            body_length, params.width, psi), closed=True, fc="tab:blue", ec="k",
                                       alpha=0.35))

@@ -134,9 +134,15 @@ def _road(mu) -> FrictionMap:
         raise ValueError(f"bad mu {mu!r}: {err}") from None
 
 
+def neutral_steer_angle(lateral_acceleration: float, speed: float, params: VehicleParams) -> float:
+    """Front road-wheel angle [rad] for a steady ``lateral_acceleration`` [m/s^2] at ``speed``
+    [m/s] of the neutral-steer (kinematic) single-track model: ay L / u^2 (this car is neutral)."""
+    return lateral_acceleration * params.wheelbase / speed**2
+
+
 def _body(params: VehicleParams) -> tuple[float, float, float]:
     """Width and body extents ahead of / behind the CG [m], for the courses' driver line."""
-    return params.width, params.cg_to_front + params.front_overhang, params.cg_to_rear + params.rear_overhang
+    return params.width, params.front_extent, params.rear_extent
 
 
 def _path_scenario(name, course, speed_kph, mu, duration, lead_in, steering, params, **kw) -> Scenario:
@@ -213,7 +219,7 @@ def slowly_increasing_steer(speed_kph=80.0, mu=1.0, duration=None, steering=None
     rate = math.radians(_positive("rate_deg", rate_deg)) * _direction(direction)
     speed = _positive("speed_kph", speed_kph) / 3.6
     if duration is None:
-        swa_end = 0.55 * GRAVITY * params.wheelbase / speed**2 * params.steering_ratio
+        swa_end = neutral_steer_angle(0.55 * GRAVITY, speed, params) * params.steering_ratio
         duration = 1.0 + 1.5 * swa_end / abs(rate)
     steering = steering if steering is not None else Ramp(rate, start=1.0)
     return Scenario("slowly_increasing_steer", speed_kph, _road(mu), _positive("duration", duration), steering,
@@ -238,7 +244,7 @@ def mu_jump(speed_kph=60.0, mu=0.9, duration=6.0, steering=None, mu_patch=0.3, l
     speed, duration = _positive("speed_kph", speed_kph) / 3.6, _positive("duration", duration)
     reach = speed * duration  # the largest X [m] the car reaches: on a straight, its distance
     if steering is None:
-        delta = _positive("lateral_g", lateral_g) * GRAVITY * params.wheelbase / speed**2
+        delta = neutral_steer_angle(_positive("lateral_g", lateral_g) * GRAVITY, speed, params)
         steering = Constant(delta * params.steering_ratio)
         # the circle the steering is designed for (neutral steer, front axle only) from X = 0
         # heading +X [m]: a scenario whose designed path misses its patch is refused, even if a
@@ -301,7 +307,7 @@ def random(speed_kph=None, mu=None, duration=10.0, steering=None, seed=0, rear_s
         speed = speed_kph / 3.6
         mu_ref = road.table()[0] if road.table() is not None else 0.5
         demand = rng.uniform(demand_low, demand_high) * mu_ref * GRAVITY
-        swa = demand * params.wheelbase / speed**2 * params.steering_ratio
+        swa = neutral_steer_angle(demand, speed, params) * params.steering_ratio
         if rng.random() < 0.75:
             weights = rng.dirichlet(np.ones(3))
             steering = _SumOfSines(tuple(float(w * swa) for w in weights),

@@ -46,7 +46,6 @@ the road friction under each wheel is sampled at the start of each step.
 from __future__ import annotations
 
 import math
-import numbers
 from dataclasses import dataclass, field, fields, replace
 from functools import cached_property
 from typing import NamedTuple
@@ -58,18 +57,9 @@ from envs import vecmath
 from envs.tyre import TyreParams, combined_forces, relaxation_lengths
 from envs.vecmath import LANE_MULTIPLE
 from estimation.jit import JIT
+from estimation.types import is_integer, is_number  # noqa: F401  (re-exported: envs' checks import them here)
 
 GRAVITY = 9.80665  #: standard gravity [m/s^2]
-
-
-def is_number(value) -> bool:
-    """A real number (Python's or numpy's), not a bool (plain types first: the ABC check is slow)."""
-    return type(value) in (float, int) or (isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)))
-
-
-def is_integer(value) -> bool:
-    """An integer (Python's or numpy's), not a bool."""
-    return type(value) is int or (isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_)))
 
 
 #: VehicleParams fields that may be 0 (switching off a resistance or the low-speed damping);
@@ -163,6 +153,16 @@ class VehicleParams:
         fz = self.static_wheel_loads
         c = self.tyre.cornering_stiffness(fz)
         return float(c[0] + c[1]), float(c[2] + c[3])
+
+    @property
+    def front_extent(self) -> float:
+        """Body length ahead of the CG [m] (to the front bumper)."""
+        return self.cg_to_front + self.front_overhang
+
+    @property
+    def rear_extent(self) -> float:
+        """Body length behind the CG [m] (to the rear bumper)."""
+        return self.cg_to_rear + self.rear_overhang
 
     @cached_property
     def wheel_positions(self) -> np.ndarray:
@@ -271,7 +271,8 @@ def rear_steer_gain(u: float, a: float, b: float, mass: float, c_f: float, c_r: 
 
     ``k = (-b + m a u^2 / (C_r L)) / (a + m b u^2 / (C_f L))`` with positive axle cornering
     stiffnesses C_f, C_r [N/rad] (Abe, *Vehicle Handling Dynamics*, sec. 9.2): the paper's k1,
-    k2, which it leaves undefined, read as the front and rear axle stiffnesses.
+    k2, which it leaves undefined, read as the front and rear axle stiffnesses. Scalars [m/s, m,
+    m, kg, N/rad, N/rad]; :func:`control.reference.rear_steer_gain` applies it over arrays.
     """
     wheelbase = a + b
     u2 = u * u

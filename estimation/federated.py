@@ -1,6 +1,7 @@
 """Federated Kalman filter with reset (Carlson, IEEE TAES 26(3), 1990; paper eq. 33-35, 59-61):
 compiled fusion and sharing rules, and :func:`federated_step`, one cycle for a batch and any
-vectorised models (the estimators' compiled steps run the same cycle on the vehicle model).
+vectorised models (the estimators' compiled steps run the same cycle on the vehicle model:
+joint._federated, tested against this one).
 
 Each step the master's (x_g, P_g) is shared out to the sub-filters with information-sharing
 coefficients beta_i (sum 1): P_i = P_g / beta_i, Q_i = Q / beta_i. Each sub-filter predicts

@@ -32,7 +32,7 @@ import numpy as np
 
 from estimation.optimizers import METHODS, minimize
 from estimation.joint import STATE_FIELDS, StateEstimator
-from estimation.types import Estimate
+from estimation.types import Estimate, is_integer
 
 BOUNDS = [(-1.0, 1.0)] * 4  #: log10 factors on (process, accelerometer, gyro, wheel-speed) noise
 
@@ -91,7 +91,7 @@ class OnlineTuner:
                  replay_per_step: int = 1, seed: int = 0, bounds=BOUNDS, method: str = "alo"):
         for name, value in (("window", window), ("n_agents", n_agents), ("iterations", iterations),
                             ("replay_per_step", replay_per_step)):
-            if not (isinstance(value, int) and value >= 1):
+            if not (is_integer(value) and value >= 1):
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
         if method not in METHODS:
             raise ValueError(f"unknown optimizer {method!r}; known: {list(METHODS)}")

@@ -106,9 +106,19 @@ def check_estimate(estimate, batch: int, source) -> None:
                 raise ValueError(f"estimator {source!r} returned {name} {float(value[outside].flat[0])!r}: it must be {rule}")
 
 
+def is_number(value) -> bool:
+    """A real number (Python's or numpy's), not a bool (plain types first: the ABC check is slow)."""
+    return type(value) in (float, int) or (isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)))
+
+
+def is_integer(value) -> bool:
+    """An integer (Python's or numpy's), not a bool."""
+    return type(value) is int or (isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_)))
+
+
 def check_step(dt) -> float:
     """An estimator's step ``dt`` [s] if finite and > 0; else ValueError naming it."""
-    if not (isinstance(dt, numbers.Real) and not isinstance(dt, bool) and math.isfinite(dt) and dt > 0):
+    if not (is_number(dt) and math.isfinite(dt) and dt > 0):
         raise ValueError(f"dt must be a finite step > 0 [s], got {dt!r}")
     return float(dt)
 

@@ -134,7 +134,7 @@ def test_bad_input_raises():
 def test_a_reference_understeer_gradient_lowers_the_yaw_reference_the_controller_tracks():
     """StabilityController(reference_understeer=K): the reference u delta / (L + K u^2); with
     2 deg/g at 25 m/s it asks for L / (L + K u^2) of the neutral car's yaw rate."""
-    k = math.radians(2.0) / 9.81
+    k = math.radians(2.0) / GRAVITY
     u, delta = np.array([25.0]), np.array([0.01])
     est = Estimate(u=u, v=np.zeros(1), beta=np.zeros(1), r=np.zeros(1), ax=np.zeros(1), ay=np.zeros(1),
                    mu=np.ones((1, 4)), fz=np.full((1, 4), 3000.0), beta_std=np.zeros(1), mu_std=np.zeros((1, 4)))

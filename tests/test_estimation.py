@@ -211,6 +211,57 @@ def test_federated_filter_with_reset_equals_the_centralised_filter_on_a_linear_s
 PARAMS = ModelParams.from_vehicle(VehicleParams())
 
 
+@pytest.mark.parametrize("group, huber_c", [("state", None), ("state", 3.0), ("mu", 3.0)])
+def test_the_compiled_federated_cycle_equals_federated_step_on_the_vehicle_model(group, huber_c):
+    """The estimators' compiled cycle (joint._federated: share, predict, update, fuse) is the
+    one federated_step runs, model for model: both driven by the compiled vehicle models, in
+    a hard turn (ay 6 m/s^2 at 20 m/s on mu 0.8), with one invalid channel."""
+    from estimation.joint import MU_1, MU_2, RANDOM_WALK, STATE_1, STATE_2, TRANSITION, _evaluate, _federated
+    from estimation.model import fill_steer_trig
+
+    pk, dt = PARAMS.packed, 0.002
+    state = np.array([20.0, -0.4, -0.3, 6.0, 0.3, 0.01])  # [u, v, ax, ay, r, Gamma]
+    steer = np.empty((3, 4))
+    fill_steer_trig((0.06, 0.06, 0.0, 0.0), steer)
+    omega, torque, omega_dot = np.full(4, 20.0 / PARAMS.wheel_radius), np.full(4, 150.0), np.zeros(4)
+    mu = np.array([0.8, 0.75, 0.82, 0.8])
+    f_args, h_args = (mu, steer, omega, torque, omega_dot, pk, dt), (steer, pk)
+    m_args = (state, steer, omega, torque, omega_dot, pk, dt)
+    if group == "state":
+        x, P = state, np.diag([0.3, 0.1, 0.5, 0.5, 0.01, 50.0]) ** 2
+        Q, models = np.diag([0.05, 0.02, 0.3, 0.3, 0.005, 5.0]) ** 2, (TRANSITION, STATE_1, STATE_2)
+        z1 = np.array([-0.2, 5.7, 0.31, *(omega * PARAMS.wheel_radius + 0.05)])
+        R1, R2 = np.diag([0.05, 0.05, 0.002, 0.02, 0.02, 0.02, 0.02]) ** 2, np.diag([0.05, 0.002]) ** 2
+    else:
+        x, P = mu, 0.01 * (0.99 * np.ones((4, 4)) + 0.01 * np.eye(4))
+        Q, models = 1e-6 * np.eye(4), (RANDOM_WALK, MU_1, MU_2)
+        z1 = np.array([-0.2, 5.7, 0.31])
+        R1, R2 = np.diag([0.6, 0.6, 0.002]) ** 2, np.diag([0.6, 0.002]) ** 2
+    valid1 = np.ones(len(z1), dtype=bool)
+    valid1[0] = False
+    z2, valid2 = z1[1:3].copy(), valid1[1:3].copy()
+    beta = np.array([0.6, 0.4])
+
+    def model(code):
+        def evaluate(points):  # (1, K, n) -> (1, K, k), one compiled model call
+            out = np.empty((1, points.shape[1], {TRANSITION: 6, RANDOM_WALK: 4, STATE_1: 7, MU_1: 3}.get(code, 2)))
+            _evaluate(code, np.ascontiguousarray(points[0]), out[0], f_args, h_args, m_args)
+            return out
+        return evaluate
+
+    reference = federated_step(x[None], P[None], model(models[0]), Q,
+                               [SubMeasurement(z1[None], model(models[1]), R1, valid1[None]),
+                                SubMeasurement(z2[None], model(models[2]), R2, valid2[None])], beta[None], huber_c)
+    x_out, P_out, beta_out = np.empty_like(x), np.empty_like(P), np.empty(2)
+    nll = _federated(x, P, Q, beta, models[0], z1, valid1, R1, models[1], z2, valid2, R2, models[2],
+                     math.inf if huber_c is None else huber_c, f_args, h_args, m_args, x_out, P_out, beta_out)
+    np.testing.assert_allclose(x_out, reference.x[0], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(P_out, reference.P[0], rtol=1e-10, atol=1e-15)
+    np.testing.assert_allclose(beta_out, reference.beta[0], rtol=1e-12)
+    assert nll == pytest.approx(reference.nll.sum(), rel=1e-12)
+    assert np.max(np.abs(x_out - x)) > 1e-4  # the measurements moved the estimate
+
+
 def test_dugoff_is_linear_at_small_slip_and_follows_its_closed_form_in_saturation():
     """Dugoff (eps = 0, slip s positive when driving): lambda = mu Fz (1 + s) / (2 D),
     D = sqrt(Cx^2 s^2 + Cy^2 tan^2 a); for lambda >= 1 the force is linear, for lambda < 1 its

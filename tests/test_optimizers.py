@@ -1,6 +1,7 @@
 """CMA-ES and random search behind estimation.optimizers.minimize, and the batched tuning objective."""
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -156,16 +157,20 @@ def test_cmaes_leaves_numpys_global_generator_alone():
 def test_tuning_criteria_likelihood_and_truth_and_a_bad_name():
     """The likelihood criterion rewards a filter whose noise matches the data: shrinking R
     100-fold (overconfident) or inflating everything 100-fold (underconfident) both raise the
-    mean innovation NLL above the hand-set noise's; the truth criterion is a different
-    number; an unknown criterion is named."""
-    from training.tune import calibration_run, replay_cost
+    mean innovation NLL above the hand-set noise's; the truth criterion is the documented sum of
+    RMSEs, each over its scale; an unknown criterion is named."""
+    from envs.metrics import rmse
+    from training.tune import calibration_run, replay, replay_cost
 
     traj = calibration_run(duration=0.6)
     X = np.array([[0.0, 0.0, 0.0, 0.0], [0.0, -2.0, -2.0, -2.0], [2.0, 2.0, 2.0, 2.0]])
     nll = replay_cost(X, traj, criterion="nll")
     assert nll[1] > nll[0] and nll[2] > nll[0]
     truth = replay_cost(X[:1], traj, criterion="truth")
-    assert np.isfinite(truth[0]) and truth[0] != nll[0]
+    run = replay(X[:1], traj)
+    by_hand = (rmse(run.beta[:, 0], traj.truth.beta) / math.radians(0.1) + rmse(run.r[:, 0], traj.truth.r) / 0.01
+               + rmse(run.u[:, 0], traj.truth.u) / 0.05)
+    assert truth[0] == pytest.approx(by_hand, rel=1e-12) and by_hand > 0
     with pytest.raises(ValueError, match="likelihood9"):
         replay_cost(X[:1], traj, criterion="likelihood9")
 

@@ -29,7 +29,7 @@ from envs.metrics import (alongside_path, cone_hits, mae, path_deviation, peak_a
 from envs.scenarios import SCENARIOS, is_number, make_scenario
 from envs.sensors import Fault
 from envs.simulation import Trajectory, simulate
-from envs.vehicle import A_AY, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_X, S_Y
+from envs.vehicle import A_AY, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_X, S_Y, is_integer
 from estimation import check_estimator_name
 from estimation.types import import_factory
 from training.io import atomic_write, atomic_write_text, check_writable
@@ -161,8 +161,7 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
         out.update(path_rms=rms_dev, path_max=max_dev)
         cones = scenario.course.cones if scenario.course is not None else np.empty((0, 2))
         out["cone_hits"] = float(cone_hits(traj.state[:, S_X], traj.state[:, S_Y], traj.state[:, S_PSI], cones,
-                                           params.width, params.cg_to_front + params.front_overhang,
-                                           params.cg_to_rear + params.rear_overhang))
+                                           params.width, params.front_extent, params.rear_extent))
         # a car that stopped short of the last cones (a coasting car at walking pace) has not
         # driven the course; the driver's line runs on beyond them, which a car slowed by its
         # controller need not reach within the scenario's time (no cones: the line's end). Where
@@ -237,6 +236,8 @@ def run_matrix(scenarios: Sequence[str] = HEADLINE, estimators: Sequence[str] = 
                controllers: Sequence[str] = DEFAULT_CONTROLLERS, seeds: int = 2, jobs: int | None = None,
                progress: bool = True) -> tuple[list[tuple[RunSpec, dict]], dict]:
     """Run the matrix in parallel processes; returns per-run (spec, metrics) and seed-0 trajectories."""
+    if not (is_integer(seeds) and seeds >= 1):
+        raise ValueError(f"seeds must be an integer >= 1, got {seeds!r}")
     parsed = [parse_scenario(s) for s in scenarios]
     for name in estimators:
         check_estimator_name(name)
@@ -263,8 +264,6 @@ def run_matrix(scenarios: Sequence[str] = HEADLINE, estimators: Sequence[str] = 
                 run_files(name.removeprefix(RL_PREFIX))
             except FileNotFoundError as err:
                 raise ValueError(f"controller {name!r}: {err}") from None
-    if seeds < 1:
-        raise ValueError(f"seeds must be >= 1, got {seeds!r}")
     A = characterise() if any(name == "sine_with_dwell" for name, _ in parsed) else float("nan")
     specs = [RunSpec(s, e, c, k, A) for s in scenarios for c in controllers for e in estimators for k in range(seeds)]
     results, trajectories = [], {}

@@ -23,6 +23,7 @@ from envs.road import contact_points
 from envs.scenarios import PAPER_SCENARIOS, Scenario
 from envs.simulation import Trajectory, simulate
 from estimation import ESTIMATORS, Estimate, check_estimator_name, make_estimator, parse_estimator_name
+from estimation.types import is_integer
 from training.compare import (FAULT_SUFFIX, build_scenario, check_file_stems, file_stem, naming_the_run,
                               parse_scenario)
 from training.io import atomic_write, atomic_write_text, check_writable
@@ -144,7 +145,7 @@ def run_all(scenarios: Sequence[str | Scenario] = PAPER_SCENARIOS, estimators: S
     for name in estimators:
         check_estimator_name(name)
     require_distinct("estimators", estimators)
-    if not isinstance(seeds, int) or seeds < 1:
+    if not (is_integer(seeds) and seeds >= 1):
         raise ValueError(f"seeds must be an integer >= 1, got {seeds!r}")
     if not isinstance(road_mu, bool):
         raise ValueError(f"road_mu must be True or False, got {road_mu!r}")

@@ -39,6 +39,7 @@ from gymnasium.vector import AutoresetMode
 from stable_baselines3.common.vec_env import VecEnv
 
 from envs.gym_env import N_OBS, EnvConfig, YawStabilityVectorEnv, _AgentController, state_observation
+from estimation.types import is_integer
 from training.asymmetric import POLICIES
 from training.io import atomic_write, atomic_write_json, atomic_write_text, check_writable
 
@@ -245,7 +246,7 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int | None = None, e
     import torch
 
     torch.set_num_threads(TORCH_THREADS)
-    if not (isinstance(timesteps, int) and timesteps > 0):
+    if not (is_integer(timesteps) and timesteps > 0):
         raise ValueError(f"timesteps must be a positive integer, got {timesteps!r}")
     env_kwargs = dict(env_kwargs or {})
     out = check_writable(out)
@@ -254,14 +255,16 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int | None = None, e
         _check_no_abandoned_branch(resume, out)
     seed = 0 if seed is None else seed
     n_envs = 16 if n_envs is None else n_envs
-    if not (isinstance(seed, int) and seed >= 0):
+    if not (is_integer(seed) and seed >= 0):
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
-    if not (isinstance(n_envs, int) and n_envs > 0):
+    if not (is_integer(n_envs) and n_envs > 0):
         raise ValueError(f"n_envs must be a positive integer, got {n_envs!r}")
     for name, value in (("eval_every", eval_every), ("checkpoint_every", checkpoint_every),
                         ("eval_episodes", eval_episodes)):
-        if not (isinstance(value, int) and value > 0):
+        if not (is_integer(value) and value > 0):
             raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    timesteps, seed, n_envs = int(timesteps), int(seed), int(n_envs)  # (numpy integers too; config.json takes int)
+    eval_every, checkpoint_every, eval_episodes = int(eval_every), int(checkpoint_every), int(eval_episodes)
     try:
         env_config = EnvConfig(**env_kwargs)  # validate now, with clear errors
     except TypeError as err:

@@ -40,6 +40,7 @@ from envs.sensors import SensorReading
 from envs.simulation import Trajectory, simulate
 from estimation import NoiseParams, make_estimator, tuned_noise
 from estimation.optimizers import minimize
+from estimation.types import is_integer
 from training.io import atomic_write_json, check_writable
 from training.pool import parallel_map
 
@@ -144,8 +145,9 @@ def tune(n_agents: int = 30, iterations: int = 100, seed: int = 0, out: Path = O
     does not beat the hand-set noise the result keeps it (log10 factors 0, ``improved`` false;
     ``optimizer_best`` holds what the optimizer found). A negative ``seed`` or an ``out`` that
     cannot be written as a file raises ValueError before any work."""
-    if not (isinstance(seed, int) and seed >= 0):
+    if not (is_integer(seed) and seed >= 0):
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    seed = int(seed)  # (written to the result's JSON)
     check_writable(out, "file")
     traj = calibration_run(duration=duration)
 
