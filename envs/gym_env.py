@@ -32,7 +32,7 @@ from control.reference import PhasePlaneRegion, reference_yaw_rate
 from envs.metrics import SPIN_OUT_SIDESLIP, CoursePaths, sine_with_dwell_metrics
 from envs.scenarios import SCENARIOS, Scenario, is_number, make_scenario
 from envs.sensors import Fault
-from envs.simulation import DT, ClosedLoop
+from envs.simulation import DT, ClosedLoop, front_steer_command
 from envs.vehicle import A_AY, S_R, S_X, S_Y, is_integer
 from estimation import check_estimator_name
 from estimation.types import Estimate
@@ -84,12 +84,13 @@ class EnvConfig:
         substeps = dt / DT if is_number(dt) and math.isfinite(dt) else math.nan
         if not (1 - 1e-9 <= substeps <= MAX_CONTROL_DT / DT + 1e-9 and abs(substeps - round(substeps)) < 1e-9):
             raise ValueError(f"control_dt must be a multiple of {DT} s up to {MAX_CONTROL_DT} s, got {dt!r}")
-        try:
-            faults = tuple(self.sensor_faults or ())
+        try:  # a Fault's fields as a dict too: what a run's config.json (and --env-kwargs JSON) holds
+            faults = tuple(Fault(**f) if isinstance(f, dict) else f for f in (self.sensor_faults or ()))
         except TypeError:
             faults = None
         if faults is None or not all(isinstance(f, Fault) for f in faults):
-            raise ValueError(f"sensor_faults must be a sequence of envs.sensors.Fault, got {self.sensor_faults!r}")
+            raise ValueError(f"sensor_faults must be a sequence of envs.sensors.Fault (or of dicts of its fields), "
+                             f"got {self.sensor_faults!r}")
         object.__setattr__(self, "sensor_faults", faults)
         if self.max_episode_steps is not None and not (is_integer(self.max_episode_steps)
                                                        and self.max_episode_steps > 0):
@@ -230,7 +231,7 @@ class YawStabilityCore:
     def observe(self) -> np.ndarray:
         """Observations (B, observation_size) float32 at the current time."""
         s = self.loop.sample()
-        delta_f = s.steering_wheel / self.params.steering_ratio
+        delta_f = front_steer_command(s.steering_wheel, self.params)
         if self.config.observation == "sensors":
             values = s.reading.values
             r_ref = reference_yaw_rate(values[:, 3:7].mean(axis=1) * self.params.wheel_radius, values[:, 7],
@@ -263,7 +264,7 @@ class YawStabilityCore:
         s = self.loop.sample()
         obs = self.observe()
         truth = s.truth
-        r_ref = reference_yaw_rate(truth.u, s.steering_wheel / self.params.steering_ratio, truth.mu, self.params)
+        r_ref = reference_yaw_rate(truth.u, front_steer_command(s.steering_wheel, self.params), truth.mu, self.params)
         yaw_error = truth.r - r_ref
         beta = truth.beta
         phase_plane = PhasePlaneRegion.default().state_index(truth)
@@ -444,7 +445,8 @@ class YawStabilityEnv(gym.Env):
     ISO 3888-2; the others are open-road manoeuvres without road edges and end by spin-out or
     time). Truncated: the scenario's end. ``gym.make`` adds gymnasium's TimeLimit at 1,500 steps
     (30 s at the default 20 ms, beyond every scenario's default duration; a smaller
-    ``control_dt`` or a slow ``speed_kph`` on a course can need more: pass
+    ``control_dt``, a slow ``speed_kph`` on a course or ``random``'s drawn lane changes
+    (``course_share`` > 0: up to ~36 s at 30 km/h) can need more: pass
     ``max_episode_steps`` to ``gym.make``); an episode it cuts carries no
     ``episode_metrics`` in ``info`` (:meth:`YawStabilityEnv.episode_metrics` gives them at any
     time). The native vector env takes ``max_episode_steps`` itself and reports the metrics.
@@ -458,7 +460,13 @@ class YawStabilityEnv(gym.Env):
     outside the sideslip region it recovers from by itself); when an episode ends,
     ``episode_metrics`` (length, return, yaw-rate tracking RMS, peak |beta|, peak phase-plane
     index at the control steps, largest path deviation, spin-out; on ``sine_with_dwell`` the
-    FMVSS 126 ratios, displacement and verdict).
+    FMVSS 126 ratios, displacement and verdict). The yaw-rate tracking RMS here is the
+    reward's: sampled every control step against the reference of the driver's steer command;
+    ``fourwis compare``'s ``yaw_tracking_rms`` samples every 2 ms against the road-wheel angle
+    the servo reached (8.62 against 8.29 deg/s on one sine with dwell). The comparison's
+    ``swd_wet`` and ``amplitude_A=`` are its own names: here ``scenario="sine_with_dwell"``
+    with ``mu=0.5`` and ``scenario_kwargs={"amplitude_deg": 5.5 A}`` (A in degrees, from
+    :func:`envs.fmvss126.characterise`).
     """
 
     metadata = {"render_modes": list(RENDER_MODES), "render_fps": 50}

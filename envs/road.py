@@ -20,7 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from envs.vehicle import MU_MAX, S_PSI, S_X, S_Y, VehicleParams
+from envs.vehicle import MU_MAX, S_PSI, S_X, S_Y, VehicleParams, is_number
 
 
 def check_mu(name: str, value: float) -> float:
@@ -45,8 +45,9 @@ class Patch:
     def __post_init__(self) -> None:
         check_mu("Patch.mu", self.mu)
         for name in ("x0", "x1", "y0", "y1"):
-            if math.isnan(getattr(self, name)):
-                raise ValueError(f"Patch.{name} is NaN")
+            value = getattr(self, name)
+            if not is_number(value) or math.isnan(value):
+                raise ValueError(f"Patch.{name} must be a number [m] (+-inf for no edge), got {value!r}")
         if not (self.x0 < self.x1 and self.y0 < self.y1):
             raise ValueError(f"Patch needs x0 < x1 and y0 < y1, got x {self.x0}..{self.x1}, y {self.y0}..{self.y1}")
 

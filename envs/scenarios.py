@@ -39,6 +39,7 @@ Steering = Callable[[float, np.ndarray], float]
 
 
 MAX_SPEED_KPH = 300.0  #: fastest scenario speed [km/h] (far beyond the motors' top speed)
+MAX_DURATION = 600.0  #: longest scenario [s] (a simulation keeps every 2 ms sample: 300,000 of them)
 
 
 @dataclass(frozen=True)
@@ -72,6 +73,8 @@ class Scenario:
             raise ValueError(f"params must be a VehicleParams, got {self.params!r}")
         if not (is_number(self.speed_kph) and 0.0 < self.speed_kph <= MAX_SPEED_KPH):
             raise ValueError(f"speed_kph must lie in (0, {MAX_SPEED_KPH:g}], got {self.speed_kph!r}")
+        if not (is_number(self.duration) and 0.0 < self.duration <= MAX_DURATION):
+            raise ValueError(f"duration must lie in (0, {MAX_DURATION:g}] s, got {self.duration!r}")
 
     @property
     def speed(self) -> float:
@@ -307,7 +310,8 @@ def random(speed_kph=None, mu=None, duration=10.0, steering=None, seed=0, rear_s
         speed = speed_kph / 3.6
         mu_ref = road.table()[0] if road.table() is not None else 0.5
         demand = rng.uniform(demand_low, demand_high) * mu_ref * GRAVITY
-        swa = neutral_steer_angle(demand, speed, params) * params.steering_ratio
+        # (at walking pace the demand would ask for more than the lock: held there)
+        swa = min(neutral_steer_angle(demand, speed, params), params.max_front_steer) * params.steering_ratio
         if rng.random() < 0.75:
             weights = rng.dirichlet(np.ones(3))
             steering = _SumOfSines(tuple(float(w * swa) for w in weights),
@@ -351,7 +355,7 @@ SCENARIOS: dict[str, Scenario] = {name: build() for name, build in _BUILDERS.ite
 
 def make_scenario(name: str, **overrides) -> Scenario:
     """Build the scenario ``name`` with ``overrides``; ValueError names an unknown scenario or argument."""
-    if name not in _BUILDERS:
+    if not isinstance(name, str) or name not in _BUILDERS:
         raise ValueError(f"unknown scenario {name!r}; known: {sorted(_BUILDERS)}")
     build = _BUILDERS[name]
     allowed = build.__code__.co_varnames[:build.__code__.co_argcount]

@@ -65,6 +65,15 @@ _MEASURED_STATE = np.array([S_R, *range(S_OMEGA, S_OMEGA + 4), S_DELTA_F, S_DELT
                             *range(S_TORQUE, S_TORQUE + 4)])  #: sensor channels 2-12 from the plant state
 
 
+def front_steer_command(steering_wheel: np.ndarray, params) -> np.ndarray:
+    """The front road-wheel angle (B,) [rad] the driver's steering-wheel angle commands, within
+    the steering's lock (``max_front_steer``): the angle the servo is sent, and what the
+    controller, its allocator's lever arms and the references see (a steering wheel turned
+    past the lock does not steer the wheels further)."""
+    return np.clip(np.asarray(steering_wheel, dtype=float) / params.steering_ratio, -params.max_front_steer,
+                   params.max_front_steer)
+
+
 def sensor_truth(state: np.ndarray, aux: np.ndarray) -> np.ndarray:
     """The 13 measured quantities (B, 13) in :data:`envs.sensors.CHANNELS` order from plant state/aux."""
     truth = np.empty((len(state), 13))
@@ -338,7 +347,7 @@ class ClosedLoop:
         s = self.sample()
         controls = np.zeros((self.batch_size, NU))
         controls[:, C_TORQUE:C_TORQUE + 4] = s.base_torques
-        controls[:, C_DELTA_F] = s.steering_wheel / self.params.steering_ratio
+        controls[:, C_DELTA_F] = front_steer_command(s.steering_wheel, self.params)
         if self.controller is not None:
             command = self.controller(s.t, s.estimate, controls[:, C_DELTA_F].copy(), s.base_torques.copy())
             if self._check_commands:
@@ -389,6 +398,8 @@ def simulate(scenario: Scenario | str, controller: Controller | str | None = Non
         scenario = make_scenario(scenario)
     if not (is_integer(seed) and seed >= 0):
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+    if not isinstance(progress, (bool, np.bool_)):
+        raise ValueError(f"progress must be True or False, got {progress!r}")
     loop = ClosedLoop(scenario, controller, estimator, np.random.default_rng(seed), sensor_params, faults, dt)
     n = int(math.ceil(scenario.duration / dt - 1e-9))
     records = [loop.advance(integrate=k < n)

@@ -25,7 +25,9 @@ estimator's 3-DOF Dugoff model (no "inverse crime"):
 * normal loads with longitudinal and lateral load transfer (h = 0.54 m) driven by the
   body accelerations through a first-order lag that stands for pitch/roll dynamics
   (and removes the algebraic loop between loads and forces); the lateral transfer is
-  split between the axles in proportion to their static loads;
+  split between the axles in proportion to their static loads; beyond the transfer that
+  lifts an inner wheel (about 1.4 g at steady speed on this car; roll-over is not modelled)
+  that wheel is held at 1 N and the outer one carries the rest of its axle's load;
 * aerodynamic drag (1/2) rho Cd A u|u| along the body's x axis, acting at ground level (it
   neither pitches the car nor pushes it sideways when it slides: at 100 km/h the pitch
   moment left out shifts ~90 N, 2% of an axle's load, from front to rear);
@@ -114,13 +116,22 @@ class VehicleParams:
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
-            if f.name in ("tyre", "rear_steer_feedforward"):
+            if f.name == "tyre":
+                if not isinstance(value, TyreParams):
+                    raise ValueError(f"VehicleParams.tyre must be an envs.tyre.TyreParams, got {value!r}")
+                continue
+            if f.name == "rear_steer_feedforward":
+                if not isinstance(value, (bool, np.bool_)):
+                    raise ValueError(f"VehicleParams.rear_steer_feedforward must be True or False, got {value!r}")
                 continue
             if f.name in MAY_BE_ZERO:
                 if not (is_number(value) and math.isfinite(value) and value >= 0.0):
                     raise ValueError(f"VehicleParams.{f.name} must be a finite number >= 0, got {value!r}")
             elif not (is_number(value) and math.isfinite(value) and value > 0.0):
                 raise ValueError(f"VehicleParams.{f.name} must be a finite number > 0, got {value!r}")
+        for name in ("max_front_steer", "max_rear_steer"):  # the steering geometry holds below 90 deg
+            if not getattr(self, name) < 0.5 * math.pi:
+                raise ValueError(f"VehicleParams.{name} must be below pi/2 rad (90 deg), got {getattr(self, name)!r}")
 
     def replace(self, **overrides) -> "VehicleParams":
         """Copy with ``overrides``; unknown names raise ValueError."""
@@ -163,6 +174,11 @@ class VehicleParams:
     def rear_extent(self) -> float:
         """Body length behind the CG [m] (to the rear bumper)."""
         return self.cg_to_rear + self.rear_overhang
+
+    @cached_property
+    def contact_point_reach(self) -> float:
+        """Largest distance [m] of a contact point from the CG (in the body frame)."""
+        return float(np.max(np.hypot(*self.wheel_positions.T)))
 
     @cached_property
     def wheel_positions(self) -> np.ndarray:
@@ -329,9 +345,12 @@ def _slip_lanes(p, tp, lanes, n_lanes):
         v = lanes[L_V + lane]
         r = lanes[L_R + lane]
         delta = lanes[L_DELTA + lane]
-        fz = lanes[L_FZ_STATIC + lane] + lanes[L_FZ_PER_AX + lane] * lanes[L_AX + lane] \
-            + lanes[L_FZ_PER_AY + lane] * lanes[L_AY + lane]
-        fz = max(fz, 1.0)
+        # quasi-static load transfer; a lateral transfer beyond the half-axle load lifts the inner
+        # wheel (held at 1 N), the outer one taking the rest, so the axle keeps its load
+        half_axle = lanes[L_FZ_STATIC + lane] + lanes[L_FZ_PER_AX + lane] * lanes[L_AX + lane]
+        room = max(half_axle - 1.0, 0.0)
+        transfer = min(max(lanes[L_FZ_PER_AY + lane] * lanes[L_AY + lane], -room), room)
+        fz = max(half_axle + transfer, 1.0)
         sd, cd = vecmath.sin_cos(delta)
         vxb = u - r * lanes[L_WY + lane]
         vyb = v + r * lanes[L_WX + lane]
@@ -603,6 +622,32 @@ def check_plant_step(dt) -> float:
     return float(dt)
 
 
+#: largest |lambda dt| of a real, negative eigenvalue inside classical RK4's stability region
+RK4_REAL_LIMIT = 2.78
+
+
+def check_relaxation_step(state: np.ndarray, params: VehicleParams, dt: float) -> None:
+    """ValueError naming ``dt`` and the speed if the tyres' relaxation is too fast for RK4.
+
+    The relaxed slips decay at rate |v_cx| / sigma, and sigma falls with the load down to
+    ``min_relaxation_length``: a lightly loaded wheel at 70 m/s relaxes at ~700 1/s, and at
+    dt = 10 ms RK4 then amplifies the tyre deflections every step (to 1e60 m within seconds,
+    finite, so nothing else stops the run). Bounded with the fastest contact point's speed,
+    at most sqrt(u^2 + v^2) + |r| times the farthest contact point's distance from the CG."""
+    arm = params.contact_point_reach
+    if len(state) == 1:  # one car (the single env's every substep): scalar arithmetic, ~1 us
+        x = state[0]
+        fastest = math.hypot(x[S_U], x[S_V]) + abs(x[S_R]) * arm
+    else:
+        speed = np.hypot(state[:, S_U], state[:, S_V]) + np.abs(state[:, S_R]) * arm
+        fastest = float(np.max(speed, initial=0.0, where=np.isfinite(speed)))
+    limit = RK4_REAL_LIMIT * params.min_relaxation_length / dt
+    if fastest > limit:
+        raise ValueError(f"dt = {dt!r} s is too long at {fastest:.1f} m/s: the tyres relax at up to speed / "
+                         f"min_relaxation_length ({params.min_relaxation_length:g} m), outside RK4's stability region "
+                         f"beyond {limit:.1f} m/s; use dt <= {RK4_REAL_LIMIT * params.min_relaxation_length / fastest:.4g} s")
+
+
 def _check_array(name: str, value: np.ndarray, width: int) -> np.ndarray:
     value = np.ascontiguousarray(value, dtype=np.float64)
     if value.ndim != 2 or value.shape[1] != width:
@@ -654,7 +699,8 @@ def step(state: np.ndarray, controls: np.ndarray, params: VehicleParams, road, d
     the start of the call (held over its steps: call with ``n_steps=1`` for them when a wheel
     may cross a friction boundary) and again at the returned state for the diagnostics (not
     when handed in as precomputed tables, which hold the start's friction). ``dt`` at most
-    :data:`MAX_DT` (10 ms).
+    :data:`MAX_DT` (10 ms), and short enough for the tyres' relaxation at the car's speed
+    (:func:`check_relaxation_step`: 10 ms up to ~100 km/h, 2 ms up to ~500 km/h).
     Non-finite controls or road friction outside (0, 2] raise ValueError; a state that turns
     non-finite raises FloatingPointError (a run never silently produces NaN).
     """
@@ -668,6 +714,7 @@ def step(state: np.ndarray, controls: np.ndarray, params: VehicleParams, road, d
     if controls.shape != (batch, NU):
         raise ValueError(f"controls must have shape ({batch}, {NU}), got {controls.shape}")
     check_plant_step(dt)
+    check_relaxation_step(state, params, dt)
     if not (is_integer(n_steps) and n_steps >= 1):
         raise ValueError(f"n_steps must be a positive integer, got {n_steps!r}")
     tables = road if isinstance(road, RoadTables) else road_tables(road, state, params)

@@ -333,3 +333,19 @@ def test_path_follower_names_a_speed_it_cannot_steer_at():
     states[1, S_U] = 1e18  # overflowed the speed table's index (a crash)
     with pytest.raises(ValueError, match="beyond 150 m/s"):
         DriverBatch([follower, follower])(np.zeros(2), states)
+
+
+def test_steering_past_the_lock_steers_as_the_lock():
+    """The servo stops at max_front_steer; the controller, its allocator and the references see
+    that angle too, not the command past it (60 rad of steering wheel gave DYC-LQR 4.7 deg of
+    sideslip and 3.8 m/s at the end where the lock gave 1.2 deg and 9.3 m/s)."""
+    params = VehicleParams()
+    lock = params.max_front_steer * params.steering_ratio
+
+    def run(angle):
+        steering = lambda t, state: angle if t >= 1.0 else 0.0  # noqa: E731
+        return simulate(make_scenario("paper_step", speed_kph=40.0, mu=0.8, duration=3.0, steering=steering), "dyc-lqr")
+
+    at_lock, past = run(lock), run(4.0 * lock)
+    np.testing.assert_array_equal(at_lock.state, past.state)
+    np.testing.assert_array_equal(at_lock.controls, past.controls)

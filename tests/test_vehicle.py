@@ -341,3 +341,25 @@ def test_bad_tyre_coefficients_and_road_friction_are_named():
         TyreParams(pdy2=float("nan"))
     with pytest.raises(ValueError, match=r"mu_road must be .*, got \[-1.\]"):  # -1 mirrored the forces
         tyre_forces(TyreParams(), 3000.0, 0.0, 0.1, mu_road=-1.0)
+
+
+def test_step_refuses_a_step_too_long_for_the_tyre_relaxation_at_speed():
+    """At 10 ms the relaxed slips of a light wheel leave RK4's stability region above ~100 km/h
+    (the deflections grew to 1e60 m on a 250 km/h sine, finite and unreported); refused, naming dt."""
+    controls = np.zeros((1, NU))
+    with pytest.raises(ValueError, match=r"dt = 0.01 s is too long at 70.0 m/s.*use dt <= 0.003971 s"):
+        step(initial_state(P, 70.0), controls, P, uniform(1.0), 0.01)
+    step(initial_state(P, 70.0), controls, P, uniform(1.0), 0.002)
+    step(initial_state(P, 25.0), controls, P, uniform(1.0), 0.01)
+
+
+def test_an_inner_wheel_lifts_at_1_n_and_its_axle_keeps_its_load():
+    """On a mu 2.0 road a turn past ~1.4 g (track / 2h at steady speed) would move more than a
+    wheel's load to the outer side: the inner wheel is held at 1 N and its axle's load stays
+    (before, the clipped load was counted twice and the loads summed to 1.35 m g)."""
+    speed = 25.0
+    _, states, aux = run(initial_state(P, speed), lambda t: 0.01 * t, 12.0, road=2.0, target=speed)
+    fz = aux[:, 0, A_FZ:A_FZ + 4]
+    assert fz.min() == 1.0  # a wheel lifted
+    np.testing.assert_allclose(fz.sum(axis=1), P.mass * GRAVITY, rtol=1e-12)
+    assert np.abs(aux[:, 0, A_AY]).max() <= 1.05 * 2.0 * GRAVITY
