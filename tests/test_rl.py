@@ -41,6 +41,10 @@ def test_train_save_reload_and_evaluate_with_identical_deterministic_actions(alg
     np.testing.assert_allclose(traj.state[-1], env.unwrapped.core.loop.state[0], rtol=1e-9, atol=1e-9)
     assert np.ptp(np.array(actions), axis=0).max() > 0  # the policy acts, not a constant
     assert model_path == out / "model.zip"
+    if algo == "ppo":  # a checkpoint of step N is the policy trained on N steps (after that rollout's update)
+        last = PolicyController(out / "checkpoints" / "step_000001024.zip", controller.params).model.policy
+        for a, b in zip(last.parameters(), controller.model.policy.parameters()):
+            np.testing.assert_array_equal(a.detach().numpy(), b.detach().numpy())
 
 
 @pytest.mark.parametrize("algo", ALGOS)
@@ -173,6 +177,30 @@ def test_a_resumed_run_reseeds_its_cars_and_evaluates_its_held_out_scenario_whol
     assert made[0]["max_episode_steps"] == 40 and "max_episode_steps" not in made[1]  # training, evaluation
 
 
+def test_a_run_with_sensor_faults_resumes_and_becomes_a_controller(tmp_path):
+    """config.json holds a Fault as a dict of its fields; resume and PolicyController take it back."""
+    from envs.sensors import Fault
+
+    faults = (Fault("yaw_rate", "spike", magnitude=0.2, rate=5.0),)
+    out = tmp_path / "faults"
+    _train("ppo", out, 512, sensor_faults=faults)
+    assert json.loads((out / "config.json").read_text())["env_kwargs"]["sensor_faults"][0]["kind"] == "spike"
+    _train("ppo", out, 1024, resume=out, sensor_faults=faults)
+    controller = PolicyController(out, make_scenario("paper_sine").vehicle_params)
+    assert controller.env_config.sensor_faults == faults
+    from_json = YawStabilityEnv(sensor_faults=[{"channel": "yaw_rate", "kind": "stuck", "start": 1.0}])  # --env-kwargs
+    assert from_json.config.sensor_faults == (Fault("yaw_rate", "stuck", start=1.0),)
+
+
+def test_reward_normalisation_discounts_as_the_algorithm_does(tmp_path):
+    import pickle
+
+    train("ppo", tmp_path / "run", 512, env_kwargs={"estimator": "oracle"}, n_envs=4, progress=False,
+          algo_overrides={**FAST["ppo"], "gamma": 0.95})
+    with open(tmp_path / "run" / "vecnormalize.pkl", "rb") as handle:
+        assert pickle.load(handle).gamma == 0.95
+
+
 def test_ppo_minibatches_split_the_rollout_evenly():
     from training.rl import _minibatch
 
@@ -215,6 +243,25 @@ def test_sb3_adapter_reports_terminal_observations_and_time_limits():
     np.testing.assert_array_equal(new_obs, obs)  # autoreset: paper_sine starts the same every time
 
 
+def test_sb3_adapter_gives_each_car_the_single_envs_per_step_info():
+    """As a DummyVecEnv of single envs does: action_clipped and the other per-step keys for every
+    car, a finished car's from its last step."""
+    env = SB3VecEnv(YawStabilityVectorEnv(num_envs=2, scenario="paper_sine", estimator="oracle", max_episode_steps=3,
+                                          autoreset_mode="SameStep"))
+    single = YawStabilityEnv(scenario="paper_sine", estimator="oracle")
+    env.seed(0)
+    env.reset()
+    single.reset(seed=0)
+    actions = np.array([[2.0, 0.0], [0.5, 0.0]], dtype=np.float32)
+    for k in range(3):
+        _, _, done, infos = env.step(actions)
+        *_, info = single.step(actions[0])
+        assert [i["action_clipped"] for i in infos] == [True, False]
+        for key in ("beta", "yaw_rate_error", "path_deviation", "spin_out", "phase_plane_index"):
+            assert infos[0][key] == pytest.approx(info[key], rel=1e-12, abs=1e-15), key
+    assert done.all() and "episode" in infos[0]
+
+
 def test_sb3_video_recorder_records_car_0_and_the_adapter_refuses_a_later_reset(tmp_path):
     from stable_baselines3.common.vec_env import VecVideoRecorder
 
@@ -240,11 +287,51 @@ def test_evaluate_puts_the_policy_into_the_comparison(tmp_path):
 
     run = tmp_path / "run"
     _train("ppo", run, 512)
-    report = evaluate(run, tmp_path / "eval", ["paper_sine"], estimator="oracle", seeds=1, jobs=1)
+    report = evaluate(run, tmp_path / "eval", ["paper_sine"], seeds=1, jobs=1)  # trained on the oracle: run on it
     text = report.read_text()
     assert f"rl:{run}" in text and "| none |" in text
     rows = (tmp_path / "eval" / "runs.csv").read_text().splitlines()
+    header = rows[0].split(",")
     assert len(rows) == 3 and all("nan" not in r.split(",")[4] for r in rows[1:])
+    assert {r.split(",")[header.index("estimator")] for r in rows[1:]} == {"oracle"}
+
+
+def test_an_interrupted_run_saves_its_model_and_resumes(tmp_path, monkeypatch):
+    """Ctrl-C during training (a KeyboardInterrupt from inside SB3's loop) saves model.zip, the
+    normaliser and config.json with the steps trained so far; --resume then continues."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    import training.rl as rl
+
+    class CtrlC(BaseCallback):
+        def _on_step(self) -> bool:
+            if self.num_timesteps >= 700:
+                raise KeyboardInterrupt
+            return True
+
+    callbacks = rl._callbacks
+    monkeypatch.setattr(rl, "_callbacks", lambda *args: [*callbacks(*args), CtrlC()])
+    out = tmp_path / "run"
+    with pytest.raises(KeyboardInterrupt, match=f"--resume {out}"):
+        _train("ppo", out, 2048)
+    trained = json.loads((out / "config.json").read_text())["timesteps"]
+    assert 700 <= trained < 2048 and (out / "model.zip").exists() and (out / "vecnormalize.pkl").exists()
+    monkeypatch.setattr(rl, "_callbacks", callbacks)
+    _train("ppo", out, 2048, resume=out)
+    assert json.loads((out / "config.json").read_text())["timesteps"] >= 2048  # (whole rollouts from 700-odd)
+
+
+def test_sb3_adapter_takes_one_options_dict_and_acts_on_all_cars_only():
+    env = SB3VecEnv(YawStabilityVectorEnv(num_envs=2, scenario="paper_sine", estimator="oracle",
+                                          autoreset_mode="SameStep"))
+    env.set_options({"reset_mask": np.array([True, True])})
+    env.reset()
+    env.set_options([{"reset_mask": np.array([True, False])}, {}])
+    with pytest.raises(ValueError, match="one reset options dict for every car"):
+        env.reset()
+    with pytest.raises(ValueError, match="set_attr: the cars are one vector env"):
+        env.set_attr("render_mode", None, indices=[1])
+    assert env.env_method("render", indices=[0, 1]) == [None, None]  # (no render_mode)
 
 
 def test_training_is_deterministic_for_a_seed(tmp_path):

@@ -68,12 +68,17 @@ def _simulate(args: argparse.Namespace) -> int:
         name, overrides = parse_scenario(args.scenario)
         if args.scenario.endswith(FAULT_SUFFIX):
             raise ValueError(f"scenario {args.scenario!r}: the {FAULT_SUFFIX} variant is the comparison's")
-        if "amplitude_A" in overrides:
-            raise ValueError(f"scenario {args.scenario!r}: give sine with dwell's amplitude_deg (amplitude_A needs "
-                             "the comparison's characterisation)")
+        multiple = overrides.pop("amplitude_A", None)  # swd_wet, or sine_with_dwell:amplitude_A=k
         scenario = make_scenario(name, **overrides | _scenario_overrides(args))
         _check_estimator_and_seed(args)
         out = check_writable(args.out)
+        if multiple is not None:  # k times A, characterised as the comparison does
+            import math
+
+            from envs.fmvss126 import characterise
+
+            amplitude = {"amplitude_deg": math.degrees(multiple * characterise())}
+            scenario = make_scenario(name, **overrides | amplitude | _scenario_overrides(args))
         controller = build_controller(args.controller, scenario.vehicle_params)
         traj = simulate(scenario, controller, args.estimator, seed=args.seed, progress=True)
     except (ValueError, FileNotFoundError) as err:  # a bad argument or run, a user's estimator returning garbage
@@ -199,6 +204,9 @@ def _train(args: argparse.Namespace) -> int:
                      overwrite=args.overwrite)
     except (ValueError, FileNotFoundError) as err:
         raise SystemExit(f"fourwis train: {err}") from None
+    except KeyboardInterrupt as err:  # train saved the model first (if it had started training)
+        print(f"\nfourwis train: {err or 'interrupted'}", file=sys.stderr)
+        return 130
     trained = json.loads((path.parent / "config.json").read_text())["timesteps"]
     others = [p.name + "/" * p.is_dir() for p in sorted(path.parent.iterdir()) if p != path and not p.name.startswith(".")]
     print(f"wrote {path}, trained {trained:,} env steps (+ {', '.join(others)} in {path.parent})")
@@ -355,8 +363,9 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("model", help="run directory of fourwis train (holds model.zip)")
     evaluate.add_argument("--scenarios", nargs="+", default=["swd_wet", "iso3888_2", "mu_jump", "paper_dlc"],
                           help="scenario names, with overrides as in compare")
-    evaluate.add_argument("--estimator", default="joint",
-                          help="estimator in the loop, for the policy and the uncontrolled car beside it")
+    evaluate.add_argument("--estimator", default=None,
+                          help="estimator in the loop, for the policy and the uncontrolled car beside it "
+                               "(default: the one the run was trained with)")
     _add_run_arguments(evaluate, 2, "results/evaluate")
     evaluate.set_defaults(func=_evaluate)
     bench = command("bench", "run the performance benchmarks in benchmarks/")

@@ -31,7 +31,7 @@ import os
 import pickle
 import shutil
 import time
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, fields, is_dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -70,11 +70,20 @@ def _algo_class(algo: str):
     return {"ppo": sb3.PPO, "sac": sb3.SAC, "td3": sb3.TD3}[algo]
 
 
+#: the per-step info keys SB3VecEnv gives each car (the single env's, less the truth and estimate)
+PER_STEP_INFO = ("action_clipped", "beta", "yaw_rate_error", "path_deviation", "spin_out", "phase_plane_index")
+
+
 class SB3VecEnv(VecEnv):
     """A :class:`YawStabilityVectorEnv` (same-step autoreset) as an SB3 ``VecEnv``:
     ``terminal_observation`` and ``TimeLimit.truncated`` in the infos, Monitor-style
-    ``episode`` records (r, l, t) and the env's ``episode_metrics``. Rendered, it shows car 0
-    (``get_images`` gives its one frame), so SB3's ``VecVideoRecorder`` records car 0."""
+    ``episode`` records (r, l, t), the env's ``episode_metrics`` and each car's per-step keys
+    (:data:`PER_STEP_INFO`; the truth and estimate are left out). Rendered, it shows car 0
+    (``get_images`` gives its one frame), so SB3's ``VecVideoRecorder`` records car 0. Its
+    ``episode`` records are a Monitor's (``env_is_wrapped(Monitor)`` is True, so SB3's
+    ``evaluate_policy`` reads them; a ``VecMonitor`` around it is not needed). The cars are one
+    env object: ``set_attr`` and ``env_method`` act on all of them (other ``indices`` are
+    refused), and ``set_options`` takes one options dict for every car."""
 
     def __init__(self, env: YawStabilityVectorEnv):
         if env.autoreset_mode != AutoresetMode.SAME_STEP:
@@ -88,8 +97,16 @@ class SB3VecEnv(VecEnv):
 
     def reset(self) -> np.ndarray:
         seeds = None if all(s is None for s in self._seeds) else list(self._seeds)
-        obs, _ = self.env.reset(seed=seeds)
+        options = self._options[0]
+        try:  # (the same dict for every car after set_options(dict); equal ones from a list)
+            differ = any(o is not options and o != options for o in self._options)
+        except ValueError:  # arrays inside, compared elementwise: take them as different
+            differ = True
+        if differ:
+            raise ValueError(f"the vector env takes one reset options dict for every car, got {self._options!r}")
+        obs, _ = self.env.reset(seed=seeds, options=options or None)
         self._reset_seeds()
+        self._reset_options()
         return obs
 
     def step_async(self, actions: np.ndarray) -> None:
@@ -98,14 +115,18 @@ class SB3VecEnv(VecEnv):
     def step_wait(self):
         obs, reward, terminated, truncated, info = self.env.step(self._actions)
         done = terminated | truncated
-        infos: list[dict] = [{} for _ in range(self.num_envs)]
+        # each car's per-step keys (action_clipped, beta, ...), as a DummyVecEnv of single envs gives
+        # them; a finished car's are those of its last step
+        last = info.get("final_info", {})
+        infos: list[dict] = [{k: (last if done[b] else info)[k][b].item() for k in PER_STEP_INFO}
+                             for b in range(self.num_envs)]
         for b in np.flatnonzero(done):
-            metrics = info["final_info"]["episode_metrics"][b]
-            infos[b] = {"terminal_observation": info["final_obs"][b], "TimeLimit.truncated": bool(truncated[b]
-                                                                                                 and not terminated[b]),
-                        "episode": {"r": metrics["return"], "l": metrics["length"],
-                                    "t": round(time.time() - self._start, 6)},
-                        "episode_metrics": metrics}
+            metrics = last["episode_metrics"][b]
+            infos[b].update({"terminal_observation": info["final_obs"][b],
+                             "TimeLimit.truncated": bool(truncated[b] and not terminated[b]),
+                             "episode": {"r": metrics["return"], "l": metrics["length"],
+                                         "t": round(time.time() - self._start, 6)},
+                             "episode_metrics": metrics})
         return obs, reward.astype(np.float32), done, infos
 
     def close(self) -> None:
@@ -120,16 +141,24 @@ class SB3VecEnv(VecEnv):
         return [getattr(self.env, attr_name)] * len(self._indices(indices))
 
     def set_attr(self, attr_name: str, value, indices=None) -> None:
+        self._all_cars(indices, "set_attr")
         setattr(self.env, attr_name, value)
 
     def env_method(self, method_name: str, *args, indices=None, **kwargs) -> list:
-        return [getattr(self.env, method_name)(*args, **kwargs)] * len(self._indices(indices))
+        self._all_cars(indices, "env_method")
+        return [getattr(self.env, method_name)(*args, **kwargs)] * self.num_envs
 
     def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
         """True for SB3's Monitor: the infos carry its ``episode`` records."""
         from stable_baselines3.common.monitor import Monitor
 
         return [wrapper_class is Monitor] * len(self._indices(indices))
+
+    def _all_cars(self, indices, method: str) -> None:
+        """ValueError naming ``method`` unless ``indices`` select every car."""
+        if sorted(self._indices(indices)) != list(range(self.num_envs)):
+            raise ValueError(f"{method}: the cars are one vector env, which acts on all of them at once, not on "
+                             f"indices {indices!r}")
 
     def _indices(self, indices) -> list[int]:
         if indices is None:
@@ -177,6 +206,7 @@ def _atomic_save_replay_buffer(model, path: Path) -> Path:
 
 def _callbacks(out: Path, eval_env, checkpoint_every: int, eval_every: int, eval_episodes: int, resumed: bool):
     from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
+    from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 
     def due(callback, every: int) -> bool:
         """True once each time the run's step count passes a multiple of ``every`` (counted over
@@ -188,12 +218,29 @@ def _callbacks(out: Path, eval_env, checkpoint_every: int, eval_every: int, eval
         return True
 
     class AtomicCheckpoint(BaseCallback):
-        """Every ``checkpoint_every`` env steps: model + normaliser into checkpoints/, atomically."""
+        """Every ``checkpoint_every`` env steps: model + normaliser into checkpoints/, atomically.
+        PPO's are taken after the update of the rollout that passed the step (at the next
+        rollout's start or at the end of training), so that step_N holds the policy trained on
+        N steps, as model.zip does (SB3 calls _on_step while it collects, before the update)."""
 
         def _on_training_start(self) -> None:
             self.last = self.num_timesteps
+            self.on_policy = isinstance(self.model, OnPolicyAlgorithm)
 
         def _on_step(self) -> bool:
+            if not self.on_policy:
+                self._save()
+            return True
+
+        def _on_rollout_start(self) -> None:
+            if self.on_policy:
+                self._save()
+
+        def _on_training_end(self) -> None:
+            if self.on_policy:
+                self._save()
+
+        def _save(self) -> None:
             if due(self, checkpoint_every):
                 stem = out / "checkpoints" / f"step_{self.num_timesteps:09d}"
                 model_path = _atomic_save_model(self.model, stem.with_suffix(".zip"))
@@ -203,7 +250,6 @@ def _callbacks(out: Path, eval_env, checkpoint_every: int, eval_every: int, eval
                     for old in buffer.parent.glob("replay_buffer_step_*.pkl"):
                         if old != buffer:
                             old.unlink()
-            return True
 
     class Evaluation(EvalCallback):
         """SB3's evaluation at every multiple of ``eval_every`` env steps of the run (a resumed
@@ -248,7 +294,7 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int | None = None, e
     torch.set_num_threads(TORCH_THREADS)
     if not (is_integer(timesteps) and timesteps > 0):
         raise ValueError(f"timesteps must be a positive integer, got {timesteps!r}")
-    env_kwargs = dict(env_kwargs or {})
+    env_kwargs = _as_json(dict(env_kwargs or {}))  # as config.json records them, so resume and rl: read the same
     out = check_writable(out)
     if resume is not None:
         seed, n_envs = _check_resumable(resume, algo, env_kwargs, seed, n_envs)
@@ -303,8 +349,10 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int | None = None, e
         # own: seed + steps could meet the evaluation cars' seed + 10,000)
         train_env.seed(int(np.random.SeedSequence([seed, model.num_timesteps]).generate_state(1)[0]))
     else:
-        normalized = VecNormalize(train_env, norm_obs=True, norm_reward=not off_policy, clip_obs=10.0)
         settings = {**ALGO_CONFIGS[algo], **(algo_overrides or {})}
+        # the reward scale from returns discounted as the algorithm discounts them
+        normalized = VecNormalize(train_env, norm_obs=True, norm_reward=not off_policy, clip_obs=10.0,
+                                  gamma=settings["gamma"])
         if algo == "ppo" and "batch_size" not in (algo_overrides or {}):
             settings["batch_size"] = _minibatch(settings["batch_size"], settings["n_steps"] * n_envs)
         noise_std = settings.pop("action_noise_std", None)
@@ -323,15 +371,22 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int | None = None, e
     # progress bar's total is what is trained, not what was asked)
     chunk = model.n_steps * n_envs if algo == "ppo" else n_envs
     remaining = -(-(timesteps - model.num_timesteps) // chunk) * chunk
-    model.learn(remaining, callback=_callbacks(out, eval_env, checkpoint_every, eval_every, eval_episodes,
-                                               resume is not None),
-                progress_bar=progress, reset_num_timesteps=resume is None, tb_log_name=algo)
+    try:
+        model.learn(remaining, callback=_callbacks(out, eval_env, checkpoint_every, eval_every, eval_episodes,
+                                                   resume is not None),
+                    progress_bar=progress, reset_num_timesteps=resume is None, tb_log_name=algo)
+        interrupted = False
+    except KeyboardInterrupt:  # Ctrl-C: keep the model as it stands (resumable; PPO drops the rollout it was
+        interrupted = True     # collecting, whose steps it has counted), then stop
     shutil.rmtree(out / ".evaluating", ignore_errors=True)
     atomic_write_json(out / "config.json", asdict(replace(config, timesteps=model.num_timesteps)), default=repr)
     if off_policy:  # before the model: a kill in between leaves an old model with a newer buffer
         _atomic_save_replay_buffer(model, out / REPLAY_BUFFER)
     model_path = _atomic_save_model(model, out / "model.zip")
     _atomic_save_normalizer(normalized, out / "vecnormalize.pkl")
+    if interrupted:
+        raise KeyboardInterrupt(f"interrupted after {model.num_timesteps:,} env steps; saved {model_path} "
+                                f"(--resume {out} continues the run)")
     plot_learning_curve(out)
     return model_path
 
@@ -364,7 +419,7 @@ def _check_resumable(resume: str | Path, algo: str, env_kwargs: dict, seed: int 
     saved = json.loads(config_path.read_text())
     if saved["algo"] != algo:
         raise ValueError(f"cannot resume {resume}: it was trained with --algo {saved['algo']}, not {algo}")
-    if saved["env_kwargs"] != json.loads(json.dumps(env_kwargs, default=repr)):
+    if saved["env_kwargs"] != _as_json(env_kwargs):
         raise ValueError(f"cannot resume {resume}: it was trained with env_kwargs {saved['env_kwargs']!r}, "
                          f"not {env_kwargs!r} (pass the same --env-kwargs)")
     for name, value in (("seed", seed), ("n_envs", n_envs)):
@@ -372,6 +427,24 @@ def _check_resumable(resume: str | Path, algo: str, env_kwargs: dict, seed: int 
             raise ValueError(f"cannot resume {resume}: it was trained with {name} {saved[name]}, not {value} "
                              f"(leave it out to continue with the run's)")
     return saved["seed"], saved["n_envs"]
+
+
+def _as_json(env_kwargs: dict) -> dict:
+    """``env_kwargs`` as config.json holds them (dataclasses such as envs.sensors.Fault as dicts of
+    their fields, numpy scalars and arrays as numbers and lists), which EnvConfig takes back:
+    a run is built, resumed and evaluated from the same values."""
+
+    def plain(value):
+        if is_dataclass(value) and not isinstance(value, type):
+            return asdict(value)
+        if isinstance(value, (np.generic, np.ndarray)):
+            return value.tolist()
+        raise TypeError(f"env_kwargs value {value!r} cannot be recorded in config.json")
+
+    try:
+        return json.loads(json.dumps(env_kwargs, default=plain))
+    except TypeError as err:
+        raise ValueError(f"bad env_kwargs {env_kwargs!r}: {err}") from None
 
 
 def _minibatch(largest: int, rollout: int) -> int:
@@ -417,7 +490,10 @@ def run_files(path: str | Path) -> tuple[Path, Path, Path]:
         (path, path.with_suffix(".pkl"), path.parent.parent / "config.json")
     for p in files[:2]:  # the config is read only where a policy is rebuilt (PolicyController)
         if not p.exists():
-            raise FileNotFoundError(f"no trained policy at {path}: {p} is missing")
+            latest = max((path / "checkpoints").glob("step_*.zip"), key=_checkpoint_step, default=None) \
+                if path.is_dir() else None
+            hint = f" (an interrupted run? its latest checkpoint is {latest})" if latest else ""
+            raise FileNotFoundError(f"no trained policy at {path}: {p} is missing{hint}")
     return files
 
 
@@ -499,11 +575,15 @@ class PolicyController:
         return self._agent(t, estimate, front_steer, base_torques)
 
 
-def evaluate(run: str | Path, out: str | Path, scenarios, estimator: str = "joint", seeds: int = 2,
+def evaluate(run: str | Path, out: str | Path, scenarios, estimator: str | None = None, seeds: int = 2,
              jobs: int | None = None) -> Path:
     """``fourwis evaluate``: the policy of ``run`` as controller ``rl:<run>`` next to no control,
-    through :func:`training.compare.compare`; returns the report path."""
+    through :func:`training.compare.compare`, with ``estimator`` in the loop (None: the one the
+    run was trained with, from its config.json); returns the report path."""
     from training.compare import compare
 
-    run_files(run)
+    config = run_files(run)[2]
+    if estimator is None:
+        trained_on = json.loads(config.read_text())["env_kwargs"] if config.exists() else {}
+        estimator = trained_on.get("estimator", EnvConfig.estimator)
     return compare(out, scenarios, [estimator], ["none", f"rl:{Path(run)}"], seeds, jobs)
