@@ -32,7 +32,7 @@ from control.reference import PhasePlaneRegion, reference_yaw_rate
 from envs.metrics import SPIN_OUT_SIDESLIP, CoursePaths, sine_with_dwell_metrics
 from envs.scenarios import SCENARIOS, Scenario, is_number, make_scenario
 from envs.sensors import Fault
-from envs.simulation import DT, ClosedLoop, front_steer_command
+from envs.simulation import DT, ClosedLoop
 from envs.vehicle import A_AY, S_R, S_X, S_Y, is_integer
 from estimation import check_estimator_name
 from estimation.types import Estimate
@@ -231,7 +231,7 @@ class YawStabilityCore:
     def observe(self) -> np.ndarray:
         """Observations (B, observation_size) float32 at the current time."""
         s = self.loop.sample()
-        delta_f = front_steer_command(s.steering_wheel, self.params)
+        delta_f = s.front_steer
         if self.config.observation == "sensors":
             values = s.reading.values
             r_ref = reference_yaw_rate(values[:, 3:7].mean(axis=1) * self.params.wheel_radius, values[:, 7],
@@ -264,7 +264,7 @@ class YawStabilityCore:
         s = self.loop.sample()
         obs = self.observe()
         truth = s.truth
-        r_ref = reference_yaw_rate(truth.u, front_steer_command(s.steering_wheel, self.params), truth.mu, self.params)
+        r_ref = reference_yaw_rate(truth.u, s.front_steer, truth.mu, self.params)
         yaw_error = truth.r - r_ref
         beta = truth.beta
         phase_plane = PhasePlaneRegion.default().state_index(truth)
