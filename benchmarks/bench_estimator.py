@@ -14,14 +14,13 @@ from collections.abc import Callable
 import numpy as np
 
 from envs.sensors import SensorModel, SensorParams
-from envs.simulation import sensor_truth
+from envs.simulation import DT, sensor_truth
 from envs.scenarios import make_scenario
 from envs.vehicle import NU, VehicleParams, derivatives
 from estimation import make_estimator
 from estimation.joint import measure_state_1
 from estimation.model import Inputs, state_transition, steer_trig
 
-DT = 0.002
 
 
 def _per_call(fn: Callable[[], None], seconds: float = 3.0) -> float:

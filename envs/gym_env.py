@@ -13,8 +13,6 @@ The observation table, actions, reward, termination and ``info`` are documented 
 from __future__ import annotations
 
 import math
-import os
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -30,6 +28,7 @@ from control import Command
 from control.allocation import allocate_for_estimate
 from control.reference import PhasePlaneRegion, reference_yaw_rate
 from envs.metrics import SPIN_OUT_SIDESLIP, CoursePaths, sine_with_dwell_metrics
+from envs.render import close_window, show_frame
 from envs.scenarios import SCENARIOS, Scenario, is_number, make_scenario
 from envs.sensors import Fault
 from envs.simulation import DT, ClosedLoop
@@ -148,7 +147,7 @@ def state_observation(e: Estimate, delta_f: np.ndarray, params) -> np.ndarray:
                             e.mu_std.mean(axis=1) / 0.3, r_ref, delta_f / 0.3, e.r - r_ref])
 
 
-class _AgentController:
+class AgentController:
     """Turns the held agent actions (B, n) into wheel torques and rear steer each substep."""
 
     def __init__(self, params, config: EnvConfig, batch_size: int):
@@ -201,7 +200,7 @@ class YawStabilityCore:
         self.batch_size = len(rngs)
         scenarios, sensor_rngs = zip(*(config.draw(rng) for rng in rngs))
         params = scenarios[0].vehicle_params
-        self.controller = _AgentController(params, config, self.batch_size)
+        self.controller = AgentController(params, config, self.batch_size)
         self.loop = ClosedLoop(list(scenarios), self.controller, config.estimator, list(sensor_rngs),
                                faults=config.sensor_faults)
         self.params = params
@@ -536,11 +535,11 @@ class YawStabilityEnv(gym.Env):
         frame = self.core.render()
         if self.render_mode == "rgb_array":
             return frame
-        self._window = _show(frame, self._window)
+        self._window = show_frame(frame, self._window)
         return None
 
     def close(self):
-        self._window = _close_window(self._window)
+        self._window = close_window(self._window)
 
 
 def _shown(info: dict, keys: list[str], shown: np.ndarray) -> dict:
@@ -557,37 +556,6 @@ def _per_car(n: int, rows: np.ndarray, item) -> np.ndarray:
     for b in rows:
         out[b] = item(b)
     return out
-
-
-def _close_window(window) -> None:
-    """Close a human-mode window of :func:`_show` (if one opened); returns the cleared handle."""
-    if isinstance(window, tuple):
-        import matplotlib.pyplot as plt
-
-        plt.close(window[0])
-    return None
-
-
-def _show(frame: np.ndarray, window):
-    """Draw ``frame`` in a matplotlib window (human mode); warns once where there is no display."""
-    import matplotlib
-
-    if matplotlib.get_backend().lower() == "agg" or (os.name == "posix" and not os.environ.get("DISPLAY")
-                                                     and not os.environ.get("WAYLAND_DISPLAY")):
-        if window != "no-display":
-            warnings.warn("render_mode='human' needs a display; none found, frames are not shown", stacklevel=3)
-        return "no-display"
-    import matplotlib.pyplot as plt
-
-    if window is None:
-        plt.ion()
-        fig, ax = plt.subplots(figsize=(frame.shape[1] / 100, frame.shape[0] / 100), dpi=100)
-        ax.set_axis_off()
-        window = (fig, ax.imshow(frame))
-    window[1].set_data(frame)
-    window[0].canvas.draw_idle()
-    plt.pause(0.001)
-    return window
 
 
 class YawStabilityVectorEnv(VectorEnv):
@@ -698,7 +666,7 @@ class YawStabilityVectorEnv(VectorEnv):
 
     def close_extras(self, **kwargs) -> None:
         """Close the human-mode window (gymnasium's VectorEnv.close calls this once)."""
-        self._window = _close_window(self._window)
+        self._window = close_window(self._window)
 
     def step(self, actions):
         if self._core is None:
@@ -757,5 +725,5 @@ class YawStabilityVectorEnv(VectorEnv):
             return None
         if self.render_mode == "rgb_array":
             return _CarFrames(self._core)
-        self._window = _show(self._core.render(), self._window)
+        self._window = show_frame(self._core.render(), self._window)
         return None

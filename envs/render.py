@@ -1,4 +1,4 @@
-"""Top-down frames of a closed loop for the Gymnasium envs (matplotlib, imported lazily).
+"""Top-down frames of a closed loop for the Gymnasium envs, and human mode's window (matplotlib, imported lazily).
 
 A frame (FRAME_HEIGHT, FRAME_WIDTH, 3) uint8 shows, on the left, a 30 m x 24 m window
 centred on the car: the road's friction map (grey scale: dark = grippy, white = ice), the
@@ -10,6 +10,8 @@ the last 3 s of yaw rate (with its reference) and sideslip.
 from __future__ import annotations
 
 import math
+import os
+import warnings
 
 import numpy as np
 
@@ -105,3 +107,34 @@ def _colormap(name: str):
     import matplotlib
 
     return matplotlib.colormaps[name]
+
+
+def close_window(window) -> None:
+    """Close a human-mode window of :func:`show_frame` (if one opened); returns the cleared handle."""
+    if isinstance(window, tuple):
+        import matplotlib.pyplot as plt
+
+        plt.close(window[0])
+    return None
+
+
+def show_frame(frame: np.ndarray, window):
+    """Draw ``frame`` in a matplotlib window (human mode); warns once where there is no display."""
+    import matplotlib
+
+    if matplotlib.get_backend().lower() == "agg" or (os.name == "posix" and not os.environ.get("DISPLAY")
+                                                     and not os.environ.get("WAYLAND_DISPLAY")):
+        if window != "no-display":
+            warnings.warn("render_mode='human' needs a display; none found, frames are not shown", stacklevel=3)
+        return "no-display"
+    import matplotlib.pyplot as plt
+
+    if window is None:
+        plt.ion()
+        fig, ax = plt.subplots(figsize=(frame.shape[1] / 100, frame.shape[0] / 100), dpi=100)
+        ax.set_axis_off()
+        window = (fig, ax.imshow(frame))
+    window[1].set_data(frame)
+    window[0].canvas.draw_idle()
+    plt.pause(0.001)
+    return window

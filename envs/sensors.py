@@ -35,11 +35,8 @@ import numba
 import numpy as np
 
 from estimation.jit import JIT
-from estimation.types import member_rows
+from estimation.types import CHANNELS, member_rows  # (the readings' layout, which the estimators read)
 
-#: Channel order of every reading (13 channels).
-CHANNELS = ("ax", "ay", "yaw_rate", "omega_fl", "omega_fr", "omega_rl", "omega_rr", "delta_f", "delta_r",
-            "torque_fl", "torque_fr", "torque_rl", "torque_rr")
 FAULT_KINDS = ("spike", "dropout", "stuck", "bias_step")
 
 

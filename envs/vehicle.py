@@ -643,9 +643,10 @@ def check_relaxation_step(state: np.ndarray, params: VehicleParams, dt: float) -
         fastest = float(np.max(speed, initial=0.0, where=np.isfinite(speed)))
     limit = RK4_REAL_LIMIT * params.min_relaxation_length / dt
     if fastest > limit:
+        safe_dt = RK4_REAL_LIMIT * params.min_relaxation_length / fastest
         raise ValueError(f"dt = {dt!r} s is too long at {fastest:.1f} m/s: the tyres relax at up to speed / "
                          f"min_relaxation_length ({params.min_relaxation_length:g} m), outside RK4's stability region "
-                         f"beyond {limit:.1f} m/s; use dt <= {RK4_REAL_LIMIT * params.min_relaxation_length / fastest:.4g} s")
+                         f"beyond {limit:.1f} m/s; use dt <= {safe_dt:.4g} s")
 
 
 def _check_array(name: str, value: np.ndarray, width: int) -> np.ndarray:

@@ -69,7 +69,7 @@ from estimation.federated import fuse, sharing_coefficients
 from estimation.jit import JIT, scratch
 from estimation.model import (MIN_SPEED, P_IZ, P_RW, ModelParams, body_forces, dugoff_lambdas, fill_steer_trig, transition,
                               wheel_kinematics, wheel_loads, wheel_trig)
-from estimation.types import Estimate, check_step, member_rows
+from estimation.types import CHANNELS, Estimate, check_step, member_rows
 
 N_STATE = 6
 I_U, I_V, I_AX, I_AY, I_R, I_GAMMA = range(N_STATE)
@@ -716,8 +716,6 @@ class StateEstimator:
             i = int(rows[j])
             if status[j] == BAD_MEASUREMENT:
                 raise ValueError(f"a valid measurement of vehicle {i} is NaN or inf: {values[i]!r}")
-            from envs.sensors import CHANNELS
-
             bad_inputs = [CHANNELS[c] for c in range(3, 13) if not np.isfinite(values[i, c])]
             if bad_inputs:  # the model needs its inputs every step, valid or not
                 raise ValueError(f"inputs {bad_inputs} of vehicle {i} are NaN or inf: wheel speeds, steer angles "

@@ -12,6 +12,13 @@ from typing import NamedTuple
 
 import numpy as np
 
+#: Channel order of every sensor reading (13 channels; envs.sensors produces them, the
+#: estimators read them): accelerations [m/s^2], yaw rate [rad/s], wheel speeds [rad/s], road-
+#: wheel steer angles [rad], motor torques [N m].
+CHANNELS = ("ax", "ay", "yaw_rate", "omega_fl", "omega_fr", "omega_rl", "omega_rr", "delta_f", "delta_r",
+            "torque_fl", "torque_fr", "torque_rl", "torque_rr")
+
+
 class Estimate(NamedTuple):
     """One estimator step's output for a batch of B vehicles (SI units).
 

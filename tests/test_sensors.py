@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from envs.sensors import CHANNELS, Fault, SensorModel, SensorParams
+from envs.simulation import DT
 
-DT = 0.002
 
 
 def run(faults=(), seed=0, n=2000, batch=2, params=SensorParams()):

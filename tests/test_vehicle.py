@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 
 from envs.road import RoadTables, split, uniform
+from envs.simulation import DT
 from envs.tyre import TyreParams, tyre_forces
 from envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, GRAVITY, NU, NX, S_AX, S_AY, S_DELTA_F,
                           S_DELTA_R, S_OMEGA, S_PSI, S_R, S_U, S_V, S_Y, VehicleParams, derivatives, initial_state,
                           step)
 
 P = VehicleParams()
-DT = 0.002
 
 
 def speed_hold(state: np.ndarray, target: float, gain: float = 0.5, params: VehicleParams = P) -> np.ndarray:

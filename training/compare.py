@@ -32,7 +32,7 @@ from envs.simulation import Trajectory, simulate
 from envs.vehicle import A_AY, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_X, S_Y, is_integer
 from estimation import check_estimator_name
 from estimation.types import import_factory
-from training.io import atomic_write, atomic_write_text, check_writable
+from training.io import atomic_write, atomic_write_text, check_writable, pyplot
 from training.pool import parallel_map
 from training.tables import mean_over_seeds, require_distinct, write_runs_csv
 
@@ -332,10 +332,7 @@ def markdown_report(table: dict, scenarios: Sequence[str], estimators: Sequence[
 
 
 def plot_report(table: dict, trajectories: dict, scenarios, estimators, controllers, out: Path) -> list[Path]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     paths = []
     fig, ax = plt.subplots(figsize=(12, 5))

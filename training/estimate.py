@@ -23,10 +23,11 @@ from envs.road import contact_points
 from envs.scenarios import PAPER_SCENARIOS, Scenario
 from envs.simulation import Trajectory, simulate
 from estimation import ESTIMATORS, Estimate, check_estimator_name, make_estimator, parse_estimator_name
+from estimation.joint import KINDS
 from estimation.types import is_integer
 from training.compare import (FAULT_SUFFIX, build_scenario, check_file_stems, file_stem, naming_the_run,
                               parse_scenario)
-from training.io import atomic_write, atomic_write_text, check_writable
+from training.io import atomic_write, atomic_write_text, check_writable, pyplot
 from training.pool import parallel_map
 from training.tables import mean_over_seeds, require_distinct, write_runs_csv
 
@@ -48,8 +49,8 @@ PAPER_TABLE2 = {
 PAPER_TABLE2_SCENARIO = "paper_dlc"
 
 
-#: the estimators that hold a nominal mu (``road_mu`` sets it to the road's)
-FIXED_MU = ("ekf", "ckf", "fkf", "alo-fkf")
+#: the estimators that hold a nominal mu (``road_mu`` sets it to the road's): all but the joint one
+FIXED_MU = tuple(kind for kind in KINDS if kind != "joint")
 
 
 @dataclass(frozen=True)
@@ -245,10 +246,7 @@ def _ratio_section(table: dict, scenarios: Sequence[Scenario], estimators: Seque
 
 def plot_scenario(name: str, series: dict, estimators: Sequence[str], path: Path) -> Path:
     """PNG of seed 0 in the style of the paper's Figures 8-13: estimates vs truth of u, v, beta and mu per wheel."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, axes = plt.subplots(2, 4, figsize=(16, 7), sharex=True)
     panels = [("u", "longitudinal speed u [m/s]"), ("v", "lateral speed v [m/s]"), ("beta", "sideslip beta [rad]")]

@@ -62,3 +62,16 @@ def atomic_write_json(path: str | Path, data, default=None) -> str:
     text = json.dumps(data, indent=2, default=default) + "\n"
     atomic_write_text(path, text)
     return text
+
+
+def pyplot():
+    """matplotlib's pyplot on the file-only Agg backend (the reports' plots), or an ImportError
+    naming the extra that installs it."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError as err:  # optional dependency
+        raise ImportError("plots need matplotlib: pip install 'fourwis[plots]'") from err
+    return plt

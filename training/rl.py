@@ -38,10 +38,10 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 from stable_baselines3.common.vec_env import VecEnv
 
-from envs.gym_env import N_OBS, EnvConfig, YawStabilityVectorEnv, _AgentController, state_observation
+from envs.gym_env import N_OBS, AgentController, EnvConfig, YawStabilityVectorEnv, state_observation
 from estimation.types import is_integer
 from training.asymmetric import POLICIES
-from training.io import atomic_write, atomic_write_json, atomic_write_text, check_writable
+from training.io import atomic_write, atomic_write_json, atomic_write_text, check_writable, pyplot
 
 EVALUATIONS = "evaluations.npz"  #: the run's evaluation log (SB3's EvalCallback format)
 
@@ -502,10 +502,7 @@ def plot_learning_curve(out: Path) -> Path | None:
     data_path = out / EVALUATIONS
     if not data_path.exists():
         return None
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     data = np.load(data_path)
     steps, returns = data["timesteps"], data["results"]
@@ -551,7 +548,7 @@ class PolicyController:
         self._clip, self._epsilon = normalizer.clip_obs, normalizer.epsilon
         self.params, self.substeps = params, int(round(env.control_dt / dt))
         self.env_config = env
-        self._agent: _AgentController | None = None
+        self._agent: AgentController | None = None
         self._k = 0
 
     def normalise(self, obs: np.ndarray) -> np.ndarray:
@@ -564,7 +561,7 @@ class PolicyController:
 
     def __call__(self, t, estimate, front_steer, base_torques):
         if self._agent is None:
-            self._agent = _AgentController(self.params, self.env_config, len(front_steer))
+            self._agent = AgentController(self.params, self.env_config, len(front_steer))
         if self._k % self.substeps == 0:
             obs = state_observation(estimate, front_steer, self.params).astype(np.float32)
             if self.env_config.privileged:  # the actor does not read the truth's slots

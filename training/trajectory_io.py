@@ -10,7 +10,7 @@ import numpy as np
 
 from envs.simulation import Trajectory
 from envs.vehicle import A_AX, A_AY, A_FZ, A_MU, GRAVITY, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_V, S_X, S_Y
-from training.io import atomic_write, atomic_write_text
+from training.io import atomic_write, atomic_write_text, pyplot
 
 WHEELS = ("fl", "fr", "rl", "rr")
 
@@ -54,20 +54,9 @@ def write_trajectory_csv(traj: Trajectory, path: str | Path) -> Path:
     return atomic_write_text(path, buf.getvalue())
 
 
-def _pyplot():
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError as err:  # optional dependency
-        raise ImportError("plots need matplotlib: pip install 'fourwis[plots]'") from err
-    return plt
-
-
 def plot_trajectory(traj: Trajectory, path: str | Path, title: str | None = None) -> Path:
     """PNG overview: path (with cones), yaw rate, sideslip, lateral acceleration, per-wheel mu."""
-    plt = _pyplot()
+    plt = pyplot()
     cols = trajectory_columns(traj)
     t = cols["t"]
     fig, axes = plt.subplots(3, 2, figsize=(12, 10), constrained_layout=True)
