@@ -26,11 +26,9 @@ def bicycle_matrices(u: float, params) -> tuple[np.ndarray, np.ndarray]:
 def actuator_lag_terms(params) -> tuple[float, float]:
     """(motor torque lag [s], longitudinal relaxation length sigma_kappa at the static wheel load
     [m]) of :func:`actuator_lag`; (0, 0) for a parameter object without a motor lag and tyre."""
-    if not (hasattr(params, "motor_time_constant") and hasattr(params, "tyre")):
+    if not (hasattr(params, "motor_time_constant") and hasattr(params, "static_relaxation_lengths")):
         return 0.0, 0.0
-    from envs.tyre import relaxation_lengths
-
-    return params.motor_time_constant, relaxation_lengths(params.kernel_tyre_array, params.reference_wheel_load)[0]
+    return params.motor_time_constant, params.static_relaxation_lengths[0]
 
 
 def actuator_lag(u, params, terms: tuple[float, float] | None = None):

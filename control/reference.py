@@ -15,7 +15,6 @@ from importlib import resources
 import numba
 import numpy as np
 
-from envs.vehicle import rear_steer_gain as _eq20_gain
 from estimation.jit import JIT
 from estimation.model import GRAVITY  # the controller plans with the estimation model's g
 
@@ -184,13 +183,27 @@ def _bilinear(speeds, frictions, grid, u, mu, out) -> None:
                          + wx * ((1.0 - wy) * grid[k, i + 1, j] + wy * grid[k, i + 1, j + 1]))
 
 
+@numba.njit(inline="always", **JIT)
+def eq20_gain(u: float, a: float, b: float, mass: float, c_f: float, c_r: float) -> float:
+    """Paper eq. 20, proportional 4WS gain k = delta_r / delta_f for zero steady-state sideslip.
+
+    ``k = (-b + m a u^2 / (C_r L)) / (a + m b u^2 / (C_f L))`` with positive axle cornering
+    stiffnesses C_f, C_r [N/rad] (Abe, *Vehicle Handling Dynamics*, sec. 9.2): the paper's k1,
+    k2, which it leaves undefined, read as the front and rear axle stiffnesses. Scalars [m/s, m,
+    m, kg, N/rad, N/rad]; :func:`rear_steer_gain` applies it over arrays, and the plant's kernel
+    inlines it (envs.vehicle, the scenarios' rear_steer_feedforward).
+    """
+    wheelbase = a + b
+    u2 = u * u
+    return (-b + mass * a * u2 / (c_r * wheelbase)) / (a + mass * b * u2 / (c_f * wheelbase))
+
+
 def rear_steer_gain(u: np.ndarray, params) -> np.ndarray:
     """Paper eq. 20 (zero-sideslip proportional 4WS) at speeds ``u`` [m/s] (scalar or (B,)):
-    the plant's law :func:`envs.vehicle.rear_steer_gain` (written once; its Python function,
-    which numpy broadcasts over arrays). Opposite phase (k < 0) below u0 = sqrt(b C_r L / (m a)),
-    in phase above."""
+    :func:`eq20_gain` (written once; its Python function, which numpy broadcasts over arrays).
+    Opposite phase (k < 0) below u0 = sqrt(b C_r L / (m a)), in phase above."""
     c_f, c_r = params.axle_cornering_stiffness
-    law = getattr(_eq20_gain, "py_func", _eq20_gain)  # (the function itself under NUMBA_DISABLE_JIT)
+    law = getattr(eq20_gain, "py_func", eq20_gain)  # (the function itself under NUMBA_DISABLE_JIT)
     return law(np.asarray(u, dtype=float), params.cg_to_front, params.cg_to_rear, params.mass, c_f, c_r)
 
 

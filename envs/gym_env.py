@@ -462,8 +462,8 @@ class YawStabilityEnv(gym.Env):
     FMVSS 126 ratios, displacement and verdict). The yaw-rate tracking RMS here is the
     reward's: sampled every control step against the reference of the driver's steer command;
     ``fourwis compare``'s ``yaw_tracking_rms`` samples every 2 ms against the road-wheel angle
-    the servo reached (8.62 against 8.29 deg/s on one sine with dwell). The comparison's
-    ``swd_wet`` and ``amplitude_A=`` are its own names: here ``scenario="sine_with_dwell"``
+    the servo reached (not the same number: they part most where the steer changes fast). The
+    comparison's ``swd_wet`` and ``amplitude_A=`` are its own names: here ``scenario="sine_with_dwell"``
     with ``mu=0.5`` and ``scenario_kwargs={"amplitude_deg": 5.5 A}`` (A in degrees, from
     :func:`envs.fmvss126.characterise`).
     """

@@ -74,7 +74,9 @@ class Scenario:
         if not (is_number(self.speed_kph) and 0.0 < self.speed_kph <= MAX_SPEED_KPH):
             raise ValueError(f"speed_kph must lie in (0, {MAX_SPEED_KPH:g}], got {self.speed_kph!r}")
         if not (is_number(self.duration) and 0.0 < self.duration <= MAX_DURATION):
-            raise ValueError(f"duration must lie in (0, {MAX_DURATION:g}] s, got {self.duration!r}")
+            raise ValueError(f"scenario {self.name!r}: duration must lie in (0, {MAX_DURATION:g}] s, got "
+                             f"{self.duration!r} (a builder's own duration grows as the speed, "
+                             f"{self.speed_kph!r} km/h, falls: give a shorter one)")
 
     @property
     def speed(self) -> float:

@@ -26,8 +26,9 @@ estimator's 3-DOF Dugoff model (no "inverse crime"):
   body accelerations through a first-order lag that stands for pitch/roll dynamics
   (and removes the algebraic loop between loads and forces); the lateral transfer is
   split between the axles in proportion to their static loads; beyond the transfer that
-  lifts an inner wheel (about 1.4 g at steady speed on this car; roll-over is not modelled)
-  that wheel is held at 1 N and the outer one carries the rest of its axle's load;
+  lifts an inner wheel (track / 2h, 1.31 g at steady speed on this car; roll-over is not modelled)
+  that wheel is held at 1 N and the outer one carries the rest of its axle's load (an axle
+  lifting as a whole, pitch-over beyond ~2 g of braking on this car, is not modelled);
 * aerodynamic drag (1/2) rho Cd A u|u| along the body's x axis, acting at ground level (it
   neither pitches the car nor pushes it sideways when it slides: at 100 km/h the pitch
   moment left out shifts ~90 N, 2% of an axle's load, from front to rear);
@@ -56,6 +57,7 @@ import numba
 import numpy as np
 
 from envs import vecmath
+from control.reference import eq20_gain  # the 4WS law, written once (control)
 from envs.tyre import TyreParams, combined_forces, relaxation_lengths
 from envs.vecmath import LANE_MULTIPLE
 from estimation.jit import JIT
@@ -152,6 +154,12 @@ class VehicleParams:
         front = self.mass * GRAVITY * self.cg_to_rear / (2.0 * self.wheelbase)
         rear = self.mass * GRAVITY * self.cg_to_front / (2.0 * self.wheelbase)
         return np.array([front, front, rear, rear])
+
+    @cached_property
+    def static_relaxation_lengths(self) -> tuple[float, float]:
+        """The tyre's relaxation lengths (sigma_kappa, sigma_alpha) [m] at the reference wheel load."""
+        sig_k, sig_a = relaxation_lengths(self.kernel_tyre_array, self.reference_wheel_load)
+        return float(sig_k), float(sig_a)
 
     @property
     def reference_wheel_load(self) -> float:
@@ -279,20 +287,6 @@ NAUX = len(AUX_NAMES)
 A_AX, A_AY, A_FZ, A_FX, A_FY, A_KAPPA, A_ALPHA, A_MU, A_USAGE = 0, 1, 2, 6, 10, 14, 18, 22, 26
 
 MU_MAX = 2.0  #: largest accepted road friction coefficient
-
-
-@numba.njit(inline="always", **JIT)
-def rear_steer_gain(u: float, a: float, b: float, mass: float, c_f: float, c_r: float) -> float:
-    """Paper eq. 20, proportional 4WS gain k = delta_r / delta_f for zero steady-state sideslip.
-
-    ``k = (-b + m a u^2 / (C_r L)) / (a + m b u^2 / (C_f L))`` with positive axle cornering
-    stiffnesses C_f, C_r [N/rad] (Abe, *Vehicle Handling Dynamics*, sec. 9.2): the paper's k1,
-    k2, which it leaves undefined, read as the front and rear axle stiffnesses. Scalars [m/s, m,
-    m, kg, N/rad, N/rad]; :func:`control.reference.rear_steer_gain` applies it over arrays.
-    """
-    wheelbase = a + b
-    u2 = u * u
-    return (-b + mass * a * u2 / (c_r * wheelbase)) / (a + mass * b * u2 / (c_f * wheelbase))
 
 
 # Lane rows of the wheel-lane scratch arrays. Lane ``4 c + i`` is wheel ``i`` of car ``c`` of a
@@ -485,7 +479,7 @@ def _derivative_block(x, ctrl, mu, p, tp, dx, lanes):
         dx[c, S_DELTA_F] = min(max(rate_f, -p[P_DF_RATE]), p[P_DF_RATE])
         target_r = ctrl[c, C_DELTA_R]
         if p[P_FF4WS] > 0.0:
-            target_r += rear_steer_gain(u, a, b, m, p[P_CF], p[P_CR]) * delta_f
+            target_r += eq20_gain(u, a, b, m, p[P_CF], p[P_CR]) * delta_f
         target_r = min(max(target_r, -p[P_DR_MAX]), p[P_DR_MAX])
         rate_r = (target_r - delta_r) / p[P_TAU_S]
         dx[c, S_DELTA_R] = min(max(rate_r, -p[P_DR_RATE]), p[P_DR_RATE])
@@ -638,6 +632,8 @@ def check_relaxation_step(state: np.ndarray, params: VehicleParams, dt: float) -
     if len(state) == 1:  # one car (the single env's every substep): scalar arithmetic, ~1 us
         x = state[0]
         fastest = math.hypot(x[S_U], x[S_V]) + abs(x[S_R]) * arm
+        if not math.isfinite(fastest):  # a non-finite state: the kernel names it, as for a batch
+            return
     else:
         speed = np.hypot(state[:, S_U], state[:, S_V]) + np.abs(state[:, S_R]) * arm
         fastest = float(np.max(speed, initial=0.0, where=np.isfinite(speed)))

@@ -192,6 +192,18 @@ def test_a_run_with_sensor_faults_resumes_and_becomes_a_controller(tmp_path):
     assert from_json.config.sensor_faults == (Fault("yaw_rate", "stuck", start=1.0),)
 
 
+def test_env_kwargs_that_config_json_cannot_give_back_are_refused_before_training(tmp_path):
+    """A FrictionMap or a steering object would come back from config.json as a dict of its
+    fields, which the env cannot take (it had turned the training env's own kwargs into such dicts)."""
+    from envs.driver import Constant
+    from envs.road import uniform
+
+    for kwargs in ({"mu": uniform(0.5)}, {"scenario": "paper_step", "scenario_kwargs": {"steering": Constant(0.1)}}):
+        with pytest.raises(ValueError, match="cannot be recorded in config.json"):
+            train("ppo", tmp_path / "run", 512, env_kwargs=kwargs, progress=False)
+    assert not (tmp_path / "run").exists()
+
+
 def test_reward_normalisation_discounts_as_the_algorithm_does(tmp_path):
     import pickle
 

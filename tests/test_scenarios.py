@@ -7,6 +7,7 @@ import pytest
 
 from envs import simulate
 from envs.driver import SWD_DWELL, SWD_FREQUENCY, Constant, DriverBatch, Ramp, Sine, SineWithDwell, SpeedHold, Step
+from envs.road import patch
 from envs.scenarios import PAPER_SCENARIOS, SCENARIOS, make_scenario
 from envs.vehicle import S_DELTA_R, S_U, GRAVITY, VehicleParams
 
@@ -349,3 +350,27 @@ def test_steering_past_the_lock_steers_as_the_lock():
     at_lock, past = run(lock), run(4.0 * lock)
     np.testing.assert_array_equal(at_lock.state, past.state)
     np.testing.assert_array_equal(at_lock.controls, past.controls)
+
+
+@pytest.mark.parametrize("build, bad", [
+    (lambda: VehicleParams(rear_steer_feedforward="no"), "rear_steer_feedforward must be True or False, got 'no'"),
+    (lambda: VehicleParams(tyre=None), "tyre must be an envs.tyre.TyreParams, got None"),
+    (lambda: VehicleParams(max_front_steer=3.0), r"max_front_steer must be below pi/2 rad \(90 deg\), got 3.0"),
+    (lambda: make_scenario(["paper_step"]), r"unknown scenario \['paper_step'\]"),
+    (lambda: make_scenario("paper_step", duration=1e9), "'paper_step': duration must lie in .*, got 1000000000.0"),
+    (lambda: make_scenario("slowly_increasing_steer", speed_kph=5.0), r"duration must lie in \(0, 600\] s, got 6.*5.0 km/h, falls"),
+    (lambda: patch(0.9, 0.3, "a", 5.0), "Patch.x0 must be a number .*, got 'a'"),
+    (lambda: simulate("paper_step", progress="no"), "progress must be True or False, got 'no'"),
+])
+def test_bad_parameters_scenarios_and_switches_are_named(build, bad):
+    with pytest.raises(ValueError, match=bad):
+        build()
+
+
+def test_the_random_scenario_steers_no_further_than_the_lock_at_walking_pace():
+    params = VehicleParams()
+    lock = params.max_front_steer * params.steering_ratio
+    for seed in range(20):
+        steering = make_scenario("random", speed_kph=1.0, seed=seed).steering
+        amplitude = sum(steering.amplitudes) if hasattr(steering, "amplitudes") else abs(steering.angle)
+        assert amplitude <= lock * (1 + 1e-12)

@@ -351,10 +351,18 @@ def test_step_refuses_a_step_too_long_for_the_tyre_relaxation_at_speed():
         step(initial_state(P, 70.0), controls, P, uniform(1.0), 0.01)
     step(initial_state(P, 70.0), controls, P, uniform(1.0), 0.002)
     step(initial_state(P, 25.0), controls, P, uniform(1.0), 0.01)
+    batch = initial_state(P, np.array([25.0, 70.0]), batch_size=2)  # a batch: its fastest car
+    with pytest.raises(ValueError, match=r"dt = 0.01 s is too long at 70.0 m/s"):
+        step(batch, np.zeros((2, NU)), P, uniform(1.0), 0.01)
+    for n in (1, 2):  # a non-finite state is named as such, for one car as for a batch
+        bad = initial_state(P, 25.0, batch_size=n)
+        bad[0, S_U] = np.inf
+        with pytest.raises(ValueError, match=r"state\[0\] has a non-finite value"):
+            step(bad, np.zeros((n, NU)), P, uniform(1.0), 0.002)
 
 
 def test_an_inner_wheel_lifts_at_1_n_and_its_axle_keeps_its_load():
-    """On a mu 2.0 road a turn past ~1.4 g (track / 2h at steady speed) would move more than a
+    """On a mu 2.0 road a turn past ~1.3 g (track / 2h at steady speed) would move more than a
     wheel's load to the outer side: the inner wheel is held at 1 N and its axle's load stays
     (before, the clipped load was counted twice and the loads summed to 1.35 m g)."""
     speed = 25.0

@@ -58,9 +58,12 @@ def _check_estimator_and_seed(args: argparse.Namespace) -> None:
 
 
 def _simulate(args: argparse.Namespace) -> int:
+    import math
+
+    from envs.fmvss126 import characterise
     from envs.scenarios import make_scenario
     from envs.simulation import simulate
-    from training.compare import FAULT_SUFFIX, build_controller, file_stem, parse_scenario
+    from training.compare import FAULT_SUFFIX, build_controller, build_scenario, file_stem, parse_scenario
     from training.io import check_writable
     from training.trajectory_io import plot_trajectory, write_trajectory_csv
 
@@ -68,17 +71,13 @@ def _simulate(args: argparse.Namespace) -> int:
         name, overrides = parse_scenario(args.scenario)
         if args.scenario.endswith(FAULT_SUFFIX):
             raise ValueError(f"scenario {args.scenario!r}: the {FAULT_SUFFIX} variant is the comparison's")
-        multiple = overrides.pop("amplitude_A", None)  # swd_wet, or sine_with_dwell:amplitude_A=k
-        scenario = make_scenario(name, **overrides | _scenario_overrides(args))
+        extra = _scenario_overrides(args)
+        needs_A = overrides.pop("amplitude_A", None) is not None  # swd_wet, or sine_with_dwell:amplitude_A=k
+        if needs_A:  # the cheap checks before A's characterisation (a run of its own)
+            make_scenario(name, **overrides | extra)
         _check_estimator_and_seed(args)
         out = check_writable(args.out)
-        if multiple is not None:  # k times A, characterised as the comparison does
-            import math
-
-            from envs.fmvss126 import characterise
-
-            amplitude = {"amplitude_deg": math.degrees(multiple * characterise())}
-            scenario = make_scenario(name, **overrides | amplitude | _scenario_overrides(args))
+        scenario = build_scenario(args.scenario, characterise() if needs_A else math.nan, extra)
         controller = build_controller(args.controller, scenario.vehicle_params)
         traj = simulate(scenario, controller, args.estimator, seed=args.seed, progress=True)
     except (ValueError, FileNotFoundError) as err:  # a bad argument or run, a user's estimator returning garbage
@@ -205,7 +204,7 @@ def _train(args: argparse.Namespace) -> int:
     except (ValueError, FileNotFoundError) as err:
         raise SystemExit(f"fourwis train: {err}") from None
     except KeyboardInterrupt as err:  # train saved the model first (if it had started training)
-        print(f"\nfourwis train: {err or 'interrupted'}", file=sys.stderr)
+        print(f"\nfourwis train: {str(err) or 'interrupted'}", file=sys.stderr)  # (an exception is always truthy)
         return 130
     trained = json.loads((path.parent / "config.json").read_text())["timesteps"]
     others = [p.name + "/" * p.is_dir() for p in sorted(path.parent.iterdir()) if p != path and not p.name.startswith(".")]

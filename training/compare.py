@@ -117,10 +117,12 @@ def check_file_stems(entries: Sequence[str]) -> None:
         raise ValueError(f"scenarios {clashing} would write the same plot file {file_stem(clashing[0])}.png")
 
 
-def build_scenario(text: str, swd_A: float):
+def build_scenario(text: str, swd_A: float, extra: dict | None = None):
     """The Scenario of a comparison entry (see :func:`parse_scenario`; its ``+faults`` suffix is
-    the caller's), ``amplitude_A`` in units of ``swd_A`` [rad] (:func:`envs.fmvss126.characterise`)."""
+    the caller's), ``amplitude_A`` in units of ``swd_A`` [rad] (:func:`envs.fmvss126.characterise`),
+    with ``extra`` overrides on top (the command line's)."""
     name, overrides = parse_scenario(text)
+    overrides |= extra or {}
     if "amplitude_A" in overrides:
         multiple = overrides.pop("amplitude_A")
         overrides["amplitude_deg"] = math.degrees(multiple * swd_A)

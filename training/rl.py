@@ -31,7 +31,7 @@ import os
 import pickle
 import shutil
 import time
-from dataclasses import asdict, dataclass, fields, is_dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +39,7 @@ from gymnasium.vector import AutoresetMode
 from stable_baselines3.common.vec_env import VecEnv
 
 from envs.gym_env import N_OBS, AgentController, EnvConfig, YawStabilityVectorEnv, state_observation
+from envs.sensors import Fault
 from estimation.types import is_integer
 from training.asymmetric import POLICIES
 from training.io import atomic_write, atomic_write_json, atomic_write_text, check_writable, pyplot
@@ -118,8 +119,8 @@ class SB3VecEnv(VecEnv):
         # each car's per-step keys (action_clipped, beta, ...), as a DummyVecEnv of single envs gives
         # them; a finished car's are those of its last step
         last = info.get("final_info", {})
-        infos: list[dict] = [{k: (last if done[b] else info)[k][b].item() for k in PER_STEP_INFO}
-                             for b in range(self.num_envs)]
+        columns = [(np.where(done, last[k], info[k]) if done.any() else info[k]).tolist() for k in PER_STEP_INFO]
+        infos: list[dict] = [dict(zip(PER_STEP_INFO, row)) for row in zip(*columns)]  # (column-wise: ~5x cheaper)
         for b in np.flatnonzero(done):
             metrics = last["episode_metrics"][b]
             infos[b].update({"terminal_observation": info["final_obs"][b],
@@ -430,16 +431,18 @@ def _check_resumable(resume: str | Path, algo: str, env_kwargs: dict, seed: int 
 
 
 def _as_json(env_kwargs: dict) -> dict:
-    """``env_kwargs`` as config.json holds them (dataclasses such as envs.sensors.Fault as dicts of
-    their fields, numpy scalars and arrays as numbers and lists), which EnvConfig takes back:
-    a run is built, resumed and evaluated from the same values."""
+    """``env_kwargs`` as config.json holds them (an envs.sensors.Fault as a dict of its fields,
+    numpy scalars and arrays as numbers and lists), which EnvConfig takes back: a run is built,
+    resumed and evaluated from the same values. Any other object (a FrictionMap, VehicleParams,
+    a steering callable) would not come back as itself: ValueError naming it."""
 
     def plain(value):
-        if is_dataclass(value) and not isinstance(value, type):
+        if isinstance(value, Fault):
             return asdict(value)
         if isinstance(value, (np.generic, np.ndarray)):
             return value.tolist()
-        raise TypeError(f"env_kwargs value {value!r} cannot be recorded in config.json")
+        raise TypeError(f"env_kwargs value {value!r} cannot be recorded in config.json and read back "
+                        "(give numbers, lists, strings and envs.sensors.Fault)")
 
     try:
         return json.loads(json.dumps(env_kwargs, default=plain))
