@@ -23,11 +23,14 @@ from collections.abc import Callable
 import numpy as np
 
 SECONDS = 4.0  #: wall time per measurement [s]
+WARM_UP = 1.0  #: untimed wall time first [s]: compiles and cache loads of the paths one step does not reach (resets)
 
 
 def _rate(step: Callable[[], int], seconds: float = SECONDS) -> float:
     """Env steps per wall second of repeated ``step()`` calls (each returns how many env steps it made)."""
-    step()  # warm-up (JIT, caches)
+    start = time.perf_counter()
+    while time.perf_counter() - start < WARM_UP:  # warm-up (JIT, caches, the first episode ends)
+        step()
     count, start = 0, time.perf_counter()
     while time.perf_counter() - start < seconds:
         count += step()
@@ -98,7 +101,8 @@ def commonroad_mb(dt: float = 0.001) -> float | None:
     def f(x):
         return np.asarray(vehicle_dynamics_mb(x, u, p), dtype=float)
 
-    state = [x0]
+    state, steps = [x0], [0]
+    restart = round(2.0 / dt)  # the steering ramp spins the car and the model's state turns NaN at ~2.6 s: restart
 
     def step() -> int:
         x = state[0]
@@ -107,6 +111,11 @@ def commonroad_mb(dt: float = 0.001) -> float | None:
         k3 = f(x + 0.5 * dt * k2)
         k4 = f(x + dt * k3)
         state[0] = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        steps[0] += 1
+        if steps[0] % restart == 0:
+            if not np.all(np.isfinite(state[0])):
+                raise FloatingPointError("CommonRoad MB state became non-finite: the timing would be of NaN arithmetic")
+            state[0] = x0
         return 1
 
     return _rate(step)
@@ -138,8 +147,11 @@ def main() -> None:
     rows.append(("CommonRoad MB model (RK4, 1 ms)", commonroad_mb(), 0.001))
     rows.append(("gymnasium CartPoleVectorEnv x256", cartpole_vector(), 0.02))
     highway = next(rate for name, rate, _ in rows if name.startswith("highway-env"))
-    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores; "
-          f"{time.strftime('%Y-%m-%d')}")
+    import numba
+
+    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, numba threads "
+          f"{numba.get_num_threads()}; load average {os.getloadavg()[0]:.2f} at the end (benchmark an idle "
+          f"machine); {time.strftime('%Y-%m-%d')}")
     print("| env | env-steps/s | simulated s per wall s | sim-time ratio to highway-fast-v0 |")
     print("|---|---:|---:|---:|")
     for name, rate, sim_dt in rows:

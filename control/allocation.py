@@ -21,8 +21,8 @@ a bound binds, the small bounded QP is solved exactly: the optimum lies on one f
 (each force free, at its lower or at its upper bound, 3^4 = 81 faces), on each face the
 equality-constrained least squares is closed form, and the cheapest feasible face solution is
 the optimum (strict convexity). It is compiled and batched: ~0.2 us per vehicle-step when no
-bound is active, ~1.5 us when the QP is needed, ~5,000x less than scipy's SLSQP on the same
-QP (benchmarks/bench_allocation.py, BENCHMARKS.md), which serves as the tests' reference.
+bound is active, ~1.5 us when the QP is needed, ~2,000x less than scipy's SLSQP on the same
+feasible QPs (benchmarks/bench_allocation.py, BENCHMARKS.md), which serves as the tests' reference.
 
 Infeasible demands degrade in a fixed priority: the drive force is clipped to what the bounds
 allow, then the yaw moment to the largest one feasible with that drive force (an exact
