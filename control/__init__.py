@@ -12,7 +12,7 @@ import numpy as np
 from control.allocation import Allocation, allocate_for_estimate, allocate_torques
 from control.dyc import LQRYawController, LQRWeights, SlidingModeYawController
 from control.reference import rear_steer_feedforward, reference_yaw_rate, sideslip_bound, yaw_time_constant
-from estimation.types import check_step, check_vehicle_params, import_factory
+from estimation.types import check_step, check_vehicle_params, import_factory, is_number
 
 CONTROLLERS = ("none", "dyc-lqr", "dyc-smc", "dyc-lqr-4ws", "dyc-smc-4ws")
 ACTIVE_SPEED = 2.0  #: below this speed [m/s] the law's moment is zero (the allocator still shares the drive)
@@ -97,9 +97,10 @@ class StabilityController:
         for name in ("rear_steer", "friction_ellipse"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
-        if not (np.isfinite(self.mu_margin) and self.mu_margin >= 0.0):
+        if not (is_number(self.mu_margin) and np.isfinite(self.mu_margin) and self.mu_margin >= 0.0):
             raise ValueError(f"mu_margin must be a finite number >= 0, got {self.mu_margin!r}")
-        if self.reference_understeer is not None and not (np.isfinite(self.reference_understeer)
+        if self.reference_understeer is not None and not (is_number(self.reference_understeer)
+                                                          and np.isfinite(self.reference_understeer)
                                                           and self.reference_understeer >= 0.0):
             raise ValueError(f"reference_understeer must be a finite gradient >= 0 [rad s^2/m], got "
                              f"{self.reference_understeer!r}")
@@ -170,13 +171,26 @@ def check_controller(controller, source) -> None:
                          "a name from control.CONTROLLERS or None")
 
 
-def make_controller(name: str, params, dt: float = 0.002):
+#: the DYC controllers' (law, rear steer) by name
+_DYC = {"dyc-lqr": ("lqr", False), "dyc-smc": ("smc", False), "dyc-lqr-4ws": ("lqr", True),
+        "dyc-smc-4ws": ("smc", True)}
+#: the StabilityController settings make_controller passes on
+DYC_OPTIONS = ("friction_ellipse", "mu_margin", "reference_understeer")
+
+
+def make_controller(name: str, params, dt: float = 0.002, **options):
     """Controller ``name`` (see :data:`CONTROLLERS`) for duck-typed vehicle ``params``; None for
-    "none". Your own: ``module:factory`` returns ``factory(params, dt)``, an object with the
-    interface of :class:`envs.simulation.Controller` (``reset`` and a call returning a
-    :class:`Command`); the name then works in ``fourwis compare --controllers`` too."""
+    "none". ``options`` (:data:`DYC_OPTIONS`) set the DYC's :class:`StabilityController`
+    fields, e.g. ``mu_margin=0``. Your own: ``module:factory`` returns ``factory(params, dt)``,
+    an object with the interface of :class:`envs.simulation.Controller` (``reset`` and a call
+    returning a :class:`Command`); the name then works in ``fourwis compare --controllers`` too."""
     if not isinstance(name, str):
         raise ValueError(f"controller must be a name (str; 'none' for none), got {name!r}; known: {list(CONTROLLERS)}")
+    unknown = sorted(set(options) - set(DYC_OPTIONS))
+    if unknown:
+        raise ValueError(f"unknown controller option(s) {unknown}; known: {list(DYC_OPTIONS)}")
+    if options and name not in _DYC:
+        raise ValueError(f"options {sorted(options)} are the DYC controllers' ({list(_DYC)}), not {name!r}'s")
     if name == "none":
         return None
     check_vehicle_params(params)
@@ -184,15 +198,10 @@ def make_controller(name: str, params, dt: float = 0.002):
         controller = import_factory(name, "controller")(params, dt)
         check_controller(controller, name)
         return controller
-    if name == "dyc-lqr":
-        return StabilityController(params, "lqr", dt=dt)
-    if name == "dyc-smc":
-        return StabilityController(params, "smc", dt=dt)
-    if name == "dyc-lqr-4ws":
-        return StabilityController(params, "lqr", rear_steer=True, dt=dt)
-    if name == "dyc-smc-4ws":
-        return StabilityController(params, "smc", rear_steer=True, dt=dt)
-    raise ValueError(f"unknown controller {name!r}; known: {list(CONTROLLERS)}")
+    if name not in _DYC:
+        raise ValueError(f"unknown controller {name!r}; known: {list(CONTROLLERS)}")
+    law, rear_steer = _DYC[name]
+    return StabilityController(params, law, rear_steer=rear_steer, dt=dt, **options)
 
 
 __all__ = ["CONTROLLERS", "Allocation", "Command", "StabilityController", "allocate_for_estimate", "allocate_torques",

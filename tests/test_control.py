@@ -129,6 +129,16 @@ def test_bad_input_raises():
             StabilityController(**({"params": P} | bad))
     with pytest.raises(ValueError, match="controller must be a name .*, got None"):
         make_controller(None, P)
+    # the DYC's settings through make_controller, named when wrong
+    controller = make_controller("dyc-smc-4ws", P, mu_margin=0.0, friction_ellipse=True)
+    assert (controller.law, controller.rear_steer, controller.mu_margin, controller.friction_ellipse) == \
+        ("smc", True, 0.0, True)
+    for kwargs, named in (({"mu_margin": "1"}, "mu_margin must be a finite number >= 0, got '1'"),
+                          ({"gain": 2.0}, r"unknown controller option\(s\) \['gain'\]")):
+        with pytest.raises(ValueError, match=named):
+            make_controller("dyc-lqr", P, **kwargs)
+    with pytest.raises(ValueError, match="are the DYC controllers'"):
+        make_controller("none", P, mu_margin=0.0)
 
 
 def test_a_reference_understeer_gradient_lowers_the_yaw_reference_the_controller_tracks():
