@@ -298,7 +298,8 @@ def build_parser() -> argparse.ArgumentParser:
                           "sine_with_dwell:amplitude_A=6.5 ('swd_wet': SWD 5.5A, mu 0.5)")
     cmp_.add_argument("--controllers", nargs="+", default=list(DEFAULT_CONTROLLERS),
                       help=f"stability controllers ({', '.join(CONTROLLERS)}, or module:factory for your own) or "
-                           f"rl:<run dir> for a policy trained by fourwis train")
+                           "rl:<run dir> (or rl:<run dir>/checkpoints/step_N.zip) for a policy trained by fourwis "
+                           "train")
     cmp_.set_defaults(func=_compare)
     from envs.scenarios import PAPER_SCENARIOS
     from training.estimate import DEFAULT_ESTIMATORS as ESTIMATE_ESTIMATORS
