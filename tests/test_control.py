@@ -282,6 +282,20 @@ def test_sliding_mode_sees_the_rear_steer_angle():
     assert abs(moments[1]) > 500.0
 
 
+def test_sliding_mode_asks_nothing_of_a_car_on_its_reference_inside_the_deadbands():
+    """With the shrunk sideslip 0 and the yaw rate on its reference (a steady 0.43 g turn at 80
+    km/h, neutral steer) the moment is 0, as the LQR's (the linear model's beta_dot at beta = 0
+    had given -67 N m)."""
+    smc = SlidingModeYawController(P)
+    u = np.array([22.2])
+    delta = 0.43 * GRAVITY * P.wheelbase / u**2
+    r_ref = u * delta / P.wheelbase
+    for _ in range(2):
+        moment = smc(u, np.zeros(1), r_ref, r_ref, delta, np.zeros(1), 0.002, np.ones((1, 4)))
+    np.testing.assert_array_equal(moment, 0.0)
+    assert smc(u, np.zeros(1), r_ref + 0.1, r_ref, delta, np.zeros(1), 0.002, np.ones((1, 4)))[0] < -0.5 * P.yaw_inertia
+
+
 def test_sliding_mode_never_pushes_away_from_its_surface_outside_the_boundary_layer():
     """At full right lock (delta -0.6 rad) with the car going straight (r 0 against a reference of
     -0.47 rad/s: s = +0.47, far outside the boundary layer) the linear axle model, clipped at mu Fz,
