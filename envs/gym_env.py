@@ -29,12 +29,12 @@ from control.allocation import allocate_for_estimate
 from control.reference import PhasePlaneRegion, reference_yaw_rate
 from envs.metrics import SPIN_OUT_SIDESLIP, CoursePaths, sine_with_dwell_metrics
 from envs.render import close_window, show_frame
-from envs.scenarios import SCENARIOS, Scenario, is_number, make_scenario
+from envs.scenarios import SCENARIOS, Scenario, make_scenario
 from envs.sensors import Fault
 from envs.simulation import DT, ClosedLoop
-from envs.vehicle import A_AY, S_R, S_X, S_Y, is_integer
+from envs.vehicle import A_AY, S_R, S_X, S_Y
 from estimation import check_estimator_name
-from estimation.types import Estimate
+from estimation.types import Estimate, is_integer, is_number
 
 MAX_YAW_MOMENT = 3000.0  #: yaw-moment action scale [N m]
 MAX_PATH_DEVIATION = 5.0  #: termination distance from the path [m]

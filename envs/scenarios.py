@@ -32,8 +32,9 @@ import numpy as np
 from envs import courses
 from envs.driver import Constant, PathFollower, Ramp, Sine, SineWithDwell, SpeedHold, Step, VectorisedDriver
 from envs.road import FrictionMap, PatchMap, as_friction_map, check_mu, patch, split, uniform
-from envs.vehicle import GRAVITY, VehicleParams, initial_state, is_integer, is_number
+from envs.vehicle import GRAVITY, VehicleParams, initial_state
 from estimation.jit import JIT
+from estimation.types import is_integer, is_number
 
 Steering = Callable[[float, np.ndarray], float]
 

@@ -20,9 +20,9 @@ from envs.road import RoadTables, contact_points
 from envs.scenarios import Scenario, make_scenario
 from envs.sensors import Fault, SensorModel, SensorParams, SensorReading
 from envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NU, S_DELTA_F, S_DELTA_R,
-                          S_OMEGA, S_R, S_TORQUE, S_U, S_V, check_plant_step, derivatives, is_integer, step)
+                          S_OMEGA, S_R, S_TORQUE, S_U, S_V, check_plant_step, derivatives, step)
 from control import Command, StabilityController, check_controller
-from estimation.types import Estimate, check_estimate, check_estimator
+from estimation.types import Estimate, check_estimate, check_estimator, is_integer
 
 DT = 0.002  #: physics, sensor and estimator step [s] (the paper samples at 2 ms)
 

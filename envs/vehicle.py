@@ -56,12 +56,12 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from envs import vecmath
 from control.reference import eq20_gain  # the 4WS law, written once (control)
+from envs import vecmath
 from envs.tyre import TyreParams, combined_forces, relaxation_lengths
 from envs.vecmath import LANE_MULTIPLE
 from estimation.jit import JIT
-from estimation.types import is_integer, is_number  # noqa: F401  (re-exported: envs' checks import them here)
+from estimation.types import is_integer, is_number
 
 GRAVITY = 9.80665  #: standard gravity [m/s^2]
 

@@ -26,12 +26,12 @@ from control.reference import PhasePlaneRegion, reference_yaw_rate
 from envs.fmvss126 import characterise
 from envs.metrics import (alongside_path, cone_hits, mae, path_deviation, peak_abs, rms, rmse, sine_with_dwell_metrics,
                            spin_out, yaw_rate_tracking_rms)
-from envs.scenarios import SCENARIOS, is_number, make_scenario
+from envs.scenarios import SCENARIOS, make_scenario
 from envs.sensors import Fault
 from envs.simulation import Trajectory, simulate
-from envs.vehicle import A_AY, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_X, S_Y, is_integer
+from envs.vehicle import A_AY, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_X, S_Y
 from estimation import check_estimator_name
-from estimation.types import import_factory
+from estimation.types import import_factory, is_integer, is_number
 from training.io import atomic_write, atomic_write_text, check_writable, pyplot
 from training.pool import parallel_map
 from training.tables import mean_over_seeds, require_distinct, write_runs_csv

@@ -367,7 +367,7 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int | None = None, e
         _delete_run(out)
     out.mkdir(parents=True, exist_ok=True)
     config = RunConfig(algo, env_kwargs, seed, n_envs, model.num_timesteps, timesteps)
-    atomic_write_json(out / "config.json", asdict(config), default=repr)
+    atomic_write_json(out / "config.json", asdict(config))
     # the steps SB3 will take: whole rollouts for PPO, whole vector steps otherwise (so that the
     # progress bar's total is what is trained, not what was asked)
     chunk = model.n_steps * n_envs if algo == "ppo" else n_envs
@@ -380,7 +380,7 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int | None = None, e
     except KeyboardInterrupt:  # Ctrl-C: keep the model as it stands (resumable; PPO drops the rollout it was
         interrupted = True     # collecting, whose steps it has counted), then stop
     shutil.rmtree(out / ".evaluating", ignore_errors=True)
-    atomic_write_json(out / "config.json", asdict(replace(config, timesteps=model.num_timesteps)), default=repr)
+    atomic_write_json(out / "config.json", asdict(replace(config, timesteps=model.num_timesteps)))
     if off_policy:  # before the model: a kill in between leaves an old model with a newer buffer
         _atomic_save_replay_buffer(model, out / REPLAY_BUFFER)
     model_path = _atomic_save_model(model, out / "model.zip")
@@ -413,14 +413,15 @@ def _check_resumable(resume: str | Path, algo: str, env_kwargs: dict, seed: int 
                      n_envs: int | None) -> tuple[int, int]:
     """A resumed run continues the same algorithm on the same env with the same seed and cars
     (an off-policy replay buffer holds rows of n_envs cars): ValueError naming what differs from
-    the resumed run's config.json (checked before anything is written). Returns its (seed, n_envs)."""
+    the resumed run's config.json (checked before anything is written; ``env_kwargs`` as :func:`_as_json`
+    gives them). Returns its (seed, n_envs)."""
     config_path = run_files(resume)[2]
     if not config_path.exists():
         raise ValueError(f"cannot resume {resume}: {config_path} is missing (its algorithm and env are unknown)")
     saved = json.loads(config_path.read_text())
     if saved["algo"] != algo:
         raise ValueError(f"cannot resume {resume}: it was trained with --algo {saved['algo']}, not {algo}")
-    if saved["env_kwargs"] != _as_json(env_kwargs):
+    if saved["env_kwargs"] != env_kwargs:
         raise ValueError(f"cannot resume {resume}: it was trained with env_kwargs {saved['env_kwargs']!r}, "
                          f"not {env_kwargs!r} (pass the same --env-kwargs)")
     for name, value in (("seed", seed), ("n_envs", n_envs)):
