@@ -4,7 +4,9 @@ import math
 
 import pytest
 
-from training.compare import SWD_MU, SWD_MULTIPLE, parse_scenario, run_matrix
+from control.reference import rear_steer_gain
+from envs.vehicle import VehicleParams
+from training.compare import SWD_MU, SWD_MULTIPLE, build_scenario, entry_A, parse_scenario, run_matrix
 
 
 def test_scenario_entries_parse_into_name_and_overrides():
@@ -21,6 +23,19 @@ def test_scenario_entries_parse_into_name_and_overrides():
                       ("sine_with_dwell:amplitude_A=-1", "amplitude_A must be")):
         with pytest.raises(ValueError, match=word):
             parse_scenario(bad)
+
+
+def test_sine_with_dwell_steers_multiples_of_the_driven_cars_A():
+    """The paper's 4WS (eq. 20, in phase at 80 km/h: gain k) lowers the neutral car's steady yaw
+    gain by (1 - k) and takes away the lag of its sideslip build-up, so its A lies between the
+    2WS car's and 1/(1 - k) times it; swd_wet on that car steers 5.5 of its own A."""
+    A_2ws, A_4ws = entry_A("swd_wet"), entry_A("swd_wet:rear_steer_feedforward=1")
+    k = float(rear_steer_gain(80 / 3.6, VehicleParams()))
+    assert A_2ws < A_4ws < A_2ws / (1 - k)
+    scenario = build_scenario("swd_wet:rear_steer_feedforward=1", A_4ws)
+    assert scenario.vehicle_params.rear_steer_feedforward
+    assert scenario.steering.amplitude == pytest.approx(SWD_MULTIPLE * A_4ws, rel=1e-12)
+    assert math.isnan(entry_A("paper_step"))
 
 
 def test_a_matrix_axis_with_a_repeated_entry_is_refused():

@@ -60,10 +60,9 @@ def _check_estimator_and_seed(args: argparse.Namespace) -> None:
 def _simulate(args: argparse.Namespace) -> int:
     import math
 
-    from envs.fmvss126 import characterise
     from envs.scenarios import make_scenario
     from envs.simulation import simulate
-    from training.compare import FAULT_SUFFIX, build_controller, build_scenario, file_stem, parse_scenario
+    from training.compare import FAULT_SUFFIX, build_controller, build_scenario, entry_A, file_stem, parse_scenario
     from training.io import check_writable
     from training.trajectory_io import plot_trajectory, write_trajectory_csv
 
@@ -77,7 +76,7 @@ def _simulate(args: argparse.Namespace) -> int:
             make_scenario(name, **overrides | extra)
         _check_estimator_and_seed(args)
         out = check_writable(args.out)
-        scenario = build_scenario(args.scenario, characterise() if needs_A else math.nan, extra)
+        scenario = build_scenario(args.scenario, entry_A(args.scenario, extra) if needs_A else math.nan, extra)
         controller = build_controller(args.controller, scenario.vehicle_params)
         traj = simulate(scenario, controller, args.estimator, seed=args.seed, progress=True)
     except (ValueError, FileNotFoundError) as err:  # a bad argument or run, a user's estimator returning garbage

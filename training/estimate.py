@@ -17,7 +17,6 @@ from pathlib import Path
 
 import numpy as np
 
-from envs.fmvss126 import characterise
 from envs.metrics import mae, rmse
 from envs.road import contact_points
 from envs.scenarios import PAPER_SCENARIOS, Scenario
@@ -25,7 +24,7 @@ from envs.simulation import Trajectory, simulate
 from estimation import ESTIMATORS, Estimate, check_estimator_name, make_estimator, parse_estimator_name
 from estimation.joint import KINDS
 from estimation.types import is_integer
-from training.compare import (FAULT_SUFFIX, build_scenario, check_file_stems, file_stem, naming_the_run,
+from training.compare import (FAULT_SUFFIX, build_scenario, check_file_stems, entry_A, file_stem, naming_the_run,
                               parse_scenario)
 from training.io import atomic_write, atomic_write_text, check_writable, pyplot
 from training.pool import parallel_map
@@ -122,10 +121,9 @@ def _scenarios(scenarios: Sequence[str | Scenario]) -> list[Scenario]:
         if not isinstance(text, str) or text.endswith(FAULT_SUFFIX):
             raise ValueError(f"scenario {text!r}: give a Scenario or a name with optional overrides "
                              f"(the {FAULT_SUFFIX} variant is the closed-loop comparison's)")
-    swd = any(name == "sine_with_dwell" and "amplitude_A" in overrides
-              for name, overrides in map(parse_scenario, texts))
-    A = characterise() if swd else math.nan
-    built = [s if isinstance(s, Scenario) else replace(build_scenario(s, A), name=s) for s in scenarios]
+    built = [s if isinstance(s, Scenario) else
+             replace(build_scenario(s, entry_A(s) if "amplitude_A" in parse_scenario(s)[1] else math.nan), name=s)
+             for s in scenarios]
     require_distinct("scenario names", [s.name for s in built])
     check_file_stems([s.name for s in built])
     return built
