@@ -41,6 +41,8 @@ RESPONSIVENESS_FROM = 5.0  #: S5.2.3 applies to amplitudes of 5A and more
 AMPLITUDE_MARGIN = 0.01  #: the measured amplitude stands in for the commanded one within 1%
 G_UNIT = 9.80665  #: the unit "g" of the regulation's thresholds (standard gravity) [m/s^2]
 SPIN_OUT_SIDESLIP = math.radians(20.0)  #: default |beta| spin-out threshold [rad]
+#: a sideslip within this of the steering geometry's (kinematic_sideslip) is a rolling car's [rad]
+ROLLING_SIDESLIP_TOLERANCE = math.radians(5.0)
 SPIN_OUT_HEADING = math.pi / 2  #: heading this far from the course counts as a spin-out [rad]
 TINY = np.finfo(float).tiny  #: floor of a path segment's squared length [m^2]
 
@@ -421,12 +423,36 @@ def _batch_distances(x, y, points, offsets, cars, out):
         out[b] = _distance_to_polyline(x[b], y[b], points[offsets[b]:offsets[b + 1]])
 
 
-def spin_out(beta, psi=None, course_heading=None, threshold_beta: float = SPIN_OUT_SIDESLIP) -> bool:
+def kinematic_sideslip(delta_f, delta_r, cg_to_front: float, cg_to_rear: float) -> np.ndarray:
+    """Sideslip [rad] of a car rolling without tyre slip at road-wheel angles ``delta_f``,
+    ``delta_r`` [rad] (same shapes; left positive, rear in phase positive): atan((b tan
+    delta_f + a tan delta_r) / L), the low-speed geometry (Rajamani 2012, sec. 2.2). At full
+    lock (0.6 rad) this car's is 18.9 deg: at walking pace a plain turn has that sideslip."""
+    delta_f, delta_r = np.asarray(delta_f, dtype=float), np.asarray(delta_r, dtype=float)
+    return np.arctan((cg_to_rear * np.tan(delta_f) + cg_to_front * np.tan(delta_r)) / (cg_to_front + cg_to_rear))
+
+
+def spun_sideslip(beta, kinematic=None, threshold_beta: float = SPIN_OUT_SIDESLIP):
+    """Per sample: |beta| > ``threshold_beta`` and, where the steering geometry's
+    ``kinematic`` sideslip (:func:`kinematic_sideslip`, same shape) is given, not within
+    ROLLING_SIDESLIP_TOLERANCE (5 deg) of it: a car whose sideslip the geometry explains is
+    rolling round a slow full-lock turn, not sliding (at walking pace the plant stays within
+    1.3 deg of it, its parallel-steered wheels scrubbing; a spinning car leaves it at once)."""
+    beta = np.asarray(beta, dtype=float)
+    spun = np.abs(beta) > threshold_beta
+    return spun if kinematic is None else spun & (np.abs(beta - kinematic) > ROLLING_SIDESLIP_TOLERANCE)
+
+
+def spin_out(beta, psi=None, course_heading=None, threshold_beta: float = SPIN_OUT_SIDESLIP,
+             kinematic=None) -> bool:
     """Whether the car spun out.
 
     ``beta`` (n,) sideslip [rad]: spin-out once |beta| > ``threshold_beta`` (default 20 deg;
     not a regulation value: normal driving stays within a few degrees, atan(0.02 mu g)
     (Rajamani), and ESC studies treat 10-20 deg as beyond a driver's recovery).
+    ``kinematic`` (n,) [rad], optional: the steering geometry's sideslip
+    (:func:`kinematic_sideslip`); a sample within 5 deg of it does not count
+    (:func:`spun_sideslip`): a turn at walking pace near full lock is no spin.
     ``psi`` (n,) heading [rad], optional: spin-out also when the heading deviates more than
     90 deg from ``course_heading`` [rad] (scalar or (n,): the direction of travel the
     course asks for; None: the initial heading psi[0]); NHTSA's ESC research counted a
@@ -434,7 +460,9 @@ def spin_out(beta, psi=None, course_heading=None, threshold_beta: float = SPIN_O
     beta = _series("beta", beta)
     if not (math.isfinite(threshold_beta) and threshold_beta > 0):
         raise ValueError(f"threshold_beta must be a positive angle [rad], got {threshold_beta!r}")
-    spun = bool(np.max(np.abs(beta)) > threshold_beta)
+    if kinematic is not None:
+        kinematic = _series("kinematic", kinematic, len(beta))
+    spun = bool(np.any(spun_sideslip(beta, kinematic, threshold_beta)))
     if psi is not None:
         psi = _series("psi", psi, len(beta))
         course = psi[0] if course_heading is None else np.asarray(course_heading, dtype=float)

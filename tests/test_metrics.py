@@ -194,6 +194,14 @@ def test_spin_out():
     assert not spin_out(beta, psi=np.radians([10, 50, 80, 95]))
     assert not spin_out(beta, psi=np.radians([0, 90, 180, 270]), course_heading=np.radians([0, 90, 180, 270]))
     assert not spin_out(beta, psi=np.radians([1, 359, 361, 719]), course_heading=0.0)  # wrapped headings
+    # sideslip the steering geometry explains (within 5 deg) is no spin; beyond it, it is
+    geometry = np.radians([0, 10, 21, 21])
+    assert not spin_out(np.radians([0, 10, 21, 25]), kinematic=geometry)
+    assert spin_out(np.radians([0, 10, 21, 27]), kinematic=geometry)
+    assert spin_out(np.radians([0, 10, 21, -25]), kinematic=geometry)
+    assert not spin_out(np.radians([0, 10, 15, 15]), kinematic=-geometry)  # |beta| below 20 deg
+    with pytest.raises(ValueError, match="kinematic has 2 samples"):
+        spin_out(np.radians([0, 10, 21]), kinematic=geometry[:2])
 
 
 def test_generic_metrics():

@@ -46,6 +46,30 @@ def test_kinematic_yaw_rate_at_low_speed():
     assert r == pytest.approx(u * delta / P.wheelbase, rel=0.03)
 
 
+def test_a_walking_pace_full_lock_turn_has_the_geometrys_sideslip_and_is_no_spin_out():
+    """At 2 m/s with the front wheels at the lock and the rear at +5 deg (in phase) the sideslip
+    is the kinematic one, atan((b tan delta_f + a tan delta_r) / L) = 21.1 deg, within 1.5 deg
+    (the parallel-steered wheels scrub at the lock); no spin-out even at a 15 deg threshold,
+    which the sideslip alone passes."""
+    from envs.metrics import kinematic_sideslip, spin_out
+
+    state = initial_state(P, 2.0)
+    tables = RoadTables.from_roads(uniform(1.0), 1)
+    controls = np.zeros((1, NU))
+    controls[:, C_DELTA_F], controls[:, C_DELTA_R] = P.max_front_steer, P.max_rear_steer
+    betas, kinematic = [], []
+    for _ in range(int(round(6.0 / DT))):
+        controls[:, C_TORQUE:C_TORQUE + 4] = speed_hold(state, 2.0)
+        state, _ = step(state, controls, P, tables, DT)
+        betas.append(math.atan2(state[0, S_V], state[0, S_U]))
+        kinematic.append(kinematic_sideslip(state[0, S_DELTA_F], state[0, S_DELTA_R], P.cg_to_front, P.cg_to_rear))
+    assert math.degrees(kinematic[-1]) == pytest.approx(21.1, abs=0.1)
+    assert betas[-1] == pytest.approx(kinematic[-1], abs=math.radians(1.5))
+    threshold = math.radians(15.0)
+    assert spin_out(betas, threshold_beta=threshold) and not spin_out(betas, threshold_beta=threshold,
+                                                                      kinematic=kinematic)
+
+
 def test_steady_state_yaw_gain_matches_linear_bicycle_model():
     delta, speed = 0.01, 15.0
     _, states, _ = run(initial_state(P, speed), lambda t: delta, 6.0, target=speed)
