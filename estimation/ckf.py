@@ -309,12 +309,15 @@ def _update_batch(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nu, S, we
 
 
 def batch_arrays(x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """x (B, n) and P (B, n, n) as contiguous float64, shapes checked."""
+    """x (B, n) and P (B, n, n) as contiguous float64, checked: shapes, a finite x, and P a
+    covariance (:func:`noise_matrix`; the compiled steps only jitter away rounding)."""
     x = np.ascontiguousarray(x, dtype=np.float64)
     P = np.ascontiguousarray(P, dtype=np.float64)
     if x.ndim != 2 or P.shape != x.shape + x.shape[-1:]:
         raise ValueError(f"state must have shape (B, n) and covariance (B, n, n), got {x.shape} and {P.shape}")
-    return x, P
+    if not np.all(np.isfinite(x)):
+        raise ValueError(f"state must be finite, got {x!r}")
+    return x, noise_matrix(P, P.shape, "covariance P")
 
 
 def noise_matrix(M: np.ndarray, shape: tuple[int, ...], name: str) -> np.ndarray:
@@ -326,7 +329,7 @@ def noise_matrix(M: np.ndarray, shape: tuple[int, ...], name: str) -> np.ndarray
     if not np.all(np.isfinite(given)):
         raise ValueError(f"{name} must be finite, got {given!r}")
     scale = max(float(np.abs(given).max()), 1e-300)
-    if not np.allclose(given, np.swapaxes(given, -1, -2), rtol=0.0, atol=1e-12 * scale) \
+    if float(np.abs(given - np.swapaxes(given, -1, -2)).max()) > 1e-12 * scale \
             or np.linalg.eigvalsh(given).min() < -1e-12 * scale:
         raise ValueError(f"{name} must be a symmetric positive semi-definite covariance, got {given!r}")
     return np.ascontiguousarray(np.broadcast_to(given, shape))

@@ -69,7 +69,7 @@ from estimation.federated import fuse, sharing_coefficients
 from estimation.jit import JIT, scratch
 from estimation.model import (MIN_SPEED, P_IZ, P_RW, ModelParams, body_forces, dugoff_lambdas, fill_steer_trig, transition,
                               wheel_kinematics, wheel_loads, wheel_trig)
-from estimation.types import CHANNELS, Estimate, check_step, member_rows
+from estimation.types import CHANNELS, Estimate, check_step, is_number, member_rows
 
 N_STATE = 6
 I_U, I_V, I_AX, I_AY, I_R, I_GAMMA = range(N_STATE)
@@ -116,9 +116,13 @@ def _correlated(variance: float) -> np.ndarray:
     return out
 
 
+NOISE_STEP = 0.002  #: [s] the step NoiseParams' process noise and mu random walk are given per
+
+
 @dataclass(frozen=True)
 class NoiseParams:
-    """Filter noise (standard deviations, SI). Process: per 2 ms step on u, v, ax, ay, r, Gamma;
+    """Filter noise (standard deviations, SI). Process: per 2 ms step (NOISE_STEP; a filter at
+    another step scales the variances, StateEstimator.set_noise) on u, v, ax, ay, r, Gamma;
     measurement: accelerometer, gyro (sensor noise plus model error), wheel-speed pseudo
     measurement; mu random walk per step. ALO tuning rescales these."""
 
@@ -229,6 +233,7 @@ ZP_OFFSET, ZP_STEADY, ZP_STEER, ZP_YAW = range(4)
 (O_U, O_V, O_BETA, O_R, O_AX, O_AY), O_MU, O_FZ, O_BETA_STD, O_MU_STD, N_OUT = range(6), 6, 10, 14, 15, 19
 #: status codes of the compiled step
 OK, BAD_MEASUREMENT, FILTER_FAILED = 0, 1, 2
+N_MEASURED = 3  #: sensor channels 0-2 (ax, ay, yaw rate) are measurements, the rest the model's inputs
 
 
 # ---- measurement models (compiled, from the points (K, n) into out (K, m), row by row) -------------
@@ -452,8 +457,8 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, process_v
     """One step of one vehicle's estimator of ``kind`` (index into KINDS) on the raw sensor
     ``reading`` (13,); state rows are updated in place only on success. Returns (status,
     innovation NLL) and fills ``out``."""
-    for c in range(reading.shape[0]):
-        if valid_in[c] and not math.isfinite(reading[c]):
+    for c in range(reading.shape[0]):  # the inputs (channels 3-12) drive the model, valid or not
+        if (valid_in[c] or c >= N_MEASURED) and not math.isfinite(reading[c]):
             return BAD_MEASUREMENT, math.nan
     channels = reading.shape[0]
     valid, repeats = scratch((channels,), np.bool_), scratch((3,))
@@ -618,22 +623,26 @@ class StateEstimator:
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
             raise ValueError(f"unknown estimator kind {self.kind!r}; known: {list(KINDS)}")
-        if not (MU_BOUNDS[0] <= self.nominal_mu <= MU_BOUNDS[1]):
+        if not (is_number(self.nominal_mu) and MU_BOUNDS[0] <= self.nominal_mu <= MU_BOUNDS[1]):
             raise ValueError(f"nominal_mu must lie in {MU_BOUNDS}, got {self.nominal_mu!r}")
         check_step(self.dt)
-        if not self.huber_c > 0:
+        if not (is_number(self.huber_c) and self.huber_c > 0):
             raise ValueError(f"huber_c must be > 0, got {self.huber_c!r}")
-        if not self.stuck_samples >= 1:
+        if not (is_number(self.stuck_samples) and self.stuck_samples >= 1):
             raise ValueError(f"stuck_samples must be >= 1 (math.inf: off), got {self.stuck_samples!r}")
-        if not self.zero_point_time_constant > 0:
+        if not (is_number(self.zero_point_time_constant) and self.zero_point_time_constant > 0):
             raise ValueError(f"zero_point_time_constant must be > 0 [s], got {self.zero_point_time_constant!r}")
         self._kind_code = KINDS.index(self.kind)
         self.set_noise(self.noise)
 
     def set_noise(self, noise: NoiseParams) -> None:
-        """Use ``noise`` from the next step on (shared, or per member: see NoiseParams.scaled)."""
+        """Use ``noise`` from the next step on (shared, or per member: see NoiseParams.scaled).
+        Its process noise and mu random walk are per NOISE_STEP (2 ms): at another ``dt`` their
+        variances scale by dt / NOISE_STEP (noise of a process that runs continuously; the
+        measurement noise is per sample and stays)."""
         self.noise = noise
-        process_var = np.atleast_2d(np.square(np.asarray(noise.process_std, float)))
+        per_step = self.dt / NOISE_STEP
+        process_var = np.atleast_2d(np.square(np.asarray(noise.process_std, float)) * per_step)
         sensor_std = np.broadcast_arrays(*(np.atleast_1d(np.asarray(s, dtype=float))
                                            for s in (noise.accel_std, noise.gyro_std, noise.wheel_speed_std)))
         sensor_var = np.square(np.stack(sensor_std, axis=1))
@@ -641,6 +650,7 @@ class StateEstimator:
         self._process_var = np.ascontiguousarray(np.broadcast_to(process_var, (members, N_STATE)))
         self._sensor_var = np.ascontiguousarray(np.broadcast_to(sensor_var, (members, 3)))
         self._mu_var = np.square(np.array([noise.mu_walk_std, noise.mu_accel_std, noise.mu_max_std], dtype=float))
+        self._mu_var[0] *= per_step
 
     # ---- set-up -------------------------------------------------------------------------
     def reset(self, reading, initial_speed: np.ndarray, mask: np.ndarray | None = None) -> None:
@@ -653,8 +663,17 @@ class StateEstimator:
         B = values.shape[0]
         if mask is not None and hasattr(self, "x") and self.x.shape[0] != B:
             raise ValueError(f"a masked reset keeps the batch of {self.x.shape[0]}; the reading has {B} rows")
-        initial_speed = np.broadcast_to(np.asarray(initial_speed, dtype=float), (B,))
-        rows = slice(None) if mask is None else np.asarray(mask, dtype=bool)
+        if mask is not None:
+            mask = np.asarray(mask)
+            if mask.dtype != np.bool_ or mask.shape != (B,):
+                raise ValueError(f"mask must be a bool array of shape ({B},), got {mask!r}")
+        try:
+            initial_speed = np.broadcast_to(np.asarray(initial_speed, dtype=float), (B,))
+        except ValueError:
+            raise ValueError(f"initial_speed must be a speed [m/s] or one per vehicle ({B},), got "
+                             f"{initial_speed!r}") from None
+        # (a first reset starts every row, so all of them are checked)
+        rows = slice(None) if mask is None or not hasattr(self, "x") else mask
         if not np.all(np.isfinite(initial_speed[rows])):
             raise ValueError(f"initial_speed must be finite [m/s], got {initial_speed!r}")
         if not np.all(np.isfinite(values[rows])):
@@ -694,7 +713,9 @@ class StateEstimator:
     # ---- one step -----------------------------------------------------------------------
     def step(self, reading, truth: Estimate | None = None, members: np.ndarray | None = None) -> Estimate:
         """One filter step on ``reading`` (values and valid (B, 13)); with ``members`` (M,) indices
-        only those rows step (the others keep their state) and the estimate has M rows."""
+        only those rows step (the others keep their state) and the estimate has M rows. A
+        ValueError (a bad reading, a failed filter) names the first failing vehicle, whose state
+        stays as it was; the other rows have stepped (snapshot STATE_FIELDS to retry a batch)."""
         if not hasattr(self, "x"):
             raise RuntimeError("call reset(first_reading, initial_speed) before the first step")
         B = self.x.shape[0]
@@ -714,15 +735,15 @@ class StateEstimator:
         if np.count_nonzero(status):
             j = int(np.flatnonzero(status)[0])
             i = int(rows[j])
-            if status[j] == BAD_MEASUREMENT:
-                raise ValueError(f"a valid measurement of vehicle {i} is NaN or inf: {values[i]!r}")
-            bad_inputs = [CHANNELS[c] for c in range(3, 13) if not np.isfinite(values[i, c])]
+            if status[j] == FILTER_FAILED:
+                raise ValueError(f"the {self.kind} filter of vehicle {i} failed: a covariance is not finite or not "
+                                 "positive definite")
+            bad_inputs = [CHANNELS[c] for c in range(N_MEASURED, 13) if not np.isfinite(values[i, c])]
             if bad_inputs:  # the model needs its inputs every step, valid or not
                 raise ValueError(f"inputs {bad_inputs} of vehicle {i} are NaN or inf: wheel speeds, steer angles "
                                  "and torques drive the model every step; hold the last value while a sensor is "
                                  "out (as envs.sensors does) and flag it invalid")
-            raise ValueError(f"the {self.kind} filter of vehicle {i} failed: a covariance is not finite or not "
-                             "positive definite")
+            raise ValueError(f"a valid measurement of vehicle {i} is NaN or inf: {values[i]!r}")
         return Estimate(u=out[:, O_U], v=out[:, O_V], beta=out[:, O_BETA], r=out[:, O_R], ax=out[:, O_AX],
                         ay=out[:, O_AY], mu=out[:, O_MU:O_MU + 4], fz=out[:, O_FZ:O_FZ + 4],
                         beta_std=out[:, O_BETA_STD], mu_std=out[:, O_MU_STD:O_MU_STD + 4])

@@ -708,6 +708,10 @@ def test_a_nan_input_is_named_even_on_an_invalid_channel():
     values[1, CHANNELS.index("delta_r")], valid[1, CHANNELS.index("delta_r")] = np.nan, False
     with pytest.raises(ValueError, match=r"\['delta_r'\] of vehicle 1"):
         est.step(SensorReading(values, valid, np.zeros(2)))
+    values[1, CHANNELS.index("delta_r")] = 0.0  # an inf is refused as well (it had been clipped to a force)
+    values[0, CHANNELS.index("torque_fl")], valid[0, CHANNELS.index("torque_fl")] = np.inf, False
+    with pytest.raises(ValueError, match=r"\['torque_fl'\] of vehicle 0"):
+        est.step(SensorReading(values, valid, np.zeros(2)))
 
 
 @pytest.mark.parametrize("speed", [0.0, 0.5, 2.0])
@@ -785,6 +789,18 @@ def test_estimator_input_errors_name_the_bad_value():
         est.reset(reading, np.full(1, np.nan))
     with pytest.raises(ValueError, match=r"\(B, 13\)"):
         est.reset(SensorReading(values[:, :12], reading.valid[:, :12], np.zeros(1)), 20.0)
+    with pytest.raises(ValueError, match=r"initial_speed must be .* \(1,\), got \[20.0, 20.0\]"):
+        est.reset(reading, [20.0, 20.0])
+    three = SensorReading(np.repeat(values, 3, axis=0), np.ones((3, len(CHANNELS)), dtype=bool), np.zeros(3))
+    with pytest.raises(ValueError, match=r"mask must be a bool array of shape \(3,\), got array\(\[1, 0, 0\]\)"):
+        est.reset(three, 20.0, mask=np.array([1, 0, 0]))  # (as indices it had reset rows 0 and 1)
+    first = make_estimator("joint", params)  # a first reset starts every row: every row is checked
+    three.values[2, 0] = np.nan
+    with pytest.raises(ValueError, match="first reading must be finite"):
+        first.reset(three, 20.0, mask=np.array([True, False, False]))
+    for name, value in (("huber_c", "3"), ("nominal_mu", "0.8"), ("stuck_samples", None)):
+        with pytest.raises(ValueError, match=f"{name} must"):
+            make_estimator("joint", params, **{name: value})
     with pytest.raises(ValueError, match="dt must be .*, got inf"):
         make_estimator("joint", params, dt=math.inf)
     with pytest.raises(ValueError, match="dt must be .*, got -1.0"):
@@ -809,6 +825,21 @@ def test_estimator_input_errors_name_the_bad_value():
         simulate("paper_step", estimator=make_estimator("joint", params, dt=0.01))
 
 
+def test_a_filter_at_another_step_keeps_its_noise_per_unit_time():
+    """The noise is given per 2 ms step: at 10 ms the process and mu random-walk variances are
+    5x (the sensors' stay per sample), and the joint estimator still follows the mu jump
+    (without the scaling its mean mu error over the last half was 0.53)."""
+    from envs.sensors import SensorParams
+
+    fine, coarse = (make_estimator("joint", VehicleParams(), dt=dt) for dt in (0.002, 0.01))
+    np.testing.assert_allclose(coarse._process_var, 5.0 * fine._process_var, rtol=1e-12)
+    np.testing.assert_allclose(coarse._mu_var, fine._mu_var * [5.0, 1.0, 1.0], rtol=1e-12)
+    np.testing.assert_array_equal(coarse._sensor_var, fine._sensor_var)
+    traj = simulate("mu_jump", estimator=coarse, dt=0.01, sensor_params=SensorParams(sample_time=0.01))
+    half = len(traj.t) // 2
+    assert np.mean(np.abs(traj.estimate.mu - traj.truth.mu)[half:]) < 0.05
+
+
 def test_the_reusable_filters_refuse_bad_noise_and_sharing_coefficients():
     x, P = np.zeros((1, 2)), np.eye(2)[None]
 
@@ -821,6 +852,15 @@ def test_the_reusable_filters_refuse_bad_noise_and_sharing_coefficients():
                      (np.array([[1.0, 0.5], [0.0, 1.0]]), "symmetric"), (np.eye(3), "shape")):
         with pytest.raises(ValueError, match=match):
             ckf_predict(x, P, f, Q)
+    # the state's covariance too: the compiled steps' jitter repairs rounding, not a wrong P
+    z = np.zeros((1, 2))
+    for bad_P, match in ((np.diag([1.0, -0.01])[None], "covariance P must be a symmetric positive semi"),
+                         (np.array([[[1.0, 0.5], [0.0, 1.0]]]), "covariance P must be a symmetric")):
+        for call in (lambda: ckf_predict(x, bad_P, f, np.eye(2)), lambda: ckf_update(x, bad_P, z, f, np.eye(2))):
+            with pytest.raises(ValueError, match=match):
+                call()
+    with pytest.raises(ValueError, match="state must be finite"):
+        ckf_predict(np.full((1, 2), np.inf), P, f, np.eye(2))
     z = np.zeros((1, 2))
     for kwargs, match in (({"huber_c": -1.0}, "huber_c"), ({"huber_c": math.nan}, "huber_c"),
                           ({"valid": np.ones((1, 3), bool)}, "valid")):

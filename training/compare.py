@@ -24,8 +24,8 @@ from control import CONTROLLERS, make_controller
 from control.allocation import wheel_force_map
 from control.reference import PhasePlaneRegion, reference_yaw_rate
 from envs.fmvss126 import characterise
-from envs.metrics import (alongside_path, cone_hits, mae, path_deviation, peak_abs, rms, rmse, sine_with_dwell_metrics,
-                           spin_out, yaw_rate_tracking_rms)
+from envs.metrics import (alongside_path, cone_hits, kinematic_sideslip, mae, path_deviation, peak_abs, rms, rmse,
+                          sine_with_dwell_metrics, spin_out, yaw_rate_tracking_rms)
 from envs.scenarios import SCENARIOS, make_scenario
 from envs.sensors import Fault
 from envs.simulation import Trajectory, simulate
@@ -65,7 +65,7 @@ FAULT_SUFFIX = "+faults"
 def parse_scenario(text: str) -> tuple[str, dict]:
     """Scenario name and overrides of a comparison entry ``name[:key=value,...][+faults]``,
     e.g. ``iso3888_2:mu=0.5,speed_kph=50``; a value is a number or a JSON list (a split road:
-    ``mu=[0.5,0.3]``, left and right); ``amplitude_A=k`` gives sine with dwell k times A;
+    ``mu=[0.5,0.3]``, left and right); ``amplitude_A=k`` gives sine with dwell k times A (:func:`entry_A`, the driven car's);
     ``swd_wet`` stands for ``sine_with_dwell:mu=0.5,amplitude_A=5.5`` (overrides apply on top);
     ``rear_steer_feedforward=1`` switches the paper's 4WS law on;
     a ``+faults`` suffix runs it with :data:`SENSOR_FAULTS`."""
@@ -131,6 +131,18 @@ def build_scenario(text: str, swd_A: float, extra: dict | None = None):
     return make_scenario(name, **overrides)
 
 
+def entry_A(text: str, extra: dict | None = None) -> float:
+    """FMVSS 126's A [rad] (:func:`envs.fmvss126.characterise`) of the car a sine-with-dwell entry
+    of the comparison drives, with ``extra`` overrides (its vehicle parameters: the 4WS
+    feed-forward, ``rear_steer_feedforward=1``, makes A 26.5 instead of 16.6 deg, and 5.5A must
+    be that car's); NaN for the other scenarios."""
+    name, overrides = parse_scenario(text)
+    if name != "sine_with_dwell":
+        return math.nan
+    overrides.pop("amplitude_A", None)
+    return characterise(make_scenario(name, **overrides | (extra or {})).vehicle_params)
+
+
 def _scenario(spec: RunSpec):
     return build_scenario(spec.scenario, spec.swd_A)
 
@@ -143,7 +155,8 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
     beta = T.beta
     r_ref = reference_yaw_rate(traj.state[:, S_U], traj.state[:, S_DELTA_F], T.mu, params)
     out = {"peak_beta": peak_abs(beta), "yaw_tracking_rms": yaw_rate_tracking_rms(traj.state[:, S_R], r_ref),
-           "spin_out": float(spin_out(beta))}
+           "spin_out": float(spin_out(beta, kinematic=kinematic_sideslip(
+               traj.state[:, S_DELTA_F], traj.state[:, S_DELTA_R], params.cg_to_front, params.cg_to_rear)))}
     # how far the car left the sideslip phase-plane region it recovers from by itself (> 1:
     # outside), over the samples at speeds the region is tabulated for
     region = PhasePlaneRegion.default()
@@ -266,8 +279,9 @@ def run_matrix(scenarios: Sequence[str] = HEADLINE, estimators: Sequence[str] = 
                 run_files(name.removeprefix(RL_PREFIX))
             except FileNotFoundError as err:
                 raise ValueError(f"controller {name!r}: {err}") from None
-    A = characterise() if any(name == "sine_with_dwell" for name, _ in parsed) else float("nan")
-    specs = [RunSpec(s, e, c, k, A) for s in scenarios for c in controllers for e in estimators for k in range(seeds)]
+    A = {s: entry_A(s) for s in scenarios}
+    specs = [RunSpec(s, e, c, k, A[s]) for s in scenarios for c in controllers for e in estimators
+             for k in range(seeds)]
     results, trajectories = [], {}
     for spec, metrics, traj in parallel_map(_run, specs, jobs, "closed-loop runs", progress):
         results.append((spec, metrics))
