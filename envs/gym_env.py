@@ -27,12 +27,13 @@ from gymnasium.vector.utils import batch_space
 from control import Command
 from control.allocation import allocate_for_estimate
 from control.reference import PhasePlaneRegion, reference_yaw_rate
-from envs.metrics import SPIN_OUT_SIDESLIP, CoursePaths, sine_with_dwell_metrics
+from envs.fmvss126 import characterise
+from envs.metrics import CoursePaths, kinematic_sideslip, sine_with_dwell_metrics, spun_sideslip
 from envs.render import close_window, show_frame
 from envs.scenarios import SCENARIOS, Scenario, make_scenario
 from envs.sensors import Fault
 from envs.simulation import DT, ClosedLoop
-from envs.vehicle import A_AY, S_R, S_X, S_Y
+from envs.vehicle import A_AY, S_DELTA_F, S_DELTA_R, S_R, S_X, S_Y
 from estimation import check_estimator_name
 from estimation.types import Estimate, is_integer, is_number
 
@@ -80,9 +81,12 @@ class EnvConfig:
             raise ValueError(f"estimator must be a name, got {self.estimator!r}")
         check_estimator_name(self.estimator)
         dt = self.control_dt
-        substeps = dt / DT if is_number(dt) and math.isfinite(dt) else math.nan
-        if not (1 - 1e-9 <= substeps <= MAX_CONTROL_DT / DT + 1e-9 and abs(substeps - round(substeps)) < 1e-9):
+        substeps = float(dt) / DT if is_number(dt) and math.isfinite(dt) else math.nan
+        # (within float32's precision: np.float32(0.02) is 0.0199999996)
+        if not (1 - 1e-6 <= substeps <= MAX_CONTROL_DT / DT + 1e-6 and abs(substeps - round(substeps)) < 1e-6):
             raise ValueError(f"control_dt must be a multiple of {DT} s up to {MAX_CONTROL_DT} s, got {dt!r}")
+        if type(dt) is not float:  # (a numpy or integer step as the plain float it stands for)
+            object.__setattr__(self, "control_dt", round(substeps) * DT)
         try:  # a Fault's fields as a dict too: what a run's config.json (and --env-kwargs JSON) holds
             faults = tuple(Fault(**f) if isinstance(f, dict) else f for f in (self.sensor_faults or ()))
         except TypeError:
@@ -118,9 +122,11 @@ class EnvConfig:
         return int(round(self.control_dt / DT))
 
     @property
-    def render_fps(self) -> int:
-        """Frames per second of a rendered episode: one per control step."""
-        return int(round(1 / self.control_dt))
+    def render_fps(self) -> int | float:
+        """Frames per second of a rendered episode: one per control step (an integer where
+        1 / control_dt is one)."""
+        fps = 1 / self.control_dt
+        return int(round(fps)) if abs(fps - round(fps)) < 1e-9 else fps
 
     @property
     def observation_size(self) -> int:
@@ -178,10 +184,11 @@ class _EpisodeStats:
         self.peak_beta = np.zeros(batch_size)
         self.peak_phase_plane = np.zeros(batch_size)
         self.max_deviation = np.zeros(batch_size)
+        self.spun = np.zeros(batch_size, dtype=bool)
         self.series: list[list] = [[] for _ in range(batch_size)]
 
     def clear(self, members: np.ndarray) -> None:
-        for name in ("length", "ret", "yaw_sq", "peak_beta", "peak_phase_plane", "max_deviation"):
+        for name in ("length", "ret", "yaw_sq", "peak_beta", "peak_phase_plane", "max_deviation", "spun"):
             getattr(self, name)[members] = 0
         for b in members:
             self.series[b] = []
@@ -270,9 +277,11 @@ class YawStabilityCore:
         deviation = self._deviation()
         reward = -self.config.control_dt * ((yaw_error / 0.1) ** 2 + (beta / 0.05) ** 2
                                             + 0.1 * np.sum(clipped**2, axis=1) + deviation**2)
-        spin = np.abs(beta) > SPIN_OUT_SIDESLIP
+        state = self.loop.state
+        spin = spun_sideslip(beta, kinematic_sideslip(state[:, S_DELTA_F], state[:, S_DELTA_R], self.params.cg_to_front,
+                                                      self.params.cg_to_rear))
         terminated = (spin | (deviation > MAX_PATH_DEVIATION)) & moved
-        reward = (reward - TERMINATION_PENALTY * terminated) * moved
+        reward = np.where(moved, reward - TERMINATION_PENALTY * terminated, 0.0)
         st = self.stats  # (the held vehicles' statistics add 0: non-negative peaks times False)
         st.length += moved
         st.ret += reward
@@ -280,6 +289,7 @@ class YawStabilityCore:
         st.peak_beta = np.maximum(st.peak_beta, np.abs(beta) * moved)
         st.peak_phase_plane = np.maximum(st.peak_phase_plane, phase_plane * moved)
         st.max_deviation = np.maximum(st.max_deviation, deviation * moved)
+        st.spun |= spin & moved
         truncated = (self.loop.k >= self._ends) & moved
         if self.config.max_episode_steps is not None:
             truncated |= (st.length >= self.config.max_episode_steps) & moved
@@ -303,7 +313,7 @@ class YawStabilityCore:
     def episode_metrics(self, b: int) -> dict:
         """Vehicle b's episode so far (see the YawStabilityEnv docstring)."""
         st = self.stats
-        spun = st.peak_beta[b] > SPIN_OUT_SIDESLIP
+        spun = bool(st.spun[b])
         out = {"length": int(st.length[b]), "return": float(st.ret[b]),
                "yaw_rate_tracking_rms": float(np.sqrt(st.yaw_sq[b] / max(st.length[b], 1))),
                "peak_beta": float(st.peak_beta[b]), "peak_phase_plane_index": float(st.peak_phase_plane[b]),
@@ -312,7 +322,9 @@ class YawStabilityCore:
         if st.series[b]:
             t, swa, r, ay, beta = np.array(st.series[b]).T
             try:
-                res = sine_with_dwell_metrics(t, swa, r, ay, sideslip=beta)
+                # (A of this car: the responsiveness criterion applies from 5A; characterised
+                # once per process, a few seconds)
+                res = sine_with_dwell_metrics(t, swa, r, ay, sideslip=beta, A=characterise(self.params))
                 out.update(fmvss126_ratio_1000=res.yaw_rate_ratio_1000, fmvss126_ratio_1750=res.yaw_rate_ratio_1750,
                            fmvss126_displacement=res.lateral_displacement, fmvss126_passed=res.passed and not spun)
             except ValueError:  # cut short before the manoeuvre could be evaluated
@@ -416,6 +428,10 @@ class YawStabilityEnv(gym.Env):
     13   yaw-rate error r - r_ref                     / 1 rad/s
     ==== ============================================ ============
 
+    With the fixed-mu estimators (``ekf``, ``ckf``, ``fkf``, ``alo-fkf``) slots 5-8 hold their
+    nominal 0.8 and slot 10 is 0 on every road; the filters' sideslip sigma is 1-3 mrad, so
+    slot 9 stays below ~0.06.
+
     ``observation="sensors"``: the 13 raw channels (ax, ay, r, 4 wheel speeds, 2 steer angles,
     4 torques) scaled by (10, 10, 1, 100 x4, 0.3 x2, 600 x4), then r_ref / 1 (from the raw
     readings and a nominal mu of 0.8).
@@ -439,7 +455,8 @@ class YawStabilityEnv(gym.Env):
     Reward per step: -(e_r / 0.1)^2 - (beta / 0.05)^2 - 0.1 |a|^2 - (d / 1.0)^2 (e_r: true yaw
     rate minus the reference from the true state; d: lateral deviation from the scenario's path,
     if it has one, while the car is alongside it: 0 before its start and on the straight run-out
-    past its end) times control_dt; -100 on termination. Terminated: |beta| > 20 deg (spin-out)
+    past its end) times control_dt; -100 on termination. Terminated: |beta| > 20 deg (spin-out; not where the steering
+    geometry explains it within 5 deg, a slow full-lock turn: :func:`envs.metrics.spun_sideslip`)
     or more than 5 m from the path (scenarios with a course: the lane changes, the slalom and
     ISO 3888-2; the others are open-road manoeuvres without road edges and end by spin-out or
     time). Truncated: the scenario's end. ``gym.make`` adds gymnasium's TimeLimit at 1,500 steps

@@ -132,12 +132,15 @@ def _direction(direction) -> int:
 def _road(mu) -> FrictionMap:
     """The road of a scenario's ``mu``: a friction coefficient, a (left, right) pair for a split
     road (a list too, as JSON gives it), a FrictionMap or a callable mu(x, y)."""
+    if isinstance(mu, np.ndarray) and mu.shape == (2,):
+        mu = tuple(mu.tolist())
     if isinstance(mu, (tuple, list)) and len(mu) == 2 and all(is_number(m) for m in mu):
         return split(mu_left=mu[0], mu_right=mu[1], y_split=0.0)
     try:
         return as_friction_map(mu)
     except ValueError as err:
-        raise ValueError(f"bad mu {mu!r}: {err}") from None
+        raise ValueError(f"bad mu {mu!r}: {err}; or a (left, right) pair of friction coefficients for a split "
+                         "road") from None
 
 
 def neutral_steer_angle(lateral_acceleration: float, speed: float, params: VehicleParams) -> float:
@@ -280,7 +283,8 @@ def random(speed_kph=None, mu=None, duration=10.0, steering=None, seed=0, rear_s
     ``speed_range_kph`` (30-110 km/h); road uniform, split, or with a patch (mu 0.2-1.0);
     steering a sum of three random sines (0.2-1.2 Hz) with an amplitude that asks for
     ``lateral_demand`` (0.3-1.2) times mu g in the linear model, or a random step. The ranges
-    change the values drawn, not the draws: a seed gives the same road and frequencies.
+    change the values drawn, not the draws: a seed gives the same road and frequencies, and a
+    fixed ``speed_kph`` or ``mu`` leaves the seed's other draws as they were.
 
     ``course_share`` (default 0): the probability of a course episode instead, a double lane
     change (:func:`envs.courses.lane_change`: ISO 3888-1's sections times 0.8-2.0, lane 3
@@ -296,12 +300,17 @@ def random(speed_kph=None, mu=None, duration=10.0, steering=None, seed=0, rear_s
             or (is_integer(seed) and seed >= 0)):
         raise ValueError(f"seed must be an integer >= 0 (or a numpy SeedSequence or Generator), got {seed!r}")
     rng = np.random.default_rng(seed)
-    speed_kph = float(rng.uniform(speed_low, speed_high)) if speed_kph is None else _positive("speed_kph", speed_kph)
+    # speed and road are drawn even where given, so that fixing one keeps a seed's other draws
+    drawn_speed = float(rng.uniform(speed_low, speed_high))
+    speed_kph = drawn_speed if speed_kph is None else _positive("speed_kph", speed_kph)
+    kind = rng.integers(3)
+    lo, hi = np.sort(rng.uniform(0.2, 1.0, 2))
+    order = rng.permutation([lo, hi]) if kind == 1 else None
     if mu is None:
-        kind = rng.integers(3)
-        lo, hi = np.sort(rng.uniform(0.2, 1.0, 2))
-        mu = (uniform(hi) if kind == 0 else split(*(rng.permutation([lo, hi]))) if kind == 1
+        mu = (uniform(hi) if kind == 0 else split(*order) if kind == 1
               else patch(hi, lo, float(rng.uniform(20.0, 150.0)), float(rng.uniform(170.0, 300.0))))
+    elif kind == 2:
+        rng.uniform(20.0, 150.0, 2)  # (the patch's extent, as if drawn)
     road = _road(mu)
     if steering is None and course_share > 0.0 and rng.random() < course_share:
         width, front, rear = _body(params)

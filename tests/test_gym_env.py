@@ -477,6 +477,7 @@ def test_episode_metrics_on_sine_with_dwell_give_the_fmvss126_verdict(amplitude_
     """Uncontrolled SWD episodes end with the regulation's verdict, the same as the run evaluated
     from envs.simulate (same plant and driver; zero corrective moment): 40 deg (2.4A) passes with its
     ratios reported, 180 deg on mu 1.0 spins out (terminated early, failed)."""
+    from envs.fmvss126 import characterise
     from envs.metrics import sine_with_dwell_metrics
     from envs.scenarios import make_scenario
     from envs.simulation import simulate
@@ -491,13 +492,49 @@ def test_episode_metrics_on_sine_with_dwell_give_the_fmvss126_verdict(amplitude_
             break
     metrics = info["episode_metrics"]
     traj = simulate(make_scenario("sine_with_dwell", amplitude_deg=amplitude_deg))
-    ref = sine_with_dwell_metrics(traj.t, traj.steering_wheel, traj.state[:, S_R], traj.aux[:, A_AY])
+    ref = sine_with_dwell_metrics(traj.t, traj.steering_wheel, traj.state[:, S_R], traj.aux[:, A_AY],
+                                  A=characterise())
     assert metrics["fmvss126_passed"] == ref.passed == (amplitude_deg < 100)
     assert metrics["spin_out"] == terminated == (amplitude_deg > 100)
     assert (metrics["peak_phase_plane_index"] > 1.0) == (amplitude_deg > 100)  # left the region it recovers from
     if ref.passed:
         assert metrics["length"] == 250
         assert metrics["fmvss126_ratio_1000"] == pytest.approx(ref.yaw_rate_ratio_1000, abs=0.02)
+
+
+def test_the_fmvss126_verdict_includes_responsiveness_from_5A():
+    """Sine with dwell at 5.5A on mu 0.3 under a yaw-rate feedback that keeps the car from
+    spinning (yaw moment against r - r_ref): the yaw ratios pass, but the car moves less than
+    the 1.83 m sideways that FMVSS 126 asks from 5A on, so the episode fails (as in compare)."""
+    from envs.fmvss126 import characterise
+
+    amplitude_deg = 5.5 * math.degrees(characterise())
+    env = YawStabilityEnv(scenario="sine_with_dwell", mu=0.3, estimator="oracle", observation="true",
+                          scenario_kwargs={"amplitude_deg": amplitude_deg})
+    obs, _ = env.reset(seed=0)
+    while True:
+        obs, _, terminated, truncated, info = env.step(np.clip([-3.0 * obs[13], 0.5 * obs[13]], -1, 1).astype(np.float32))
+        if terminated or truncated:
+            break
+    metrics = info["episode_metrics"]
+    assert not metrics["spin_out"] and metrics["fmvss126_ratio_1000"] < 0.35 and metrics["fmvss126_ratio_1750"] < 0.2
+    assert metrics["fmvss126_displacement"] < 1.83 and not metrics["fmvss126_passed"]
+
+
+def test_a_walking_pace_full_lock_turn_does_not_end_the_episode():
+    """At 10 km/h with the front wheels at the lock and the rear steered in phase the sideslip
+    is the steering geometry's, ~20 deg: no spin-out, the episode runs to its end."""
+    env = YawStabilityEnv(scenario="paper_step", speed_kph=10.0, mu=1.0, estimator="oracle",
+                          scenario_kwargs={"angle": 9.6, "step_time": 0.5})
+    env.reset(seed=0)
+    peak = 0.0
+    while True:
+        *_, terminated, truncated, info = env.step(np.array([0.0, 1.0], dtype=np.float32))
+        peak = max(peak, abs(float(info["beta"])))
+        if terminated or truncated:
+            break
+    assert math.degrees(peak) > 20.0 and truncated and not terminated
+    assert not info["episode_metrics"]["spin_out"]
 
 
 @pytest.mark.parametrize("observation", ["estimated", "sensors"])

@@ -207,6 +207,21 @@ def test_random_ranges_bound_the_draws_and_keep_the_rest():
     assert narrow_steps >= 5
 
 
+def test_a_fixed_speed_or_road_keeps_a_random_seeds_other_draws():
+    """Fixing speed_kph keeps the seed's road, kind of steering and timing; fixing mu keeps its
+    speed, kind of steering and timing (a sweep over speed or friction runs the same episodes)."""
+    for seed in range(20):
+        default = make_scenario("random", seed=seed)
+        for fixed in (make_scenario("random", seed=seed, speed_kph=50.0), make_scenario("random", seed=seed, mu=0.4)):
+            assert type(fixed.steering) is type(default.steering)
+            if isinstance(default.steering, Step):
+                assert fixed.steering.start == default.steering.start
+            else:
+                assert fixed.steering.frequencies == default.steering.frequencies
+        assert make_scenario("random", seed=seed, speed_kph=50.0).road == default.road
+        assert make_scenario("random", seed=seed, mu=0.4).speed_kph == default.speed_kph
+
+
 def test_random_course_episodes_follow_a_lane_change_with_the_path_follower():
     """course_share 1: every episode is a drawn double lane change steered by the path
     follower, run to 20 m past the exit; the car keeps to the line (uncontrolled, the oracle).
