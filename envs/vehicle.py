@@ -88,8 +88,11 @@ class VehicleParams:
     #: outer-rotor in-wheel motor.
     wheel_inertia: float = 1.0
     steering_ratio: float = 16.0  #: steering-wheel to road-wheel angle ratio [-] (typical 14-18)
-    #: motor peak torque [N m]: the grip-limited torque on dry road is mu*Fz*R ~ 566 N m
-    #: per wheel for this car; the motors are sized just above it.
+    #: motor peak torque [N m]: the grip-limited torque on dry road at the static load is
+    #: mu*Fz*R ~ 566 N m per wheel for this car, the motors are sized just above it. Under hard
+    #: braking the front wheels carry more (~750 N m at 0.8 g), so with the power limit the
+    #: motors brake the car at most ~0.80 g on a dry road below 10 m/s, 0.57 g at 80 km/h and
+    #: 0.47 g at 100 km/h (on mu 0.5, ~mu g up to ~80 km/h); there are no friction brakes.
     motor_peak_torque: float = 600.0
     motor_peak_power: float = 25.0e3  #: per-motor peak power [W] (caps torque above ~42 rad/s)
     motor_time_constant: float = 0.010  #: torque response lag [s] (in-wheel motors: 5-20 ms)
@@ -271,7 +274,9 @@ C_TORQUE, C_DELTA_F, C_DELTA_R = 0, 4, 5
 #: alpha     relaxed (transient) slip angle [rad]
 #: mu        road friction under each wheel [-]
 #: usage     friction used, |F| / (mu Fz) [-]; can exceed 1 where the Magic Formula's peak
-#:           rises above mu at light loads (load sensitivity)
+#:           rises above mu at light loads (load sensitivity), and in combined slip, whose
+#:           MF 5.2 weights of Fx and Fy are independent (1.05 at the reference load at
+#:           kappa -0.13 and 4.5 deg)
 #: ========  ============================================================================
 AUX_NAMES = (
     "ax", "ay",
