@@ -321,6 +321,83 @@ def test_dyc_smc_keeps_the_car_steerable_on_iso3888_2_at_70_kph():
     assert metrics["yaw_tracking_rms"] < math.radians(10.0)
 
 
+def test_the_lqr_subtracts_the_moment_the_wheels_already_deliver():
+    """Mz = -K [beta, r - r_ref, M]: the moment M the wheels deliver (note_delivered, a first-order
+    lag tau(u) behind the command) lowers the next command by K_M M. K_M > 0 at every speed: a
+    moment still building up in the tyres is not asked for again (the lag-aware design)."""
+    from control.dyc import actuator_lag
+
+    lqr = LQRYawController(P)
+    assert np.all(lqr.gains[:, 2] > 0.0)
+    u, beta, r, r_ref, dt = np.array([20.0]), np.array([-0.01]), np.array([0.25]), np.array([0.2]), 0.002
+    k = lqr.gain(u)[0]
+    before = lqr(u, beta, r, r_ref, 0.0, 0.0, dt)[0]
+    assert before == pytest.approx(-(k[0] * beta[0] + k[1] * (r - r_ref)[0]), rel=1e-12)
+    given, tau = 1000.0, float(actuator_lag(u, P)[0])  # 30 ms at 72 km/h
+    lqr.note_delivered(np.array([given]), u, dt)  # one step of the lag: dt / tau of the way
+    after = lqr(u, beta, r, r_ref, 0.0, 0.0, dt)[0]
+    assert after == pytest.approx(before - k[2] * given * dt / tau, rel=1e-9)
+    assert after < before
+    for _ in range(int(20 * tau / dt)):  # held for 20 time constants: the wheels deliver all of it
+        lqr.note_delivered(np.array([given]), u, dt)
+    assert lqr(u, beta, r, r_ref, 0.0, 0.0, dt)[0] == pytest.approx(before - k[2] * given, rel=1e-6)
+    lqr.reset()
+    assert lqr(u, beta, r, r_ref, 0.0, 0.0, dt)[0] == before
+
+
+def test_sliding_mode_switching_is_proportional_to_s_inside_the_boundary_layer():
+    """Mz = I_z (equivalent - eta sat(s / phi)): with the state and steering held (the same model
+    terms) and only r_ref moved, the moment changes by -I_z eta s / phi for |s| <= phi, linearly
+    (s = phi / 4 gives half the change of phi / 2: no chattering), and no further beyond."""
+    smc = SlidingModeYawController(P)
+    u, beta, r, front, rear = np.array([22.0]), np.zeros(1), np.array([0.2]), np.array([0.02]), np.zeros(1)
+    mu = np.ones((1, 4))
+
+    def moment(s):
+        smc.reset()
+        for _ in range(2):  # the second call has a settled reference rate (r_ref_dot = 0)
+            m = smc(u, beta, r, r - s, front, rear, 0.002, mu)[0]  # beta = 0: s = r - r_ref
+        return m
+
+    on_surface = moment(0.0)
+    assert abs(on_surface) < smc.max_moment - 2 * P.yaw_inertia * smc.eta  # the moment limit is out of the way
+    for fraction in (0.25, 0.5, -0.25, -0.5, 1.0):
+        assert moment(fraction * smc.phi) - on_surface == pytest.approx(-P.yaw_inertia * smc.eta * fraction, rel=1e-9)
+    for side in (1.0, -1.0):  # beyond the layer the switching term is saturated: no further change
+        assert moment(2.0 * side * smc.phi) == moment(3.0 * side * smc.phi)
+
+
+def test_only_a_moment_that_turns_the_car_further_fades_near_the_sideslip_bound():
+    """At |beta| = 0.9 of the sideslip bound, the law's moment that turns the car further into the
+    bend (an understeering car, r short of r_ref: same sign as r_ref) is scaled by
+    1 - |beta| / bound = 0.1; the counter-moment to an oversteering car (r beyond r_ref) is delivered
+    in full, as at beta = 0. Both turns, mu 1 (moments well within what the tyres give)."""
+    u, front, mu = np.full(8, 20.0), np.repeat([0.02, -0.02], 4), np.ones((8, 4))
+    r_ref = reference_yaw_rate(u, front, mu, P)  # the lagged reference starts on the steady state
+    bound = sideslip_bound(mu)
+    # per turn: (yaw-rate error, |beta| / bound) for oversteer and understeer at 0 and 0.9 of the bound;
+    # the sideslip is the sliding-out kind (against the turn)
+    error = np.tile([0.03, 0.03, -0.03, -0.03], 2) * np.sign(r_ref)
+    share = np.tile([0.0, 0.9, 0.0, 0.9], 2)
+    beta = -np.sign(r_ref) * share * bound
+    est = Estimate(u=u, v=u * np.tan(beta), beta=beta, r=r_ref + error, ax=np.zeros(8), ay=np.zeros(8), mu=mu,
+                   fz=np.full((8, 4), P.mass * GRAVITY / 4), beta_std=np.zeros(8), mu_std=np.zeros((8, 4)))
+    # what the law asks for: LQR on the state shrunk by the deadbands (0.02 rad/s, half the bound)
+    from control import YAW_DEADBAND
+
+    shrunk_error = np.sign(error) * (np.abs(error) - YAW_DEADBAND)
+    shrunk_beta = np.sign(beta) * np.maximum(np.abs(beta) - 0.5 * bound, 0.0)
+    asked = LQRYawController(P)(u, shrunk_beta, r_ref + shrunk_error, r_ref, front, np.zeros(8), 0.002)
+    oversteer = np.sign(error) == np.sign(r_ref)
+    assert np.all(np.sign(asked) == np.where(oversteer, -1.0, 1.0) * np.sign(r_ref))
+    assert np.all((200.0 < np.abs(asked)) & (np.abs(asked) < 1000.0))
+    controller = StabilityController(P)
+    controller(np.zeros(8), est, front, np.zeros((8, 4)))
+    delivered = controller.last_allocation
+    assert np.all(delivered.feasible)
+    np.testing.assert_allclose(delivered.yaw_moment, np.where(oversteer, 1.0, 1.0 - share) * asked, rtol=1e-6)
+
+
 def test_with_rear_steer_the_reference_is_the_four_wheel_steered_car_s():
     """dyc-lqr-4ws asks for the yaw rate of the car as steered (front minus the eq. 20 rear
     angle), so at steady state it leaves the 4WS law alone instead of cancelling it; and a

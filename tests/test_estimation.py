@@ -13,7 +13,7 @@ from envs.vehicle import A_USAGE, VehicleParams
 from estimation import ESTIMATORS, make_estimator
 from estimation.joint import ZERO_POINT_TIME_CONSTANT, ZP_OFFSET
 from estimation.ckf import ckf_predict, ckf_update
-from estimation.federated import SubMeasurement, federated_step, fuse
+from estimation.federated import BETA_FLOOR, SubMeasurement, federated_step, fuse, sharing_coefficients
 from estimation.model import GRAVITY, ModelParams, dugoff, normal_loads, state_transition, Inputs
 from envs.metrics import rmse
 
@@ -188,6 +188,21 @@ def test_fusion_is_the_information_weighted_average():
     np.testing.assert_allclose(confidence, [1.0, 1.0 / 3.0])
 
 
+@pytest.mark.parametrize("confidence, expected", [
+    ([1.0, 3.0], [0.25, 0.75]),  # proportional to the confidences
+    ([2.0, 1.0, 1.0], [0.5, 0.25, 0.25]),
+    ([1.0, 99.0], [BETA_FLOOR / (BETA_FLOOR + 0.99), 0.99 / (BETA_FLOOR + 0.99)]),  # 1% floored at 5%, renormalised
+    ([1.0, 1.0, 98.0], np.array([BETA_FLOOR, BETA_FLOOR, 0.98]) / (2 * BETA_FLOOR + 0.98)),
+])
+def test_sharing_coefficients_follow_the_confidences_with_a_floor_and_sum_to_one(confidence, expected):
+    """beta_i = max(c_i / sum c, BETA_FLOOR), normalised to sum 1 (federated module docstring:
+    a confident sub-filter gets the larger share; none falls below ~4.8%)."""
+    beta = np.empty(len(confidence))
+    sharing_coefficients(np.array(confidence), beta)
+    np.testing.assert_allclose(beta, expected, rtol=1e-12)
+    assert beta.sum() == pytest.approx(1.0, rel=1e-12) and beta.min() >= BETA_FLOOR / (1 + len(beta) * BETA_FLOOR)
+
+
 def test_federated_filter_with_reset_equals_the_centralised_filter_on_a_linear_system():
     Q = np.diag([0.01, 0.02])
     H2 = np.array([[0.0, 1.0]])
@@ -290,25 +305,29 @@ def test_dugoff_is_linear_at_small_slip_and_follows_its_closed_form_in_saturatio
     assert reduced == pytest.approx(plain * (1 - eps * u * math.hypot(slip, math.tan(alpha))), rel=1e-12)
 
 
-def test_normal_loads_follow_the_quasi_static_closed_form():
+@pytest.mark.parametrize("params", [PARAMS, ModelParams.from_vehicle(VehicleParams(cg_to_front=0.95, cg_to_rear=1.39)),
+                                    ModelParams.from_vehicle(VehicleParams(cg_to_front=1.39, cg_to_rear=0.95))],
+                         ids=["paper", "front_cg", "rear_cg"])
+def test_normal_loads_follow_the_quasi_static_closed_form(params):
     """estimation.model.wheel_load: static share m g b/L (front) and m g a/L (rear), a pitch
     shift m ax h / L from the front axle to the rear, and a roll moment m ay h shared by the
     axles in proportion to their static loads (front b/L, rear a/L), each axle's left-right
-    difference times half its track balancing its share; the loads sum to m g (the model's g)."""
-    m, a, b, h = PARAMS.mass, PARAMS.cg_to_front, PARAMS.cg_to_rear, PARAMS.cg_height
-    L, g = PARAMS.wheelbase, GRAVITY
+    difference times half its track balancing its share; the loads sum to m g (the model's g).
+    The paper's car has a = b; a CG off the middle tells a/L from b/L (the paper's eq. 14 typo)."""
+    m, a, b, h = params.mass, params.cg_to_front, params.cg_to_rear, params.cg_height
+    L, g = params.wheelbase, GRAVITY
     for ax, ay in ((0.0, 0.0), (-5.0, 0.0), (0.0, 4.0), (2.0, -3.0), (-3.0, 5.0)):
-        fz = normal_loads(np.array(ax), np.array(ay), PARAMS)
+        fz = normal_loads(np.array(ax), np.array(ay), params)
         assert fz.sum() == pytest.approx(m * g, rel=1e-12)
         assert fz[0] + fz[1] == pytest.approx(m * g * b / L - m * ax * h / L, rel=1e-12)
         assert fz[2] + fz[3] == pytest.approx(m * g * a / L + m * ax * h / L, rel=1e-12)
         # ay > 0 (left turn) loads the right wheels (FR, RR)
-        assert fz[1] - fz[0] == pytest.approx(2 * m * ay * h * (b / L) / PARAMS.track_front, rel=1e-12, abs=1e-9)
-        assert fz[3] - fz[2] == pytest.approx(2 * m * ay * h * (a / L) / PARAMS.track_rear, rel=1e-12, abs=1e-9)
-        roll_moment = (fz[1] - fz[0]) * PARAMS.track_front / 2 + (fz[3] - fz[2]) * PARAMS.track_rear / 2
+        assert fz[1] - fz[0] == pytest.approx(2 * m * ay * h * (b / L) / params.track_front, rel=1e-12, abs=1e-9)
+        assert fz[3] - fz[2] == pytest.approx(2 * m * ay * h * (a / L) / params.track_rear, rel=1e-12, abs=1e-9)
+        roll_moment = (fz[1] - fz[0]) * params.track_front / 2 + (fz[3] - fz[2]) * params.track_rear / 2
         assert roll_moment == pytest.approx(m * ay * h, rel=1e-12, abs=1e-9)
     # beyond the inner wheels' lift-off (2 g) they are floored at 5% of their static load
-    fz = normal_loads(np.array(0.0), np.array(20.0), PARAMS)
+    fz = normal_loads(np.array(0.0), np.array(20.0), params)
     np.testing.assert_allclose(fz[[0, 2]], [0.05 * m * g * b / (2 * L), 0.05 * m * g * a / (2 * L)], rtol=1e-12)
 
 

@@ -12,6 +12,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 from gymnasium.vector import AutoresetMode
 
+from control.reference import reference_yaw_rate
 import envs  # noqa: F401  (registers the environment)
 from envs.gym_env import YawStabilityEnv, YawStabilityVectorEnv
 from envs.sensors import Fault
@@ -62,6 +63,32 @@ def test_estimated_observation_differs_from_truth_by_the_estimator_error():
     diffs = np.array(diffs)
     assert diffs[:, 1].max() > 1e-4  # not the truth: the sideslip slot off by > 0.001 deg
     assert diffs[:, 2].mean() < 0.005  # yaw rate within 0.005 rad/s on average (measured 0.0016): not garbage
+
+
+def test_true_observation_fills_every_slot_as_the_docstring_table_scales_it():
+    """observation="true": each of the 14 slots is the YawStabilityEnv table's quantity of the
+    truth over its scale (u/30, beta/0.2, r, ax/10, ay/10, mu x4, zero sigmas, r_ref, delta_f/0.3,
+    r - r_ref), r_ref the 2-DOF reference at the driver's front road-wheel steer: the
+    steering wheel's sine (720 deg, 0.5 Hz from 1 s) over the steering ratio, held at the lock."""
+    env = YawStabilityEnv(scenario="paper_sine", speed_kph=20.0, mu=1.0, estimator="oracle", observation="true",
+                          scenario_kwargs={"amplitude_deg": 720.0})
+    env.reset(seed=0)
+    params = env.unwrapped.core.params
+    ays, steers = [], []
+    for k in range(100):  # 2 s: the first sine cycle from 1 s
+        obs, *_, terminated, truncated, info = env.step(np.zeros(2, dtype=np.float32))
+        assert not (terminated or truncated)
+        t, e = 0.02 * (k + 1), info["truth"]
+        wheel = math.radians(720.0) * math.sin(2 * math.pi * 0.5 * (t - 1.0)) if t >= 1.0 else 0.0
+        delta_f = float(np.clip(wheel / params.steering_ratio, -params.max_front_steer, params.max_front_steer))
+        r_ref = float(reference_yaw_rate(np.array([e.u]), np.array([delta_f]), e.mu[None, :], params)[0])
+        expected = [e.u / 30, e.beta / 0.2, e.r, e.ax / 10, e.ay / 10, *e.mu, 0.0, 0.0, r_ref, delta_f / 0.3,
+                    e.r - r_ref]
+        np.testing.assert_allclose(obs, expected, rtol=1e-6, atol=1e-6, err_msg=f"step {k}")  # float32
+        ays.append(e.ay)
+        steers.append(delta_f)
+    assert max(np.abs(ays)) > 2.0  # the car turned: the ay slot's scale counts
+    assert max(np.abs(steers)) == params.max_front_steer  # the steering wheel passed the lock
 
 
 def test_bad_and_out_of_range_actions():
@@ -361,6 +388,17 @@ def test_rear_steer_is_optional_and_the_single_env_reports_one_car():
     assert with4ws.core.loop.state[0, S_DELTA_R] > 0.01
     with pytest.raises(ValueError, match="warp"):
         gym.make("envs:FourWIS/YawStability-v0", warp=9)
+
+
+def test_the_rear_steer_action_commands_its_share_of_the_rear_steer_limit():
+    """yaw_moment action [0, 0.5] held 0.5 s on a straight: the rear road wheels settle at half
+    of max_rear_steer (5 deg; the servo slews at 0.5 rad/s with a 10 ms lag, ~0.1 s here)."""
+    env = YawStabilityEnv(scenario="paper_sine", estimator="oracle")  # (the sine steers from 1 s)
+    env.reset(seed=0)
+    for _ in range(25):
+        env.step(np.array([0.0, 0.5], dtype=np.float32))
+    params = env.unwrapped.core.params
+    assert env.unwrapped.core.loop.state[0, S_DELTA_R] == pytest.approx(0.5 * params.max_rear_steer, rel=1e-3)
 
 
 @pytest.mark.parametrize("kwargs, match", [
