@@ -18,6 +18,13 @@ Deviations from the full MF 5.2, all deliberate:
   ``mu * Fz`` in both directions. Load sensitivity (PDX2, PDY2) still acts around it.
 * The combined-slip weights G are floored at 0: MF 5.2's cosine weights turn slightly
   negative near 90 deg of slip, which no tyre does.
+* The combined-slip weights take the slips normalised by the friction scales, kappa / LMUX
+  and alpha / LMUY (the similarity method, Pacejka 2012, sec. 4.2: on a slippery road the
+  slip stiffness stays and the peaks come at slips LMU times the dry road's). MF 5.2 weighs
+  the raw slips, whose weights are near 1 where a low-friction tyre already slides: the
+  resultant reached 1.29 mu Fz on mu 0.3 and 1.39 on mu 0.1 (at kappa 0.04, 2 deg), against
+  1.05 on a dry road. With the normalisation it stays within 1.04 mu Fz on every road
+  (``tests/test_vehicle.py``; changed 2026-11-30 after a mutation audit's test found it).
 * Slip angle enters as ``atan(tan_alpha)``; ``tan_alpha`` is the relaxed lateral slip of
   the transient model in :mod:`envs.vehicle`, so the formula never sees a division by
   the wheel's forward speed.
@@ -154,13 +161,16 @@ def combined_forces(tp: np.ndarray, fz: np.ndarray, kappa: np.ndarray, tan_alpha
         ky = tp[_PKY1] * fz0 * 2.0 * xr / (1.0 + xr * xr)
         ey = min(tp[_PEY1] + tp[_PEY2] * dfz, 1.0)
         fy0 = _magic(ky / (cy * dy), cy, dy, ey, alpha)
-        # combined slip weights
-        rbx_kappa = tp[_RBX2] * kappa[i]
+        # combined slip weights, of the slips normalised by the friction scales (the
+        # similarity method): the peaks come at slips ~scale times the tyre file's
+        kappa_n = kappa[i] / scale_x[i]
+        alpha_n = alpha / scale_y[i]
+        rbx_kappa = tp[_RBX2] * kappa_n
         bxa = tp[_RBX1] / vecmath.sqrt(1.0 + rbx_kappa * rbx_kappa)
-        gxa = _weight(bxa, tp[_RCX1], tp[_REX1] + tp[_REX2] * dfz, alpha)
-        rby_alpha = tp[_RBY2] * alpha
+        gxa = _weight(bxa, tp[_RCX1], tp[_REX1] + tp[_REX2] * dfz, alpha_n)
+        rby_alpha = tp[_RBY2] * alpha_n
         byk = tp[_RBY1] / vecmath.sqrt(1.0 + rby_alpha * rby_alpha)
-        gyk = _weight(byk, tp[_RCY1], tp[_REY1] + tp[_REY2] * dfz, kappa[i])
+        gyk = _weight(byk, tp[_RCY1], tp[_REY1] + tp[_REY2] * dfz, kappa_n)
         fx[i] = gxa * fx0
         fy[i] = -gyk * fy0
 

@@ -104,7 +104,8 @@ def test_lateral_acceleration_saturates_near_mu_g(mu):
     assert 0.85 * mu * GRAVITY <= peak <= 1.05 * mu * GRAVITY
 
 
-def test_wheel_loads_in_a_steady_turn_sum_to_the_weight_and_follow_the_load_transfer():
+@pytest.mark.parametrize("cg_to_front", [0.95, 1.17, 1.39])  # the paper car's a = b cannot tell a/L from b/L
+def test_wheel_loads_in_a_steady_turn_sum_to_the_weight_and_follow_the_load_transfer(cg_to_front):
     """The plant's loads are static share + m h / L * ax_lag (front to rear) + a roll moment
     m h ay_lag split between the axles by static share (b/L front, a/L rear), from accelerations
     lagged by load_transfer_time_constant (envs/vehicle.py); the transfers cancel in the sum, so
@@ -113,10 +114,11 @@ def test_wheel_loads_in_a_steady_turn_sum_to_the_weight_and_follow_the_load_tran
     wheel matches the closed form of the measured ax, ay to rel 1e-3 (measured 3e-5, the lag's
     residual; the transfer is ~21% of a wheel's load, so 1e-3 still pins it to ~0.5%)."""
     speed = 15.0
-    _, states, aux = run(initial_state(P, speed), lambda t: 0.03, 6.0, target=speed)
+    params = P.replace(cg_to_front=cg_to_front, cg_to_rear=P.wheelbase - cg_to_front)
+    _, states, aux = run(initial_state(params, speed), lambda t: 0.03, 6.0, target=speed, params=params)
     fz = aux[:, 0, A_FZ:A_FZ + 4]
     np.testing.assert_allclose(fz.sum(axis=1), P.mass * GRAVITY, rtol=1e-12)
-    m, a, b, h, L = P.mass, P.cg_to_front, P.cg_to_rear, P.cg_height, P.wheelbase
+    m, a, b, h, L = P.mass, params.cg_to_front, params.cg_to_rear, P.cg_height, P.wheelbase
     ax, ay = aux[-1, 0, A_AX], aux[-1, 0, A_AY]
     assert ay == pytest.approx(states[-1, 0, S_U] * states[-1, 0, S_R], rel=1e-3)  # steady: ay = u r
     assert ay > 2.0 and states[-1, 0, S_AY] == pytest.approx(ay, rel=1e-3)
@@ -279,6 +281,25 @@ def test_tyre_peak_and_stiffness_at_reference_load():
     # Vehicle Dynamics, 3rd ed., eq. 4.E25)
     pacejka = tyre.pky1 * tyre.nominal_load * math.sin(2.0 * math.atan(fz / (tyre.pky2 * tyre.nominal_load)))
     assert tyre.cornering_stiffness(fz) == pytest.approx(pacejka, rel=1e-12)
+
+
+def test_combined_slip_shares_the_grip_between_fx_and_fy():
+    """MF 5.2 combined slip (weights G_xa, G_yk <= 1): a slip angle takes longitudinal force
+    away and a slip ratio lateral force, so each force falls below its pure-slip value, and the
+    resultant stays near the friction circle mu Fz on every road: within the tyre file's own
+    excess on a dry road (1.05: the two weights are independent) plus 1%. Weighing the raw
+    slips on a slippery road, it reached 1.29 mu Fz on mu 0.3 and 1.39 on mu 0.1."""
+    tyre = TyreParams()
+    fz = P.reference_wheel_load
+    kappa, tan_alpha = np.meshgrid(np.linspace(-0.5, 0.5, 41), np.tan(np.linspace(-0.3, 0.3, 41)))
+    for mu in (0.1, 0.3, 0.5, 1.0):
+        fx, fy = tyre_forces(tyre, fz, kappa.ravel(), tan_alpha.ravel(), mu, fz)
+        assert np.hypot(fx, fy).max() <= 1.06 * mu * fz
+        for k, a in ((0.1, 0.1), (-0.1, 0.15), (0.05, -0.1)):
+            fx_comb, fy_comb = tyre_forces(tyre, fz, k, math.tan(a), mu, fz)
+            fx_pure, _ = tyre_forces(tyre, fz, k, 0.0, mu, fz)
+            _, fy_pure = tyre_forces(tyre, fz, 0.0, math.tan(a), mu, fz)
+            assert abs(fx_comb) < abs(fx_pure) and abs(fy_comb) < abs(fy_pure)
 
 
 def test_bad_input_raises_value_error_naming_the_value():
