@@ -28,7 +28,7 @@ from control import Command
 from control.allocation import allocate_for_estimate
 from control.reference import PhasePlaneRegion, reference_yaw_rate
 from envs.fmvss126 import characterise
-from envs.metrics import CoursePaths, kinematic_sideslip, sine_with_dwell_metrics, spun_sideslip
+from envs.metrics import SPIN_OUT_SIDESLIP, CoursePaths, kinematic_sideslip, sine_with_dwell_metrics, spun_sideslip
 from envs.render import close_window, show_frame
 from envs.scenarios import SCENARIOS, Scenario, make_scenario
 from envs.sensors import Fault
@@ -277,9 +277,11 @@ class YawStabilityCore:
         deviation = self._deviation()
         reward = -self.config.control_dt * ((yaw_error / 0.1) ** 2 + (beta / 0.05) ** 2
                                             + 0.1 * np.sum(clipped**2, axis=1) + deviation**2)
-        state = self.loop.state
-        spin = spun_sideslip(beta, kinematic_sideslip(state[:, S_DELTA_F], state[:, S_DELTA_R], self.params.cg_to_front,
-                                                      self.params.cg_to_rear))
+        spin = np.abs(beta) > SPIN_OUT_SIDESLIP
+        if np.count_nonzero(spin):  # (rare: the steering geometry only where it can matter)
+            state = self.loop.state
+            spin = spun_sideslip(beta, kinematic_sideslip(state[:, S_DELTA_F], state[:, S_DELTA_R],
+                                                          self.params.cg_to_front, self.params.cg_to_rear))
         terminated = (spin | (deviation > MAX_PATH_DEVIATION)) & moved
         reward = np.where(moved, reward - TERMINATION_PENALTY * terminated, 0.0)
         st = self.stats  # (the held vehicles' statistics add 0: non-negative peaks times False)
