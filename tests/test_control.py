@@ -231,13 +231,15 @@ def test_the_controller_plans_with_the_lower_confidence_bound_of_the_friction():
     np.testing.assert_array_equal(StabilityController(P, mu_margin=0.0).planning_mu(estimate), estimate.mu)
     with pytest.raises(ValueError, match="mu_margin must be .*, got -1.0"):
         StabilityController(P, mu_margin=-1.0)
-    # closed loop: after a friction drop the cautious controller holds the sideslip lower
-    peaks = []
-    for margin in (0.0, 1.0):
-        controller = StabilityController(P, "lqr", mu_margin=margin)  # what make_controller("dyc-lqr") builds
-        traj = simulate("mu_jump", controller=controller, estimator="joint", seed=0)
-        peaks.append(np.abs(traj.truth.beta).max())
-    assert peaks[1] < 0.85 * peaks[0]  # measured 0.81 here; 0.78-0.81 over sensor seeds 0-3
+    # closed loop: after a friction drop the cautious controller holds the sideslip lower, with
+    # every sensor-noise draw (the overshoot it avoids comes from mu_hat's lag behind the drop)
+    for seed in range(3):
+        peaks = []
+        for margin in (0.0, 1.0):
+            controller = StabilityController(P, "lqr", mu_margin=margin)  # what make_controller("dyc-lqr") builds
+            traj = simulate("mu_jump", controller=controller, estimator="joint", seed=seed)
+            peaks.append(np.abs(traj.truth.beta).max())
+        assert peaks[1] < peaks[0], seed
 
 
 def test_sliding_mode_meets_sideslip_with_the_lqr_gains_sign():
