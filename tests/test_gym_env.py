@@ -551,7 +551,8 @@ def test_the_fmvss126_verdict_includes_responsiveness_from_5A():
                           scenario_kwargs={"amplitude_deg": amplitude_deg})
     obs, _ = env.reset(seed=0)
     while True:
-        obs, _, terminated, truncated, info = env.step(np.clip([-3.0 * obs[13], 0.5 * obs[13]], -1, 1).astype(np.float32))
+        action = np.clip([-3.0 * obs[13], 0.5 * obs[13]], -1, 1).astype(np.float32)
+        obs, _, terminated, truncated, info = env.step(action)
         if terminated or truncated:
             break
     metrics = info["episode_metrics"]

@@ -166,12 +166,15 @@ def _tune(args: argparse.Namespace) -> int:
         print("| mu_accel_std [m/s^2] | mean abs mu error, last half |\n|---:|---:|")
         print("\n".join(f"| {g:g} | {e:.3f} |" for g, e in errors.items()))
         return 0
+    out = Path(args.out) if args.out else OUTPUT
     try:
         _check_seed(args)
-        data = tune(args.agents, args.iterations, args.seed, Path(args.out) if args.out else OUTPUT, args.optimizer,
-                    args.duration, criterion=args.criterion)
+        data = tune(args.agents, args.iterations, args.seed, out, args.optimizer, args.duration,
+                    criterion=args.criterion)
     except ValueError as err:
         raise SystemExit(f"fourwis tune: {err}") from None
+    shipped = " (the shipped noise file: alo-fkf and joint use it from now on)" if out == OUTPUT else ""
+    print(f"wrote {out}{shipped}")
     if data["improved"]:
         print(f"{args.optimizer} tuning: cost {data['default_cost']:.3f} (default noise) -> {data['cost']:.3f}, "
               f"log10 factors {data['log10_factors']}")

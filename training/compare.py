@@ -65,7 +65,8 @@ FAULT_SUFFIX = "+faults"
 def parse_scenario(text: str) -> tuple[str, dict]:
     """Scenario name and overrides of a comparison entry ``name[:key=value,...][+faults]``,
     e.g. ``iso3888_2:mu=0.5,speed_kph=50``; a value is a number or a JSON list (a split road:
-    ``mu=[0.5,0.3]``, left and right); ``amplitude_A=k`` gives sine with dwell k times A (:func:`entry_A`, the driven car's);
+    ``mu=[0.5,0.3]``, left and right); ``amplitude_A=k`` gives sine with dwell k times A
+    (:func:`entry_A`, the driven car's);
     ``swd_wet`` stands for ``sine_with_dwell:mu=0.5,amplitude_A=5.5`` (overrides apply on top);
     ``rear_steer_feedforward=1`` switches the paper's 4WS law on;
     a ``+faults`` suffix runs it with :data:`SENSOR_FAULTS`."""

@@ -193,7 +193,8 @@ def markdown_report(table: dict, scenarios: Sequence[Scenario], estimators: Sequ
                 "(--road-mu)." if road_mu else f"The fixed-mu filters ({', '.join(FIXED_MU)}) assume mu 0.8 "
                                                "(--road-mu: the road's)."), ""]
     for s in scenarios:
-        lines += [f"## {s.name} ({s.speed_kph:g} km/h, {s.duration:.1f} s)", "",
+        heading = f"## {s.name} ({s.speed_kph:g} km/h, {s.duration:.1f} s, mean mu {road_friction(s):.2f} at the start)"
+        lines += [heading, "",
                   "| estimator | MAE u [m/s] | RMSE u [m/s] | MAE v [m/s] | RMSE v [m/s] | MAE beta [rad] "
                   "| RMSE beta [rad] | mu error, last half | mu convergence [s] |",
                   "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]

@@ -163,6 +163,7 @@ def tune(n_agents: int = 30, iterations: int = 100, seed: int = 0, out: Path = O
             "optimizer_best": {"log10_factors": [float(v) for v in result.x], "cost": float(result.fun)},
             "optimizer": optimizer, "history": [float(v) for v in result.history],
             "evaluations": result.n_evaluations,
+            "seed": seed, "n_agents": int(n_agents), "iterations": int(iterations), "duration": float(duration),
             "calibration": f"random scenario seed {CALIBRATION_SEED}, {duration:g} s, sensor seed {CALIBRATION_SEED}",
             "criterion": criterion,
             "objective": ("mean innovation NLL per step of alo-fkf" if criterion == "nll" else
