@@ -36,8 +36,11 @@ class Renderer:
     """Draws frames of one vehicle of a :class:`envs.simulation.ClosedLoop`; keeps its figure."""
 
     def __init__(self):
-        from matplotlib.backends.backend_agg import FigureCanvasAgg
-        from matplotlib.figure import Figure
+        try:
+            from matplotlib.backends.backend_agg import FigureCanvasAgg
+            from matplotlib.figure import Figure
+        except ModuleNotFoundError as err:  # optional dependency
+            raise ModuleNotFoundError("rendering needs matplotlib: pip install 'fourwis[plots]'") from err
 
         self.figure = Figure(figsize=(FRAME_WIDTH / 100, FRAME_HEIGHT / 100), dpi=100)
         self.canvas = FigureCanvasAgg(self.figure)

@@ -63,7 +63,7 @@ def _simulate(args: argparse.Namespace) -> int:
     from envs.scenarios import make_scenario
     from envs.simulation import simulate
     from training.compare import FAULT_SUFFIX, build_controller, build_scenario, entry_A, file_stem, parse_scenario
-    from training.io import check_writable
+    from training.io import check_writable, pyplot
     from training.trajectory_io import plot_trajectory, write_trajectory_csv
 
     try:
@@ -76,6 +76,7 @@ def _simulate(args: argparse.Namespace) -> int:
             make_scenario(name, **overrides | extra)
         _check_estimator_and_seed(args)
         out = check_writable(args.out)
+        pyplot()  # (the plot needs matplotlib: say so before the run, not after it)
         scenario = build_scenario(args.scenario, entry_A(args.scenario, extra) if needs_A else math.nan, extra)
         controller = build_controller(args.controller, scenario.vehicle_params)
         traj = simulate(scenario, controller, args.estimator, seed=args.seed, progress=True)
@@ -339,7 +340,7 @@ def build_parser() -> argparse.ArgumentParser:
     swd.add_argument("--seed", type=int, default=0, help="sensor noise seed (>= 0)")
     swd.add_argument("--out", help="directory for sine_with_dwell.md (default: print only)")
     swd.set_defaults(func=_sine_with_dwell)
-    from training.rl import ALGO_CONFIGS, ALGOS, EVAL_SCENARIO
+    from training.rl_config import ALGO_CONFIGS, ALGOS, EVAL_SCENARIO
 
     train = command("train", "train an RL stability controller (stable-baselines3) on the vector env")
     train.add_argument("--algo", choices=ALGOS, default="ppo", help="RL algorithm (settings: training.rl.ALGO_CONFIGS)")
@@ -380,7 +381,15 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if "" not in sys.path and os.getcwd() not in sys.path:  # the `fourwis` script's path lacks it
         sys.path.insert(0, os.getcwd())  # your 'module:factory' estimators and controllers live here
-    return args.func(args)
+    try:
+        return args.func(args)
+    except ModuleNotFoundError as err:  # an optional dependency: its message names the extra
+        if "fourwis[" not in str(err):
+            raise
+        raise SystemExit(f"fourwis {args.command}: {err}") from None
+    except KeyboardInterrupt:  # (train saves its run first and exits the same way)
+        print(f"fourwis {args.command}: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

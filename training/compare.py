@@ -433,6 +433,7 @@ def compare(out: str | Path, scenarios: Sequence[str] = HEADLINE, estimators: Se
             controllers: Sequence[str] = DEFAULT_CONTROLLERS, seeds: int = 2, jobs: int | None = None) -> Path:
     """Run the matrix and write report.md, runs.csv and PNG plots into ``out``; returns the report path."""
     out = check_writable(out)
+    pyplot()  # (its plots need matplotlib: say so before the runs, not after them)
     results, trajectories = run_matrix(scenarios, estimators, controllers, seeds, jobs)
     table = aggregate(results)
     write_csv(results, out / "runs.csv")

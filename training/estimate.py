@@ -285,6 +285,7 @@ def estimate_report(out: str | Path, scenarios: Sequence[str | Scenario] = PAPER
     the path of estimate.md. ``road_mu``: see :func:`run_all`.
     """
     out = check_writable(out)
+    pyplot()  # (its plots need matplotlib: say so before the runs, not after them)
     results, series = run_all(scenarios, estimators, seeds, jobs, road_mu=road_mu)
     built = list({spec.scenario.name: spec.scenario for spec, _ in results}.values())
     table = aggregate(results)

@@ -73,5 +73,5 @@ def pyplot():
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError as err:  # optional dependency
-        raise ImportError("plots need matplotlib: pip install 'fourwis[plots]'") from err
+        raise ModuleNotFoundError("plots need matplotlib: pip install 'fourwis[plots]'") from err
     return plt

@@ -36,7 +36,13 @@ from pathlib import Path
 
 import numpy as np
 from gymnasium.vector import AutoresetMode
-from stable_baselines3.common.vec_env import VecEnv
+
+from training.rl_config import ALGO_CONFIGS, ALGOS, EVAL_SCENARIO, RL_EXTRA_MISSING
+
+try:
+    from stable_baselines3.common.vec_env import VecEnv
+except ModuleNotFoundError as err:  # an optional dependency (the rl extra)
+    raise ModuleNotFoundError(RL_EXTRA_MISSING) from err
 
 from envs.gym_env import N_OBS, AgentController, EnvConfig, YawStabilityVectorEnv, state_observation
 from envs.sensors import Fault
@@ -46,21 +52,7 @@ from training.io import atomic_write, atomic_write_json, atomic_write_text, chec
 
 EVALUATIONS = "evaluations.npz"  #: the run's evaluation log (SB3's EvalCallback format)
 
-ALGOS = ("ppo", "sac", "td3")
-ALGO_CONFIGS: dict[str, dict] = {
-    # on-policy: 16 cars x 256 steps (5 s each) per update, 10 epochs of minibatches of 1024
-    "ppo": {"n_steps": 256, "batch_size": 1024, "n_epochs": 10, "learning_rate": 3e-4, "gamma": 0.99,
-            "gae_lambda": 0.95, "clip_range": 0.2, "ent_coef": 0.0, "policy_kwargs": {"net_arch": [128, 128]}},
-    # off-policy: one gradient step per vector step (16 env steps), replay of 200k transitions
-    "sac": {"buffer_size": 200_000, "learning_starts": 2_000, "batch_size": 256, "learning_rate": 3e-4,
-            "gamma": 0.99, "tau": 0.005, "train_freq": 1, "gradient_steps": 1,
-            "policy_kwargs": {"net_arch": [128, 128]}},
-    "td3": {"buffer_size": 200_000, "learning_starts": 2_000, "batch_size": 256, "learning_rate": 1e-3,
-            "gamma": 0.99, "tau": 0.005, "train_freq": 1, "gradient_steps": 1, "action_noise_std": 0.1,
-            "policy_kwargs": {"net_arch": [128, 128]}},
-}
 TORCH_THREADS = 1  #: 128-unit MLPs gain nothing from more threads, which would compete with the env
-EVAL_SCENARIO = "sine_with_dwell"  #: held out: never drawn by the "random" training distribution
 
 
 def _algo_class(algo: str):
