@@ -380,3 +380,14 @@ def test_training_is_deterministic_for_a_seed(tmp_path):
     assert any(not np.array_equal(weights_a[key], weights_c[key]) for key in weights_a)
     halfway = PPO.load(a / "checkpoints" / "step_000000512.zip", device="cpu").policy.state_dict()
     assert any(not np.array_equal(halfway[key].numpy(), weights_a[key]) for key in weights_a)
+
+
+def test_the_shipped_policy_is_found_from_any_directory(tmp_path, monkeypatch):
+    """README's rl:training/policies/ppo_joint names the package's own policy: it resolves from a
+    directory that holds no such path (an installed package), and a run of that name there wins."""
+    from training.rl import SHIPPED_POLICIES, run_files
+
+    monkeypatch.chdir(tmp_path)
+    assert run_files("training/policies/ppo_joint")[0] == SHIPPED_POLICIES / "ppo_joint" / "model.zip"
+    with pytest.raises(FileNotFoundError, match="no trained policy at training/policies/absent"):
+        run_files("training/policies/absent")

@@ -1,4 +1,7 @@
-"""The ``fourwis`` command line: one console script, one subcommand per job."""
+"""The fourwis command line: one console script, one subcommand per job.
+
+The main job: fourwis compare (README's first command). Extras: plots (PNGs, rendering), rl
+(train, evaluate, rl: controllers); a command names a missing one before it runs."""
 
 from __future__ import annotations
 
@@ -280,7 +283,7 @@ def build_parser() -> argparse.ArgumentParser:
     def command(name: str, summary: str) -> argparse.ArgumentParser:
         return sub.add_parser(name, help=summary, description=summary, formatter_class=_HelpFormatter)
 
-    sim = command("simulate", "run one scenario (open loop, or with --controller); write CSV and a PNG plot")
+    sim = command("simulate", "run one scenario (open loop, or with --controller); writes OUT/<scenario>.csv and .png")
     sim.add_argument("scenario", help="scenario name (see envs.SCENARIOS), optionally with overrides as in compare "
                                       "(iso3888_2:mu=0.6,speed_kph=50; the options below apply on top)")
     _add_scenario_arguments(sim)
@@ -295,7 +298,8 @@ def build_parser() -> argparse.ArgumentParser:
     sim.set_defaults(func=_simulate)
     from training.compare import DEFAULT_CONTROLLERS, DEFAULT_ESTIMATORS, HEADLINE
 
-    cmp_ = command("compare", "closed-loop matrix estimator x controller x scenario: report + plots")
+    cmp_ = command("compare", "closed-loop matrix estimator x controller x scenario; writes OUT/report.md, "
+                              "runs.csv and PNG plots")
     _add_matrix_arguments(cmp_, HEADLINE, DEFAULT_ESTIMATORS, 2, "results/compare",
                           "scenario names, optionally with overrides: iso3888_2:mu=0.5,speed_kph=50; "
                           "sine_with_dwell:amplitude_A=6.5 ('swd_wet': SWD 5.5A, mu 0.5)")
@@ -307,7 +311,8 @@ def build_parser() -> argparse.ArgumentParser:
     from envs.scenarios import PAPER_SCENARIOS
     from training.estimate import DEFAULT_ESTIMATORS as ESTIMATE_ESTIMATORS
 
-    est = command("estimate", "open-loop estimator accuracy (paper Table 2 form): report + plots")
+    est = command("estimate", "open-loop estimator accuracy (paper Table 2 form); writes OUT/estimate.md, "
+                              "estimate.csv and a PNG per scenario")
     _add_matrix_arguments(est, PAPER_SCENARIOS, ESTIMATE_ESTIMATORS, 1, "results/estimate",
                           "scenario names, optionally with overrides as in compare (no +faults)")
     est.add_argument("--road-mu", action="store_true",
@@ -317,7 +322,8 @@ def build_parser() -> argparse.ArgumentParser:
     from estimation.optimizers import METHODS
     from training.tune import CRITERIA
 
-    tune = command("tune", "offline tuning of alo-fkf's noise on a calibration run")
+    tune = command("tune", "offline tuning of alo-fkf's noise on a calibration run; writes a JSON file "
+                           "(default: the shipped one)")
     tune.add_argument("--agents", type=int, default=30, help="population size (ants, CMA-ES offspring, random draws)")
     tune.add_argument("--iterations", type=int, default=100, help="optimizer iterations")
     tune.add_argument("--duration", type=float, default=10.0, help="calibration run length [s]")
@@ -342,7 +348,9 @@ def build_parser() -> argparse.ArgumentParser:
     swd.set_defaults(func=_sine_with_dwell)
     from training.rl_config import ALGO_CONFIGS, ALGOS, EVAL_SCENARIO
 
-    train = command("train", "train an RL stability controller (stable-baselines3) on the vector env")
+    train = command("train", "train an RL stability controller (stable-baselines3) on the vector env; writes the "
+                             "run directory OUT (model.zip, vecnormalize.pkl, config.json, checkpoints/, "
+                             "evaluations.npz, learning_curve.png)")
     train.add_argument("--algo", choices=ALGOS, default="ppo", help="RL algorithm (settings: training.rl.ALGO_CONFIGS)")
     train.add_argument("--env-kwargs", type=_json_object, default={},
                        help='env keyword arguments as JSON, e.g. \'{"estimator": "joint", "observation": "true"}\'')
@@ -362,7 +370,8 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--overwrite", action="store_true",
                        help="replace a run already in --out (its checkpoints, evaluations and logs are deleted)")
     train.set_defaults(func=_train)
-    evaluate = command("evaluate", "closed-loop evaluation of a trained policy (as in compare)")
+    evaluate = command("evaluate", "closed-loop evaluation of a trained policy (as in compare); writes "
+                                   "OUT/report.md, runs.csv and PNG plots")
     evaluate.add_argument("model", help="run directory of fourwis train (holds model.zip)")
     evaluate.add_argument("--scenarios", nargs="+", default=["swd_wet", "iso3888_2", "mu_jump", "paper_dlc"],
                           help="scenario names, with overrides as in compare")

@@ -51,6 +51,7 @@ from training.asymmetric import POLICIES
 from training.io import atomic_write, atomic_write_json, atomic_write_text, check_writable, pyplot
 
 EVALUATIONS = "evaluations.npz"  #: the run's evaluation log (SB3's EvalCallback format)
+SHIPPED_POLICIES = Path(__file__).resolve().parent / "policies"  #: the trained policies shipped as package data
 
 TORCH_THREADS = 1  #: 128-unit MLPs gain nothing from more threads, which would compete with the env
 
@@ -478,10 +479,13 @@ def _check_no_abandoned_branch(resume: str | Path, out: Path) -> None:
 
 def run_files(path: str | Path) -> tuple[Path, Path, Path]:
     """(model .zip, normaliser .pkl, run config.json) of a run directory or of a checkpoint's
-    .zip (checkpoints/ inside its run directory)."""
-    path = Path(path)
+    .zip (checkpoints/ inside its run directory). ``training/policies/<name>`` that is no path
+    from here is the policy shipped in the installed package (README's examples, run anywhere)."""
+    given = path = Path(path)
+    if not path.exists() and path.parts[:2] == ("training", "policies"):
+        path = SHIPPED_POLICIES.joinpath(*path.parts[2:])
     if not path.exists():
-        raise FileNotFoundError(f"no trained policy at {path}: no such run directory or checkpoint")
+        raise FileNotFoundError(f"no trained policy at {given}: no such run directory or checkpoint")
     files = (path / "model.zip", path / "vecnormalize.pkl", path / "config.json") if path.is_dir() else \
         (path, path.with_suffix(".pkl"), path.parent.parent / "config.json")
     for p in files[:2]:  # the config is read only where a policy is rebuilt (PolicyController)
