@@ -7,11 +7,13 @@ documentation, "Notes on caching"). fourwis's kernels call across modules (the e
 ``joint.py`` inline ``model.py`` and ``ckf.py``; the plant in ``vehicle.py`` inlines
 ``tyre.py``), so an edit to the tyre or estimation model would otherwise leave stale compiled
 code in use, silently. Importing this module therefore points numba's cache at
-``<checkout>/.numba_cache/<fingerprint>``, the fingerprint hashing the source of every module
-with compiled kernels: after any edit to one of them everything compiles afresh once (~45 s),
-and switching back to an earlier version finds its cache again. A ``NUMBA_CACHE_DIR`` set by
-the user is left as it is (and with it numba's own invalidation rule). Delete
-``.numba_cache/`` to reclaim the disk space of old versions (~15 MB each).
+``<checkout>/.numba_cache/<fingerprint>`` (an installed package, which has no pyproject.toml
+beside it: ``$XDG_CACHE_HOME/fourwis/numba/<fingerprint>``, default ``~/.cache``, so that
+site-packages stays as pip left it and a read-only one works), the fingerprint hashing the
+source of every module with compiled kernels: after any edit to one of them everything
+compiles afresh once (~45 s), and switching back to an earlier version finds its cache again.
+A ``NUMBA_CACHE_DIR`` set by the user is left as it is (and with it numba's own invalidation
+rule). Delete the cache directory to reclaim the disk space of old versions (~15 MB each).
 
 Every kernel module imports :data:`JIT` from here, so the cache directory is set before its
 first decorator runs. The setting is numba's process-wide ``config.CACHE_DIR``.
@@ -27,6 +29,7 @@ before it runs the loop in SIMD lanes (``estimation.model.body_forces``).
 from __future__ import annotations
 
 import hashlib
+import os
 from pathlib import Path
 
 import numba
@@ -59,8 +62,16 @@ def kernel_fingerprint(root: Path = ROOT, packages: tuple[str, ...] = PACKAGES) 
     return digest.hexdigest()[:16]
 
 
+def cache_dir(root: Path = ROOT) -> Path:
+    """Where the compiled kernels of the sources under ``root`` are cached (module docstring)."""
+    if (root / "pyproject.toml").is_file():  # a checkout
+        return root / ".numba_cache" / kernel_fingerprint(root)
+    user_cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    return user_cache / "fourwis" / "numba" / kernel_fingerprint(root)
+
+
 if not numba.config.CACHE_DIR:
-    numba.config.CACHE_DIR = str(ROOT / ".numba_cache" / kernel_fingerprint())
+    numba.config.CACHE_DIR = str(cache_dir())
 
 
 #: bytes of stack reserved by each compiled :func:`scratch` call site (larger requests go to

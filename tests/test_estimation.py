@@ -634,6 +634,20 @@ def test_the_kernel_cache_follows_every_compiled_module(tmp_path):
         assert numba.config.CACHE_DIR == str(ROOT / ".numba_cache" / kernel_fingerprint())
 
 
+def test_an_installed_package_caches_its_kernels_in_the_users_cache(tmp_path, monkeypatch):
+    """A checkout (pyproject.toml beside the packages) keeps its kernels in .numba_cache; an
+    installed package, whose site-packages may be read-only and which pip should be able to
+    uninstall whole, in $XDG_CACHE_HOME/fourwis/numba (numba's own fallback has no fingerprint)."""
+    from estimation.jit import cache_dir, kernel_fingerprint
+
+    (tmp_path / "envs").mkdir()
+    (tmp_path / "envs" / "tyre.py").write_text("import numba\n")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    assert cache_dir(tmp_path) == tmp_path / "cache" / "fourwis" / "numba" / kernel_fingerprint(tmp_path)
+    (tmp_path / "pyproject.toml").write_text("")
+    assert cache_dir(tmp_path) == tmp_path / ".numba_cache" / kernel_fingerprint(tmp_path)
+
+
 def test_scratch_arrays_live_on_the_stack_and_large_ones_on_the_heap(heap_allocations):
     import numba
 
