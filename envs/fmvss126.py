@@ -32,11 +32,15 @@ MIN_LAST_AMPLITUDE = math.radians(270.0)  #: the series reaches at least this un
 MAX_A_DEG = 200.0  #: largest A [deg] with a series: its first run, 1.5A, at most 300 deg
 
 
-@functools.lru_cache(maxsize=16)
 def characterise(params: VehicleParams = VehicleParams(), mu: float = 1.0, seed: int = 0) -> float:
     """A [rad]: steering-wheel angle at 0.3 g from slowly increasing steer, left and right averaged,
     of the car ``params`` describes (its 4WS feed-forward included: eq. 20 lowers the yaw gain, so
     that car's A is larger). Cached: the same car is characterised once per process."""
+    return _characterise(params, float(mu), int(seed))
+
+
+@functools.lru_cache(maxsize=16)
+def _characterise(params: VehicleParams, mu: float, seed: int) -> float:
     angles = []
     for direction in (1, -1):
         traj = simulate(make_scenario("slowly_increasing_steer", mu=mu, direction=direction, params=params), seed=seed)

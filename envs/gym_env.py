@@ -28,12 +28,12 @@ from control import Command
 from control.allocation import allocate_for_estimate
 from control.reference import PhasePlaneRegion, reference_yaw_rate
 from envs.fmvss126 import characterise
-from envs.metrics import SPIN_OUT_SIDESLIP, CoursePaths, kinematic_sideslip, sine_with_dwell_metrics, spun_sideslip
+from envs.metrics import SPIN_OUT_SIDESLIP, CoursePaths, rolling_sideslip, sine_with_dwell_metrics, spun_sideslip
 from envs.render import close_window, show_frame
 from envs.scenarios import SCENARIOS, Scenario, make_scenario
 from envs.sensors import Fault
 from envs.simulation import DT, ClosedLoop
-from envs.vehicle import A_AY, S_DELTA_F, S_DELTA_R, S_R, S_X, S_Y
+from envs.vehicle import A_AY, S_DELTA_F, S_DELTA_R, S_R, S_U, S_X, S_Y
 from estimation import check_estimator_name
 from estimation.types import Estimate, is_integer, is_number
 
@@ -81,12 +81,11 @@ class EnvConfig:
             raise ValueError(f"estimator must be a name, got {self.estimator!r}")
         check_estimator_name(self.estimator)
         dt = self.control_dt
-        substeps = float(dt) / DT if is_number(dt) and math.isfinite(dt) else math.nan
-        # (within float32's precision: np.float32(0.02) is 0.0199999996)
-        if not (1 - 1e-6 <= substeps <= MAX_CONTROL_DT / DT + 1e-6 and abs(substeps - round(substeps)) < 1e-6):
+        substeps = round(float(dt) / DT) if is_number(dt) and math.isfinite(dt) else 0
+        # (relative to float32's precision: np.float32(0.02) is 0.0199999996)
+        if not (1 <= substeps <= round(MAX_CONTROL_DT / DT) and abs(float(dt) - substeps * DT) <= 1e-6 * float(dt)):
             raise ValueError(f"control_dt must be a multiple of {DT} s up to {MAX_CONTROL_DT} s, got {dt!r}")
-        if type(dt) is not float:  # (a numpy or integer step as the plain float it stands for)
-            object.__setattr__(self, "control_dt", round(substeps) * DT)
+        object.__setattr__(self, "control_dt", substeps * DT)  # (a numpy or integer step as the float it stands for)
         try:  # a Fault's fields as a dict too: what a run's config.json (and --env-kwargs JSON) holds
             faults = tuple(Fault(**f) if isinstance(f, dict) else f for f in (self.sensor_faults or ()))
         except TypeError:
@@ -280,8 +279,8 @@ class YawStabilityCore:
         spin = np.abs(beta) > SPIN_OUT_SIDESLIP
         if np.count_nonzero(spin):  # (rare: the steering geometry only where it can matter)
             state = self.loop.state
-            spin = spun_sideslip(beta, kinematic_sideslip(state[:, S_DELTA_F], state[:, S_DELTA_R],
-                                                          self.params.cg_to_front, self.params.cg_to_rear))
+            spin = spun_sideslip(beta, rolling_sideslip(state[:, S_U], state[:, S_DELTA_F], state[:, S_DELTA_R],
+                                                        self.params.cg_to_front, self.params.cg_to_rear))
         terminated = (spin | (deviation > MAX_PATH_DEVIATION)) & moved
         reward = np.where(moved, reward - TERMINATION_PENALTY * terminated, 0.0)
         st = self.stats  # (the held vehicles' statistics add 0: non-negative peaks times False)
@@ -457,8 +456,8 @@ class YawStabilityEnv(gym.Env):
     Reward per step: -(e_r / 0.1)^2 - (beta / 0.05)^2 - 0.1 |a|^2 - (d / 1.0)^2 (e_r: true yaw
     rate minus the reference from the true state; d: lateral deviation from the scenario's path,
     if it has one, while the car is alongside it: 0 before its start and on the straight run-out
-    past its end) times control_dt; -100 on termination. Terminated: |beta| > 20 deg (spin-out; not where the steering
-    geometry explains it within 5 deg, a slow full-lock turn: :func:`envs.metrics.spun_sideslip`)
+    past its end) times control_dt; -100 on termination. Terminated: |beta| > 20 deg (spin-out;
+    not where a slow full-lock turn's geometry explains it: :func:`envs.metrics.spun_sideslip`)
     or more than 5 m from the path (scenarios with a course: the lane changes, the slalom and
     ISO 3888-2; the others are open-road manoeuvres without road edges and end by spin-out or
     time). Truncated: the scenario's end. ``gym.make`` adds gymnasium's TimeLimit at 1,500 steps

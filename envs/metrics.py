@@ -43,6 +43,8 @@ G_UNIT = 9.80665  #: the unit "g" of the regulation's thresholds (standard gravi
 SPIN_OUT_SIDESLIP = math.radians(20.0)  #: default |beta| spin-out threshold [rad]
 #: a sideslip within this of the steering geometry's (kinematic_sideslip) is a rolling car's [rad]
 ROLLING_SIDESLIP_TOLERANCE = math.radians(5.0)
+#: the largest lateral acceleration of a turn a car can be rolling round [m/s^2] (1 g)
+ROLLING_LATERAL_ACCELERATION = G_UNIT
 SPIN_OUT_HEADING = math.pi / 2  #: heading this far from the course counts as a spin-out [rad]
 TINY = np.finfo(float).tiny  #: floor of a path segment's squared length [m^2]
 
@@ -278,6 +280,8 @@ def sine_with_dwell_metrics(t, steering_wheel_angle, yaw_rate, lateral_accelerat
     amplitude = float(np.max(np.abs(steer)))
     applies = A is not None and amplitude >= (1.0 - AMPLITUDE_MARGIN) * RESPONSIVENESS_FROM * A
     responsive = bool(displacement >= displacement_limit) if applies else None
+    # (sideslip alone: the regulation's steer, at most ~19 deg at the road wheels, leaves no
+    # slow full-lock turn to tell apart, spin_out's ``rolling``)
     spun = None if sideslip is None else spin_out(_series("sideslip", sideslip, n))
     return SineWithDwellResult(direction, amplitude, bos, cos, peak, ratio_1000, ratio_1750, displacement,
                                responsive, spun)
@@ -432,26 +436,36 @@ def kinematic_sideslip(delta_f, delta_r, cg_to_front: float, cg_to_rear: float) 
     return np.arctan((cg_to_rear * np.tan(delta_f) + cg_to_front * np.tan(delta_r)) / (cg_to_front + cg_to_rear))
 
 
-def spun_sideslip(beta, kinematic=None, threshold_beta: float = SPIN_OUT_SIDESLIP):
-    """Per sample: |beta| > ``threshold_beta`` and, where the steering geometry's
-    ``kinematic`` sideslip (:func:`kinematic_sideslip`, same shape) is given, not within
-    ROLLING_SIDESLIP_TOLERANCE (5 deg) of it: a car whose sideslip the geometry explains is
-    rolling round a slow full-lock turn, not sliding (at walking pace the plant stays within
-    1.3 deg of it, its parallel-steered wheels scrubbing; a spinning car leaves it at once)."""
+def rolling_sideslip(speed, delta_f, delta_r, cg_to_front: float, cg_to_rear: float) -> np.ndarray:
+    """:func:`kinematic_sideslip` where a car could roll round the turn its road-wheel angles
+    make at ``speed`` [m/s] (the turn asks at most ROLLING_LATERAL_ACCELERATION, u^2 |tan
+    delta_f - tan delta_r| cos(beta) / L), NaN where it could not (at speed, a sideslip near the
+    geometry's is a counter-steered slide: 13 m/s near the lock asks ~5 g). Same shapes."""
+    speed, delta_f, delta_r = (np.asarray(x, dtype=float) for x in (speed, delta_f, delta_r))
+    geometry = kinematic_sideslip(delta_f, delta_r, cg_to_front, cg_to_rear)
+    demand = speed**2 * np.abs(np.tan(delta_f) - np.tan(delta_r)) * np.cos(geometry) / (cg_to_front + cg_to_rear)
+    return np.where(demand <= ROLLING_LATERAL_ACCELERATION, geometry, np.nan)
+
+
+def spun_sideslip(beta, rolling=None, threshold_beta: float = SPIN_OUT_SIDESLIP):
+    """Per sample: |beta| > ``threshold_beta``, unless it lies within ROLLING_SIDESLIP_TOLERANCE
+    (5 deg) of the ``rolling`` sideslip (:func:`rolling_sideslip`, same shape; NaN: none): a car
+    whose sideslip the geometry explains is rolling round a slow full-lock turn, not sliding (at
+    walking pace the plant stays within 1.3 deg of it, its parallel-steered wheels scrubbing)."""
     beta = np.asarray(beta, dtype=float)
     spun = np.abs(beta) > threshold_beta
-    return spun if kinematic is None else spun & (np.abs(beta - kinematic) > ROLLING_SIDESLIP_TOLERANCE)
+    return spun if rolling is None else spun & ~(np.abs(beta - rolling) <= ROLLING_SIDESLIP_TOLERANCE)
 
 
 def spin_out(beta, psi=None, course_heading=None, threshold_beta: float = SPIN_OUT_SIDESLIP,
-             kinematic=None) -> bool:
+             rolling=None) -> bool:
     """Whether the car spun out.
 
     ``beta`` (n,) sideslip [rad]: spin-out once |beta| > ``threshold_beta`` (default 20 deg;
     not a regulation value: normal driving stays within a few degrees, atan(0.02 mu g)
     (Rajamani), and ESC studies treat 10-20 deg as beyond a driver's recovery).
-    ``kinematic`` (n,) [rad], optional: the steering geometry's sideslip
-    (:func:`kinematic_sideslip`); a sample within 5 deg of it does not count
+    ``rolling`` (n,) [rad], optional: the sideslip of a car rolling round the turn its wheels
+    make (:func:`rolling_sideslip`); a sample within 5 deg of it does not count
     (:func:`spun_sideslip`): a turn at walking pace near full lock is no spin.
     ``psi`` (n,) heading [rad], optional: spin-out also when the heading deviates more than
     90 deg from ``course_heading`` [rad] (scalar or (n,): the direction of travel the
@@ -460,9 +474,11 @@ def spin_out(beta, psi=None, course_heading=None, threshold_beta: float = SPIN_O
     beta = _series("beta", beta)
     if not (math.isfinite(threshold_beta) and threshold_beta > 0):
         raise ValueError(f"threshold_beta must be a positive angle [rad], got {threshold_beta!r}")
-    if kinematic is not None:
-        kinematic = _series("kinematic", kinematic, len(beta))
-    spun = bool(np.any(spun_sideslip(beta, kinematic, threshold_beta)))
+    if rolling is not None:
+        rolling = np.asarray(rolling, dtype=float)
+        if rolling.shape != beta.shape:
+            raise ValueError(f"rolling has {rolling.size} samples, expected {len(beta)} (the length of beta)")
+    spun = bool(np.any(spun_sideslip(beta, rolling, threshold_beta)))
     if psi is not None:
         psi = _series("psi", psi, len(beta))
         course = psi[0] if course_heading is None else np.asarray(course_heading, dtype=float)

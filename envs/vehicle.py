@@ -275,8 +275,8 @@ C_TORQUE, C_DELTA_F, C_DELTA_R = 0, 4, 5
 #: mu        road friction under each wheel [-]
 #: usage     friction used, |F| / (mu Fz) [-]; can exceed 1 where the Magic Formula's peak
 #:           rises above mu at light loads (load sensitivity), and in combined slip, whose
-#:           MF 5.2 weights of Fx and Fy are independent (1.05 at the reference load at
-#:           kappa -0.13 and 4.5 deg)
+#:           MF 5.2 weights of Fx and Fy are independent (1.04 at the reference load at
+#:           kappa -0.13 and 4.1 deg)
 #: ========  ============================================================================
 AUX_NAMES = (
     "ax", "ay",

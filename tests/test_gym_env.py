@@ -621,3 +621,14 @@ def test_friction_speed_and_sensor_fault_arguments_reach_the_episode():
         gyro.append((obs[2], info["truth"].r))
     gyro = np.array(gyro)
     assert np.ptp(gyro[25:, 0]) == 0.0 and np.ptp(gyro[25:, 1]) > 0.05  # frozen reading, turning car
+
+
+def test_a_numpy_control_step_is_the_multiple_of_2_ms_it_stands_for():
+    """float32 steps (what a config read back or an array gives) are accepted up to the 1 s limit
+    and stored as the exact multiple of the 2 ms substep; a step between multiples is refused."""
+    from envs.gym_env import EnvConfig
+
+    for k in (1, 10, 32, 137, 500):
+        assert EnvConfig(control_dt=np.float32(k * 0.002)).control_dt == k * 0.002
+    with pytest.raises(ValueError, match="control_dt must be a multiple"):
+        EnvConfig(control_dt=0.021)

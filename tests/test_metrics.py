@@ -194,14 +194,31 @@ def test_spin_out():
     assert not spin_out(beta, psi=np.radians([10, 50, 80, 95]))
     assert not spin_out(beta, psi=np.radians([0, 90, 180, 270]), course_heading=np.radians([0, 90, 180, 270]))
     assert not spin_out(beta, psi=np.radians([1, 359, 361, 719]), course_heading=0.0)  # wrapped headings
-    # sideslip the steering geometry explains (within 5 deg) is no spin; beyond it, it is
+    # sideslip a rolling car's geometry explains (within 5 deg) is no spin; beyond it, or where
+    # no car could be rolling (NaN), it is
     geometry = np.radians([0, 10, 21, 21])
-    assert not spin_out(np.radians([0, 10, 21, 25]), kinematic=geometry)
-    assert spin_out(np.radians([0, 10, 21, 27]), kinematic=geometry)
-    assert spin_out(np.radians([0, 10, 21, -25]), kinematic=geometry)
-    assert not spin_out(np.radians([0, 10, 15, 15]), kinematic=-geometry)  # |beta| below 20 deg
-    with pytest.raises(ValueError, match="kinematic has 2 samples"):
-        spin_out(np.radians([0, 10, 21]), kinematic=geometry[:2])
+    assert not spin_out(np.radians([0, 10, 21, 25]), rolling=geometry)
+    assert spin_out(np.radians([0, 10, 21, 27]), rolling=geometry)
+    assert spin_out(np.radians([0, 10, 21, -25]), rolling=geometry)
+    assert spin_out(np.radians([0, 10, 21, 25]), rolling=np.radians([0, 10, 21, np.nan]))
+    assert not spin_out(np.radians([0, 10, 15, 15]), rolling=-geometry)  # |beta| below 20 deg
+    with pytest.raises(ValueError, match="rolling has 2 samples"):
+        spin_out(np.radians([0, 10, 21]), rolling=geometry[:2])
+
+
+def test_a_turn_near_the_lock_is_rolling_only_at_walking_pace():
+    """The geometry's sideslip counts as a rolling car's only where the turn asks at most 1 g:
+    at the lock (0.6 rad, radius ~3.4 m) up to ~6 m/s; at 13 m/s (a counter-steered slide on
+    ISO 3888-2) it would ask ~5 g."""
+    from envs.metrics import kinematic_sideslip, rolling_sideslip
+    from envs.vehicle import VehicleParams
+
+    p = VehicleParams()
+    geometry = kinematic_sideslip(0.6, 0.0, p.cg_to_front, p.cg_to_rear)
+    assert math.degrees(geometry) == pytest.approx(18.9, abs=0.05)
+    rolling = rolling_sideslip([2.0, 5.0, 13.0], [0.6] * 3, [0.0] * 3, p.cg_to_front, p.cg_to_rear)
+    np.testing.assert_array_equal(rolling[:2], geometry)
+    assert np.isnan(rolling[2])
 
 
 def test_generic_metrics():

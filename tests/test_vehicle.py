@@ -51,23 +51,25 @@ def test_a_walking_pace_full_lock_turn_has_the_geometrys_sideslip_and_is_no_spin
     is the kinematic one, atan((b tan delta_f + a tan delta_r) / L) = 21.1 deg, within 1.5 deg
     (the parallel-steered wheels scrub at the lock); no spin-out even at a 15 deg threshold,
     which the sideslip alone passes."""
-    from envs.metrics import kinematic_sideslip, spin_out
+    from envs.metrics import kinematic_sideslip, rolling_sideslip, spin_out
 
     state = initial_state(P, 2.0)
     tables = RoadTables.from_roads(uniform(1.0), 1)
     controls = np.zeros((1, NU))
     controls[:, C_DELTA_F], controls[:, C_DELTA_R] = P.max_front_steer, P.max_rear_steer
-    betas, kinematic = [], []
+    betas, kinematic, rolling = [], [], []
     for _ in range(int(round(6.0 / DT))):
         controls[:, C_TORQUE:C_TORQUE + 4] = speed_hold(state, 2.0)
         state, _ = step(state, controls, P, tables, DT)
         betas.append(math.atan2(state[0, S_V], state[0, S_U]))
         kinematic.append(kinematic_sideslip(state[0, S_DELTA_F], state[0, S_DELTA_R], P.cg_to_front, P.cg_to_rear))
+        rolling.append(rolling_sideslip(state[0, S_U], state[0, S_DELTA_F], state[0, S_DELTA_R], P.cg_to_front,
+                                        P.cg_to_rear))
     assert math.degrees(kinematic[-1]) == pytest.approx(21.1, abs=0.1)
     assert betas[-1] == pytest.approx(kinematic[-1], abs=math.radians(1.5))
     threshold = math.radians(15.0)
     assert spin_out(betas, threshold_beta=threshold) and not spin_out(betas, threshold_beta=threshold,
-                                                                      kinematic=kinematic)
+                                                                      rolling=rolling)
 
 
 def test_steady_state_yaw_gain_matches_linear_bicycle_model():
@@ -287,8 +289,9 @@ def test_combined_slip_shares_the_grip_between_fx_and_fy():
     """MF 5.2 combined slip (weights G_xa, G_yk <= 1): a slip angle takes longitudinal force
     away and a slip ratio lateral force, so each force falls below its pure-slip value, and the
     resultant stays near the friction circle mu Fz on every road: within the tyre file's own
-    excess on a dry road (1.05: the two weights are independent) plus 1%. Weighing the raw
-    slips on a slippery road, it reached 1.29 mu Fz on mu 0.3 and 1.39 on mu 0.1."""
+    excess on a dry road (1.05 before the friction-normalised weights, 1.04 with them: the two
+    weights are independent) plus 1%. Weighing the raw slips on a slippery road, it reached
+    1.29 mu Fz on mu 0.3 and 1.39 on mu 0.1."""
     tyre = TyreParams()
     fz = P.reference_wheel_load
     kappa, tan_alpha = np.meshgrid(np.linspace(-0.5, 0.5, 41), np.tan(np.linspace(-0.3, 0.3, 41)))

@@ -24,7 +24,7 @@ from control import CONTROLLERS, make_controller
 from control.allocation import wheel_force_map
 from control.reference import PhasePlaneRegion, reference_yaw_rate
 from envs.fmvss126 import characterise
-from envs.metrics import (alongside_path, cone_hits, kinematic_sideslip, mae, path_deviation, peak_abs, rms, rmse,
+from envs.metrics import (alongside_path, cone_hits, mae, path_deviation, peak_abs, rms, rmse, rolling_sideslip,
                           sine_with_dwell_metrics, spin_out, yaw_rate_tracking_rms)
 from envs.scenarios import SCENARIOS, make_scenario
 from envs.sensors import Fault
@@ -156,8 +156,9 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
     beta = T.beta
     r_ref = reference_yaw_rate(traj.state[:, S_U], traj.state[:, S_DELTA_F], T.mu, params)
     out = {"peak_beta": peak_abs(beta), "yaw_tracking_rms": yaw_rate_tracking_rms(traj.state[:, S_R], r_ref),
-           "spin_out": float(spin_out(beta, kinematic=kinematic_sideslip(
-               traj.state[:, S_DELTA_F], traj.state[:, S_DELTA_R], params.cg_to_front, params.cg_to_rear)))}
+           "spin_out": float(spin_out(beta, rolling=rolling_sideslip(
+               traj.state[:, S_U], traj.state[:, S_DELTA_F], traj.state[:, S_DELTA_R], params.cg_to_front,
+               params.cg_to_rear)))}
     # how far the car left the sideslip phase-plane region it recovers from by itself (> 1:
     # outside), over the samples at speeds the region is tabulated for
     region = PhasePlaneRegion.default()

@@ -72,6 +72,6 @@ def pyplot():
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
-    except ImportError as err:  # optional dependency
+    except ModuleNotFoundError as err:  # optional dependency (a broken install raises its own error)
         raise ModuleNotFoundError("plots need matplotlib: pip install 'fourwis[plots]'") from err
     return plt
