@@ -36,7 +36,7 @@ def characterise(params: VehicleParams = VehicleParams(), mu: float = 1.0, seed:
     """A [rad]: steering-wheel angle at 0.3 g from slowly increasing steer, left and right averaged,
     of the car ``params`` describes (its 4WS feed-forward included: eq. 20 lowers the yaw gain, so
     that car's A is larger). Cached: the same car is characterised once per process."""
-    return _characterise(params, float(mu), int(seed))
+    return _characterise(params, mu, seed)  # (positional: one cache entry however it is called)
 
 
 @functools.lru_cache(maxsize=16)

@@ -351,7 +351,8 @@ def build_parser() -> argparse.ArgumentParser:
     train = command("train", "train an RL stability controller (stable-baselines3) on the vector env; writes the "
                              "run directory OUT (model.zip, vecnormalize.pkl, config.json, checkpoints/, "
                              "evaluations.npz, learning_curve.png)")
-    train.add_argument("--algo", choices=ALGOS, default="ppo", help="RL algorithm (settings: training.rl_config.ALGO_CONFIGS)")
+    train.add_argument("--algo", choices=ALGOS, default="ppo",
+                       help="RL algorithm (settings: training.rl_config.ALGO_CONFIGS)")
     train.add_argument("--env-kwargs", type=_json_object, default={},
                        help='env keyword arguments as JSON, e.g. \'{"estimator": "joint", "observation": "true"}\'')
     train.add_argument("--timesteps", type=int, default=400_000,
