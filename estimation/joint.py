@@ -43,7 +43,9 @@ then stayed at its old, high value, because lambda evaluated at a too-high mu ke
 closed, and the narrower covariance is what let the gate open again. Below MU_MIN_SPEED the
 friction filter does not run at all (slip angles are not defined at rest). A gate on mu's lower
 confidence bound was tried too (README, "Known limitations"): mu then moves after a jump but
-wanders on the lane changes. The four mu share a correlated prior and random walk
+wanders on the lane changes. Because the gate judges observability from mu_hat itself, a
+mu_hat that is already high can keep it shut after a friction drop in a moderate turn (mu_jump
+started from nominal_mu 0.9 instead of 0.8: mu_hat stays 0.9; README, "Known limitations"). The four mu share a correlated prior and random walk
 (MU_CORRELATION): a saturating outer wheel informs the lightly loaded inner one, while a split
 road still separates left from right over time.
 
