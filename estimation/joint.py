@@ -45,7 +45,8 @@ friction filter does not run at all (slip angles are not defined at rest). A gat
 confidence bound was tried too (README, "Known limitations"): mu then moves after a jump but
 wanders on the lane changes. Because the gate judges observability from mu_hat itself, a
 mu_hat that is already high can keep it shut after a friction drop in a moderate turn (mu_jump
-started from nominal_mu 0.9 instead of 0.8: mu_hat stays 0.9; README, "Known limitations"). The four mu share a correlated prior and random walk
+started from nominal_mu 0.9 instead of 0.8: mu_hat stays 0.9); the slide detection (SLIDE_*)
+opens it where the sensors alone show the car sliding in a steady turn. The four mu share a correlated prior and random walk
 (MU_CORRELATION): a saturating outer wheel informs the lightly loaded inner one, while a split
 road still separates left from right over time.
 
@@ -228,9 +229,26 @@ ZERO_POINT_YAW_LOWPASS = 0.5
 ZERO_POINT_SETTLE = 1.5
 ZERO_POINT_MIN_SPEED = 3.0
 ZERO_POINT_TIME_CONSTANT = 2.0
+#: Slide detection of the joint estimator (the friction gate's blind spot, README "Known
+#: limitations"). In a steady turn (steering held, yaw rate steady: ZP_STEADY) a gripping car
+#: keeps its sideslip, so the kinematic sideslip rate ay / u - r that the sensors give without
+#: any tyre model stays near zero; the data-sheet turn-on biases (3 sigma: 0.09 m/s^2, 0.006
+#: rad/s; envs.sensors) fake at most 1.4 deg/s of it at 5 m/s, 0.7 deg/s at 15 m/s. Its
+#: SLIDE_TAU [s] low-pass beyond SLIDE_RATE [rad/s] after SLIDE_TAU of steady driving, while the
+#: friction gate is shut, means the car slides on a road slipperier than mu_hat: the state
+#: filter then follows the accelerometer (ax, ay process noise at least SLIDE_ACCEL_STD [m/s^2]
+#: per NOISE_STEP, above the accelerometer's 0.17), and the friction filter restarts from its
+#: prior covariance with the gate open. SLIDE_TAU is shorter than ZERO_POINT_SETTLE, so the
+#: slide is caught before the zero-point learning could take its drift for a sensor offset.
+#: Measured (README): mu_jump started from mu 0.9, DYC-LQR: peak sideslip 13.9 -> 2.6 deg; the
+#: headline comparison's runs.csv unchanged (it never fires there).
+SLIDE_RATE = math.radians(2.0)
+SLIDE_TAU = 0.25
+SLIDE_ACCEL_STD = 1.0
 #: columns of the zero-point state: learnt ay offset [m/s^2], steady time [s], steering angle
-#: the steady time counts from [rad], low-passed yaw rate [rad/s]
-ZP_OFFSET, ZP_STEADY, ZP_STEER, ZP_YAW = range(4)
+#: the steady time counts from [rad], low-passed yaw rate [rad/s], low-passed kinematic
+#: sideslip rate ay / u - r [rad/s] (SLIDE_TAU)
+ZP_OFFSET, ZP_STEADY, ZP_STEER, ZP_YAW, ZP_SLIDE = range(5)
 #: columns of the compiled step's output row
 (O_U, O_V, O_BETA, O_R, O_AX, O_AY), O_MU, O_FZ, O_BETA_STD, O_MU_STD, N_OUT = range(6), 6, 10, 14, 15, 19
 #: status codes of the compiled step
@@ -437,7 +455,7 @@ def _ekf_step(x, P, Q, z, valid, R, f_args, h_args, m_args, x_out, P_out) -> flo
 # ---- one estimator step (compiled) -----------------------------------------------------------
 @numba.njit(**JIT)
 def _learn_zero_point(zero_point, reading, valid, speed, dt, time_constant) -> None:
-    """Advance the zero-point state (4,) by one reading (see ZERO_POINT_*); ``speed`` [m/s];
+    """Advance the zero-point state (5,) by one reading (see ZERO_POINT_*, SLIDE_*); ``speed`` [m/s];
     ``time_constant`` [s] of the offset's low-pass (inf: no learning)."""
     steer, yaw_rate = reading[7], reading[2]
     moved = not valid[7] or abs(steer - zero_point[ZP_STEER]) > ZERO_POINT_STEER_TOL
@@ -450,12 +468,15 @@ def _learn_zero_point(zero_point, reading, valid, speed, dt, time_constant) -> N
     if zero_point[ZP_STEADY] > ZERO_POINT_SETTLE and speed > ZERO_POINT_MIN_SPEED and valid[1]:
         residual = reading[1] - speed * yaw_rate
         zero_point[ZP_OFFSET] += (residual - zero_point[ZP_OFFSET]) * (dt / time_constant)
+    if speed > ZERO_POINT_MIN_SPEED and valid[1] and valid[2]:
+        rate = (reading[1] - zero_point[ZP_OFFSET]) / speed - yaw_rate
+        zero_point[ZP_SLIDE] += (rate - zero_point[ZP_SLIDE]) * (dt / SLIDE_TAU)
 
 
 @numba.njit(**JIT)
-def _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, process_var, sensor_var, mu_var, x, P, mu,
-                 P_mu, beta, beta_mu, omega_prev, omega_dot, inertial_prev, inertial_repeats, zero_point, reading,
-                 valid_in, out) -> tuple[int, float]:
+def _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rate, process_var, sensor_var, mu_var,
+                 x, P, mu, P_mu, beta, beta_mu, omega_prev, omega_dot, inertial_prev, inertial_repeats, zero_point,
+                 reading, valid_in, out) -> tuple[int, float]:
     """One step of one vehicle's estimator of ``kind`` (index into KINDS) on the raw sensor
     ``reading`` (13,); state rows are updated in place only on success. Returns (status,
     innovation NLL) and fills ``out``."""
@@ -469,7 +490,7 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, process_v
         repeats[c] = repeats[c] + 1.0 if valid_in[c] and reading[c] == inertial_prev[c] else 0.0
         if repeats[c] >= stuck_samples:
             valid[c] = False
-    zero_point_new = scratch((4,))
+    zero_point_new = scratch((5,))
     zero_point_new[:] = zero_point
     _learn_zero_point(zero_point_new, reading, valid, x[I_U], dt, zero_point_tau)
     values = scratch((channels,))
@@ -494,6 +515,14 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, process_v
     _fill_diagonal((accel_var, accel_var, gyro_var, wheel_var, wheel_var, wheel_var, wheel_var), R1)
     _fill_diagonal((accel_var, gyro_var), R2)
     _fill_diagonal(process_var, Q)
+    unseen_slide = False  # (SLIDE_*: sliding in a steady turn while the friction gate is shut)
+    if joint and abs(zero_point_new[ZP_SLIDE]) > slide_rate and zero_point_new[ZP_STEADY] > SLIDE_TAU:
+        lam_before = scratch((4,))
+        dugoff_lambdas(x[I_U], x[I_V], x[I_R], x[I_AX], x[I_AY], mu, steer, omega, pk, lam_before)
+        unseen_slide = lam_before.min() >= EXCITATION_LAMBDA
+    if unseen_slide:
+        accel_floor = SLIDE_ACCEL_STD**2 * dt / NOISE_STEP
+        Q[I_AX, I_AX], Q[I_AY, I_AY] = max(Q[I_AX, I_AX], accel_floor), max(Q[I_AY, I_AY], accel_floor)
     x_new, P_new, beta_new = scratch((6,)), scratch((6, 6)), scratch((2,))
     beta_new[:] = beta
     m_args = (x, steer, omega, torque, od, pk, dt)  # the mu measurements, unused by the state filter
@@ -517,8 +546,11 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, process_v
         _fill_diagonal((mu_var[1], mu_var[1], gyro_var), R1_mu)
         _fill_diagonal((mu_var[1], gyro_var), R2_mu)
         m_args = (x_new, steer, omega, torque, od, pk, dt)
-        mu_fused, P_fused = scratch((4,)), scratch((4, 4))
-        nll_mu = _federated(mu, P_mu, walk, beta_mu, RANDOM_WALK, values[:3], valid[:3], R1_mu, MU_1, z2, valid2,
+        mu_fused, P_fused, P_mu_in = scratch((4,)), scratch((4, 4)), scratch((4, 4))
+        P_mu_in[:, :] = P_mu
+        if unseen_slide:  # restart from the prior covariance (mu_max_std)
+            _fill_correlated(mu_var[2], P_mu_in)
+        nll_mu = _federated(mu, P_mu_in, walk, beta_mu, RANDOM_WALK, values[:3], valid[:3], R1_mu, MU_1, z2, valid2,
                             R2_mu, MU_2, huber_c, f_args, h_args, m_args, mu_fused, P_fused, beta_mu_new)
         if not math.isfinite(nll_mu):
             return FILTER_FAILED, math.nan
@@ -526,7 +558,7 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, process_v
         # the covariance keeps the update (see the module docstring)
         lam = scratch((4,))
         dugoff_lambdas(x_new[I_U], x_new[I_V], x_new[I_R], x_new[I_AX], x_new[I_AY], mu, steer, omega, pk, lam)
-        if lam.min() < EXCITATION_LAMBDA:
+        if lam.min() < EXCITATION_LAMBDA or unseen_slide:
             for w in range(4):
                 mu_new[w] = min(max(mu_fused[w], MU_BOUNDS[0]), MU_BOUNDS[1])
         # cap the random walk's growth where mu is unobservable
@@ -563,37 +595,37 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, process_v
 
 
 @numba.njit(inline="always", **JIT)
-def _step_row(j, rows, kind, pk, dt, huber_c, zero_point_tau, stuck_samples, process_var, sensor_var, mu_var, X, P,
-              MU, P_MU, BETA, BETA_MU, OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS, ZERO_POINT, LAST_NLL,
-              values, valid, out, status):
+def _step_row(j, rows, kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rate, process_var, sensor_var,
+              mu_var, X, P, MU, P_MU, BETA, BETA_MU, OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS,
+              ZERO_POINT, LAST_NLL, values, valid, out, status):
     i = rows[j]
     q = i if process_var.shape[0] > 1 else 0
-    status[j], nll = _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, process_var[q], sensor_var[q],
-                                  mu_var, X[i], P[i], MU[i], P_MU[i], BETA[i], BETA_MU[i], OMEGA_PREV[i],
-                                  OMEGA_DOT[i], INERTIAL_PREV[i], INERTIAL_REPEATS[i], ZERO_POINT[i], values[i],
-                                  valid[i], out[j])
+    status[j], nll = _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rate, process_var[q],
+                                  sensor_var[q], mu_var, X[i], P[i], MU[i], P_MU[i], BETA[i], BETA_MU[i],
+                                  OMEGA_PREV[i], OMEGA_DOT[i], INERTIAL_PREV[i], INERTIAL_REPEATS[i], ZERO_POINT[i],
+                                  values[i], valid[i], out[j])
     if status[j] == OK:
         LAST_NLL[i] = nll
 
 
 @numba.njit(**JIT)
-def _step_serial(rows, kind, pk, dt, huber_c, zero_point_tau, stuck_samples, process_var, sensor_var, mu_var, X, P,
-                 MU, P_MU, BETA, BETA_MU, OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS, ZERO_POINT, LAST_NLL,
-                 values, valid, out, status):
+def _step_serial(rows, kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rate, process_var, sensor_var,
+                 mu_var, X, P, MU, P_MU, BETA, BETA_MU, OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS,
+                 ZERO_POINT, LAST_NLL, values, valid, out, status):
     for j in range(rows.shape[0]):
-        _step_row(j, rows, kind, pk, dt, huber_c, zero_point_tau, stuck_samples, process_var, sensor_var, mu_var, X, P,
-                  MU, P_MU, BETA, BETA_MU, OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS, ZERO_POINT,
-                  LAST_NLL, values, valid, out, status)
+        _step_row(j, rows, kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rate, process_var, sensor_var,
+                  mu_var, X, P, MU, P_MU, BETA, BETA_MU, OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS,
+                  ZERO_POINT, LAST_NLL, values, valid, out, status)
 
 
 @numba.njit(parallel=True, **JIT)
-def _step_parallel(rows, kind, pk, dt, huber_c, zero_point_tau, stuck_samples, process_var, sensor_var, mu_var, X, P,
-                   MU, P_MU, BETA, BETA_MU, OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS, ZERO_POINT,
-                   LAST_NLL, values, valid, out, status):
+def _step_parallel(rows, kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rate, process_var, sensor_var,
+                   mu_var, X, P, MU, P_MU, BETA, BETA_MU, OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS,
+                   ZERO_POINT, LAST_NLL, values, valid, out, status):
     for j in numba.prange(rows.shape[0]):
-        _step_row(j, rows, kind, pk, dt, huber_c, zero_point_tau, stuck_samples, process_var, sensor_var, mu_var, X, P,
-                  MU, P_MU, BETA, BETA_MU, OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS, ZERO_POINT,
-                  LAST_NLL, values, valid, out, status)
+        _step_row(j, rows, kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rate, process_var, sensor_var,
+                  mu_var, X, P, MU, P_MU, BETA, BETA_MU, OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS,
+                  ZERO_POINT, LAST_NLL, values, valid, out, status)
 
 
 @dataclass
@@ -620,6 +652,9 @@ class StateEstimator:
     #: every straight of paper_step; the model bridges them there: joint's sideslip RMSE 0.143
     #: deg with the check, 0.141 without)
     stuck_samples: float = STUCK_SAMPLES
+    #: the joint estimator's slide detection threshold [rad/s] (SLIDE_*); math.inf switches it
+    #: off (the paper's joint estimator, whose friction gate can stay shut after a drop)
+    slide_rate: float = SLIDE_RATE
     needs_truth: bool = False
 
     def __post_init__(self) -> None:
@@ -632,6 +667,8 @@ class StateEstimator:
             raise ValueError(f"huber_c must be > 0, got {self.huber_c!r}")
         if not (is_number(self.stuck_samples) and self.stuck_samples >= 1):
             raise ValueError(f"stuck_samples must be >= 1 (math.inf: off), got {self.stuck_samples!r}")
+        if not (is_number(self.slide_rate) and self.slide_rate > 0):
+            raise ValueError(f"slide_rate must be > 0 [rad/s] (math.inf: off), got {self.slide_rate!r}")
         if not (is_number(self.zero_point_time_constant) and self.zero_point_time_constant > 0):
             raise ValueError(f"zero_point_time_constant must be > 0 [s], got {self.zero_point_time_constant!r}")
         self._kind_code = KINDS.index(self.kind)
@@ -687,7 +724,7 @@ class StateEstimator:
         P0 = np.broadcast_to(np.diag([0.5, 0.3, 1.0, 1.0, 0.02, 500.0]) ** 2, (B, N_STATE, N_STATE))
         mu0 = np.full((B, 4), self.nominal_mu)
         Pmu0 = np.broadcast_to(_correlated(0.3**2), (B, 4, 4))
-        zero_point0 = np.zeros((B, 4))
+        zero_point0 = np.zeros((B, 5))
         zero_point0[:, ZP_STEER], zero_point0[:, ZP_YAW] = values[:, 7], values[:, 2]
         if mask is None or not hasattr(self, "x"):
             self.x, self.P = x0, P0.copy()
@@ -732,7 +769,8 @@ class StateEstimator:
         out, status = np.empty((len(rows), N_OUT)), np.zeros(len(rows), dtype=np.int64)
         kernel = _step_parallel if len(rows) >= PARALLEL_MIN_BATCH else _step_serial
         kernel(rows, self._kind_code, self.params.packed, float(self.dt), float(self.huber_c),
-               float(self.zero_point_time_constant), float(self.stuck_samples), self._process_var, self._sensor_var,
+               float(self.zero_point_time_constant), float(self.stuck_samples), float(self.slide_rate),
+               self._process_var, self._sensor_var,
                self._mu_var, *state, values, valid, out, status)
         if np.count_nonzero(status):
             j = int(np.flatnonzero(status)[0])

@@ -542,18 +542,27 @@ def test_joint_estimator_follows_a_friction_drop_and_the_dyc_stays_stable():
     assert np.all(joint.truth.mu[last] == pytest.approx(0.3))
 
 
-@pytest.mark.xfail(strict=True, reason="known limitation (README): the friction gate judges observability from "
-                   "mu_hat itself, so a high mu_hat keeps it shut after the drop")
-def test_joint_estimator_sees_a_friction_drop_from_a_high_starting_mu():
+def test_slide_detection_sees_a_friction_drop_the_gate_misses_and_is_silent_where_the_car_grips():
     """The same drop with the estimator started from mu 0.9 (as after hard driving on the dry
-    road): mu_hat should follow it as from 0.8. It stays at 0.9 (measured), and the DYC slides
-    the car to 13.9 deg; strict, so a fix makes this test fail until the marker goes."""
+    road): the friction gate, judging from mu_hat = 0.9, stays shut, and without the slide
+    detection mu_hat stays at 0.9 and the DYC slides the car to 13.9 deg (measured). With it
+    (SLIDE_*: the sensors' sideslip rate in a steady turn) mu_hat comes down (measured 0.42 over
+    the last 2 s) and the peak sideslip is 2.6 deg. From the nominal 0.8, where the gate opens
+    by itself, the detection never fires: the estimates are identical with it off."""
     from control import make_controller
 
-    joint = simulate("mu_jump", controller=make_controller("dyc-lqr", VehicleParams()),
-                     estimator=make_estimator("joint", VehicleParams(), nominal_mu=0.9), seed=0)
-    last = joint.t >= joint.t[-1] - 2.0
-    assert abs(joint.estimate.mu[last].mean() - 0.3) < 0.15
+    def run(nominal_mu, slide_rate):
+        estimator = make_estimator("joint", VehicleParams(), nominal_mu=nominal_mu, slide_rate=slide_rate)
+        return simulate("mu_jump", controller=make_controller("dyc-lqr", VehicleParams()), estimator=estimator, seed=0)
+
+    blind, seeing = run(0.9, math.inf), run(0.9, math.radians(2.0))
+    last = seeing.t >= seeing.t[-1] - 2.0
+    assert np.all(blind.estimate.mu[last] == 0.9)  # the gate alone never opens
+    assert seeing.estimate.mu[last].mean() < 0.5
+    assert np.abs(seeing.truth.beta).max() < np.abs(blind.truth.beta).max() / 3
+    gripping, unchecked = run(0.8, math.radians(2.0)), run(0.8, math.inf)
+    for field in ("mu", "beta", "u"):
+        np.testing.assert_array_equal(getattr(gripping.estimate, field), getattr(unchecked.estimate, field))
 
 
 #: joint's sideslip RMSE bound [deg] per paper scenario: the issue's 0.2 deg target where
@@ -846,7 +855,8 @@ def test_estimator_input_errors_name_the_bad_value():
     three.values[2, 0] = np.nan
     with pytest.raises(ValueError, match="first reading must be finite"):
         first.reset(three, 20.0, mask=np.array([True, False, False]))
-    for name, value in (("huber_c", "3"), ("nominal_mu", "0.8"), ("stuck_samples", None)):
+    for name, value in (("huber_c", "3"), ("nominal_mu", "0.8"), ("stuck_samples", None), ("slide_rate", 0.0),
+                        ("slide_rate", math.nan)):
         with pytest.raises(ValueError, match=f"{name} must"):
             make_estimator("joint", params, **{name: value})
     with pytest.raises(ValueError, match="dt must be .*, got inf"):
