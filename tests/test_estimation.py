@@ -11,7 +11,7 @@ from envs.scenarios import PAPER_SCENARIOS, make_scenario
 from envs.sensors import CHANNELS, Fault, SensorParams
 from envs.vehicle import A_USAGE, VehicleParams
 from estimation import ESTIMATORS, make_estimator
-from estimation.joint import ZERO_POINT_TIME_CONSTANT, ZP_OFFSET
+from estimation.joint import SLIDE_RATE, ZERO_POINT_TIME_CONSTANT, ZP_OFFSET
 from estimation.ckf import ckf_predict, ckf_update
 from estimation.federated import BETA_FLOOR, SubMeasurement, federated_step, fuse, sharing_coefficients
 from estimation.model import GRAVITY, ModelParams, dugoff, normal_loads, state_transition, Inputs
@@ -555,12 +555,12 @@ def test_slide_detection_sees_a_friction_drop_the_gate_misses_and_is_silent_wher
         estimator = make_estimator("joint", VehicleParams(), nominal_mu=nominal_mu, slide_rate=slide_rate)
         return simulate("mu_jump", controller=make_controller("dyc-lqr", VehicleParams()), estimator=estimator, seed=0)
 
-    blind, seeing = run(0.9, math.inf), run(0.9, math.radians(2.0))
+    blind, seeing = run(0.9, math.inf), run(0.9, SLIDE_RATE)
     last = seeing.t >= seeing.t[-1] - 2.0
     assert np.all(blind.estimate.mu[last] == 0.9)  # the gate alone never opens
     assert seeing.estimate.mu[last].mean() < 0.5
     assert np.abs(seeing.truth.beta).max() < np.abs(blind.truth.beta).max() / 3
-    gripping, unchecked = run(0.8, math.radians(2.0)), run(0.8, math.inf)
+    gripping, unchecked = run(0.8, SLIDE_RATE), run(0.8, math.inf)
     for field in ("mu", "beta", "u"):
         np.testing.assert_array_equal(getattr(gripping.estimate, field), getattr(unchecked.estimate, field))
 
@@ -578,14 +578,14 @@ def test_slide_detection_stays_silent_while_the_car_turns_and_on_an_acceleromete
     dyc = make_controller("dyc-lqr", VehicleParams())
     on, off = (simulate("paper_sine", controller=dyc, seed=0,
                         estimator=make_estimator("joint", VehicleParams(), slide_rate=rate))
-               for rate in (math.radians(2.0), math.inf))
+               for rate in (SLIDE_RATE, math.inf))
     np.testing.assert_array_equal(on.estimate.mu, off.estimate.mu)
     np.testing.assert_array_equal(on.estimate.beta, off.estimate.beta)
     gripping = make_scenario("mu_jump", mu_patch=0.9)
     fault = (Fault("ay", "bias_step", 2.5, math.inf, 1.0),)
     on, off = (simulate(gripping, controller=dyc, seed=0, faults=fault,
                         estimator=make_estimator("joint", VehicleParams(), nominal_mu=0.9, slide_rate=rate))
-               for rate in (math.radians(2.0), math.inf))
+               for rate in (SLIDE_RATE, math.inf))
     np.testing.assert_array_equal(on.estimate.mu, off.estimate.mu)
     assert np.all(on.estimate.mu == 0.9)
 
