@@ -17,7 +17,7 @@ from estimation.types import check_step, check_vehicle_params, import_factory, i
 CONTROLLERS = ("none", "dyc-lqr", "dyc-smc", "dyc-lqr-4ws", "dyc-smc-4ws")
 ACTIVE_SPEED = 2.0  #: below this speed [m/s] the law's moment is zero (the allocator still shares the drive)
 YAW_DEADBAND = 0.02  #: |r - r_ref| [rad/s] tolerated without intervention (ESC practice)
-MIN_PLANNING_MU = 0.1  #: floor of the friction the controller plans with
+MIN_PLANNING_MU = 0.1  #: the margin's floor: it lowers no planning friction below this (nor lifts one)
 #: default StabilityController.mu_margin. Measured on the headline matrix (DYC-LQR + joint,
 #: 2 seeds, peak sideslip [deg] on paper_step / swd_wet / mu_jump / ISO 3888-2 at 70 km/h):
 #: margin 0: 0.6 / 2.1 / 1.8 / 3.7; 1: 0.5 / 1.8 / 1.5 / 3.4; 2: 0.5 / 1.7 / 1.4 / 3.1 (ISO
@@ -79,8 +79,8 @@ class StabilityController:
 
     Cautious friction: the controller plans (reference, sideslip bound, gain schedule,
     allocation) with the lower confidence bound ``mu - mu_margin * mu_std`` of the estimate
-    (floored at MIN_PLANNING_MU), so a friction the estimator has not yet confirmed is not
-    taken for granted. An estimate without ``mu_std``, or with zero (the oracle, fixed-mu
+    (the margin stops at MIN_PLANNING_MU; an estimate already below it, ice, is kept), so a
+    friction the estimator has not yet confirmed is not taken for granted. An estimate without ``mu_std``, or with zero (the oracle, fixed-mu
     filters), is used as it is. ``mu_margin=0`` plans with the point estimate."""
 
     params: object
@@ -126,8 +126,9 @@ class StabilityController:
         mu_std = getattr(estimate, "mu_std", None)
         if mu_std is None or self.mu_margin == 0.0:
             return np.asarray(estimate.mu, dtype=float)
-        return np.maximum(np.asarray(estimate.mu, dtype=float) - self.mu_margin * np.asarray(mu_std, dtype=float),
-                          MIN_PLANNING_MU)
+        mu = np.asarray(estimate.mu, dtype=float)
+        # the margin stops at the floor; a friction the estimate itself puts below it stays (ice)
+        return np.maximum(mu - self.mu_margin * np.asarray(mu_std, dtype=float), np.minimum(mu, MIN_PLANNING_MU))
 
     def __call__(self, t: np.ndarray, estimate, front_steer: np.ndarray, base_torques: np.ndarray) -> Command:
         u, beta, r = estimate.u, estimate.beta, estimate.r

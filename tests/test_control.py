@@ -228,6 +228,9 @@ def test_the_controller_plans_with_the_lower_confidence_bound_of_the_friction():
                         mu_std=np.array([[0.1, 0.0, 0.25, 0.0]]))
     np.testing.assert_allclose(StabilityController(P, mu_margin=1.0).planning_mu(estimate), [[0.7, 0.8, 0.1, 0.3]])
     assert MIN_PLANNING_MU == 0.1
+    # the margin stops at the floor but does not lift a friction already below it (an oracle on ice)
+    ice = estimate._replace(mu=np.array([[0.05, 0.05, 0.12, 0.3]]), mu_std=np.array([[0.0, 0.02, 0.05, 0.0]]))
+    np.testing.assert_allclose(StabilityController(P, mu_margin=1.0).planning_mu(ice), [[0.05, 0.05, 0.1, 0.3]])
     np.testing.assert_array_equal(StabilityController(P, mu_margin=0.0).planning_mu(estimate), estimate.mu)
     with pytest.raises(ValueError, match="mu_margin must be .*, got -1.0"):
         StabilityController(P, mu_margin=-1.0)
