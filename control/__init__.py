@@ -11,14 +11,16 @@ import numpy as np
 
 from control.allocation import Allocation, allocate_for_estimate, allocate_torques
 from control.dyc import LQRYawController, LQRWeights, SlidingModeYawController
-from control.reference import rear_steer_feedforward, reference_yaw_rate, sideslip_bound, yaw_time_constant
+from control.reference import (rear_steer_feedforward, reference_yaw_rate, sideslip_bound, weaker_axle_friction,
+                               yaw_time_constant)
 from estimation.types import check_step, check_vehicle_params, import_factory, is_number
 
 CONTROLLERS = ("none", "dyc-lqr", "dyc-smc", "dyc-lqr-4ws", "dyc-smc-4ws")
 ACTIVE_SPEED = 2.0  #: below this speed [m/s] the law's moment is zero (the allocator still shares the drive)
 YAW_DEADBAND = 0.02  #: |r - r_ref| [rad/s] tolerated without intervention (ESC practice)
 MIN_PLANNING_MU = 0.1  #: the margin's floor: it lowers no planning friction below this (nor lifts one)
-#: default StabilityController.mu_margin. Measured on the headline matrix (DYC-LQR + joint,
+#: default StabilityController.mu_margin. Measured on the headline matrix before the yaw
+#: reference took the weaker axle's friction (DYC-LQR + joint,
 #: 2 seeds, peak sideslip [deg] on paper_step / swd_wet / mu_jump / ISO 3888-2 at 70 km/h):
 #: margin 0: 0.6 / 2.1 / 1.8 / 3.7; 1: 0.5 / 1.8 / 1.5 / 3.4; 2: 0.5 / 1.7 / 1.4 / 3.1 (ISO
 #: 3888-2 cones 4 / 5 / 6; README, "Control"). On the earlier design and plant margin 2 had
@@ -43,7 +45,9 @@ class Command(NamedTuple):
 class StabilityController:
     """Reference + yaw-moment law + allocation (+ optional eq. 20 rear steer).
 
-    The yaw-rate reference is the friction-bounded 2-DOF steady state passed through a
+    The yaw-rate reference is the 2-DOF steady state, bounded by the weaker axle's friction
+    (:func:`control.reference.weaker_axle_friction`: with the four wheels' mean, a car whose front
+    axle had reached an icy patch was turned further in by its rear wheels), passed through a
     first-order lag of the car's natural yaw response (:func:`control.reference.yaw_time_constant`:
     0.036 s at 20 km/h, 0.14 s at 80 km/h), so the controller corrects deviations from how a
     stable car responds rather than the response delay itself. (A fixed 0.15 s, right at
@@ -140,8 +144,10 @@ class StabilityController:
                 self._rear = np.zeros_like(target)
             step = getattr(self.params, "rear_steer_rate", np.inf) * self.dt
             self._rear = rear = self._rear + np.clip(target - self._rear, -step, step)
-        # the 2-DOF steady state of the car as steered: front minus rear road-wheel angle
-        steady = reference_yaw_rate(u, front_steer - rear, mu, self.params, self.reference_understeer)
+        # the 2-DOF steady state of the car as steered (front minus rear road-wheel angle), bounded
+        # by the weaker axle's friction: the planning friction of the yaw reference
+        steady = reference_yaw_rate(u, front_steer - rear, weaker_axle_friction(mu)[:, None], self.params,
+                                    self.reference_understeer)
         # first-order lag: the reference a well-behaved car can follow, not a step it cannot
         if self._reference is None:
             self._reference = steady.copy()

@@ -64,6 +64,18 @@ def yaw_time_constant(u: np.ndarray, params) -> np.ndarray:
     return 1.0 / np.maximum(-slower, 1.0 / MAX_YAW_TIME_CONSTANT)
 
 
+def weaker_axle_friction(mu: np.ndarray) -> np.ndarray:
+    """Friction (B,) that bounds the car's steady lateral acceleration, from per-wheel mu (B, 4)
+    (FL, FR, RL, RR): the lower of the two axles' means. In a steady turn each axle carries its
+    share of m a_y (front b / L, rear a / L, in proportion to its static load), so the axle that
+    saturates first sets the limit (Milliken & Milliken, Race Car Vehicle Dynamics, 1995, ch. 5);
+    the mean of the four wheels overstates it where the axles stand on different surfaces (a
+    car's front axle on a patch its rear axle has not reached), and equals it on a uniform road
+    or one split left / right."""
+    mu = np.asarray(mu, dtype=float)
+    return np.minimum(0.5 * (mu[..., 0] + mu[..., 1]), 0.5 * (mu[..., 2] + mu[..., 3]))
+
+
 def sideslip_bound(mu: np.ndarray) -> np.ndarray:
     """Largest acceptable |beta| (B,) [rad]: atan(0.02 mu g), 11 deg at mu 1, 3.4 deg at 0.3 (snow),
     1.1 deg at 0.1 (ice) (the mu-dependent bound of ESC practice; van Zanten, SAE 2000-01-1633)."""
