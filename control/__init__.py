@@ -84,8 +84,9 @@ class StabilityController:
     Cautious friction: the controller plans (reference, sideslip bound, gain schedule,
     allocation) with the lower confidence bound ``mu - mu_margin * mu_std`` of the estimate
     (the margin stops at MIN_PLANNING_MU; an estimate already below it, ice, is kept), so a
-    friction the estimator has not yet confirmed is not taken for granted. An estimate without ``mu_std``, or with zero (the oracle, fixed-mu
-    filters), is used as it is. ``mu_margin=0`` plans with the point estimate."""
+    friction the estimator has not yet confirmed is not taken for granted. An estimate without
+    ``mu_std``, or with zero (the oracle, fixed-mu filters), is used as it is. ``mu_margin=0``
+    plans with the point estimate."""
 
     params: object
     law: str = "lqr"
