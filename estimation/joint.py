@@ -144,6 +144,8 @@ class NoiseParams:
     #: with the smaller value the filter over-trusts a model whose error is correlated in time
     #: and reads mu high (README, "Friction model error").
     mu_accel_std: float = 0.6
+    #: each wheel's mu prior sigma (at reset and when a slide restarts the friction filter) and the
+    #: cap of its random walk's growth where mu is unobservable
     mu_max_std: float = 0.3
 
     def __post_init__(self) -> None:
@@ -733,7 +735,7 @@ class StateEstimator:
         x0[:, I_AX], x0[:, I_AY], x0[:, I_R] = values[:, 0], values[:, 1], values[:, 2]
         P0 = np.broadcast_to(np.diag([0.5, 0.3, 1.0, 1.0, 0.02, 500.0]) ** 2, (B, N_STATE, N_STATE))
         mu0 = np.full((B, 4), self.nominal_mu)
-        Pmu0 = np.broadcast_to(_correlated(0.3**2), (B, 4, 4))
+        Pmu0 = np.broadcast_to(_correlated(self._mu_var[2]), (B, 4, 4))  # the prior: mu_max_std per wheel
         zero_point0 = np.zeros((B, 5))
         zero_point0[:, ZP_STEER], zero_point0[:, ZP_YAW] = values[:, 7], values[:, 2]
         if mask is None or not hasattr(self, "x"):
