@@ -19,7 +19,8 @@ run draws a constant turn-on bias per channel from N(0, bias_std). Default magni
 These are the DESIGN's reference magnitudes; :meth:`SensorParams.scaled` scales all of them.
 
 Faults (:class:`Fault`) act on one channel over a time window: ``spike`` outliers (Poisson
-arrivals at ``rate`` [1/s], +/-``magnitude``), ``dropout`` (no data: ``valid`` is False and
+arrivals at ``rate`` [1/s], +/-``magnitude``; each spike fault draws its own arrivals and
+signs, so spikes on two channels are independent), ``dropout`` (no data: ``valid`` is False and
 the last valid value is held so no NaN ever leaves the sensor), ``stuck`` (the value freezes
 at the window start; the sensor still reports valid), ``bias_step`` (``magnitude`` added).
 """
@@ -161,7 +162,10 @@ class SensorModel:
         n = len(CHANNELS)
         self.bias = np.zeros((batch_size, n))
         self._normal = np.zeros((batch_size, NOISE_BLOCK, n))
-        self._uniform = np.zeros((batch_size, NOISE_BLOCK, 2))
+        # per sample, an (arrival, sign) draw for each spike fault (one pair with none, so that
+        # the stream of a run with at most one spike fault does not depend on its faults)
+        self._spike_column = {n: k for k, n in enumerate(n for n, f in enumerate(self.faults) if f.kind == "spike")}
+        self._uniform = np.zeros((batch_size, NOISE_BLOCK, max(1, len(self._spike_column)), 2))
         self._cursor = np.zeros(batch_size, dtype=np.int64)
         self._held = np.zeros((batch_size, n))
         self._frozen = np.zeros((len(self.faults), batch_size))
@@ -187,7 +191,7 @@ class SensorModel:
     def _refill(self, b: int) -> None:
         rng = self.rngs[b]
         self._normal[b] = rng.standard_normal((NOISE_BLOCK, len(CHANNELS)))
-        self._uniform[b] = rng.random((NOISE_BLOCK, 2))
+        self._uniform[b] = rng.random(self._uniform.shape[1:])
         self._cursor[b] = 0
 
     def measure(self, truth: np.ndarray, t: float | np.ndarray, members: np.ndarray | None = None) -> SensorReading:
@@ -216,7 +220,8 @@ class SensorModel:
 
     def _inject_faults(self, rows: np.ndarray, t: np.ndarray, values: np.ndarray, valid: np.ndarray,
                        uniform: np.ndarray) -> None:
-        """Apply the faults active at ``t`` to the readings ``values``/``valid`` of ``rows`` in place."""
+        """Apply the faults active at ``t`` to the readings ``values``/``valid`` of ``rows`` in place;
+        ``uniform`` (M, spike faults, 2): this sample's (arrival, sign) draws."""
         held = self._held[rows]
         for n, fault in enumerate(self.faults):
             c = fault.index
@@ -226,8 +231,9 @@ class SensorModel:
                 self._frozen[n, rows], self._is_frozen[n, rows] = frozen, active
                 values[:, c] = np.where(active, frozen, values[:, c])
             elif fault.kind == "spike":
-                hit = active & (uniform[:, 0] < fault.rate * self.params.sample_time)
-                values[:, c] += hit * fault.magnitude * np.where(uniform[:, 1] < 0.5, -1.0, 1.0)
+                arrival, sign = uniform[:, self._spike_column[n]].T
+                hit = active & (arrival < fault.rate * self.params.sample_time)
+                values[:, c] += hit * fault.magnitude * np.where(sign < 0.5, -1.0, 1.0)
             elif fault.kind == "bias_step":
                 values[:, c] += active * fault.magnitude
             elif fault.kind == "dropout":

@@ -86,6 +86,17 @@ def test_faults_appear_exactly_where_configured():
     np.testing.assert_allclose(ax_error[(t < 2.0) | (t >= 2.5)], 0.0)
 
 
+def test_spike_faults_on_two_channels_arrive_independently():
+    """Each spike fault draws its own Poisson arrivals and signs: on two channels at 20/s each
+    (p = 0.04 per sample) about p^2 of the samples carry both, not every spike of either."""
+    faults = (Fault("ax", "spike", magnitude=5.0, rate=20.0), Fault("yaw_rate", "spike", magnitude=1.0, rate=20.0))
+    values, _, truth, _ = run(faults, params=SensorParams().scaled(0.0), n=5000)
+    ax = np.abs(values[..., CHANNELS.index("ax")] - truth[:, CHANNELS.index("ax")]) > 1.0
+    gyro = np.abs(values[..., CHANNELS.index("yaw_rate")] - truth[:, CHANNELS.index("yaw_rate")]) > 0.5
+    assert ax.sum() == pytest.approx(0.04 * ax.size, rel=0.2) and gyro.sum() == pytest.approx(0.04 * gyro.size, rel=0.2)
+    assert (ax & gyro).sum() < 4 * 0.04**2 * ax.size  # ~16 expected in 10,000 samples; 400 if they were shared
+
+
 def test_stuck_sensor_freezes_while_the_truth_moves():
     model = SensorModel(SensorParams(), (Fault("omega_fl", "stuck", start=0.1, end=0.2),), 1,
                         np.random.default_rng(0))
