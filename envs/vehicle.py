@@ -69,6 +69,8 @@ GRAVITY = 9.80665  #: standard gravity [m/s^2]
 #: VehicleParams fields that may be 0 (switching off a resistance or the low-speed damping);
 #: every other number must be > 0
 MAY_BE_ZERO = ("rolling_resistance", "drag_area", "air_density", "low_speed_damping")
+#: the plant's first-order lags: motors, steering servos, load transfer
+LAG_FIELDS = ("motor_time_constant", "steer_time_constant", "load_transfer_time_constant")
 
 
 @dataclass(frozen=True)
@@ -185,6 +187,12 @@ class VehicleParams:
     def rear_extent(self) -> float:
         """Body length behind the CG [m] (to the rear bumper)."""
         return self.cg_to_rear + self.rear_overhang
+
+    @cached_property
+    def fastest_lag(self) -> tuple[str, float]:
+        """(field name, time constant [s]) of the shortest of the plant's first-order lags."""
+        name = min(LAG_FIELDS, key=lambda f: getattr(self, f))
+        return name, float(getattr(self, name))
 
     @cached_property
     def contact_point_reach(self) -> float:
@@ -610,7 +618,8 @@ PARALLEL_MIN_BATCH = 64  #: batches at least this large run on all cores
 #: (22 ms at 45 m/s); against 2 ms (simulate, no control, sensors at the same step) peak
 #: sideslip stays within 0.2% on paper_sine and mu_jump at 10 and 20 ms, 1.3% / 3% on ISO
 #: 3888-2 (whose driver also steers at that step), and at 30 ms the runs diverge (1.6-90
-#: deg). Half the 20 ms leaves room for stiffer parameters (faster lags, lighter wheels).
+#: deg). Half the 20 ms leaves room for stiffer parameters (faster lags: :func:`check_lag_step`;
+#: lighter wheels).
 MAX_DT = 0.01
 
 
@@ -623,6 +632,18 @@ def check_plant_step(dt) -> float:
 
 #: largest |lambda dt| of a real, negative eigenvalue inside classical RK4's stability region
 RK4_REAL_LIMIT = 2.78
+
+
+def check_lag_step(params: VehicleParams, dt: float) -> None:
+    """ValueError naming ``dt`` and the lag if a first-order lag (:data:`LAG_FIELDS`; eigenvalue
+    -1 / tau) is too fast for RK4 at this step: past dt = RK4_REAL_LIMIT tau the lag's state
+    grows without bound (a 3 ms motor lag at dt = 10 ms reached 1e18 N m in 0.5 s before any
+    error). Near the limit RK4 is stable but the lag barely decays per step: keep dt <= tau
+    for its response (the shipped 10 ms lags at the 10 ms MAX_DT)."""
+    name, tau = params.fastest_lag
+    if dt > RK4_REAL_LIMIT * tau:
+        raise ValueError(f"dt = {dt!r} s is too long for VehicleParams.{name} = {tau!r} s: RK4 is unstable past "
+                         f"dt = {RK4_REAL_LIMIT} tau = {RK4_REAL_LIMIT * tau:.3g} s; use a shorter dt or a slower lag")
 
 
 def check_relaxation_step(state: np.ndarray, params: VehicleParams, dt: float) -> None:
@@ -702,7 +723,8 @@ def step(state: np.ndarray, controls: np.ndarray, params: VehicleParams, road, d
     may cross a friction boundary) and again at the returned state for the diagnostics (not
     when handed in as precomputed tables, which hold the start's friction). ``dt`` at most
     :data:`MAX_DT` (10 ms), and short enough for the tyres' relaxation at the car's speed
-    (:func:`check_relaxation_step`: 10 ms up to ~100 km/h, 2 ms up to ~500 km/h).
+    (:func:`check_relaxation_step`: 10 ms up to ~100 km/h, 2 ms up to ~500 km/h) and for its
+    first-order lags (:func:`check_lag_step`).
     Non-finite controls or road friction outside (0, 2] raise ValueError; a state that turns
     non-finite raises FloatingPointError (a run never silently produces NaN).
     """
@@ -716,6 +738,7 @@ def step(state: np.ndarray, controls: np.ndarray, params: VehicleParams, road, d
     if controls.shape != (batch, NU):
         raise ValueError(f"controls must have shape ({batch}, {NU}), got {controls.shape}")
     check_plant_step(dt)
+    check_lag_step(params, dt)
     check_relaxation_step(state, params, dt)
     if not (is_integer(n_steps) and n_steps >= 1):
         raise ValueError(f"n_steps must be a positive integer, got {n_steps!r}")

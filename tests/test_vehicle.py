@@ -9,8 +9,8 @@ from envs.road import RoadTables, split, uniform
 from envs.simulation import DT
 from envs.tyre import TyreParams, tyre_forces
 from envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, GRAVITY, NU, NX, S_AX, S_AY, S_DELTA_F,
-                          S_DELTA_R, S_OMEGA, S_PSI, S_R, S_U, S_V, S_Y, VehicleParams, derivatives, initial_state,
-                          step)
+                          S_DELTA_R, S_OMEGA, S_PSI, S_R, S_TORQUE, S_U, S_V, S_Y, VehicleParams, derivatives,
+                          initial_state, step)
 
 P = VehicleParams()
 
@@ -407,6 +407,24 @@ def test_step_refuses_a_step_too_long_for_the_tyre_relaxation_at_speed():
         bad[0, S_U] = np.inf
         with pytest.raises(ValueError, match=r"state\[0\] has a non-finite value"):
             step(bad, np.zeros((n, NU)), P, uniform(1.0), 0.002)
+
+
+def test_step_refuses_a_step_too_long_for_a_first_order_lag():
+    """A motor lag of 3 ms at dt = 10 ms (eigenvalue -1/tau outside RK4's real stability limit,
+    2.78) made the wheel torque grow to 1e18 N m within 0.5 s before any error; refused, naming
+    the lag. At 2 ms the same car steps, and its motor torque approaches the command monotonically."""
+    fast = P.replace(motor_time_constant=0.003)
+    controls = np.zeros((1, NU))
+    controls[0, C_TORQUE:C_TORQUE + 4] = 50.0
+    with pytest.raises(ValueError, match=r"dt = 0.01 s is too long for VehicleParams.motor_time_constant = 0.003"):
+        step(initial_state(fast, 20.0), controls, fast, uniform(1.0), 0.01)
+    with pytest.raises(ValueError, match="load_transfer_time_constant"):
+        step(initial_state(P, 20.0), controls, P.replace(load_transfer_time_constant=0.001), uniform(1.0), 0.005)
+    state, torques = initial_state(fast, 20.0), []
+    for _ in range(10):
+        state = step(state, controls, fast, uniform(1.0), 0.002).state
+        torques.append(state[0, S_TORQUE])
+    assert np.all(np.diff(torques) > 0.0) and 0.0 < torques[-1] <= 50.0
 
 
 def test_an_inner_wheel_lifts_at_1_n_and_its_axle_keeps_its_load():
