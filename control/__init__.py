@@ -81,10 +81,11 @@ class StabilityController:
     and drive force the wheels delivered and whether the demand was feasible (None before the
     first call).
 
-    Cautious friction: the controller plans (reference, sideslip bound, gain schedule,
-    allocation) with the lower confidence bound ``mu - mu_margin * mu_std`` of the estimate
-    (the margin stops at MIN_PLANNING_MU; an estimate already below it, ice, is kept), so a
-    friction the estimator has not yet confirmed is not taken for granted. An estimate without
+    Cautious friction: the controller plans (reference, sideslip bound, the sliding mode's axle
+    saturation, allocation; the LQR's gains depend on speed only) with the lower confidence
+    bound ``mu - mu_margin * mu_std`` of the estimate (the margin stops at MIN_PLANNING_MU; an
+    estimate already below it, ice, is kept), so a friction the estimator has not yet
+    confirmed is not taken for granted. An estimate without
     ``mu_std``, or with zero (the oracle, fixed-mu filters), is used as it is. ``mu_margin=0``
     plans with the point estimate."""
 
@@ -94,7 +95,7 @@ class StabilityController:
     dt: float = 0.002
     friction_ellipse: bool = False  #: see :func:`control.allocation.allocate_for_estimate`
     mu_margin: float = MU_MARGIN  #: standard deviations below mu_hat the controller plans with
-    #: understeer gradient of the yaw reference [rad s^2/m]; None: the car's own (0: neutral)
+    #: understeer gradient of the yaw reference [rad s^2/m]; None: the car's own, floored at 0 (neutral)
     reference_understeer: float | None = None
 
     def __post_init__(self) -> None:

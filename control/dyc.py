@@ -105,7 +105,8 @@ class LQRYawController:
 
     def __call__(self, u, beta, r, r_ref, delta_f, delta_r, dt: float, mu: np.ndarray | None = None) -> np.ndarray:
         """Mz (B,) [N m]; the steer angles enter through the reference only (pure state feedback),
-        the moment the wheels deliver now through :meth:`note_delivered` (zero before)."""
+        the moment the wheels deliver now through :meth:`note_delivered` (zero before). ``mu``
+        is unused (the laws' common signature): the gains are scheduled on speed only."""
         k = self.gain(u)
         moment = -(k[:, 0] * beta + k[:, 1] * (r - r_ref))
         return moment if self._delivered is None else moment - k[:, 2] * self._delivered

@@ -33,8 +33,12 @@ def understeer_gradient(params) -> float:
 def reference_yaw_rate(u: np.ndarray, delta_f: np.ndarray, mu: np.ndarray, params,
                        understeer: float | None = None) -> np.ndarray:
     """Desired yaw rate (B,) [rad/s]: the 2-DOF steady state u delta / (L + K_us u^2), bounded by
-    the friction limit 0.85 mu g / u with mu the mean of the estimated per-wheel mu (B, 4)."""
-    k = understeer_gradient(params) if understeer is None else understeer
+    the friction limit 0.85 mu g / u with mu the mean of the estimated per-wheel mu (B, 4).
+
+    ``understeer`` [rad s^2/m]: K_us; None takes the car's own, floored at 0 (neutral): an
+    oversteering car's steady state has no bound at its critical speed sqrt(L / -K_us) and
+    turns against the steering above it, which no reference should ask for."""
+    k = max(understeer_gradient(params), 0.0) if understeer is None else understeer
     u = np.asarray(u, dtype=float)
     steady = u * delta_f / (params.wheelbase + k * u**2)
     limit = FRICTION_USE * np.mean(mu, axis=-1) * GRAVITY / np.maximum(np.abs(u), MIN_SPEED)

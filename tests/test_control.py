@@ -30,6 +30,20 @@ def test_reference_is_kinematic_at_low_speed_and_friction_bounded():
     assert sideslip_bound(np.full((1, 4), 1.0))[0] > sideslip_bound(np.full((1, 4), 0.2))[0]
 
 
+def test_an_oversteering_car_gets_a_neutral_reference_past_its_critical_speed():
+    """CG moved back (a > b): K_us < 0 and the car's own steady state u delta / (L + K u^2) turns
+    against the steering above sqrt(L / -K) (~59 m/s here; 0.004 rad of steering); the reference floors K at 0 (neutral)
+    and keeps the steering's sign at every speed. A gradient asked for explicitly is used as is."""
+    rear_heavy = P.replace(cg_to_front=1.40, cg_to_rear=0.94)
+    k = understeer_gradient(rear_heavy)
+    critical = math.sqrt(rear_heavy.wheelbase / -k)
+    u = np.array([0.5, 0.99, 1.01, 1.5]) * critical
+    r = reference_yaw_rate(u, np.full(4, 0.004), np.full((4, 4), 2.0), rear_heavy)
+    np.testing.assert_allclose(r, u * 0.004 / rear_heavy.wheelbase)  # below the friction bound at mu 2
+    explicit = reference_yaw_rate(u[:1], np.full(1, 0.005), np.full((1, 4), 2.0), rear_heavy, understeer=0.002)
+    assert explicit[0] == pytest.approx(u[0] * 0.005 / (rear_heavy.wheelbase + 0.002 * u[0] ** 2))
+
+
 def test_eq20_gain_changes_phase_at_the_closed_form_speed():
     c_f, c_r = P.axle_cornering_stiffness
     u0 = math.sqrt(P.cg_to_rear * c_r * P.wheelbase / (P.mass * P.cg_to_front))
