@@ -77,6 +77,7 @@ from estimation.types import CHANNELS, Estimate, check_step, is_number, member_r
 N_STATE = 6
 I_U, I_V, I_AX, I_AY, I_R, I_GAMMA = range(N_STATE)
 KINDS = ("ekf", "ckf", "fkf", "alo-fkf", "joint")
+ROBUST_KINDS = KINDS[3:]  #: the kinds whose updates are Huber-weighted (huber_c)
 MU_BOUNDS = (0.1, 1.2)  #: estimated mu stays inside these bounds
 EXCITATION_LAMBDA = 1.0  #: a wheel's mu is updated only while its lateral Dugoff lambda is below this
 #: below this estimated forward speed [m/s] the friction filter does not run (mu and its
@@ -153,16 +154,18 @@ class NoiseParams:
         if process.ndim not in (1, 2) or process.shape[-1] != N_STATE:
             raise ValueError(f"process_std needs {N_STATE} values (u, v, ax, ay, r, Gamma), or (B, {N_STATE}), "
                              f"got shape {process.shape}: {self.process_std!r}")
-        for name in ("process_std", "mu_walk_std"):
-            value = np.asarray(getattr(self, name), dtype=float)
-            if not np.all(np.isfinite(value) & (value >= 0.0)):
-                raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)!r}")
-        for name in ("accel_std", "gyro_std", "wheel_speed_std", "mu_accel_std", "mu_max_std"):
-            value = np.asarray(getattr(self, name), dtype=float)
-            per_member = name in ("accel_std", "gyro_std", "wheel_speed_std")  # (B,) allowed
-            if value.ndim > int(per_member) or not np.all(np.isfinite(value) & (value > 0.0)):
-                raise ValueError(f"{name} must be finite and > 0 ({'scalar or (B,)' if per_member else 'a scalar'}), "
-                                 f"got {getattr(self, name)!r}")
+        with np.errstate(over="ignore"):  # (a standard deviation whose variance overflows is refused)
+            for name in ("process_std", "mu_walk_std"):
+                value = np.asarray(getattr(self, name), dtype=float)
+                if (name == "mu_walk_std" and value.ndim) or not np.all(np.isfinite(value**2) & (value >= 0.0)):
+                    raise ValueError(f"{name} must be finite and >= 0{' (a scalar)' if name == 'mu_walk_std' else ''}"
+                                     f", got {getattr(self, name)!r}")
+            for name in ("accel_std", "gyro_std", "wheel_speed_std", "mu_accel_std", "mu_max_std"):
+                value = np.asarray(getattr(self, name), dtype=float)
+                per_member = name in ("accel_std", "gyro_std", "wheel_speed_std")  # (B,) allowed
+                if value.ndim > int(per_member) or not np.all(np.isfinite(value**2) & (value > 0.0)):
+                    raise ValueError(f"{name} must be finite and > 0 ({'scalar or (B,)' if per_member else 'a scalar'})"
+                                     f", got {getattr(self, name)!r}")
         sizes = {len(process) if process.ndim == 2 else 1} | {np.asarray(getattr(self, name)).size for name in
                                                               ("accel_std", "gyro_std", "wheel_speed_std")}
         if len(sizes - {1}) > 1:
@@ -209,7 +212,11 @@ STATE_FIELDS = ("x", "P", "mu", "P_mu", "beta", "beta_mu", "omega_prev", "omega_
 #: batches at least this large step on all cores (one vehicle's step is ~15-30 us, far above the
 #: ~5 us thread start-up: measured faster from B = 2 on the 2-core machine of BENCHMARKS.md)
 PARALLEL_MIN_BATCH = 2
-OMEGA_DOT_TIME_CONSTANT = 0.02  #: low-pass of the differentiated wheel speed [s]
+#: low-pass of the differentiated wheel speed [s]. The estimators' low-passes (this one, ZERO_POINT_*,
+#: SLIDE_TAU) take Euler steps with their gain dt / tau capped at 1, so a step longer than a time
+#: constant (a 20 Hz log) follows the input instead of diverging (at dt = 50 ms the wheel
+#: acceleration grew to 4e21 rad/s^2 and the friction error to 0.65 before the cap)
+OMEGA_DOT_TIME_CONSTANT = 0.02
 #: plausibility check of the inertial channels (ax, ay, yaw rate): a reading identical to the
 #: previous one this many times in a row is treated as stuck (invalid) until it changes. A MEMS
 #: sensor's white noise (0.02 m/s^2, 0.004 rad/s at 500 Hz) never repeats a value exactly; a
@@ -469,15 +476,15 @@ def _learn_zero_point(zero_point, reading, valid, speed, dt, time_constant) -> N
     if moved:
         zero_point[ZP_STEER] = steer
     if valid[2]:
-        zero_point[ZP_YAW] += (yaw_rate - zero_point[ZP_YAW]) * (dt / ZERO_POINT_YAW_LOWPASS)
+        zero_point[ZP_YAW] += (yaw_rate - zero_point[ZP_YAW]) * min(dt / ZERO_POINT_YAW_LOWPASS, 1.0)
     steady = not moved and valid[2] and abs(yaw_rate - zero_point[ZP_YAW]) < ZERO_POINT_YAW_TOL
     zero_point[ZP_STEADY] = zero_point[ZP_STEADY] + dt if steady else 0.0
     if zero_point[ZP_STEADY] > ZERO_POINT_SETTLE and speed > ZERO_POINT_MIN_SPEED and valid[1]:
         residual = reading[1] - speed * yaw_rate
-        zero_point[ZP_OFFSET] += (residual - zero_point[ZP_OFFSET]) * (dt / time_constant)
+        zero_point[ZP_OFFSET] += (residual - zero_point[ZP_OFFSET]) * min(dt / time_constant, 1.0)
     if speed > SLIDE_MIN_SPEED and valid[1] and valid[2]:
         rate = (reading[1] - zero_point[ZP_OFFSET]) / speed - yaw_rate
-        zero_point[ZP_SLIDE] += (rate - zero_point[ZP_SLIDE]) * (dt / SLIDE_TAU)
+        zero_point[ZP_SLIDE] += (rate - zero_point[ZP_SLIDE]) * min(dt / SLIDE_TAU, 1.0)
     else:  # (no stale value: the rate restarts from zero once it can be measured again)
         zero_point[ZP_SLIDE] = 0.0
 
@@ -509,7 +516,8 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rat
     # inputs; wheel angular acceleration for eq. 7: differentiated wheel speed, low-passed
     omega, torque, od = values[3:7], values[9:13], scratch((4,))
     for w in range(4):
-        od[w] = omega_dot[w] + ((omega[w] - omega_prev[w]) / dt - omega_dot[w]) * (dt / OMEGA_DOT_TIME_CONSTANT)
+        rate = (omega[w] - omega_prev[w]) / dt
+        od[w] = omega_dot[w] + (rate - omega_dot[w]) * min(dt / OMEGA_DOT_TIME_CONSTANT, 1.0)
     steer = scratch((3, 4))
     fill_steer_trig((values[7], values[7], values[8], values[8]), steer)
     accel_var, gyro_var, wheel_var = sensor_var[0], sensor_var[1], sensor_var[2]
@@ -616,8 +624,7 @@ def _step_row(j, rows, kind, pk, dt, huber_c, zero_point_tau, stuck_samples, sli
                                   sensor_var[q], mu_var, X[i], P[i], MU[i], P_MU[i], BETA[i], BETA_MU[i],
                                   OMEGA_PREV[i], OMEGA_DOT[i], INERTIAL_PREV[i], INERTIAL_REPEATS[i], ZERO_POINT[i],
                                   values[i], valid[i], out[j])
-    if status[j] == OK:
-        LAST_NLL[i] = nll
+    LAST_NLL[i] = nll if status[j] == OK else math.nan  # (NaN: this row's step failed)
 
 
 @numba.njit(**JIT)
@@ -677,6 +684,9 @@ class StateEstimator:
         check_step(self.dt)
         if not (is_number(self.huber_c) and self.huber_c > 0):
             raise ValueError(f"huber_c must be > 0, got {self.huber_c!r}")
+        if self.huber_c != HUBER_C and self.kind not in ROBUST_KINDS:
+            raise ValueError(f"huber_c applies to the robust estimators {list(ROBUST_KINDS)}; {self.kind!r} updates "
+                             f"without Huber weighting, got huber_c={self.huber_c!r}")
         if not (is_number(self.stuck_samples) and self.stuck_samples >= 1):
             raise ValueError(f"stuck_samples must be >= 1 (math.inf: off), got {self.stuck_samples!r}")
         if not (is_number(self.slide_rate) and self.slide_rate > 0):
@@ -765,8 +775,9 @@ class StateEstimator:
     def step(self, reading, truth: Estimate | None = None, members: np.ndarray | None = None) -> Estimate:
         """One filter step on ``reading`` (values and valid (B, 13)); with ``members`` (M,) indices
         only those rows step (the others keep their state) and the estimate has M rows. A
-        ValueError (a bad reading, a failed filter) names the first failing vehicle, whose state
-        stays as it was; the other rows have stepped (snapshot STATE_FIELDS to retry a batch)."""
+        ValueError (a bad reading, a failed filter) names the first failing vehicle; every failing
+        row's state stays as it was but for ``last_nll``, which turns NaN; the other rows have
+        stepped (snapshot STATE_FIELDS to retry a batch)."""
         if not hasattr(self, "x"):
             raise RuntimeError("call reset(first_reading, initial_speed) before the first step")
         B = self.x.shape[0]

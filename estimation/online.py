@@ -45,8 +45,8 @@ class WindowReplay:
     """Scores noise candidates on a window: replays readings ``values``/``valid`` (W, 13) from
     filter state ``snapshot`` (a single vehicle's state fields) with one batched filter whose
     members use ``template``'s base noise scaled by ``factors`` (N, 4); ``cost`` (N,) sums
-    each member's innovation NLL (inf where the replay failed). :meth:`advance` runs a
-    bounded number of steps, so the work can be spread over filter steps."""
+    each member's innovation NLL (inf for a member whose filter failed; the others replay on).
+    :meth:`advance` runs a bounded number of steps, so the work can be spread over filter steps."""
 
     def __init__(self, template: StateEstimator, base_noise, snapshot: dict, values: np.ndarray,
                  valid: np.ndarray, factors: np.ndarray):
@@ -68,14 +68,16 @@ class WindowReplay:
         while ran < steps and not self.done:
             reading = SimpleNamespace(values=np.repeat(self.values[self.k][None], n, 0),
                                       valid=np.repeat(self.valid[self.k][None], n, 0))
+            alive = np.flatnonzero(np.isfinite(self.cost))
             try:
-                self.filter.step(reading)
-            except (ValueError, FloatingPointError, np.linalg.LinAlgError):
-                self.cost[:], self.k = np.inf, len(self.values)
-                return ran + 1
-            nll = self.filter.last_nll
-            self.cost += np.where(np.isfinite(nll), nll, np.inf)
-            self.k += 1
+                self.filter.step(reading, members=alive)
+            except ValueError:  # a member failed: its last_nll is NaN, its cost inf; the others stepped
+                pass
+            except (FloatingPointError, np.linalg.LinAlgError):
+                self.cost[:] = np.inf
+            nll = self.filter.last_nll[alive]
+            self.cost[alive] += np.where(np.isfinite(nll), nll, np.inf)
+            self.k = self.k + 1 if np.isfinite(self.cost).any() else len(self.values)
             ran += 1
         return ran
 

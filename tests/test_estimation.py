@@ -900,12 +900,41 @@ def test_estimator_input_errors_name_the_bad_value():
         NoiseParams(mu_accel_std=np.array([0.3, 0.6]))
     with pytest.raises(ValueError, match="number of members"):
         NoiseParams(accel_std=np.array([0.1, 0.2]), gyro_std=np.array([0.01, 0.02, 0.03]))
+    with pytest.raises(ValueError, match=r"mu_walk_std must be .*\(a scalar\), got \(0.001, 0.001\)"):
+        NoiseParams(mu_walk_std=(1e-3, 1e-3))
+    with pytest.raises(ValueError, match="accel_std must be .*, got 1e\\+200"):  # its variance overflows
+        NoiseParams(accel_std=1e200)
+    for kind in ("ekf", "ckf", "fkf"):  # plain updates: a Huber threshold would be ignored
+        with pytest.raises(ValueError, match=f"huber_c applies to the robust estimators.*'{kind}'"):
+            make_estimator(kind, params, huber_c=0.5)
+    make_estimator("alo-fkf", params, huber_c=0.5)
     # per-member sensor noise with a shared process noise reaches every member's row
     two = make_estimator("ckf", params, noise=NoiseParams(accel_std=np.array([0.1, 10.0])))
     np.testing.assert_allclose(two._sensor_var[:, 0], [0.01, 100.0], rtol=1e-12)
     assert two._process_var.shape == (2, 6)
     with pytest.raises(ValueError, match="dt = 0.01"):
         simulate("paper_step", estimator=make_estimator("joint", params, dt=0.01))
+
+
+def test_the_low_passes_stay_stable_on_a_log_sampled_slower_than_their_time_constants():
+    """The wheel-acceleration low-pass (20 ms) and the zero-point ones take Euler steps with the
+    gain dt / tau capped at 1: on paper_step's readings sampled at 50 ms the wheel acceleration
+    stays physical and the friction is still read (before the cap it grew to 4e21 rad/s^2 and
+    the mean friction error after the step reached 0.65)."""
+    from envs.sensors import SensorReading
+
+    run = simulate("paper_step", estimator="oracle", seed=1)
+    every = 25  # 50 ms
+    est = make_estimator("joint", VehicleParams(), dt=0.05)
+    first = SensorReading(run.sensors[:1], run.sensor_valid[:1], run.t[:1])
+    est.reset(first, np.array([run.scenario.speed]))
+    errors = []
+    for k in range(0, len(run.t), every):
+        out = est.step(SensorReading(run.sensors[k][None], run.sensor_valid[k][None], run.t[k:k + 1]))
+        assert np.all(np.abs(est.omega_dot) < 50.0)
+        if run.t[k] >= 6.0:
+            errors.append(np.abs(out.mu[0] - run.truth.mu[k]).mean())
+    assert np.mean(errors) < 0.2
 
 
 def test_a_filter_at_another_step_keeps_its_noise_per_unit_time():

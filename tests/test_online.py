@@ -103,6 +103,25 @@ def test_the_likelihood_criterion_is_not_invariant_to_scaling_q_and_r_together()
     assert np.min(np.abs(np.diff(np.sort(replay.cost)))) > 300
 
 
+def test_a_candidate_whose_filter_fails_costs_inf_and_the_others_replay_on():
+    """Process noise x1e60 overflows one member's covariance: that member's cost is inf, and the
+    others' costs equal their replay without it (before, one failure made every cost inf)."""
+    import warnings
+
+    est = make_estimator("alo-fkf", VehicleParams())
+    est.reset(SensorReading(RUN.sensors[:1], RUN.sensor_valid[:1], RUN.t[:1]), np.array([RUN.scenario.speed]))
+    snapshot = {name: np.array(getattr(est, name)) for name in STATE_FIELDS}
+    window = RUN.sensors[1:201], RUN.sensor_valid[1:201]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # the overflow itself
+        mixed = WindowReplay(est, est.noise, snapshot, *window, np.array([[0.0] * 4, [60.0, 0, 0, 0], [0.5] * 4]))
+        mixed.advance(10_000)
+    alone = WindowReplay(est, est.noise, snapshot, *window, np.array([[0.0] * 4, [0.5] * 4]))
+    alone.advance(10_000)
+    assert mixed.done and alone.done and mixed.cost[1] == np.inf
+    np.testing.assert_allclose(mixed.cost[[0, 2]], alone.cost, rtol=1e-12)
+
+
 def test_bad_arguments():
     with pytest.raises(ValueError, match="'joint'"):
         OnlineTuner("joint")
