@@ -430,8 +430,9 @@ class YawStabilityEnv(gym.Env):
     ==== ============================================ ============
 
     With the fixed-mu estimators (``ekf``, ``ckf``, ``fkf``, ``alo-fkf``) slots 5-8 hold their
-    nominal 0.8 and slot 10 is 0 on every road; the filters' sideslip sigma is 1-3 mrad, so
-    slot 9 stays below ~0.06.
+    nominal 0.8 and slot 10 is 0 on every road; their sideslip sigma is ~0.1-3 mrad after the
+    first second (slot 9 ~0.002-0.06) and up to 5 mrad at a reset (0.1; a review, 8 cars on
+    ``random`` with random actions, 2026-12-01).
 
     ``observation="sensors"``: the 13 raw channels (ax, ay, r, 4 wheel speeds, 2 steer angles,
     4 torques) scaled by (10, 10, 1, 100 x4, 0.3 x2, 600 x4), then r_ref / 1 (from the raw
@@ -631,14 +632,15 @@ class YawStabilityVectorEnv(VectorEnv):
         self._finished = np.zeros(self.num_envs, dtype=bool)  # ended, not yet reset (NEXT_STEP, DISABLED)
 
     def _seeds(self, seed) -> list:
-        if seed is None or is_integer(seed):
+        if seed is None or (is_integer(seed) and seed >= 0):
             return [None if seed is None else int(seed) + i for i in range(self.num_envs)]
         try:
             seeds = list(seed)
         except TypeError:
             seeds = None
-        if seeds is None or len(seeds) != self.num_envs or not all(s is None or is_integer(s) for s in seeds):
-            raise ValueError(f"seed must be None, an integer or {self.num_envs} integers (or None), got {seed!r}")
+        if seeds is None or len(seeds) != self.num_envs or not all(s is None or (is_integer(s) and s >= 0)
+                                                                   for s in seeds):
+            raise ValueError(f"seed must be None, an integer or {self.num_envs} integers >= 0 (or None), got {seed!r}")
         return [None if s is None else int(s) for s in seeds]  # numpy integers too (gymnasium wants int)
 
     @property

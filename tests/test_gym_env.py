@@ -317,6 +317,11 @@ def test_numpy_scalars_sequences_of_seeds_and_masked_resets_are_accepted():
     by_numpy, _ = vec.reset(seed=np.array([4, 5, 6]))
     np.testing.assert_array_equal(by_numpy, vec.reset(seed=[4, 5, 6])[0])
     vec.close()
+    # a negative seed is refused before any car is re-seeded (car 0 kept seed 5 of [5, -1] before)
+    for bad in ((5, 6, -1), -2):
+        with pytest.raises(ValueError, match=r"integers >= 0"):
+            env.reset(seed=bad)
+        assert env.np_random_seed == (4, 5, 6)
 
 
 def test_scenario_durations_fit_the_registered_time_limit():
