@@ -190,7 +190,7 @@ def sine_with_dwell_metrics(t, steering_wheel_angle, yaw_rate, lateral_accelerat
     ``lateral_acceleration`` [m/s^2] (n,) (ISO 8855 signs, left positive). ``A`` [rad]: the
     characterisation angle, needed for the responsiveness criterion (amplitudes >= 5A).
     ``direction``: initial steering direction (+1 left, -1 right); None infers it from the first
-    5 deg excursion. ``sideslip`` [rad] (n,), optional: sets ``spun_out`` (see :func:`spin_out`).
+    5 deg excursion, which a given direction must agree with (ValueError otherwise). ``sideslip`` [rad] (n,), optional: sets ``spun_out`` (see :func:`spin_out`).
     ``displacement_limit`` [m]: the responsiveness minimum, 1.83 m; a vehicle of GVWR above
     3,500 kg is held to :data:`HEAVY_DISPLACEMENT_LIMIT` (VehicleParams has a test mass, no
     GVWR, so fourwis's runs use the light-vehicle limit).
@@ -237,11 +237,14 @@ def sine_with_dwell_metrics(t, steering_wheel_angle, yaw_rate, lateral_accelerat
         raise ValueError(f"the steering starts at {t[end]:.3f} s: the series needs ~1 s of data before it")
     steer, yaw, ay, raw_steer = (x - x[window].mean() for x in (steer, yaw, ay, raw_steer))
 
-    excursion = np.abs(steer[end:]) >= BOS_ANGLE if direction is None else direction * steer[end:] >= BOS_ANGLE
+    excursion = np.abs(steer[end:]) >= BOS_ANGLE
     if not excursion.any():
-        raise ValueError("the steering never reaches 5 deg in the initial direction: not a sine-with-dwell run")
+        raise ValueError("the steering never reaches 5 deg: not a sine-with-dwell run")
     i_bos = end + int(np.argmax(excursion))
-    direction = int(np.sign(steer[i_bos])) if direction is None else direction
+    if direction is not None and np.sign(steer[i_bos]) != direction:
+        raise ValueError(f"the steering first moves {'left' if steer[i_bos] > 0 else 'right'}: direction={direction} "
+                         "contradicts it")
+    direction = int(np.sign(steer[i_bos]))
     bos = _crossing_time(t, -direction * steer, -BOS_ANGLE, i_bos)
 
     dwell_sign = -direction

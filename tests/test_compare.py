@@ -165,6 +165,13 @@ def test_spellings_of_one_scenario_and_a_key_given_twice_are_refused():
     with pytest.raises(ValueError, match=r"\['paper_step: duration=0.2', 'paper_step:duration=0.20'\] run the same"):
         run_matrix(["paper_step: duration=0.2", "paper_step:duration=0.20"], ["oracle"], ["none"], seeds=1, jobs=1,
                    progress=False)
+    for pair in (["paper_step:mu=0.3,duration=0.2", "paper_step:duration=0.2,mu=0.3"],  # (these two ran twice)
+                 ["paper_step:duration=1", "paper_step:duration=1.0"]):
+        with pytest.raises(ValueError, match="run the same"):
+            run_matrix(pair, ["oracle"], ["none"], seeds=1, jobs=1, progress=False)
+    for jobs in (2.5, "2", True):  # refused before any run, not as a TypeError at the first result
+        with pytest.raises(ValueError, match=f"jobs must be an integer .*, got {jobs!r}"):
+            run_matrix(["paper_step:duration=0.2"], ["oracle"], ["none"], seeds=1, jobs=jobs, progress=False)
     with pytest.raises(ValueError, match="mu is given twice"):
         parse_scenario("iso3888_2:mu=0.5,mu=0.3")
 

@@ -249,6 +249,8 @@ def test_bad_input():
         phaseless_butterworth(np.zeros(100), FS, 300.0)
     with pytest.raises(ValueError, match="direction"):
         sine_with_dwell_metrics(T, steer, zeros, zeros, direction=2)
+    with pytest.raises(ValueError, match="first moves left: direction=-1 contradicts it"):  # (it read the dwell)
+        sine_with_dwell_metrics(T, steer, zeros, zeros, direction=-1)
     with pytest.raises(ValueError, match="COS"):
         sine_with_dwell_metrics(T[:2000], steer[:2000], zeros[:2000], zeros[:2000])  # ends before COS + 1.75
     with pytest.raises(ValueError, match="1 s of data"):

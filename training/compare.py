@@ -33,7 +33,7 @@ from envs.vehicle import A_AY, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, 
 from estimation import check_estimator_name
 from estimation.types import import_factory, is_integer, is_number
 from training.io import atomic_write, atomic_write_text, check_writable, pyplot
-from training.pool import parallel_map
+from training.pool import check_jobs, parallel_map
 from training.tables import mean_over_seeds, require_distinct, write_runs_csv
 
 #: headline scenarios: the paper's five conditions, FMVSS 126 at 5.5A on a wet road, the mu jump,
@@ -60,6 +60,16 @@ class RunSpec:
 #: throughout, and the gyro stuck from 1.5 s to 2.5 s.
 SENSOR_FAULTS = (Fault("yaw_rate", "spike", magnitude=0.2, rate=5.0), Fault("yaw_rate", "stuck", start=1.5, end=2.5))
 FAULT_SUFFIX = "+faults"
+
+
+def _run_key(parsed: tuple[str, dict], faults: bool) -> tuple:
+    """What a parsed entry runs, whatever the spelling: overrides sorted by key, numbers as floats
+    (``duration=1`` and ``duration=1.0``, ``mu=0.3,duration=2`` and ``duration=2,mu=0.3`` run alike)."""
+    def value(v):
+        return tuple(map(value, v)) if isinstance(v, list) else float(v)
+
+    name, overrides = parsed
+    return name, tuple(sorted((k, value(v)) for k, v in overrides.items())), faults
 
 
 def parse_scenario(text: str) -> tuple[str, dict]:
@@ -255,6 +265,7 @@ def run_matrix(scenarios: Sequence[str] = HEADLINE, estimators: Sequence[str] = 
     """Run the matrix in parallel processes; returns per-run (spec, metrics) and seed-0 trajectories."""
     if not (is_integer(seeds) and seeds >= 1):
         raise ValueError(f"seeds must be an integer >= 1, got {seeds!r}")
+    check_jobs(jobs)
     parsed = [parse_scenario(s) for s in scenarios]
     for name in estimators:
         check_estimator_name(name)
@@ -262,7 +273,7 @@ def run_matrix(scenarios: Sequence[str] = HEADLINE, estimators: Sequence[str] = 
         if not isinstance(name, str):
             raise ValueError(f"a controller is given by name, got {name!r}: pass your own as 'module:factory' "
                              "(factory(params, dt) -> controller), or the object itself to envs.simulate")
-    runs = [repr((run, s.endswith(FAULT_SUFFIX))) for s, run in zip(scenarios, parsed)]  # what each one runs
+    runs = [_run_key(run, s.endswith(FAULT_SUFFIX)) for s, run in zip(scenarios, parsed)]  # what each one runs
     repeated = [s for s, run in zip(scenarios, runs) if runs.count(run) > 1]
     if repeated:
         raise ValueError(f"scenarios must be distinct: {repeated} run the same scenario")
@@ -383,7 +394,8 @@ def plot_report(table: dict, trajectories: dict, scenarios, estimators, controll
         ax.set_yticks(range(len(estimators)), estimators, fontsize=8)
         ax.set_title(f"controller {c}", fontsize=9)
     axes[-1, 0].set_xticks(range(len(scenarios)), scenarios, rotation=30, ha="right", fontsize=8)
-    fig.suptitle("pass rate over seeds: runs without spin-out (and passing FMVSS 126 on sine with dwell)", fontsize=9)
+    fig.suptitle("pass rate over seeds: no spin-out, course completed, FMVSS 126 passed on sine with dwell",
+                 fontsize=9)
     paths.append(atomic_write(out / "pass_rate.png", lambda p: fig.savefig(p, format="png", dpi=110)))
     plt.close(fig)
 
