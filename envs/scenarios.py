@@ -237,12 +237,13 @@ def slowly_increasing_steer(speed_kph=80.0, mu=1.0, duration=None, steering=None
 
 def iso3888_2(speed_kph=60.0, mu=1.0, duration=None, steering=None, rear_steer_feedforward=False,
               params=VehicleParams()) -> Scenario:
-    """ISO 3888-2 obstacle-avoidance lane change: enter at ``speed_kph``, coast from the course entry."""
+    """ISO 3888-2 obstacle-avoidance lane change: enter at ``speed_kph``, coast from the course entry
+    (the first gate's start; the driver's line begins 10 m before it, after a 30 m lead-in)."""
     _positive("speed_kph", speed_kph)
-    lead_in = 30.0
-    scenario = _path_scenario("iso3888_2", courses.iso3888_2(*_body(params)), speed_kph, mu, duration, lead_in,
-                              steering, params, rear_steer_feedforward=rear_steer_feedforward)
-    return replace(scenario, coast_after=lead_in / scenario.speed)
+    course = courses.iso3888_2(*_body(params))
+    scenario = _path_scenario("iso3888_2", course, speed_kph, mu, duration, 30.0, steering, params,
+                              rear_steer_feedforward=rear_steer_feedforward)
+    return replace(scenario, coast_after=(course.gates[0].x_start - scenario.start_x) / scenario.speed)
 
 
 def mu_jump(speed_kph=60.0, mu=0.9, duration=6.0, steering=None, mu_patch=0.3, lateral_g=0.4, patch_x=25.0,

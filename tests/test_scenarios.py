@@ -266,6 +266,20 @@ def test_driver_clears_iso3888_2_without_cone_hits(speed_kph, mu):
     assert metrics["path_max"] < 0.2  # tracks the line it was given, not just the lanes
 
 
+def test_iso3888_2_enters_the_course_at_the_test_speed_and_coasts_from_there():
+    """ISO 3888-2: the driver holds the test speed up to the first gate (X = 0) and lifts off
+    there (before, it lifted off 10 m early, where the driver's line begins, and entered at 59.56
+    km/h instead of 60)."""
+    from envs.vehicle import C_TORQUE, S_U, S_X
+
+    run = simulate(make_scenario("iso3888_2", speed_kph=60.0, duration=2.5))
+    x, torque = run.state[:, S_X], run.controls[:, C_TORQUE:C_TORQUE + 4]
+    entry = np.argmax(x >= 0.0)
+    assert run.state[entry, S_U] * 3.6 == pytest.approx(60.0, abs=0.02)
+    assert np.all(torque[(x > -10.0) & (x < -0.1)] > 0.0)  # holding speed against the resistances
+    assert np.all(torque[x > 0.1] == 0.0)
+
+
 def test_driver_settles_on_a_circle_at_the_neutral_steer_angle():
     from dataclasses import replace
 
