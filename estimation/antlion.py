@@ -18,6 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
+from estimation.types import is_integer
+
 
 @dataclass(frozen=True)
 class OptimizeResult:
@@ -68,12 +70,17 @@ def _walk(rng: np.random.Generator, steps: int, t: int, around: np.ndarray, half
     return np.clip((value - a) / span * (hi - lo) + lo, lower, upper)
 
 
+def check_budget(n_agents, iterations) -> None:
+    """ValueError unless ``n_agents`` >= 2 and ``iterations`` >= 1 are integers."""
+    if not (is_integer(n_agents) and is_integer(iterations) and n_agents >= 2 and iterations >= 1):
+        raise ValueError(f"need integers n_agents >= 2 and iterations >= 1, got {n_agents!r}, {iterations!r}")
+
+
 def antlion(fun: Callable[[np.ndarray], np.ndarray], bounds, n_agents: int = 20, iterations: int = 50,
             rng: np.random.Generator | int = 0, progress: bool = False) -> OptimizeResult:
     """Minimise ``fun`` (K, d) -> (K,) over the box ``bounds`` (d, 2); one ``fun`` call per iteration."""
     lower, upper = check_bounds(bounds)
-    if n_agents < 2 or iterations < 1:
-        raise ValueError(f"need n_agents >= 2 and iterations >= 1, got {n_agents!r}, {iterations!r}")
+    check_budget(n_agents, iterations)
     rng = np.random.default_rng(rng)
     d = len(lower)
     antlions = lower + rng.random((n_agents, d)) * (upper - lower)

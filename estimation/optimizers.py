@@ -20,7 +20,8 @@ from collections.abc import Callable
 import numpy as np
 from tqdm import tqdm
 
-from estimation.antlion import OptimizeResult, antlion, check_bounds, evaluate_population
+from estimation.antlion import OptimizeResult, antlion, check_bounds, check_budget, evaluate_population
+from estimation.types import is_integer
 
 METHODS = ("alo", "cmaes", "random")
 CMA_SIGMA_FRACTION = 0.25  #: CMA-ES initial step size as a fraction of the mean box width
@@ -32,13 +33,22 @@ def minimize(fun: Callable[[np.ndarray], np.ndarray], bounds, method: str = "alo
     """Minimise ``fun`` over the box ``bounds`` (d, 2) with ``method`` (see module docstring)."""
     if method not in METHODS:
         raise ValueError(f"unknown optimizer {method!r}; known: {list(METHODS)}")
+    if not (is_integer(seed) and seed >= 0):  # (cma takes seed + 1 = 0 as "draw one at random")
+        raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
     if method == "alo":
         return antlion(fun, bounds, n_agents=n_agents, iterations=iterations, rng=seed, progress=progress)
     lower, upper = check_bounds(bounds)
-    if n_agents < 2 or iterations < 1:
-        raise ValueError(f"need n_agents >= 2 and iterations >= 1, got {n_agents!r}, {iterations!r}")
-    best_x, best, history = None, np.inf, []
+    check_budget(n_agents, iterations)
     global_state = np.random.get_state()  # cma reseeds numpy's global generator: give it back after
+    try:
+        return _search(fun, lower, upper, method, n_agents, iterations, seed, progress)
+    finally:
+        np.random.set_state(global_state)
+
+
+def _search(fun, lower, upper, method, n_agents, iterations, seed, progress) -> OptimizeResult:
+    """CMA-ES or random search over the box [lower, upper] (see :func:`minimize`)."""
+    best_x, best, history = None, np.inf, []
     if method == "cmaes":
         import cma
 
@@ -63,7 +73,6 @@ def minimize(fun: Callable[[np.ndarray], np.ndarray], bounds, method: str = "alo
         if costs[k] < best:
             best, best_x = float(costs[k]), X[k].copy()
         history.append(best)
-    np.random.set_state(global_state)
     if best_x is None:
         raise FloatingPointError("every evaluation returned a non-finite cost")
     return OptimizeResult(best_x, best, np.array(history[1:]), n_agents * (iterations + 1))

@@ -42,9 +42,14 @@ def test_reproducible_and_batched_equals_one_by_one(method):
     assert a.fun == c.fun
 
 
-def test_unknown_optimizer_is_named():
+def test_unknown_optimizer_and_a_bad_budget_or_seed_are_named():
     with pytest.raises(ValueError, match="simplex"):
         minimize(sphere, [(-1, 1)], "simplex")
+    for method in ("alo", "cmaes", "random"):
+        with pytest.raises(ValueError, match="seed must be an integer >= 0, got -1"):  # cma took -1 + 1 = 0 as random
+            minimize(sphere, [(-1, 1)], method, n_agents=4, iterations=2, seed=-1)
+        with pytest.raises(ValueError, match=r"integers n_agents >= 2 and iterations >= 1, got 2.5, 2"):
+            minimize(sphere, [(-1, 1)], method, n_agents=2.5, iterations=2)
 
 
 def test_batched_tuning_objective_equals_single_replays_and_tune_writes_its_result(tmp_path):
@@ -154,6 +159,18 @@ def test_cmaes_leaves_numpys_global_generator_alone():
     np.random.seed(123)
     minimize(sphere, [(-1.0, 1.0)] * 2, "cmaes", n_agents=4, iterations=2, seed=0)
     np.testing.assert_array_equal(np.random.random(3), expected)
+    calls = []
+
+    def failing(X):  # an objective that raises on its second call: the generator still comes back
+        calls.append(1)
+        if len(calls) == 2:
+            raise RuntimeError("objective failed")
+        return sphere(X)
+
+    np.random.seed(123)
+    with pytest.raises(RuntimeError, match="objective failed"):
+        minimize(failing, [(-1.0, 1.0)] * 2, "cmaes", n_agents=4, iterations=2, seed=0)
+    np.testing.assert_array_equal(np.random.random(3), expected)
 
 
 def test_tuning_criteria_likelihood_and_truth_and_a_bad_name():
@@ -182,3 +199,6 @@ def test_mu_noise_scan_rejects_a_bad_candidate_by_value():
 
     with pytest.raises(ValueError, match="-0.5"):
         mu_noise_scan(grid=(0.3, -0.5), seeds=(2000,), progress=False)
+    for seeds in ((), (2000, 2000), (-1,)):  # () returned NaN for every candidate
+        with pytest.raises(ValueError, match="seeds must be distinct integers >= 0"):
+            mu_noise_scan(grid=(0.3,), seeds=seeds, progress=False)

@@ -133,6 +133,8 @@ def mu_noise_scan(grid: Sequence[float] = MU_NOISE_GRID, seeds: Sequence[int] = 
     the noise as shipped): the scan behind NoiseParams.mu_accel_std."""
     if not grid or not all(math.isfinite(g) and g > 0 for g in grid):
         raise ValueError(f"mu_accel_std candidates must be finite and > 0, got {list(grid)!r}")
+    if not seeds or not all(is_integer(s) and s >= 0 for s in seeds) or len(set(seeds)) != len(seeds):
+        raise ValueError(f"seeds must be distinct integers >= 0 (at least one), got {list(seeds)!r}")
     jobs_list = [(seed, float(g)) for g in grid for seed in seeds]
     errors = list(parallel_map(_mu_error, jobs_list, jobs, "mu-noise scan", progress))
     return {float(g): float(np.mean(errors[i * len(seeds):(i + 1) * len(seeds)])) for i, g in enumerate(grid)}
