@@ -105,6 +105,16 @@ def test_negative_seed_is_refused_before_anything_is_written(tmp_path, monkeypat
     assert not any(tmp_path.iterdir())
 
 
+def test_tune_mu_noise_refuses_the_options_it_would_ignore(tmp_path, monkeypatch):
+    import training.tune
+
+    monkeypatch.setattr(training.tune, "mu_noise_scan", lambda: pytest.fail("scan started"))
+    with pytest.raises(SystemExit, match=r"--mu-noise takes no other option, got \['--out', '--seed'\]"):
+        main(["tune", "--mu-noise", "--out", str(tmp_path / "mn.json"), "--seed", "-5"])
+    monkeypatch.setattr(training.tune, "mu_noise_scan", lambda: {0.3: 0.05})
+    assert main(["tune", "--mu-noise"]) == 0
+
+
 def test_tune_checks_its_output_file_before_any_work(tmp_path, monkeypatch):
     import training.tune
 

@@ -239,6 +239,23 @@ def test_bad_arguments_give_clear_errors(tmp_path):
         train("ppo", tmp_path / "x", 100, resume=tmp_path / "missing_run")
 
 
+@pytest.mark.parametrize("missing, progress", [("rich", True), ("tensorboard", False), ("matplotlib", False)])
+def test_a_missing_extra_is_named_before_the_run_writes_anything(missing, progress, tmp_path, monkeypatch):
+    """Without rich (SB3's progress bar) or tensorboard, SB3 failed once training began and left a
+    config.json that blocked the next try; without matplotlib the run trained to the end and
+    then failed on its learning curve."""
+    import importlib.util
+
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == missing else find_spec(name, *a))
+    if missing == "matplotlib":
+        monkeypatch.setitem(__import__("sys").modules, "matplotlib", None)  # import matplotlib now fails
+    extra = "plots" if missing == "matplotlib" else "rl"
+    with pytest.raises(ModuleNotFoundError, match=rf"fourwis\[{extra}\]"):
+        train("ppo", tmp_path / "run", 100, n_envs=1, progress=progress)
+    assert not (tmp_path / "run").exists() or not any((tmp_path / "run").iterdir())
+
+
 def test_sb3_adapter_reports_terminal_observations_and_time_limits():
     env = SB3VecEnv(YawStabilityVectorEnv(num_envs=2, scenario="paper_sine", estimator="oracle", max_episode_steps=5,
                                           autoreset_mode="SameStep"))

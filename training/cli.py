@@ -166,6 +166,10 @@ def _tune(args: argparse.Namespace) -> int:
     from training.tune import OUTPUT, mu_noise_scan, tune
 
     if args.mu_noise:
+        defaults = vars(build_parser().parse_args(["tune"]))
+        given = sorted(k for k, v in vars(args).items() if k not in ("mu_noise", "func") and v != defaults[k])
+        if given:  # (they were accepted and ignored)
+            raise SystemExit(f"fourwis tune: --mu-noise takes no other option, got {['--' + k for k in given]}")
         errors = mu_noise_scan()
         print("| mu_accel_std [m/s^2] | mean abs mu error, last half |\n|---:|---:|")
         print("\n".join(f"| {g:g} | {e:.3f} |" for g, e in errors.items()))

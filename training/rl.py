@@ -26,6 +26,7 @@ two 128-unit layers (the observation is 14 numbers); gamma 0.99, i.e. a ~2 s hor
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import pickle
@@ -62,6 +63,18 @@ def _algo_class(algo: str):
     import stable_baselines3 as sb3
 
     return {"ppo": sb3.PPO, "sac": sb3.SAC, "td3": sb3.TD3}[algo]
+
+
+def _check_train_extras(progress: bool) -> None:
+    """ModuleNotFoundError naming the extra before a run writes anything: SB3's tensorboard log
+    and progress bar (rich, tqdm) need the rl extra, the learning curve needs matplotlib (plots).
+    (Found missing only by SB3 once training began, they had left a config.json without a model
+    that blocked the next try.)"""
+    needed = ("tensorboard", "rich", "tqdm") if progress else ("tensorboard",)
+    missing = [name for name in needed if importlib.util.find_spec(name) is None]
+    if missing:
+        raise ModuleNotFoundError(f"fourwis train needs {missing}: pip install 'fourwis[rl]'")
+    pyplot()
 
 
 #: the per-step info keys SB3VecEnv gives each car (the single env's, less the truth and estimate)
@@ -283,6 +296,7 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int | None = None, e
     unless ``overwrite`` (which deletes that run's files first). ``seed`` and ``n_envs``
     default to 0 and 16, or to the resumed run's (other values are refused there)."""
     algo_class = _algo_class(algo)
+    _check_train_extras(progress)
     import torch
 
     torch.set_num_threads(TORCH_THREADS)
@@ -502,13 +516,12 @@ def plot_learning_curve(out: Path) -> Path | None:
     data_path = out / EVALUATIONS
     if not data_path.exists():
         return None
-    plt = pyplot()
-
     data = np.load(data_path)
     steps, returns = data["timesteps"], data["results"]
     mean, std = returns.mean(axis=1), returns.std(axis=1)
     atomic_write_text(out / "learning_curve.csv", "timesteps,mean_return,std_return\n"
                       + "".join(f"{s},{m:.6g},{d:.6g}\n" for s, m, d in zip(steps, mean, std)))
+    plt = pyplot()  # (the CSV first: it needs no matplotlib)
     fig, ax = plt.subplots(figsize=(6, 3.5))
     ax.plot(steps, mean, marker="o")
     ax.fill_between(steps, mean - std, mean + std, alpha=0.25)
