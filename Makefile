@@ -9,11 +9,15 @@ OUT ?= results
 
 venv: $(STAMP)
 
-# torch first, pinned to the local CPU build, so stable-baselines3 does not pull a CUDA build.
+# torch first, pinned to 2.13.0, so stable-baselines3 does not pull a newer (CUDA) build. pip takes
+# the CPU build where its configuration finds one (this project's machines: a local wheel); from
+# PyPI alone torch==2.13.0 is a CUDA build of several GB: there, give the CPU index, e.g.
+# make test TORCH_INDEX=https://download.pytorch.org/whl/cpu
+TORCH_INDEX ?=
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet torch==2.13.0
+	$(BIN)/pip install --quiet torch==2.13.0 $(if $(TORCH_INDEX),--index-url $(TORCH_INDEX))
 	$(BIN)/pip install --quiet -e '.[rl,plots,video,bench,dev]'
 	touch $(STAMP)
 
