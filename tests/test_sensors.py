@@ -97,6 +97,19 @@ def test_spike_faults_on_two_channels_arrive_independently():
     assert (ax & gyro).sum() < 4 * 0.04**2 * ax.size  # ~16 expected in 10,000 samples; 400 if they were shared
 
 
+def test_a_dropout_holds_the_last_valid_reading_and_ends_with_a_fresh_one():
+    """A noisy sensor on a moving truth: inside the window every sample repeats the last reading
+    before it (flagged invalid), and the first sample after it reads the truth again."""
+    model = SensorModel(SensorParams(), (Fault("ay", "dropout", start=0.1, end=0.2),), 1, np.random.default_rng(0))
+    i = CHANNELS.index("ay")
+    readings = [model.measure(np.full((1, len(CHANNELS)), float(k)), k * DT) for k in range(150)]
+    values = np.array([r.values[0, i] for r in readings])
+    valid = np.array([r.valid[0, i] for r in readings])
+    assert not valid[50:100].any() and valid[:50].all() and valid[100:].all()
+    assert np.all(values[50:100] == values[49]) and values[49] == pytest.approx(49.0, abs=0.2)
+    assert values[100] == pytest.approx(100.0, abs=0.2)
+
+
 def test_stuck_sensor_freezes_while_the_truth_moves():
     model = SensorModel(SensorParams(), (Fault("omega_fl", "stuck", start=0.1, end=0.2),), 1,
                         np.random.default_rng(0))
@@ -108,6 +121,7 @@ def test_stuck_sensor_freezes_while_the_truth_moves():
     out = np.array(out)
     frozen = out[50:100]
     assert np.all(frozen == frozen[0])
+    assert frozen[0] == pytest.approx(50.0, abs=4 * SensorParams().noise_std[i])  # the reading at the window start
     assert abs(out[120] - 120.0) < 1.0
 
 
