@@ -190,7 +190,8 @@ def sine_with_dwell_metrics(t, steering_wheel_angle, yaw_rate, lateral_accelerat
     ``lateral_acceleration`` [m/s^2] (n,) (ISO 8855 signs, left positive). ``A`` [rad]: the
     characterisation angle, needed for the responsiveness criterion (amplitudes >= 5A).
     ``direction``: initial steering direction (+1 left, -1 right); None infers it from the first
-    5 deg excursion, which a given direction must agree with (ValueError otherwise). ``sideslip`` [rad] (n,), optional: sets ``spun_out`` (see :func:`spin_out`).
+    5 deg excursion, which a given direction must agree with (ValueError otherwise).
+    ``sideslip`` [rad] (n,), optional: sets ``spun_out`` (see :func:`spin_out`).
     ``displacement_limit`` [m]: the responsiveness minimum, 1.83 m; a vehicle of GVWR above
     3,500 kg is held to :data:`HEAVY_DISPLACEMENT_LIMIT` (VehicleParams has a test mass, no
     GVWR, so fourwis's runs use the light-vehicle limit).
