@@ -77,7 +77,8 @@ from estimation.types import CHANNELS, Estimate, check_step, is_number, member_r
 N_STATE = 6
 I_U, I_V, I_AX, I_AY, I_R, I_GAMMA = range(N_STATE)
 KINDS = ("ekf", "ckf", "fkf", "alo-fkf", "joint")
-ROBUST_KINDS = KINDS[3:]  #: the kinds whose updates are Huber-weighted (huber_c)
+FIRST_ROBUST_KIND = 3  #: KINDS from this index on update with Huber weights (huber_c): alo-fkf, joint
+ROBUST_KINDS = KINDS[FIRST_ROBUST_KIND:]
 MU_BOUNDS = (0.1, 1.2)  #: estimated mu stays inside these bounds
 EXCITATION_LAMBDA = 1.0  #: a wheel's mu is updated only while its lateral Dugoff lambda is below this
 #: below this estimated forward speed [m/s] the friction filter does not run (mu and its
@@ -154,20 +155,20 @@ class NoiseParams:
         if process.ndim not in (1, 2) or process.shape[-1] != N_STATE:
             raise ValueError(f"process_std needs {N_STATE} values (u, v, ax, ay, r, Gamma), or (B, {N_STATE}), "
                              f"got shape {process.shape}: {self.process_std!r}")
+        per_member = ("accel_std", "gyro_std", "wheel_speed_std")  # (B,) allowed: one per batch member
+        # field: (may it be 0, largest ndim); process_std's shape is checked above
+        rules = {"process_std": (True, 2), "mu_walk_std": (True, 0), **{name: (False, 1) for name in per_member},
+                 "mu_accel_std": (False, 0), "mu_max_std": (False, 0)}
+        shapes = {0: " (a scalar)", 1: " (scalar or (B,))", 2: ""}
         with np.errstate(over="ignore"):  # (a standard deviation whose variance overflows is refused)
-            for name in ("process_std", "mu_walk_std"):
+            for name, (may_be_zero, ndim) in rules.items():
                 value = np.asarray(getattr(self, name), dtype=float)
-                if (name == "mu_walk_std" and value.ndim) or not np.all(np.isfinite(value**2) & (value >= 0.0)):
-                    raise ValueError(f"{name} must be finite and >= 0{' (a scalar)' if name == 'mu_walk_std' else ''}"
-                                     f", got {getattr(self, name)!r}")
-            for name in ("accel_std", "gyro_std", "wheel_speed_std", "mu_accel_std", "mu_max_std"):
-                value = np.asarray(getattr(self, name), dtype=float)
-                per_member = name in ("accel_std", "gyro_std", "wheel_speed_std")  # (B,) allowed
-                if value.ndim > int(per_member) or not np.all(np.isfinite(value**2) & (value > 0.0)):
-                    raise ValueError(f"{name} must be finite and > 0 ({'scalar or (B,)' if per_member else 'a scalar'})"
-                                     f", got {getattr(self, name)!r}")
-        sizes = {len(process) if process.ndim == 2 else 1} | {np.asarray(getattr(self, name)).size for name in
-                                                              ("accel_std", "gyro_std", "wheel_speed_std")}
+                in_range = value >= 0.0 if may_be_zero else value > 0.0
+                if value.ndim > ndim or not np.all(np.isfinite(value**2) & in_range):
+                    raise ValueError(f"{name} must be finite and {'>= 0' if may_be_zero else '> 0'}{shapes[ndim]}, "
+                                     f"got {getattr(self, name)!r}")
+        sizes = {len(process) if process.ndim == 2 else 1} | {np.asarray(getattr(self, name)).size
+                                                              for name in per_member}
         if len(sizes - {1}) > 1:
             raise ValueError(f"per-member noise fields disagree on the number of members: {sorted(sizes)}")
 
@@ -512,7 +513,7 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rat
     values = scratch((channels,))
     values[:] = reading
     values[1] -= zero_point_new[ZP_OFFSET]
-    robust, federated, joint = kind >= 3, kind >= 2, kind == 4
+    robust, federated, joint = kind >= FIRST_ROBUST_KIND, kind >= 2, kind == 4
     # inputs; wheel angular acceleration for eq. 7: differentiated wheel speed, low-passed
     omega, torque, od = values[3:7], values[9:13], scratch((4,))
     for w in range(4):
