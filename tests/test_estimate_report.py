@@ -52,6 +52,8 @@ def test_report_writes_csv_markdown_and_plot(report):
     out = report.parent
     assert report.name == "estimate.md"
     assert (out / "paper_sine.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (out / "tyre_curves.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"  # the paper's Figures 2-3
+    assert "tyre_curves.png" in report.read_text()
     with open(out / "estimate.csv", newline="") as f:
         rows = list(csv.DictReader(f))
     assert [(r["scenario"], r["estimator"], r["seed"]) for r in rows] == [("paper_sine", "ckf", "0"),

@@ -525,6 +525,36 @@ def test_the_dugoff_fit_reproduces_the_plant_tyre():
     assert PARAMS.mu_scale == pytest.approx(fit["mu_scale"], rel=1e-6)
 
 
+@pytest.mark.parametrize("load", [2000.0, 5000.0])
+def test_tyre_curves_of_the_papers_figures_2_and_3(load, tmp_path):
+    """The tyre figure's curves (training/tyre_fit.py, paper Figures 2-3): at small slip the fitted
+    Dugoff follows the plant (secant at 1% slip ratio / 0.5 deg within 10%); towards large slip
+    Dugoff approaches k mu Fz from below and does not fall, while the plant's Magic Formula
+    peaks at mu Fz scaled by its load-dependent peak friction relative to the reference load
+    (to 1%; 0.95 / 0.87 at 5 kN longitudinally / laterally) and falls beyond (the shapes the
+    README names as the friction estimate's limit). The PNG is written and not blank."""
+    from training.tyre_fit import plot_tyre_curves, tyre_curves
+
+    mu = 0.5
+    c = tyre_curves(load, mu)
+    k = PARAMS.mu_scale
+    small_x, small_y = np.searchsorted(c.kappa, 0.01), np.searchsorted(c.alpha, np.radians(0.5))
+    assert c.fx_dugoff[small_x] == pytest.approx(c.fx_plant[small_x], rel=0.10)
+    assert c.fy_dugoff[small_y] == pytest.approx(c.fy_plant[small_y], rel=0.10)
+    vehicle = VehicleParams()
+    peak_scale = np.array(vehicle.tyre.peak_friction(load)) / np.array(
+        vehicle.tyre.peak_friction(vehicle.reference_wheel_load))
+    for dugoff_force, plant_force, scale in ((c.fx_dugoff, c.fx_plant, peak_scale[0]),
+                                             (c.fy_dugoff, c.fy_plant, peak_scale[1])):
+        assert np.all(np.diff(dugoff_force) >= -1e-9) and dugoff_force[-1] < k * mu * load
+        assert dugoff_force[-1] > 0.9 * k * mu * load
+        assert plant_force.max() == pytest.approx(scale * mu * load, rel=0.01)
+    assert c.fx_plant[-1] < 0.95 * c.fx_plant.max()  # the Magic Formula falls beyond its peak
+    import matplotlib.image
+
+    assert matplotlib.image.imread(plot_tyre_curves(tmp_path / "tyre_curves.png", mu=mu, loads=(load,))).std() > 0.01
+
+
 def test_joint_estimator_follows_a_friction_drop_and_the_dyc_stays_stable():
     """mu_jump (0.9 -> 0.3 in a 0.4 g turn) with DYC-LQR on the estimate: the joint estimator's
     mu follows the drop (measured mean 0.33 over the last 2 s) and the car's peak sideslip

@@ -316,7 +316,7 @@ def build_parser() -> argparse.ArgumentParser:
     from training.estimate import DEFAULT_ESTIMATORS as ESTIMATE_ESTIMATORS
 
     est = command("estimate", "open-loop estimator accuracy (paper Table 2 form); writes OUT/estimate.md, "
-                              "estimate.csv and a PNG per scenario")
+                              "estimate.csv, a PNG per scenario and tyre_curves.png (paper Figs. 2-3)")
     _add_matrix_arguments(est, PAPER_SCENARIOS, ESTIMATE_ESTIMATORS, 1, "results/estimate",
                           "scenario names, optionally with overrides as in compare (no +faults)")
     est.add_argument("--road-mu", action="store_true",

@@ -29,6 +29,7 @@ from training.compare import (FAULT_SUFFIX, build_scenario, check_file_stems, en
 from training.io import atomic_write, atomic_write_text, check_writable, pyplot
 from training.pool import parallel_map
 from training.tables import mean_over_seeds, require_distinct, write_runs_csv
+from training.tyre_fit import plot_tyre_curves
 
 DEFAULT_ESTIMATORS = tuple(e for e in ESTIMATORS if e != "oracle")  #: the oracle is the truth itself
 MU_TOLERANCE = 0.1  #: mean |mu_hat - mu| over the wheels below which mu counts as converged
@@ -216,6 +217,9 @@ def markdown_report(table: dict, scenarios: Sequence[Scenario], estimators: Sequ
                  for p, q in zip(paper, ("u", "v", "beta"))]
         lines.append(f"| {stat} | {e} | " + " | ".join(cells) + " |")
     lines += _ratio_section(table, scenarios, estimators)
+    lines += ["", "The estimators' tyre: `tyre_curves.png` draws the plant's PAC2002 curves against the fitted "
+              "Dugoff (eq. 17 stiffness and friction scale, training/tyre_fit.py) at 2-5 kN, in the form of the "
+              "paper's Figures 2 and 3."]
     lines += ["", "Caveats: the paper states no sensor noise levels (nor biases) for its CarSim runs, "
               "nor the units of Table 2 (the sideslip column is read as rad here), nor its filters' initial "
               "errors; its plant is CarSim's, ours is fourwis's own model. Our runs use the default sensor "
@@ -278,7 +282,8 @@ def plot_scenario(name: str, series: dict, estimators: Sequence[str], path: Path
 def estimate_report(out: str | Path, scenarios: Sequence[str | Scenario] = PAPER_SCENARIOS,
                     estimators: Sequence[str] = DEFAULT_ESTIMATORS, seeds: int = 1, jobs: int | None = None,
                     road_mu: bool = False) -> Path:
-    """Run the open-loop matrix; write estimate.csv, estimate.md and <scenario>.png into ``out``.
+    """Run the open-loop matrix; write estimate.csv, estimate.md, <scenario>.png and tyre_curves.png
+    (the plant's tyre against the estimator's fitted Dugoff, paper Figures 2-3) into ``out``.
 
     ``scenarios``: Scenario objects, or names with optional overrides as in compare
     (``paper_step:mu=0.5``; the plot's file name replaces ':', ',' and '=' by '_'); returns
@@ -292,4 +297,5 @@ def estimate_report(out: str | Path, scenarios: Sequence[str | Scenario] = PAPER
     write_csv(results, out / "estimate.csv")
     for s in built:
         plot_scenario(s.name, series, estimators, out / f"{file_stem(s.name)}.png")
+    plot_tyre_curves(out / "tyre_curves.png")
     return atomic_write_text(out / "estimate.md", markdown_report(table, built, estimators, seeds, road_mu))

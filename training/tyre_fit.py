@@ -5,26 +5,32 @@ uses k mu where the road has mu) by least squares on the lateral force from zero
 plant tyre's peak over the same loads and mu 0.3-1.0. Dugoff's curve rounds off into its
 saturation more gently than the Magic Formula's, so at mu it under-predicts the force near the
 peak (fitted k ~1.07); without k the joint estimator reads mu high by about that much.
-Writes estimation/data/dugoff_fit.json.
+Writes estimation/data/dugoff_fit.json; :func:`plot_tyre_curves` draws the fitted tyre against
+the plant's in the form of the paper's Figures 2 and 3 (``fourwis estimate`` writes it beside its
+report).
 
-Run: ``python -m training.tyre_fit``
+Run: ``python -m training.tyre_fit`` (``--plot DIR``: only the figure, DIR/tyre_curves.png)
 """
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from scipy.optimize import minimize_scalar
 
 from envs.tyre import TyreParams, tyre_forces
 from envs.vehicle import VehicleParams
-from estimation.model import dugoff
-from training.io import atomic_write_json
+from estimation.model import MIN_SPEED, ModelParams, dugoff
+from training.io import atomic_write, atomic_write_json, pyplot
 
 OUTPUT = Path(__file__).resolve().parent.parent / "estimation" / "data" / "dugoff_fit.json"
 LOADS = np.linspace(1000.0, 5000.0, 17)  #: fit loads [N]
 FRICTIONS = (0.3, 0.5, 0.8, 1.0)  #: road mu of the friction-scale fit
+FIGURE_LOADS = (2000.0, 3000.0, 4000.0, 5000.0)  #: wheel loads [N] of the tyre-curve figure
+FIGURE_SPEED = 20.0  #: wheel-centre speed [m/s] at which the figure's slip ratios are taken
 
 
 def fit_quadratic(fz: np.ndarray, stiffness: np.ndarray) -> tuple[float, float, float]:
@@ -78,7 +84,74 @@ def fit_dugoff(tyre: TyreParams | None = None, reference_load: float | None = No
                       "mu_scale: least squares on the lateral force up to the plant tyre's peak"}
 
 
-def main() -> None:
+class TyreCurves(NamedTuple):
+    """Pure-slip force curves at one load: slip ratios kappa (S,) [-] and slip angles (A,) [rad];
+    the plant's and the estimator's Dugoff longitudinal (S,) and lateral (A,) forces [N]."""
+
+    kappa: np.ndarray
+    fx_plant: np.ndarray
+    fx_dugoff: np.ndarray
+    alpha: np.ndarray
+    fy_plant: np.ndarray
+    fy_dugoff: np.ndarray
+
+
+def tyre_curves(load: float, mu: float = 1.0, vehicle=None, points: int = 121) -> TyreCurves:
+    """The plant's PAC2002 tyre and the estimator's Dugoff (eq. 17 stiffness and friction scale of
+    ``ModelParams.from_vehicle``) at wheel load ``load`` [N] on road friction ``mu``: Fx against
+    the plant's slip ratio kappa in [0, 0.5] (Dugoff at the slip the estimator computes for it,
+    (R omega - u) / max(R omega, u) at FIGURE_SPEED) and Fy against the slip angle in
+    [0, 15 deg], each with the other slip zero. (The estimators take Fx from the wheel's torque
+    balance; Dugoff's longitudinal stiffness enters only through its combined-slip cut of Fy.)"""
+    vehicle = vehicle or VehicleParams()
+    p = ModelParams.from_vehicle(vehicle)
+    cx, cy = p.m1 * load - p.n1 * load**2, p.m2 * load - p.n2 * load**2
+    kappa, alpha = np.linspace(0.0, 0.5, points), np.radians(np.linspace(0.0, 15.0, points))
+    fx_plant = tyre_forces(vehicle.tyre, load, kappa, 0.0, mu, vehicle.reference_wheel_load)[0]
+    fy_plant = np.abs(tyre_forces(vehicle.tyre, load, 0.0, np.tan(alpha), mu, vehicle.reference_wheel_load)[1])
+    wheel_speed = FIGURE_SPEED * (1.0 + kappa)
+    slip = (wheel_speed - FIGURE_SPEED) / np.maximum(np.maximum(wheel_speed, FIGURE_SPEED), MIN_SPEED)
+    fx_dugoff = np.array([dugoff(load, s, 0.0, p.mu_scale * mu, cx, cy, 0.0, 0.0)[0] for s in slip])
+    fy_dugoff = np.array([dugoff(load, 0.0, t, p.mu_scale * mu, cx, cy, 0.0, 0.0)[1] for t in np.tan(alpha)])
+    return TyreCurves(kappa, fx_plant, fx_dugoff, alpha, fy_plant, fy_dugoff)
+
+
+def plot_tyre_curves(path: str | Path, mu: float = 1.0, loads=FIGURE_LOADS, vehicle=None) -> Path:
+    """PNG in the form of the paper's Figures 2 (longitudinal force against slip ratio) and 3
+    (lateral force against slip angle) at several wheel loads [N]: the plant tyre solid, the
+    estimator's fitted Dugoff dashed, on road friction ``mu``."""
+    plt = pyplot()
+    fig, (ax_x, ax_y) = plt.subplots(1, 2, figsize=(12, 4.5))
+    for load in loads:
+        c = tyre_curves(load, mu, vehicle)
+        line, = ax_x.plot(c.kappa, c.fx_plant, lw=1.5, label=f"{load / 1000:g} kN")
+        ax_x.plot(c.kappa, c.fx_dugoff, "--", lw=1.2, color=line.get_color())
+        ax_y.plot(np.degrees(c.alpha), c.fy_plant, lw=1.5, color=line.get_color(), label=f"{load / 1000:g} kN")
+        ax_y.plot(np.degrees(c.alpha), c.fy_dugoff, "--", lw=1.2, color=line.get_color())
+    ax_x.set(xlabel="slip ratio [-]", ylabel="longitudinal force Fx [N]",
+             title="longitudinal slip characteristic (paper Fig. 2)")
+    ax_y.set(xlabel="slip angle [deg]", ylabel="lateral force |Fy| [N]",
+             title="lateral slip characteristic (paper Fig. 3)")
+    for ax in (ax_x, ax_y):
+        ax.grid(alpha=0.3)
+        ax.legend(title="wheel load (solid: plant PAC2002, dashed: fitted Dugoff)", fontsize=8, title_fontsize=8)
+    fig.suptitle(f"tyre curves on mu {mu:g}: the plant's Magic Formula and the estimator's Dugoff (eq. 17 fit)")
+    fig.tight_layout()
+    atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=100))
+    plt.close(fig)
+    return Path(path)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m training.tyre_fit", description=__doc__.splitlines()[0])
+    parser.add_argument("--plot", metavar="DIR", help="only draw DIR/tyre_curves.png (paper Figs. 2-3) from the "
+                                                      "shipped fit; the fit file is left as it is")
+    args = parser.parse_args(argv)
+    if args.plot:
+        directory = Path(args.plot)
+        directory.mkdir(parents=True, exist_ok=True)
+        print(plot_tyre_curves(directory / "tyre_curves.png"))
+        return
     fit = fit_dugoff()
     print(atomic_write_json(OUTPUT, fit), end="")
 
