@@ -277,7 +277,7 @@ def allocate_for_estimate(base_torques: np.ndarray, yaw_moment: np.ndarray, esti
     too low, a tyre the estimate sees as laterally saturated gets no longitudinal force, which
     removes the authority stability control needs most (braking a saturated tyre trades its
     lateral force for yaw moment). DYC-LQR with the fixed-0.8 ckf on ISO 3888-2 at 70 km/h on a
-    1.0 road: peak sideslip 2.1 deg with the circle, 7.3 with the ellipse (2 seeds); an earlier
+    1.0 road: peak sideslip 2.1 deg with the circle, 6.4 with the ellipse (2 seeds); an earlier
     joint estimator whose wheels' mu scattered down to 0.1 spun the car on the wet sine with
     dwell with it (26 against 4 deg). With good estimates the two differ little (headline
     matrix: within 0.15 deg elsewhere). Off, the bound is the friction circle |Fx_i| <= mu_i Fz_i.
