@@ -97,8 +97,9 @@ class TyreCurves(NamedTuple):
 
 
 def tyre_curves(load: float, mu: float = 1.0, vehicle=None, points: int = 121) -> TyreCurves:
-    """The plant's PAC2002 tyre and the estimator's Dugoff (eq. 17 stiffness and friction scale of
-    ``ModelParams.from_vehicle``) at wheel load ``load`` [N] on road friction ``mu``: Fx against
+    """The plant's PAC2002 tyre and the estimator's Dugoff (the shipped eq. 17 stiffness and friction
+    scale, estimation/data/dugoff_fit.json, as ``ModelParams.from_vehicle`` loads them: fitted to
+    the default car's tyre) at wheel load ``load`` [N] on road friction ``mu``: Fx against
     the plant's slip ratio kappa in [0, 0.5] (Dugoff at the slip the estimator computes for it,
     (R omega - u) / max(R omega, u) at FIGURE_SPEED) and Fy against the slip angle in
     [0, 15 deg], each with the other slip zero. (The estimators take Fx from the wheel's torque
