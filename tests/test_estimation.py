@@ -555,6 +555,16 @@ def test_tyre_curves_of_the_papers_figures_2_and_3(load, tmp_path):
     assert matplotlib.image.imread(plot_tyre_curves(tmp_path / "tyre_curves.png", mu=mu, loads=(load,))).std() > 0.01
 
 
+def test_tyre_fit_plot_option_draws_the_figure_and_leaves_the_fit_alone(tmp_path, monkeypatch):
+    """``python -m training.tyre_fit --plot DIR`` (README) writes DIR/tyre_curves.png and does not
+    refit: the shipped fit file is not touched."""
+    import training.tyre_fit as tyre_fit
+
+    monkeypatch.setattr(tyre_fit, "fit_dugoff", lambda *a, **k: pytest.fail("--plot refitted the tyre"))
+    tyre_fit.main(["--plot", str(tmp_path / "figures")])
+    assert (tmp_path / "figures" / "tyre_curves.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
 def test_joint_estimator_follows_a_friction_drop_and_the_dyc_stays_stable():
     """mu_jump (0.9 -> 0.3 in a 0.4 g turn) with DYC-LQR on the estimate: the joint estimator's
     mu follows the drop (measured mean 0.33 over the last 2 s) and the car's peak sideslip
