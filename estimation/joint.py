@@ -468,6 +468,13 @@ def _ekf_step(x, P, Q, z, valid, R, f_args, h_args, m_args, x_out, P_out) -> flo
 
 
 # ---- one estimator step (compiled) -----------------------------------------------------------
+@numba.njit(inline="always", **JIT)
+def _low_pass(value: float, target: float, dt: float, time_constant: float) -> float:
+    """``value`` after one Euler step of ``dt`` [s] of a first-order low-pass towards ``target``,
+    the gain dt / ``time_constant`` capped at 1 (see OMEGA_DOT_TIME_CONSTANT; inf: held)."""
+    return value + (target - value) * min(dt / time_constant, 1.0)
+
+
 @numba.njit(**JIT)
 def _learn_zero_point(zero_point, reading, valid, speed, dt, time_constant) -> None:
     """Advance the zero-point state (5,) by one reading (see ZERO_POINT_*, SLIDE_*); ``speed`` [m/s];
@@ -477,15 +484,15 @@ def _learn_zero_point(zero_point, reading, valid, speed, dt, time_constant) -> N
     if moved:
         zero_point[ZP_STEER] = steer
     if valid[2]:
-        zero_point[ZP_YAW] += (yaw_rate - zero_point[ZP_YAW]) * min(dt / ZERO_POINT_YAW_LOWPASS, 1.0)
+        zero_point[ZP_YAW] = _low_pass(zero_point[ZP_YAW], yaw_rate, dt, ZERO_POINT_YAW_LOWPASS)
     steady = not moved and valid[2] and abs(yaw_rate - zero_point[ZP_YAW]) < ZERO_POINT_YAW_TOL
     zero_point[ZP_STEADY] = zero_point[ZP_STEADY] + dt if steady else 0.0
     if zero_point[ZP_STEADY] > ZERO_POINT_SETTLE and speed > ZERO_POINT_MIN_SPEED and valid[1]:
         residual = reading[1] - speed * yaw_rate
-        zero_point[ZP_OFFSET] += (residual - zero_point[ZP_OFFSET]) * min(dt / time_constant, 1.0)
+        zero_point[ZP_OFFSET] = _low_pass(zero_point[ZP_OFFSET], residual, dt, time_constant)
     if speed > SLIDE_MIN_SPEED and valid[1] and valid[2]:
         rate = (reading[1] - zero_point[ZP_OFFSET]) / speed - yaw_rate
-        zero_point[ZP_SLIDE] += (rate - zero_point[ZP_SLIDE]) * min(dt / SLIDE_TAU, 1.0)
+        zero_point[ZP_SLIDE] = _low_pass(zero_point[ZP_SLIDE], rate, dt, SLIDE_TAU)
     else:  # (no stale value: the rate restarts from zero once it can be measured again)
         zero_point[ZP_SLIDE] = 0.0
 
@@ -517,8 +524,7 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rat
     # inputs; wheel angular acceleration for eq. 7: differentiated wheel speed, low-passed
     omega, torque, od = values[3:7], values[9:13], scratch((4,))
     for w in range(4):
-        rate = (omega[w] - omega_prev[w]) / dt
-        od[w] = omega_dot[w] + (rate - omega_dot[w]) * min(dt / OMEGA_DOT_TIME_CONSTANT, 1.0)
+        od[w] = _low_pass(omega_dot[w], (omega[w] - omega_prev[w]) / dt, dt, OMEGA_DOT_TIME_CONSTANT)
     steer = scratch((3, 4))
     fill_steer_trig((values[7], values[7], values[8], values[8]), steer)
     accel_var, gyro_var, wheel_var = sensor_var[0], sensor_var[1], sensor_var[2]
