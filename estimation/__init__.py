@@ -36,14 +36,16 @@ def check_estimator_name(name: str) -> str:
     return name
 
 
-def make_estimator(name: str, params, dt: float = 0.002, noise: NoiseParams | None = None, **kwargs):
+def make_estimator(name: str, params, dt: float = 0.002, noise: NoiseParams | None = None,
+                   tyre_relaxation: bool = False, **kwargs):
     """Build the estimator ``name`` (see :data:`ESTIMATORS`) for vehicle ``params`` (duck-typed
     VehicleParams) at step ``dt`` [s]. ``alo-fkf`` and ``joint`` (the paper's antlion-tuned
     filters) use the ALO-tuned noise shipped in estimation/data/tuned_noise.json (``fourwis
     tune`` rewrites it; without the file they run the hand-set noise); ``noise`` overrides it.
     ``<name>+true-<group>[-<group>...]`` (e.g. ``joint+true-mu``) reports the truth for those
     groups (:class:`PartialOracle`, :data:`TRUTH_GROUPS`): which estimated quantity a
-    closed-loop loss comes from.
+    closed-loop loss comes from. ``tyre_relaxation``: the model's slip angles lag by the tyre's
+    relaxation length (:meth:`ModelParams.from_vehicle`; off: the paper's model).
 
     Your own estimator: ``module:factory`` (e.g. ``my_filters:BiasedCKF``) imports ``factory``
     and returns ``factory(params, dt)``, an object with the step interface of
@@ -54,19 +56,22 @@ def make_estimator(name: str, params, dt: float = 0.002, noise: NoiseParams | No
     check_vehicle_params(params)
     if noise is not None and not isinstance(noise, NoiseParams):
         raise ValueError(f"noise must be an estimation.NoiseParams or None, got {noise!r}")
+    if not isinstance(tyre_relaxation, bool):
+        raise ValueError(f"tyre_relaxation must be True or False, got {tyre_relaxation!r}")
     if groups:
-        return PartialOracle(make_estimator(base, params, dt, noise, **kwargs), groups)
+        return PartialOracle(make_estimator(base, params, dt, noise, tyre_relaxation, **kwargs), groups)
+    extra = sorted(kwargs) + ["tyre_relaxation"] * tyre_relaxation  # (options only the model filters take)
     if ":" in base:
-        if noise is not None or kwargs:
+        if noise is not None or extra:
             raise ValueError(f"estimator {name!r} is built as factory(params, dt): it takes no noise or keyword "
-                             f"arguments, got {sorted(kwargs) or ['noise']}")
+                             f"arguments, got {extra or ['noise']}")
         estimator = import_factory(base, "estimator")(params, dt)
         check_estimator(estimator, name)
         return estimator
     if name == "oracle":
         check_step(dt)
-        if noise is not None or kwargs:
-            raise ValueError(f"the oracle takes no noise or keyword arguments, got {sorted(kwargs) or ['noise']}")
+        if noise is not None or extra:
+            raise ValueError(f"the oracle takes no noise or keyword arguments, got {extra or ['noise']}")
         return Oracle()
     options = {f.name for f in fields(StateEstimator) if f.init} - {"params", "kind", "dt", "noise", "needs_truth"}
     if set(kwargs) - options:
@@ -74,7 +79,8 @@ def make_estimator(name: str, params, dt: float = 0.002, noise: NoiseParams | No
                          f"known: {sorted(options)}")
     if noise is None:
         noise = (tuned_noise() if name in ("alo-fkf", "joint") else None) or NoiseParams()
-    return StateEstimator(ModelParams.from_vehicle(params), kind=name, dt=dt, noise=noise, **kwargs)
+    return StateEstimator(ModelParams.from_vehicle(params, relaxation=tyre_relaxation), kind=name, dt=dt, noise=noise,
+                          **kwargs)
 
 
 __all__ = ["ESTIMATORS", "TRUTH_GROUPS", "Estimate", "ModelParams", "NoiseParams", "OnlineTuner", "PartialOracle",

@@ -70,8 +70,8 @@ from estimation.ckf import (NO_HUBER, cholesky, cholesky_solve, cubature_points,
                             matmul, measurement_update, predicted_moments)
 from estimation.federated import fuse, sharing_coefficients
 from estimation.jit import JIT, scratch
-from estimation.model import (MIN_SPEED, P_IZ, P_RW, ModelParams, body_forces, dugoff_lambdas, fill_steer_trig, transition,
-                              wheel_kinematics, wheel_loads, wheel_trig)
+from estimation.model import (MIN_SPEED, P_IZ, P_RELAX, P_RW, ModelParams, body_forces, dugoff_lambdas,
+                              fill_steer_trig, transition, wheel_kinematics, wheel_loads, wheel_trig)
 from estimation.types import CHANNELS, Estimate, check_step, is_number, member_rows
 
 N_STATE = 6
@@ -209,7 +209,7 @@ def tuned_noise(path=None) -> NoiseParams | None:
 
 
 STATE_FIELDS = ("x", "P", "mu", "P_mu", "beta", "beta_mu", "omega_prev", "omega_dot", "inertial_prev", "inertial_repeats",
-                "zero_point", "last_nll")
+                "zero_point", "last_nll", "slip_relaxed")
 #: batches at least this large step on all cores (one vehicle's step is ~15-30 us, far above the
 #: ~5 us thread start-up: measured faster from B = 2 on the 2-core machine of BENCHMARKS.md)
 PARALLEL_MIN_BATCH = 2
@@ -497,10 +497,25 @@ def _learn_zero_point(zero_point, reading, valid, speed, dt, time_constant) -> N
         zero_point[ZP_SLIDE] = 0.0
 
 
+@numba.njit(inline="always", **JIT)
+def _relax_slip(x, steer, slip_relaxed, pk, dt, relaxed_new) -> None:
+    """Advance each wheel's relaxed tan(slip angle) (4,) one step towards the kinematic one at
+    the previous estimate x, over the model's relaxation length (estimation.model), into
+    relaxed_new, and write the lag (kinematic less relaxed) into row 3 of the wheel table
+    ``steer`` (4, 4). Without a relaxation length, or on the first step (NaN), no lag."""
+    for w in range(4):
+        tan_kin, along = wheel_kinematics(x[I_U], x[I_V], x[I_R], wheel_trig(steer, w), pk, w)
+        if pk[P_RELAX] > 0.0 and math.isfinite(slip_relaxed[w]):
+            relaxed_new[w] = _low_pass(slip_relaxed[w], tan_kin, dt, pk[P_RELAX] / max(abs(along), MIN_SPEED))
+        else:
+            relaxed_new[w] = tan_kin
+        steer[3, w] = tan_kin - relaxed_new[w]
+
+
 @numba.njit(**JIT)
 def _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rate, process_var, sensor_var, mu_var,
                  x, P, mu, P_mu, beta, beta_mu, omega_prev, omega_dot, inertial_prev, inertial_repeats, zero_point,
-                 reading, valid_in, out) -> tuple[int, float]:
+                 slip_relaxed, reading, valid_in, out) -> tuple[int, float]:
     """One step of one vehicle's estimator of ``kind`` (index into KINDS) on the raw sensor
     ``reading`` (13,); state rows are updated in place only on success. Returns (status,
     innovation NLL) and fills ``out``."""
@@ -525,8 +540,9 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rat
     omega, torque, od = values[3:7], values[9:13], scratch((4,))
     for w in range(4):
         od[w] = _low_pass(omega_dot[w], (omega[w] - omega_prev[w]) / dt, dt, OMEGA_DOT_TIME_CONSTANT)
-    steer = scratch((3, 4))
+    steer, relaxed_new = scratch((4, 4)), scratch((4,))
     fill_steer_trig((values[7], values[7], values[8], values[8]), steer)
+    _relax_slip(x, steer, slip_relaxed, pk, dt, relaxed_new)
     accel_var, gyro_var, wheel_var = sensor_var[0], sensor_var[1], sensor_var[2]
     f_args = (mu, steer, omega, torque, od, pk, dt)
     h_args = (steer, pk)
@@ -601,6 +617,7 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rat
     omega_prev[:], omega_dot[:] = omega, od
     inertial_repeats[:] = repeats
     zero_point[:] = zero_point_new
+    slip_relaxed[:] = relaxed_new
     for c in range(3):
         if valid_in[c]:
             inertial_prev[c] = reading[c]
@@ -624,34 +641,34 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rat
 @numba.njit(inline="always", **JIT)
 def _step_row(j, rows, kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rate, process_var, sensor_var,
               mu_var, X, P, MU, P_MU, BETA, BETA_MU, OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS,
-              ZERO_POINT, LAST_NLL, values, valid, out, status):
+              ZERO_POINT, LAST_NLL, SLIP_RELAXED, values, valid, out, status):
     i = rows[j]
     q = i if process_var.shape[0] > 1 else 0
     status[j], nll = _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rate, process_var[q],
                                   sensor_var[q], mu_var, X[i], P[i], MU[i], P_MU[i], BETA[i], BETA_MU[i],
                                   OMEGA_PREV[i], OMEGA_DOT[i], INERTIAL_PREV[i], INERTIAL_REPEATS[i], ZERO_POINT[i],
-                                  values[i], valid[i], out[j])
+                                  SLIP_RELAXED[i], values[i], valid[i], out[j])
     LAST_NLL[i] = nll if status[j] == OK else math.nan  # (NaN: this row's step failed)
 
 
 @numba.njit(**JIT)
 def _step_serial(rows, kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rate, process_var, sensor_var,
                  mu_var, X, P, MU, P_MU, BETA, BETA_MU, OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS,
-                 ZERO_POINT, LAST_NLL, values, valid, out, status):
+                 ZERO_POINT, LAST_NLL, SLIP_RELAXED, values, valid, out, status):
     for j in range(rows.shape[0]):
         _step_row(j, rows, kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rate, process_var, sensor_var,
                   mu_var, X, P, MU, P_MU, BETA, BETA_MU, OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS,
-                  ZERO_POINT, LAST_NLL, values, valid, out, status)
+                  ZERO_POINT, LAST_NLL, SLIP_RELAXED, values, valid, out, status)
 
 
 @numba.njit(parallel=True, **JIT)
 def _step_parallel(rows, kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rate, process_var, sensor_var,
                    mu_var, X, P, MU, P_MU, BETA, BETA_MU, OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS,
-                   ZERO_POINT, LAST_NLL, values, valid, out, status):
+                   ZERO_POINT, LAST_NLL, SLIP_RELAXED, values, valid, out, status):
     for j in numba.prange(rows.shape[0]):
         _step_row(j, rows, kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rate, process_var, sensor_var,
                   mu_var, X, P, MU, P_MU, BETA, BETA_MU, OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS,
-                  ZERO_POINT, LAST_NLL, values, valid, out, status)
+                  ZERO_POINT, LAST_NLL, SLIP_RELAXED, values, valid, out, status)
 
 
 @dataclass
@@ -765,6 +782,7 @@ class StateEstimator:
             self.inertial_prev = np.full((B, 3), np.nan)
             self.inertial_repeats = np.zeros((B, 3))
             self.zero_point = zero_point0
+            self.slip_relaxed = np.full((B, 4), np.nan)  # (NaN: the first step starts it without lag)
         else:
             for name, new in (("x", x0), ("P", P0), ("mu", mu0), ("P_mu", Pmu0), ("omega_prev", values[:, 3:7])):
                 getattr(self, name)[mask] = new[mask]
@@ -774,6 +792,7 @@ class StateEstimator:
             self.inertial_prev[mask] = np.nan
             self.inertial_repeats[mask] = 0.0
             self.zero_point[mask] = zero_point0[mask]
+            self.slip_relaxed[mask] = np.nan
             self.last_nll[mask] = 0.0
             return
         self.last_nll = np.zeros(B)

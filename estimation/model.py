@@ -26,6 +26,14 @@ the paper (standard textbook forms, Rajamani 2012 ch. 13; Dugoff, Fancher & Sege
   (Kiencke & Nielsen 2005, ch. 7). Without them the model reads a car cruising at 20 m/s as
   accelerating at 0.27 m/s^2; the shipped estimators keep the paper's model all the same
   (README, "Known limitations": the friction gate);
+* the paper's tyre has no transient: its force follows the slip angle at once. With
+  ``ModelParams.from_vehicle(..., relaxation=True)`` each wheel's slip angle instead relaxes
+  towards the kinematic one over the tyre's lateral relaxation length sigma (first-order lag in
+  travelled distance, d tan(alpha)/dt = (|u_w| / sigma)(tan(alpha_kin) - tan(alpha)); Pacejka,
+  *Tire and Vehicle Dynamics*, 3rd ed., sec. 7.2). The estimator carries the lag as a known
+  offset of tan(alpha) from its previous estimate (:func:`wheel_kinematics`), so the state
+  vector stays the paper's. Off in the shipped estimators (README, "Tyre relaxation in the
+  estimator": sideslip improves, the friction estimate does not);
 * eq. 10: Dugoff's speed reduction of friction is mu (1 - eps u sqrt(s^2 + tan^2 alpha))
   (Dugoff, Fancher & Segel 1970: the sliding speed; the paper's form puts the stiffnesses
   inside the root, which makes eps carry newtons).
@@ -60,7 +68,9 @@ class ModelParams:
     reduction of friction [s/m]; mu_scale: Dugoff's friction scale k, the tyre model using
     k mu on a road of friction mu (fitted to the plant tyre, training/tyre_fit.py: Dugoff
     saturates more gently than the Magic Formula, so with k = 1 the estimated mu reads high);
-    rolling_resistance: f_r [-]; drag_factor: (1/2) rho Cd A [kg/m], drag = drag_factor u|u|."""
+    rolling_resistance: f_r [-]; drag_factor: (1/2) rho Cd A [kg/m], drag = drag_factor u|u|;
+    relaxation_length: the tyres' lateral relaxation length sigma [m] the slip angles lag by
+    (0: the paper's tyre, without transient)."""
 
     mass: float
     yaw_inertia: float
@@ -79,19 +89,25 @@ class ModelParams:
     mu_scale: float = 1.0
     rolling_resistance: float = 0.0
     drag_factor: float = 0.0
+    relaxation_length: float = 0.0
 
     @classmethod
-    def from_vehicle(cls, vehicle, fit: dict | None = None, resistances: bool = False) -> "ModelParams":
+    def from_vehicle(cls, vehicle, fit: dict | None = None, resistances: bool = False,
+                     relaxation: bool = False) -> "ModelParams":
         """From a duck-typed VehicleParams and the eq. 17 fit (estimation/data/dugoff_fit.json).
         ``resistances``: also the car's rolling resistance and drag, which the paper's model
         (and the shipped estimators) leave out: with them u and beta are more accurate, but the
-        joint estimator's friction gate misses more friction drops (README, "Known limitations")."""
+        joint estimator's friction gate misses more friction drops (README, "Known limitations").
+        ``relaxation``: the slip angles lag by the tyre's lateral relaxation length at the static
+        wheel load (``vehicle.static_relaxation_lengths``, 0.36 m for the paper's car; the plant's
+        grows with load, 0.48 m at 3 kN, which this constant leaves out)."""
         fit = fit or _load_fit()
         return cls(vehicle.mass, vehicle.yaw_inertia, vehicle.cg_to_front, vehicle.cg_to_rear, vehicle.track_front,
                    vehicle.track_rear, vehicle.wheel_radius, vehicle.cg_height, vehicle.wheel_inertia,
                    fit["m1"], fit["n1"], fit["m2"], fit["n2"], mu_scale=fit["mu_scale"],
                    rolling_resistance=vehicle.rolling_resistance if resistances else 0.0,
-                   drag_factor=0.5 * vehicle.air_density * vehicle.drag_area if resistances else 0.0)
+                   drag_factor=0.5 * vehicle.air_density * vehicle.drag_area if resistances else 0.0,
+                   relaxation_length=float(vehicle.static_relaxation_lengths[1]) if relaxation else 0.0)
 
     @property
     def wheelbase(self) -> float:
@@ -104,9 +120,10 @@ class ModelParams:
 
 
 PACKED_FIELDS = ("mass", "yaw_inertia", "cg_to_front", "cg_to_rear", "track_front", "track_rear", "wheel_radius",
-                 "cg_height", "wheel_inertia", "m1", "n1", "m2", "n2", "eps", "mu_scale", "rolling_resistance", "drag_factor")
+                 "cg_height", "wheel_inertia", "m1", "n1", "m2", "n2", "eps", "mu_scale", "rolling_resistance",
+                 "drag_factor", "relaxation_length")
 (P_MASS, P_IZ, P_A, P_B, P_TF, P_TR, P_RW, P_H, P_IW, P_M1, P_N1, P_M2, P_N2, P_EPS,
- P_MU_SCALE, P_FRR, P_DRAG) = range(len(PACKED_FIELDS))
+ P_MU_SCALE, P_FRR, P_DRAG, P_RELAX) = range(len(PACKED_FIELDS))
 N_PARAMS = len(PACKED_FIELDS)
 
 
@@ -162,25 +179,29 @@ def wheel_loads(ax: float, ay: float, pk: np.ndarray, fz: np.ndarray) -> None:
 @numba.njit(inline="always", **JIT)
 def fill_steer_trig(delta, trig: np.ndarray) -> None:
     """cos, sin and tan of the four road-wheel steer angles delta (4,) [rad] (array or tuple)
-    into the rows of trig (3, 4): computed once per step, shared by every cubature point."""
+    into rows 0-2 of the wheel table trig (4, 4), and a zero slip lag into row 3 (the tyre
+    relaxation's offset of tan(alpha), which the joint estimator's step fills in when the model
+    has a relaxation length): computed once per step, shared by every cubature point."""
     for w in range(4):
         trig[0, w], trig[1, w], trig[2, w] = math.cos(delta[w]), math.sin(delta[w]), math.tan(delta[w])
+        trig[3, w] = 0.0
 
 
 @numba.njit(**JIT)
 def steer_trig(delta: np.ndarray) -> np.ndarray:
-    """:func:`fill_steer_trig` of delta (4,) [rad] as a new (3, 4) array."""
-    trig = np.empty((3, 4))
+    """:func:`fill_steer_trig` of delta (4,) [rad] as a new (4, 4) wheel table (no slip lag)."""
+    trig = np.empty((4, 4))
     fill_steer_trig(delta, trig)
     return trig
 
 
 @numba.njit(inline="always", **JIT)
-def wheel_trig(steer: np.ndarray, w: int) -> tuple[float, float, float]:
-    """cos, sin, tan of wheel w's steer angle from :func:`steer_trig`'s (3, 4) table. The tyre
+def wheel_trig(steer: np.ndarray, w: int) -> tuple[float, float, float, float]:
+    """cos, sin, tan of wheel w's steer angle and its slip lag from :func:`steer_trig`'s (4, 4)
+    wheel table. The tyre
     functions take this tuple, not the table: an array handed to an inlined function inside
     a loop keeps the compiler from vectorising the loop."""
-    return steer[0, w], steer[1, w], steer[2, w]
+    return steer[0, w], steer[1, w], steer[2, w], steer[3, w]
 
 
 @numba.njit(inline="always", **JIT)
@@ -188,13 +209,14 @@ def wheel_kinematics(u: float, v: float, r: float, trig: tuple, pk, w: int) -> t
     """Wheel w's tan(slip angle) and wheel-centre speed along its heading [m/s] (eq. 11-14,
     standard form: alpha_i = delta_i - atan((v + x_i r) / (u - y_i r)), the longitudinal speed
     floored at MIN_SPEED), with tan(alpha) = (tan delta - q) / (1 + q tan delta),
-    q = (v + x_i r) / (u - y_i r): no inverse trigonometry per point. ``trig``: :func:`wheel_trig`."""
+    q = (v + x_i r) / (u - y_i r): no inverse trigonometry per point, less the tyre's relaxation
+    lag of tan(alpha) (0 without relaxation). ``trig``: :func:`wheel_trig`."""
     x_w, y_w = wheel_position(pk, w)
     vx = u - r * y_w
     vy = v + r * x_w
     q = vy / max(abs(vx), MIN_SPEED)
-    cos_d, sin_d, tan_d = trig
-    return (tan_d - q) / (1.0 + q * tan_d), vx * cos_d + vy * sin_d
+    cos_d, sin_d, tan_d, lag = trig
+    return (tan_d - q) / (1.0 + q * tan_d) - lag, vx * cos_d + vy * sin_d
 
 
 @numba.njit(inline="always", **JIT)
