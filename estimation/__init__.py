@@ -83,5 +83,14 @@ def make_estimator(name: str, params, dt: float = 0.002, noise: NoiseParams | No
                           **kwargs)
 
 
+def relaxed_joint(params, dt: float = 0.002):
+    """The joint estimator with the tyre relaxation in its model (``make_estimator("joint", params,
+    dt, tyre_relaxation=True)``), as a factory, so that a name reaches it wherever names go:
+    ``fourwis compare --estimators joint estimation:relaxed_joint``, ``gym.make(...,
+    estimator="estimation:relaxed_joint")``."""
+    return make_estimator("joint", params, dt, tyre_relaxation=True)
+
+
 __all__ = ["ESTIMATORS", "TRUTH_GROUPS", "Estimate", "ModelParams", "NoiseParams", "OnlineTuner", "PartialOracle",
-           "StateEstimator", "check_estimator_name", "make_estimator", "parse_estimator_name", "tuned_noise"]
+           "StateEstimator", "check_estimator_name", "make_estimator", "parse_estimator_name", "relaxed_joint",
+           "tuned_noise"]

@@ -538,16 +538,16 @@ def test_tyre_relaxation_follows_the_plants_lateral_force_build_up():
 
 
 def test_tyre_relaxation_cuts_the_joint_estimators_sideslip_error_in_the_sine():
-    """make_estimator(..., tyre_relaxation=True): on the paper's sine steer (open loop, sensor
-    seed 0) the joint estimator's sideslip RMSE falls below 0.6x the paper model's (measured
-    0.059 against 0.177 deg): without the lag the model's lateral force leads the plant's at
-    every steering reversal. The option is off by default, and refused by estimators without
-    the model."""
+    """make_estimator(..., tyre_relaxation=True), by name ``estimation:relaxed_joint``: on the
+    paper's sine steer (open loop, sensor seed 0) the joint estimator's sideslip RMSE falls
+    below 0.6x the paper model's (measured 0.059 against 0.177 deg): without the lag the model's
+    lateral force leads the plant's at every steering reversal. The option is off by default,
+    and refused by estimators without the model."""
     scenario = make_scenario("paper_sine")
     errors = [rmse(traj.estimate.beta, traj.truth.beta)
-              for traj in (simulate(scenario, estimator=make_estimator("joint", scenario.params, tyre_relaxation=on))
-                           for on in (False, True))]
+              for traj in (simulate(scenario, estimator=name) for name in ("joint", "estimation:relaxed_joint"))]
     assert errors[1] < 0.6 * errors[0]
+    assert make_estimator("estimation:relaxed_joint", scenario.params).params.relaxation_length > 0.3
     assert make_estimator("joint", scenario.params).params.relaxation_length == 0.0
     with pytest.raises(ValueError, match="tyre_relaxation"):
         make_estimator("oracle", scenario.params, tyre_relaxation=True)
