@@ -502,13 +502,19 @@ def _relax_slip(x, steer, slip_relaxed, pk, dt, relaxed_new) -> None:
     """Advance each wheel's relaxed tan(slip angle) (4,) one step towards the kinematic one at
     the previous estimate x, over the model's relaxation length (estimation.model), into
     relaxed_new, and write the lag (kinematic less relaxed) into row 3 of the wheel table
-    ``steer`` (4, 4). Without a relaxation length, or on the first step (NaN), no lag."""
+    ``steer`` (4, 4). The lag is then held for the whole step: at the filters' predicted state
+    and cubature points the slip still moves with v and r one for one, as the instantaneous
+    tyre's does (which keeps v observable through ay); only its offset lags. Without a
+    relaxation length no lag (and NaN kept); on the first step (NaN) the relaxed slip starts
+    at the kinematic one."""
+    if pk[P_RELAX] <= 0.0:
+        for w in range(4):
+            relaxed_new[w], steer[3, w] = math.nan, 0.0
+        return
     for w in range(4):
         tan_kin, along = wheel_kinematics(x[I_U], x[I_V], x[I_R], wheel_trig(steer, w), pk, w)
-        if pk[P_RELAX] > 0.0 and math.isfinite(slip_relaxed[w]):
-            relaxed_new[w] = _low_pass(slip_relaxed[w], tan_kin, dt, pk[P_RELAX] / max(abs(along), MIN_SPEED))
-        else:
-            relaxed_new[w] = tan_kin
+        relaxed_new[w] = _low_pass(slip_relaxed[w], tan_kin, dt, pk[P_RELAX] / max(abs(along), MIN_SPEED)) \
+            if math.isfinite(slip_relaxed[w]) else tan_kin
         steer[3, w] = tan_kin - relaxed_new[w]
 
 

@@ -33,7 +33,8 @@ the paper (standard textbook forms, Rajamani 2012 ch. 13; Dugoff, Fancher & Sege
   *Tire and Vehicle Dynamics*, 3rd ed., sec. 7.2). The estimator carries the lag as a known
   offset of tan(alpha) from its previous estimate (:func:`wheel_kinematics`), so the state
   vector stays the paper's. Off in the shipped estimators (README, "Tyre relaxation in the
-  estimator": sideslip improves, the friction estimate does not);
+  estimator": the sideslip estimate improves; the friction estimate improves on the slalom
+  and worsens on the sine);
 * eq. 10: Dugoff's speed reduction of friction is mu (1 - eps u sqrt(s^2 + tan^2 alpha))
   (Dugoff, Fancher & Segel 1970: the sliding speed; the paper's form puts the stiffnesses
   inside the root, which makes eps carry newtons).
@@ -98,9 +99,9 @@ class ModelParams:
         ``resistances``: also the car's rolling resistance and drag, which the paper's model
         (and the shipped estimators) leave out: with them u and beta are more accurate, but the
         joint estimator's friction gate misses more friction drops (README, "Known limitations").
-        ``relaxation``: the slip angles lag by the tyre's lateral relaxation length at the static
-        wheel load (``vehicle.static_relaxation_lengths``, 0.36 m for the paper's car; the plant's
-        grows with load, 0.48 m at 3 kN, which this constant leaves out)."""
+        ``relaxation``: the slip angles lag by the tyre's lateral relaxation length at the mean
+        static wheel load m g / 4 (``vehicle.static_relaxation_lengths``, 0.36 m for the paper's
+        car; the plant's grows with load, 0.48 m at 3 kN, which this constant leaves out)."""
         fit = fit or _load_fit()
         return cls(vehicle.mass, vehicle.yaw_inertia, vehicle.cg_to_front, vehicle.cg_to_rear, vehicle.track_front,
                    vehicle.track_rear, vehicle.wheel_radius, vehicle.cg_height, vehicle.wheel_inertia,
@@ -198,9 +199,8 @@ def steer_trig(delta: np.ndarray) -> np.ndarray:
 @numba.njit(inline="always", **JIT)
 def wheel_trig(steer: np.ndarray, w: int) -> tuple[float, float, float, float]:
     """cos, sin, tan of wheel w's steer angle and its slip lag from :func:`steer_trig`'s (4, 4)
-    wheel table. The tyre
-    functions take this tuple, not the table: an array handed to an inlined function inside
-    a loop keeps the compiler from vectorising the loop."""
+    wheel table. The tyre functions take this tuple, not the table: an array handed to an
+    inlined function inside a loop keeps the compiler from vectorising the loop."""
     return steer[0, w], steer[1, w], steer[2, w], steer[3, w]
 
 
@@ -340,7 +340,9 @@ def normal_loads(ax, ay, p: ModelParams) -> np.ndarray:
 
 
 def state_transition(x: np.ndarray, mu: np.ndarray, inputs: Inputs, p: ModelParams, dt: float) -> np.ndarray:
-    """:func:`transition` of one state x (6,) with mu (4,) and ``inputs``; returns the new state."""
+    """:func:`transition` of one state x (6,) with mu (4,) and ``inputs``; returns the new state.
+    Without tyre relaxation: the lag is the joint estimator's running state (its step), which a
+    single transition does not have, so ``p.relaxation_length`` is not used here."""
     out = np.empty((1, 6))
     x = np.ascontiguousarray(x, dtype=np.float64)
     mu, delta, omega, torque, omega_dot = (np.ascontiguousarray(q, dtype=np.float64) for q in (mu, *inputs))

@@ -549,10 +549,40 @@ def test_tyre_relaxation_cuts_the_joint_estimators_sideslip_error_in_the_sine():
     assert errors[1] < 0.6 * errors[0]
     assert make_estimator("estimation:relaxed_joint", scenario.params).params.relaxation_length > 0.3
     assert make_estimator("joint", scenario.params).params.relaxation_length == 0.0
-    with pytest.raises(ValueError, match="tyre_relaxation"):
-        make_estimator("oracle", scenario.params, tyre_relaxation=True)
+    for name in ("oracle", "estimation:relaxed_joint"):
+        with pytest.raises(ValueError, match="tyre_relaxation"):
+            make_estimator(name, scenario.params, tyre_relaxation=True)
     with pytest.raises(ValueError, match="tyre_relaxation must be True or False, got 'yes'"):
         make_estimator("joint", scenario.params, tyre_relaxation="yes")
+
+
+def test_a_masked_reset_restarts_the_relaxed_slip_with_the_row():
+    """A row of a batch of relaxed joint estimators restarted mid-run by a masked reset (the
+    vector env's autoreset) continues exactly as a fresh estimator started on the same readings:
+    its relaxed slip angles restart with it (none of the old car's lag is carried over), and
+    the other rows go on as before."""
+    from envs.sensors import SensorReading
+
+    traj = simulate("paper_sine", seed=0)  # readings of a car in the sine: its slip keeps moving
+    params, restart = traj.scenario.params, 1400
+
+    def reading(k: int, n: int) -> SensorReading:
+        return SensorReading(np.repeat(traj.sensors[k][None], n, 0), np.repeat(traj.sensor_valid[k][None], n, 0),
+                             np.full(n, traj.t[k]))
+
+    batch, fresh, alone = (make_estimator("joint", params, tyre_relaxation=True) for _ in range(3))
+    batch.reset(reading(0, 3), traj.scenario.speed)
+    alone.reset(reading(0, 1), traj.scenario.speed)
+    for k in range(1, restart):
+        batch.step(reading(k, 3))
+        alone.step(reading(k, 1))
+    assert np.ptp(batch.slip_relaxed[1]) > 0.0  # a lagging row, mid-turn
+    batch.reset(reading(restart, 3), traj.truth.u[restart], mask=np.array([False, True, False]))
+    fresh.reset(reading(restart, 1), traj.truth.u[restart])
+    for k in range(restart + 1, restart + 300):
+        rows, one, other = batch.step(reading(k, 3)), fresh.step(reading(k, 1)), alone.step(reading(k, 1))
+        np.testing.assert_array_equal(rows.beta[1], one.beta[0])
+        np.testing.assert_array_equal(rows.beta[[0, 2]], np.repeat(other.beta, 2))
 
 
 def test_the_dugoff_fit_reproduces_the_plant_tyre():
