@@ -505,11 +505,11 @@ def _relax_slip(x, steer, slip_relaxed, pk, dt, relaxed_new) -> None:
     ``steer`` (4, 4). The lag is then held for the whole step: at the filters' predicted state
     and cubature points the slip still moves with v and r one for one, as the instantaneous
     tyre's does (which keeps v observable through ay); only its offset lags. Without a
-    relaxation length no lag (and NaN kept); on the first step (NaN) the relaxed slip starts
-    at the kinematic one."""
+    relaxation length no lag (row 3 keeps :func:`estimation.model.fill_steer_trig`'s zeros, and
+    NaN is kept); on the first step (NaN) the relaxed slip starts at the kinematic one, which
+    that zero row lets :func:`wheel_kinematics` give."""
     if pk[P_RELAX] <= 0.0:
-        for w in range(4):
-            relaxed_new[w], steer[3, w] = math.nan, 0.0
+        relaxed_new[:] = math.nan
         return
     for w in range(4):
         tan_kin, along = wheel_kinematics(x[I_U], x[I_V], x[I_R], wheel_trig(steer, w), pk, w)

@@ -237,13 +237,21 @@ def dugoff(fz: float, slip: float, tan_alpha: float, mu: float, cx: float, cy: f
 
 
 @numba.njit(inline="always", **JIT)
+def stiffness(fz: float, pk) -> tuple[float, float]:
+    """Eq. 17's load-dependent stiffnesses Cx(Fz) = m1 Fz - n1 Fz^2 [N/unit slip] and
+    Cy(Fz) = m2 Fz - n2 Fz^2 [N/rad] at wheel load ``fz`` [N]; ``pk``: packed parameters."""
+    return pk[P_M1] * fz - pk[P_N1] * fz * fz, pk[P_M2] * fz - pk[P_N2] * fz * fz
+
+
+@numba.njit(inline="always", **JIT)
 def tyre_operating_point(u, v, r, fz, trig, omega, pk, w) -> tuple[float, float, float, float]:
     """Wheel w's tan(slip angle), longitudinal slip and stiffnesses Cx, Cy (eq. 17) at load fz;
     ``trig``: :func:`wheel_trig`, ``omega``: its speed [rad/s]."""
     tan_alpha, along = wheel_kinematics(u, v, r, trig, pk, w)
     wheel_speed = omega * pk[P_RW]
     slip = (wheel_speed - along) / max(abs(wheel_speed), abs(along), MIN_SPEED)
-    return tan_alpha, slip, pk[P_M1] * fz - pk[P_N1] * fz * fz, pk[P_M2] * fz - pk[P_N2] * fz * fz
+    cx, cy = stiffness(fz, pk)
+    return tan_alpha, slip, cx, cy
 
 
 @numba.njit(inline="always", **JIT)

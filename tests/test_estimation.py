@@ -511,10 +511,10 @@ def test_tyre_relaxation_follows_the_plants_lateral_force_build_up():
     T, S = traj.truth, traj.state
     onset = int(np.argmax(np.abs(S[:, S_DELTA_F]) > 1e-4))
     window, steady = range(onset, onset + 125), range(onset + 1000, onset + 1010)
+    omega_dot = np.gradient(S[:, S_OMEGA:S_OMEGA + 4], dt, axis=0)
 
     def model_ay(params: ModelParams, steps) -> np.ndarray:
         relaxed, out = np.full(4, np.nan), []
-        omega_dot = np.gradient(S[:, S_OMEGA:S_OMEGA + 4], dt, axis=0)
         for k in range(onset - 50, steps[-1] + 1):
             table, relaxed_new = steer_trig(np.array([S[k, S_DELTA_F]] * 2 + [S[k, S_DELTA_R]] * 2)), np.empty(4)
             x_prev = np.array([T.u[k - 1], T.v[k - 1], T.ax[k - 1], T.ay[k - 1], T.r[k - 1], 0.0])

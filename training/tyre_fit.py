@@ -23,7 +23,7 @@ from scipy.optimize import minimize_scalar
 
 from envs.tyre import TyreParams, tyre_forces
 from envs.vehicle import VehicleParams
-from estimation.model import MIN_SPEED, ModelParams, dugoff
+from estimation.model import MIN_SPEED, ModelParams, dugoff, stiffness
 from training.io import atomic_write, atomic_write_json, pyplot
 
 OUTPUT = Path(__file__).resolve().parent.parent / "estimation" / "data" / "dugoff_fit.json"
@@ -106,7 +106,7 @@ def tyre_curves(load: float, mu: float = 1.0, vehicle=None, points: int = 121) -
     balance; Dugoff's longitudinal stiffness enters only through its combined-slip cut of Fy.)"""
     vehicle = vehicle or VehicleParams()
     p = ModelParams.from_vehicle(vehicle)
-    cx, cy = p.m1 * load - p.n1 * load**2, p.m2 * load - p.n2 * load**2
+    cx, cy = stiffness(load, p.packed)
     kappa, alpha = np.linspace(0.0, 0.5, points), np.radians(np.linspace(0.0, 15.0, points))
     fx_plant = tyre_forces(vehicle.tyre, load, kappa, 0.0, mu, vehicle.reference_wheel_load)[0]
     fy_plant = np.abs(tyre_forces(vehicle.tyre, load, 0.0, np.tan(alpha), mu, vehicle.reference_wheel_load)[1])
