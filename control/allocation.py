@@ -255,14 +255,19 @@ def allocate_torques(base_torques: np.ndarray, yaw_moment: np.ndarray, fz: np.nd
     feasible = np.empty(B, dtype=np.bool_)
     bad = _allocate(*inputs, p.wheel_positions, float(p.motor_peak_torque),
                     float(p.motor_peak_power), float(p.wheel_radius), torques, moment, force, feasible)
-    if bad == NEGATIVE_LOAD:
-        raise ValueError(f"wheel loads must be >= 0 N, got {inputs[2][inputs[2] < 0.0][:4]}")
-    if bad == NONPOSITIVE_FRICTION:
-        raise ValueError(f"friction must be > 0, got {inputs[3][inputs[3] <= 0.0][:4]}")
     if bad:
-        value = inputs[bad - 1]
-        raise ValueError(f"{_INPUTS[bad - 1]} must be finite, got {value[~np.isfinite(value)][:4]}")
+        raise allocation_error(bad, inputs)
     return Allocation(torques, moment, force, feasible)
+
+
+def allocation_error(bad: int, inputs: tuple[np.ndarray, ...]) -> ValueError:
+    """The error for :func:`_allocate`'s status ``bad`` (not 0) on its first eight arguments ``inputs``."""
+    if bad == NEGATIVE_LOAD:
+        return ValueError(f"wheel loads must be >= 0 N, got {inputs[2][inputs[2] < 0.0][:4]}")
+    if bad == NONPOSITIVE_FRICTION:
+        return ValueError(f"friction must be > 0, got {inputs[3][inputs[3] <= 0.0][:4]}")
+    value = inputs[bad - 1]
+    return ValueError(f"{_INPUTS[bad - 1]} must be finite, got {value[~np.isfinite(value)][:4]}")
 
 
 def allocate_for_estimate(base_torques: np.ndarray, yaw_moment: np.ndarray, estimate, params,

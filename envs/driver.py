@@ -16,6 +16,7 @@ import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -24,7 +25,7 @@ from scipy.linalg import expm
 from control.reference import bicycle_state_matrix
 from envs.courses import stack_polylines
 from envs.vehicle import GRAVITY, S_PSI, S_R, S_U, S_V, S_X, S_Y, VehicleParams
-from estimation.jit import JIT
+from estimation.jit import JIT, scratch
 
 SWD_FREQUENCY = 0.7  #: FMVSS 126 sine-with-dwell frequency [Hz]
 SWD_DWELL = 0.5  #: FMVSS 126 dwell at the second peak [s]
@@ -178,6 +179,31 @@ class SineWithDwell(VectorisedDriver):
         return self.start + 1.0 / SWD_FREQUENCY + SWD_DWELL
 
 
+@numba.njit(**JIT)
+def _sum_of_sines(table, members, t, states, out):
+    n = table.shape[1] // 3
+    for b in members:
+        total = 0.0
+        for i in range(n):
+            total += table[b, i] * math.sin(2 * math.pi * table[b, n + i] * t[b] + table[b, 2 * n + i])
+        out[b] = min(t[b], 1.0) * total  # faded in over the first second
+
+
+@dataclass(frozen=True)
+class SumOfSines(VectorisedDriver):
+    """``min(t, 1) * sum_i amplitudes[i] sin(2 pi frequencies[i] t + phases[i])`` [rad]: a sum
+    of sines faded in over the first second (the ``random`` scenario's steering)."""
+
+    amplitudes: tuple[float, ...]
+    frequencies: tuple[float, ...]
+    phases: tuple[float, ...]
+
+    kernel = staticmethod(_sum_of_sines)
+
+    def row(self) -> tuple[float, ...]:
+        return self.amplitudes + self.frequencies + self.phases
+
+
 @functools.lru_cache(maxsize=4096)
 def _preview_responses(params: VehicleParams, speed: float, preview_time: float,
                        points: int) -> tuple[np.ndarray, np.ndarray]:
@@ -284,24 +310,39 @@ class PathFollowerBatch:
     def __call__(self, states: np.ndarray, members: np.ndarray, out: np.ndarray) -> None:
         """Write the steering-wheel angles [rad] of vehicles ``members`` (M,) int64 at plant
         states (B, NX) (float64, C-contiguous) into ``out[members]``."""
-        p = self.params
         while True:
-            code, value = _follow_paths(self.paths, self.offsets, members, self.response_row, self.free, self.step,
-                                        states, self.preview_time, p.steering_ratio, p.max_front_steer, out)
+            paths, offsets, response_row, free, step, preview_time, ratio, max_steer = self.kernel_form()
+            code, value = _follow_paths(paths, offsets, members, response_row, free, step, states, preview_time, ratio,
+                                        max_steer, out)
             if code == _DONE:
                 return
             if code == _BAD_STATE:
-                raise ValueError(f"vehicle {value}'s pose or speed is not finite or its speed beyond "
-                                 f"{MAX_FOLLOW_SPEED:g} m/s: {states[value, [S_X, S_Y, S_PSI, S_U, S_V, S_R]]!r}")
-            if value >= len(self.response_row):  # _MISSING beyond the table: grow it
-                self.response_row = np.concatenate([self.response_row, np.full(value + 1, -1, dtype=np.int64)])
-            free, step = _preview_responses(p, value / 10.0, self.preview_time, self.points)
-            self.response_row[value] = len(self.free)
-            self.free, self.step = np.concatenate([self.free, free[None]]), np.concatenate([self.step, step[None]])
+                raise bad_follower_state(value, states[value])
+            self.add_responses(value)
+
+    def add_responses(self, tenths: int) -> None:
+        """Put the preview responses at a speed of ``tenths`` x 0.1 m/s in the table."""
+        if tenths >= len(self.response_row):  # beyond the table: grow it
+            self.response_row = np.concatenate([self.response_row, np.full(tenths + 1, -1, dtype=np.int64)])
+        free, step = _preview_responses(self.params, tenths / 10.0, self.preview_time, self.points)
+        self.response_row[tenths] = len(self.free)
+        self.free, self.step = np.concatenate([self.free, free[None]]), np.concatenate([self.step, step[None]])
+
+    def kernel_form(self) -> tuple:
+        """The arguments of :func:`_follow_paths` around ``members``, as :func:`drive` takes them."""
+        p = self.params
+        return (self.paths, self.offsets, self.response_row, self.free, self.step, self.preview_time,
+                float(p.steering_ratio), float(p.max_front_steer))
 
 
 _DONE, _MISSING, _BAD_STATE = 0, 1, 2
 MAX_FOLLOW_SPEED = 150.0  #: fastest speed the path follower steers at [m/s] (its response table grows with it)
+
+
+def bad_follower_state(b: int, state: np.ndarray) -> ValueError:
+    """The error for vehicle b, whose plant state (NX,) the path follower cannot steer from."""
+    return ValueError(f"vehicle {b}'s pose or speed is not finite or its speed beyond {MAX_FOLLOW_SPEED:g} m/s: "
+                      f"{state[[S_X, S_Y, S_PSI, S_U, S_V, S_R]]!r}")
 
 
 @numba.njit(**JIT)
@@ -421,6 +462,60 @@ class SpeedHold(VectorisedDriver):
                 p.drag_area, p.wheel_radius, p.motor_peak_torque)
 
 
+#: the driver classes the compiled closed loop (envs.compiled_loop) evaluates, by code (their
+#: index); :data:`FOLLOWER` is the path follower's code
+COMPILED_DRIVERS = (Constant, Step, Sine, Ramp, SineWithDwell, SumOfSines, SpeedHold)
+FOLLOWER = len(COMPILED_DRIVERS)
+
+
+@numba.njit(**JIT)
+def drive(code, tables, follower, b, t, states, out) -> tuple[int, int]:
+    """The output of vehicle b's driver of ``code`` into ``out[b]``, as its class's kernel writes
+    it: ``tables`` holds each class's (B, k) parameter table, ``follower`` the path followers'
+    arrays (:meth:`PathFollowerBatch.kernel_form`). Returns the path follower's (status, value)
+    (:func:`_follow_paths`), (_DONE, 0) for the others."""
+    members = scratch((1,), np.int64)
+    members[0] = b
+    if code == 0:
+        _constant(tables[0], members, t, states, out)
+    elif code == 1:
+        _step(tables[1], members, t, states, out)
+    elif code == 2:
+        _sine(tables[2], members, t, states, out)
+    elif code == 3:
+        _ramp(tables[3], members, t, states, out)
+    elif code == 4:
+        _sine_with_dwell(tables[4], members, t, states, out)
+    elif code == 5:
+        _sum_of_sines(tables[5], members, t, states, out)
+    elif code == 6:
+        _speed_hold(tables[6], members, t, states, out)
+    else:
+        paths, offsets, response_row, free, step, preview_time, ratio, max_steer = follower
+        return _follow_paths(paths, offsets, members, response_row, free, step, states, preview_time, ratio,
+                             max_steer, out)
+    return _DONE, 0
+
+
+class CompiledDrivers(NamedTuple):
+    """A :class:`DriverBatch` in the form :func:`drive` takes: ``codes`` (B,) int64, ``tables``
+    (one (B, k) table per class of COMPILED_DRIVERS) and ``follower`` (the path followers' batch,
+    or None)."""
+
+    codes: np.ndarray
+    tables: tuple[np.ndarray, ...]
+    follower: "PathFollowerBatch | None"
+
+
+_NO_TABLE = np.zeros((1, 1))  #: the table of a class no vehicle drives with
+_NO_FOLLOWER = PathFollowerBatch(VehicleParams(), 1.0, 1)
+
+
+def follower_form(follower: "PathFollowerBatch | None") -> tuple:
+    """``follower``'s :meth:`PathFollowerBatch.kernel_form` (a placeholder's for None)."""
+    return (follower or _NO_FOLLOWER).kernel_form()
+
+
 class DriverBatch:
     """The drivers of B vehicles (steering profiles, path followers or speed holders), evaluated
     together: the :class:`VectorisedDriver` s of one class (and parameter count) by one kernel
@@ -455,6 +550,20 @@ class DriverBatch:
         for key, batch in self._followers.items():
             batch.replace({int(b): self.drivers[b] for b in self._members[key]})
         self._looped = np.array([b for b, k in enumerate(self._keys) if k is None], dtype=np.int64)
+        self.compiled = self._compiled_form()
+
+    def _compiled_form(self) -> CompiledDrivers | None:
+        """This batch for :func:`drive`; None if a driver is none of COMPILED_DRIVERS nor a path
+        follower, or the followers differ in preview."""
+        classes = [key[0] for key in self._tables]
+        if len(self._looped) or len(self._followers) > 1 or len(set(classes)) < len(classes) \
+                or not set(classes) <= set(COMPILED_DRIVERS):
+            return None
+        tables = tuple(next((table for (cls, _), table in self._tables.items() if cls is driver), _NO_TABLE)
+                       for driver in COMPILED_DRIVERS)
+        codes = np.array([FOLLOWER if key[0] is PathFollower else COMPILED_DRIVERS.index(key[0]) for key in self._keys],
+                         dtype=np.int64)
+        return CompiledDrivers(codes, tables, next(iter(self._followers.values()), None))
 
     def __call__(self, t: np.ndarray, states: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         """Outputs (R,) of the drivers of vehicles ``rows`` (R,) (default: all B) from every

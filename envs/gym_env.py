@@ -27,13 +27,14 @@ from gymnasium.vector.utils import batch_space
 from control import Command
 from control.allocation import allocate_for_estimate
 from control.reference import PhasePlaneRegion, reference_yaw_rate
+from envs import compiled_loop
 from envs.fmvss126 import characterise
 from envs.metrics import SPIN_OUT_SIDESLIP, CoursePaths, rolling_sideslip, sine_with_dwell_metrics, spun_sideslip
 from envs.render import close_window, show_frame
 from envs.scenarios import SCENARIOS, Scenario, make_scenario
 from envs.sensors import Fault
 from envs.simulation import DT, ClosedLoop
-from envs.vehicle import A_AY, S_DELTA_F, S_DELTA_R, S_R, S_U, S_X, S_Y
+from envs.vehicle import S_DELTA_F, S_DELTA_R, S_U, S_X, S_Y
 from estimation import check_estimator_name
 from estimation.types import Estimate, is_integer, is_number
 
@@ -172,6 +173,15 @@ class AgentController:
         limit = p.motor_peak_torque
         return Command(np.clip(base_torques + self.action * limit, -limit, limit), np.zeros(len(base_torques)))
 
+    def kernel_form(self) -> tuple:
+        """This controller as envs.compiled_loop runs it: (mode, held actions (B, n), yaw-moment
+        scale [N m], rear-steer scale [rad], wheel positions, motor peak torque [N m] and power
+        [W], wheel radius [m])."""
+        p = self.params
+        mode = compiled_loop.YAW_MOMENT if self.action_mode == "yaw_moment" else compiled_loop.WHEEL_TORQUES
+        return (mode, self.action, MAX_YAW_MOMENT, float(p.max_rear_steer), p.wheel_positions,
+                float(p.motor_peak_torque), float(p.motor_peak_power), float(p.wheel_radius))
+
 
 class _EpisodeStats:
     """Running per-vehicle episode statistics (B,), plus the 2 ms series an SWD verdict needs."""
@@ -261,11 +271,10 @@ class YawStabilityCore:
         self.controller.action[:] = clipped
         moved = np.ones(self.batch_size, dtype=bool) if moving is None else moving
         swd = [b for b, s in enumerate(self.loop.scenarios) if s.name == "sine_with_dwell" and moved[b]]
-        for _ in range(self.config.substeps):
-            rec = self.loop.advance(moving=moving)
-            for b in swd:
-                self.stats.series[b].append((rec.t[b], rec.steering_wheel[b], rec.state[b, S_R], rec.aux[b, A_AY],
-                                             rec.truth.beta[b]))
+        steps = self.loop.advance_steps(self.config.substeps, moving)
+        for b in swd:
+            self.stats.series[b].extend(zip(steps.t[:, b], steps.steering_wheel[:, b], steps.r[:, b], steps.ay[:, b],
+                                            steps.beta[:, b]))
         s = self.loop.sample()
         obs = self.observe()
         truth = s.truth

@@ -26,14 +26,12 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
-import numba
 import numpy as np
 
 from envs import courses
-from envs.driver import Constant, PathFollower, Ramp, Sine, SineWithDwell, SpeedHold, Step, VectorisedDriver
+from envs.driver import Constant, PathFollower, Ramp, Sine, SineWithDwell, SpeedHold, Step, SumOfSines
 from envs.road import FrictionMap, PatchMap, as_friction_map, check_mu, patch, split, uniform
 from envs.vehicle import GRAVITY, VehicleParams, initial_state
-from estimation.jit import JIT
 from estimation.types import is_integer, is_number
 
 Steering = Callable[[float, np.ndarray], float]
@@ -327,35 +325,13 @@ def random(speed_kph=None, mu=None, duration=10.0, steering=None, seed=0, rear_s
         swa = min(neutral_steer_angle(demand, speed, params), params.max_front_steer) * params.steering_ratio
         if rng.random() < 0.75:
             weights = rng.dirichlet(np.ones(3))
-            steering = _SumOfSines(tuple(float(w * swa) for w in weights),
+            steering = SumOfSines(tuple(float(w * swa) for w in weights),
                                    tuple(float(f) for f in rng.uniform(0.2, 1.2, 3)),
                                    tuple(float(p) for p in rng.uniform(0, 2 * np.pi, 3)))
         else:
             steering = Step(float(swa * rng.choice([-1.0, 1.0])), float(rng.uniform(1.0, 4.0)))
     return Scenario("random", speed_kph, road, _positive("duration", duration), steering,
                     rear_steer_feedforward=rear_steer_feedforward, params=params)
-
-
-@numba.njit(**JIT)
-def _sum_of_sines(table, members, t, states, out):
-    n = table.shape[1] // 3
-    for b in members:
-        total = 0.0
-        for i in range(n):
-            total += table[b, i] * math.sin(2 * math.pi * table[b, n + i] * t[b] + table[b, 2 * n + i])
-        out[b] = min(t[b], 1.0) * total  # faded in over the first second
-
-
-@dataclass(frozen=True)
-class _SumOfSines(VectorisedDriver):
-    amplitudes: tuple[float, ...]
-    frequencies: tuple[float, ...]
-    phases: tuple[float, ...]
-
-    kernel = staticmethod(_sum_of_sines)
-
-    def row(self) -> tuple[float, ...]:
-        return self.amplitudes + self.frequencies + self.phases
 
 
 _BUILDERS: dict[str, Callable[..., Scenario]] = {

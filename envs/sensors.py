@@ -184,11 +184,17 @@ class SensorModel:
         for b, rng in zip(members, rngs):
             self.rngs[b] = rng
             self.bias[b] = rng.standard_normal(len(CHANNELS)) * self._bias_std
-            self._refill(b)
+            self.refill(b)
         self._held[members] = 0.0
         self._is_frozen[:, members] = False
 
-    def _refill(self, b: int) -> None:
+    def kernel_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(bias (B, 13), noise block (B, NOISE_BLOCK, 13), noise std (13,), cursor (B,)): what
+        :func:`_noisy_readings` reads and advances (the arrays themselves, updated in place)."""
+        return self.bias, self._normal, self._noise, self._cursor
+
+    def refill(self, b: int) -> None:
+        """Draw vehicle b's next block of NOISE_BLOCK samples from its generator."""
         rng = self.rngs[b]
         self._normal[b] = rng.standard_normal((NOISE_BLOCK, len(CHANNELS)))
         self._uniform[b] = rng.random(self._uniform.shape[1:])
@@ -209,7 +215,7 @@ class SensorModel:
         status = _noisy_readings(truth, rows, self.bias, self._normal, self._noise, self._cursor, values)
         if status == _BLOCK_USED_UP:
             for b in rows[self._cursor[rows] >= NOISE_BLOCK]:
-                self._refill(b)
+                self.refill(b)
             status = _noisy_readings(truth, rows, self.bias, self._normal, self._noise, self._cursor, values)
         if status >= 0:
             raise ValueError(f"non-finite true value on sensor channel {CHANNELS[status]!r}")

@@ -15,12 +15,13 @@ from typing import NamedTuple, Protocol
 import numpy as np
 from tqdm import tqdm
 
+from envs import compiled_loop
 from envs.driver import DriverBatch
 from envs.road import RoadTables, contact_points
 from envs.scenarios import Scenario, make_scenario
 from envs.sensors import Fault, SensorModel, SensorParams, SensorReading
 from envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NU, S_DELTA_F, S_DELTA_R,
-                          S_OMEGA, S_R, S_TORQUE, S_U, S_V, check_plant_step, derivatives, step)
+                          S_OMEGA, S_R, S_TORQUE, S_U, S_V, check_lag_step, check_plant_step, derivatives, step)
 from control import Command, StabilityController, check_controller
 from estimation.types import Estimate, check_estimate, check_estimator, is_integer
 
@@ -165,6 +166,18 @@ class StepRecord(NamedTuple):
     estimate: Estimate
 
 
+class SubstepSeries(NamedTuple):
+    """What :meth:`ClosedLoop.advance_steps` keeps of each of its n steps, before the plant moved
+    (n, B): t [s], steering_wheel [rad], the true yaw rate r [rad/s], lateral acceleration ay
+    [m/s^2] and sideslip beta [rad]."""
+
+    t: np.ndarray
+    steering_wheel: np.ndarray
+    r: np.ndarray
+    ay: np.ndarray
+    beta: np.ndarray
+
+
 class ClosedLoop:
     """Driver + sensors + estimator + controller + plant for B vehicles, advanced 2 ms at a time.
 
@@ -176,7 +189,8 @@ class ClosedLoop:
     ``controller``, which must then handle the batch; it is reset once, at construction).
 
     Each time instant is sensed once: :meth:`sample` measures and estimates (cached until
-    the plant moves), :meth:`advance` applies the controller and integrates.
+    the plant moves), :meth:`advance` applies the controller and integrates;
+    :meth:`advance_steps` does both for several steps, compiled where it can.
     """
 
     def __init__(self, scenarios: Scenario | Sequence[Scenario], controller: Controller | str | None,
@@ -370,6 +384,36 @@ class ClosedLoop:
                 self.k += moving
                 self._stale |= moving
         return record
+
+    def advance_steps(self, n: int, moving: np.ndarray | None = None) -> SubstepSeries:
+        """:meth:`advance` ``n`` times (every vehicle, or those selected by ``moving`` (B,) bool),
+        then :meth:`sample`; returns the series of the steps' samples. In one compiled call where
+        the loop has a compiled form (:func:`envs.compiled_loop.supports`: the Gymnasium envs'
+        loops), else step by step in Python; the two agree bit for bit."""
+        if not (is_integer(n) and n >= 1):
+            raise ValueError(f"n must be a positive integer, got {n!r}")
+        if moving is not None:
+            moving = np.asarray(moving)
+            if moving.dtype != np.bool_ or moving.shape != (self.batch_size,):
+                raise ValueError(f"moving must be a bool array of shape ({self.batch_size},), got {moving!r}")
+        if not compiled_loop.supports(self):
+            records = [self.advance(moving=moving) for _ in range(n)]
+            self.sample()
+            return SubstepSeries(np.array([r.t for r in records]), np.array([r.steering_wheel for r in records]),
+                                 np.array([r.state[:, S_R] for r in records]),
+                                 np.array([r.aux[:, A_AY] for r in records]), np.array([r.truth.beta for r in records]))
+        check_lag_step(self.params, self.dt)
+        old = self.sample()
+        arrays = compiled_loop.Arrays(old.t.copy(), old.reading.values.copy(), old.reading.valid.copy(),
+                                      compiled_loop.estimate_rows(old.truth), compiled_loop.estimate_rows(old.estimate),
+                                      old.steering_wheel.copy(), old.front_steer.copy(), old.base_torques.copy())
+        series = compiled_loop.advance(self, n, moving, arrays)
+        truth = compiled_loop.rows_estimate(arrays.truth, true_beta=True)
+        estimate = truth if self._needs_truth else compiled_loop.rows_estimate(arrays.estimate)
+        self._sample = Sample(arrays.t, SensorReading(arrays.readings, arrays.valid, arrays.t), truth, estimate,
+                              arrays.steering_wheel, arrays.front_steer, arrays.base_torques)
+        return SubstepSeries(series[..., 0], series[..., 1], series[..., 2], series[..., 3],
+                             np.arctan2(series[..., 5], np.abs(series[..., 4])))
 
 
 def _check_command(command, batch: int, source) -> None:

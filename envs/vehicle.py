@@ -753,18 +753,23 @@ def step(state: np.ndarray, controls: np.ndarray, params: VehicleParams, road, d
            tables.mu_given, tables.use_map, float(dt), int(n_steps), aux, status)
     if np.count_nonzero(status):
         b = int(np.flatnonzero(status)[0])
-        code = int(status[b])
-        if code == 1:
-            raise ValueError(f"controls[{b}] has a non-finite value: {controls[b]!r}")
-        if code == 2:
-            raise ValueError(f"road friction under vehicle {b} is outside (0, {MU_MAX}] at x={out[b, S_X]:.3f} m, "
-                             f"y={out[b, S_Y]:.3f} m")
-        if not np.all(np.isfinite(state[b])):
-            raise ValueError(f"state[{b}] has a non-finite value: {state[b]!r}")
-        raise FloatingPointError(f"plant state of vehicle {b} became non-finite (last finite state {state[b]!r})")
+        raise plant_error(b, int(status[b]), state[b], controls[b], out[b])
     if not tables.use_map and not isinstance(road, RoadTables):  # a callable map: the diagnostics see the
         aux = derivatives(out, controls, road_tables(road, out, params).mu_given, params)[1]  # friction here now
     return PlantStep(out, aux)
+
+
+def plant_error(b: int, code: int, start: np.ndarray, controls: np.ndarray, reached: np.ndarray) -> Exception:
+    """The error for vehicle b's kernel status ``code`` (1-3, :func:`_advance_block`): its state
+    ``start`` (NX,) at the step's start, ``controls`` (NU,) and the state ``reached`` when it stopped."""
+    if code == 1:
+        return ValueError(f"controls[{b}] has a non-finite value: {controls!r}")
+    if code == 2:
+        return ValueError(f"road friction under vehicle {b} is outside (0, {MU_MAX}] at x={reached[S_X]:.3f} m, "
+                          f"y={reached[S_Y]:.3f} m")
+    if not np.all(np.isfinite(start)):
+        return ValueError(f"state[{b}] has a non-finite value: {start!r}")
+    return FloatingPointError(f"plant state of vehicle {b} became non-finite (last finite state {start!r})")
 
 
 def initial_state(params: VehicleParams, speed: float | np.ndarray, batch_size: int = 1,

@@ -738,10 +738,21 @@ class StateEstimator:
                                            for s in (noise.accel_std, noise.gyro_std, noise.wheel_speed_std)))
         sensor_var = np.square(np.stack(sensor_std, axis=1))
         members = max(len(process_var), len(sensor_var))  # the kernel reads both at one member's row
-        self._process_var = np.ascontiguousarray(np.broadcast_to(process_var, (members, N_STATE)))
-        self._sensor_var = np.ascontiguousarray(np.broadcast_to(sensor_var, (members, 3)))
+        self._process_var = np.array(np.broadcast_to(process_var, (members, N_STATE)))  # (writable: one kernel type)
+        self._sensor_var = np.array(np.broadcast_to(sensor_var, (members, 3)))
         self._mu_var = np.square(np.array([noise.mu_walk_std, noise.mu_accel_std, noise.mu_max_std], dtype=float))
         self._mu_var[0] *= per_step
+
+    @property
+    def kind_code(self) -> int:
+        """``kind``'s index in KINDS, as the compiled step takes it."""
+        return self._kind_code
+
+    @property
+    def noise_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(process variances (M, 6), sensor variances (M, 3), mu variances (3,)) per step, as the
+        compiled step reads them (M: 1, or one row per member)."""
+        return self._process_var, self._sensor_var, self._mu_var
 
     # ---- set-up -------------------------------------------------------------------------
     def reset(self, reading, initial_speed: np.ndarray, mask: np.ndarray | None = None) -> None:
@@ -804,6 +815,18 @@ class StateEstimator:
         self.last_nll = np.zeros(B)
 
     # ---- one step -----------------------------------------------------------------------
+    def step_error(self, i: int, status: int, values: np.ndarray) -> ValueError:
+        """The error of vehicle i's failed step (compiled status ``status``) on the reading ``values`` (13,)."""
+        if status == FILTER_FAILED:
+            return ValueError(f"the {self.kind} filter of vehicle {i} failed: a covariance is not finite or not "
+                              "positive definite")
+        bad_inputs = [CHANNELS[c] for c in range(N_MEASURED, 13) if not np.isfinite(values[c])]
+        if bad_inputs:  # the model needs its inputs every step, valid or not
+            return ValueError(f"inputs {bad_inputs} of vehicle {i} are NaN or inf: wheel speeds, steer angles and "
+                              "torques drive the model every step; hold the last value while a sensor is out (as "
+                              "envs.sensors does) and flag it invalid")
+        return ValueError(f"a valid measurement of vehicle {i} is NaN or inf: {values!r}")
+
     def step(self, reading, truth: Estimate | None = None, members: np.ndarray | None = None) -> Estimate:
         """One filter step on ``reading`` (values and valid (B, 13)); with ``members`` (M,) indices
         only those rows step (the others keep their state) and the estimate has M rows. A
@@ -828,16 +851,7 @@ class StateEstimator:
                self._process_var, self._sensor_var, self._mu_var, *state, values, valid, out, status)
         if np.count_nonzero(status):
             j = int(np.flatnonzero(status)[0])
-            i = int(rows[j])
-            if status[j] == FILTER_FAILED:
-                raise ValueError(f"the {self.kind} filter of vehicle {i} failed: a covariance is not finite or not "
-                                 "positive definite")
-            bad_inputs = [CHANNELS[c] for c in range(N_MEASURED, 13) if not np.isfinite(values[i, c])]
-            if bad_inputs:  # the model needs its inputs every step, valid or not
-                raise ValueError(f"inputs {bad_inputs} of vehicle {i} are NaN or inf: wheel speeds, steer angles "
-                                 "and torques drive the model every step; hold the last value while a sensor is "
-                                 "out (as envs.sensors does) and flag it invalid")
-            raise ValueError(f"a valid measurement of vehicle {i} is NaN or inf: {values[i]!r}")
+            raise self.step_error(int(rows[j]), int(status[j]), values[rows[j]])
         return Estimate(u=out[:, O_U], v=out[:, O_V], beta=out[:, O_BETA], r=out[:, O_R], ax=out[:, O_AX],
                         ay=out[:, O_AY], mu=out[:, O_MU:O_MU + 4], fz=out[:, O_FZ:O_FZ + 4],
                         beta_std=out[:, O_BETA_STD], mu_std=out[:, O_MU_STD:O_MU_STD + 4])

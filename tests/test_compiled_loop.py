@@ -1,0 +1,108 @@
+"""The compiled closed loop (envs.compiled_loop) equals the Python loop it replaces, bit for bit."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import envs  # noqa: F401  (registers the environment)
+from envs import compiled_loop
+from envs.gym_env import YawStabilityVectorEnv
+from envs.scenarios import make_scenario
+from envs.sensors import Fault
+from envs.simulation import ClosedLoop
+from envs.vehicle import S_R
+
+
+def _python_loop(monkeypatch) -> None:
+    monkeypatch.setattr(compiled_loop, "supports", lambda loop: False)
+
+
+def _episode_record(make, steps: int) -> list:
+    """Everything a user sees over ``steps`` random-action steps (with resets) of the env ``make()``."""
+    env = make()
+    obs, _ = env.reset(seed=3)
+    rng = np.random.default_rng(0)
+    seen = [obs]
+    for _ in range(steps):
+        obs, reward, terminated, truncated, info = env.step(rng.uniform(-1, 1, env.action_space.shape)
+                                                            .astype(np.float32))
+        seen += [obs, np.array([reward, terminated, truncated], dtype=float), *info["truth"], *info["estimate"]]
+        metrics = info.get("episode_metrics")
+        if metrics is not None:
+            seen.append(np.array([float(v) for v in metrics.values() if isinstance(v, (bool, int, float))]))
+        if terminated or truncated:
+            seen.append(env.reset()[0])
+    return seen
+
+
+def _assert_same(first: list, second: list) -> None:
+    assert len(first) == len(second)
+    for a, b in zip(first, second):
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("kwargs", [
+    {},  # the default: joint estimator, yaw-moment actions, random roads and steering
+    {"estimator": "oracle", "action": "wheel_torques", "speed_kph": 70.0},
+    {"estimator": "ckf", "scenario_kwargs": {"course_share": 1.0}},  # path-following driver on lane changes
+    {"scenario": "sine_with_dwell", "observation": "true"},  # the FMVSS 126 verdict from the steps' series
+])
+def test_single_env_steps_equal_the_python_loop(kwargs, monkeypatch):
+    def make():
+        return gym.make("envs:FourWIS/YawStability-v0", max_episode_steps=120, **kwargs)
+
+    env = make()
+    env.reset(seed=0)
+    assert compiled_loop.supports(env.unwrapped._core.loop)
+    compiled = _episode_record(make, 300)  # 3,000 sensor samples: every car refills its noise block
+    _python_loop(monkeypatch)
+    _assert_same(compiled, _episode_record(make, 300))
+
+
+def test_vector_env_with_autoresets_equals_the_python_loop(monkeypatch):
+    def run() -> list:
+        env = YawStabilityVectorEnv(num_envs=3, max_episode_steps=70, scenario_kwargs={"course_share": 0.5})
+        obs, _ = env.reset(seed=11)
+        rng = np.random.default_rng(2)
+        seen, ends = [obs], 0
+        for _ in range(200):
+            obs, reward, terminated, truncated, info = env.step(rng.uniform(-1, 1, (3, 2)).astype(np.float32))
+            seen += [obs, reward, terminated, truncated, info["estimate"].mu]
+            ends += int(np.count_nonzero(terminated | truncated))
+        assert ends >= 6  # (the held cars of the next-step resets are exercised)
+        return seen
+
+    compiled = run()
+    _python_loop(monkeypatch)
+    _assert_same(compiled, run())
+
+
+def test_loops_the_compiled_path_cannot_run_take_the_python_loop():
+    scenario = make_scenario("paper_sine")
+    assert compiled_loop.supports(ClosedLoop(scenario, None, "joint", np.random.default_rng(0)))
+    faulty = ClosedLoop(scenario, None, "joint", np.random.default_rng(0), faults=(Fault("yaw_rate", "stuck", 1.0),))
+    assert not compiled_loop.supports(faulty)
+    batch = compiled_loop.MAX_BATCH + 1
+    many = ClosedLoop([scenario] * batch, None, "oracle", [np.random.default_rng(b) for b in range(batch)])
+    assert not compiled_loop.supports(many)
+    records = many.advance_steps(3)  # (the Python loop's series)
+    assert records.r.shape == (3, batch) and np.all(records.t[:, 0] == [0.0, 0.002, 0.004])
+    np.testing.assert_array_equal(many.state[:, S_R], many.sample().truth.r)
+
+
+@pytest.mark.parametrize("break_it, error, match", [
+    (lambda loop: loop.estimator.P.fill(np.nan), ValueError, "the joint filter of vehicle 0 failed"),
+    (lambda loop: loop.state.__setitem__((0, S_R), np.nan), ValueError, r"state\[0\] has a non-finite value"),
+])
+def test_failures_raise_the_python_loops_errors(break_it, error, match, monkeypatch):
+    def failure() -> str:
+        loop = ClosedLoop(make_scenario("paper_sine"), None, "joint", np.random.default_rng(0))
+        loop.advance_steps(5)
+        break_it(loop)
+        with pytest.raises(error, match=match) as caught:
+            loop.advance_steps(5)
+        return str(caught.value)
+
+    compiled = failure()
+    _python_loop(monkeypatch)
+    assert failure() == compiled
