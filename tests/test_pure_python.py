@@ -46,3 +46,27 @@ def test_with_numba_disabled_the_closed_loop_runs_as_python_and_matches_the_comp
     np.testing.assert_allclose(python["controls"], compiled.controls, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(python["mu"], compiled.estimate.mu, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(python["v"], compiled.estimate.v, rtol=1e-9, atol=1e-12)
+
+
+# five control steps of the single env, whose substeps run in envs.compiled_loop's kernel
+ENV_RUN = """
+import sys, warnings
+import gymnasium as gym
+import numpy as np
+warnings.simplefilter("ignore")
+from envs import compiled_loop
+env = gym.make("envs:FourWIS/YawStability-v0")
+env.reset(seed=4)
+assert compiled_loop.supports(env.unwrapped._core.loop)
+np.save(sys.argv[1], np.array([env.step(np.array([0.5, -0.3], np.float32))[0] for _ in range(5)]))
+"""
+
+
+@pytest.mark.skipif(numba.config.DISABLE_JIT, reason="the reference run must be the compiled one")
+def test_with_numba_disabled_the_compiled_env_loop_runs_as_python(tmp_path):
+    runs = {}
+    for name, disable in (("python", "1"), ("compiled", "0")):
+        runs[name] = tmp_path / f"{name}.npy"
+        subprocess.run([sys.executable, "-c", ENV_RUN, str(runs[name])], check=True, capture_output=True, text=True,
+                       cwd=Path(__file__).resolve().parent.parent, env={**os.environ, "NUMBA_DISABLE_JIT": disable})
+    np.testing.assert_allclose(np.load(runs["python"]), np.load(runs["compiled"]), rtol=1e-5, atol=1e-6)
