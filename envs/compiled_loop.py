@@ -1,5 +1,7 @@
 """A closed loop's 2 ms steps in one compiled call: :meth:`envs.simulation.ClosedLoop.advance_steps`'
-fast path, which the Gymnasium envs take for every control step.
+fast path, which the Gymnasium envs take for every control step and :func:`envs.simulation.simulate`
+for runs without a stability controller (open-loop estimation, tuning, the comparison's
+``none`` rows).
 
 Each step of each vehicle runs, in order, what :meth:`ClosedLoop.advance` and
 :meth:`ClosedLoop.sample` run from Python: the agent's command (``control.allocation``'s
@@ -15,7 +17,7 @@ they stopped.
 
 The fast path applies when everything in the loop has a compiled form: fourwis's own
 estimators (``StateEstimator`` of any kind, ``Oracle``), a controller with ``kernel_form``
-(the envs' agent controller) or none, sensors without faults, table friction maps and
+(the envs' agent controller) or none (the DYC laws run in Python), sensors without faults, table friction maps and
 drivers of :data:`envs.driver.COMPILED_DRIVERS` or path followers, for batches up to
 :data:`MAX_BATCH` cars. :func:`supports` says whether a loop takes it.
 """
@@ -33,10 +35,10 @@ import numpy as np
 from control.allocation import _allocate, allocation_error
 from envs.driver import FOLLOWER, _DONE, _MISSING, bad_follower_state, drive, follower_form
 from envs.road import RoadTables
-from envs.sensors import NOISE_BLOCK, _noisy_readings
-from envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NU, RK4_REAL_LIMIT, S_DELTA_F,
-                          S_DELTA_R, S_OMEGA, S_R, S_TORQUE, S_U, S_V, _advance_block, check_relaxation_step,
-                          plant_error)
+from envs.sensors import NOISE_BLOCK, SensorReading, _noisy_readings
+from envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NAUX, NU, NX, RK4_REAL_LIMIT,
+                          S_DELTA_F, S_DELTA_R, S_OMEGA, S_R, S_TORQUE, S_U, S_V, _advance_block,
+                          check_relaxation_step, plant_error)
 from estimation.joint import (N_OUT, O_AX, O_AY, O_BETA, O_BETA_STD, O_FZ, O_MU, O_MU_STD, O_R, O_U, O_V, OK,
                               STATE_FIELDS, _step_row)
 from estimation.jit import JIT, scratch
@@ -104,12 +106,35 @@ def _sense(b, state, aux, sensors, truth, readings, sensed) -> int:
     return _noisy_readings(sensed, row, bias, normal, noise, cursor, readings[b:b + 1])
 
 
+#: columns of a step's record (:func:`_record`): time, steering-wheel angle, plant state,
+#: diagnostics, applied controls, sensor readings, truth and estimate (N_OUT layout each)
+R_T, R_STEERING_WHEEL, R_STATE = 0, 1, 2
+R_AUX = R_STATE + NX
+R_CONTROLS = R_AUX + NAUX
+R_READINGS = R_CONTROLS + NU
+R_TRUTH = R_READINGS + 13
+R_ESTIMATE = R_TRUTH + N_OUT
+R_WIDTH = R_ESTIMATE + N_OUT
+
+
+@numba.njit(inline="always", **JIT)
+def _record(out, t, steering_wheel, state, aux, controls, readings, truth, estimate) -> None:
+    """One step's record into ``out`` (R_WIDTH,)."""
+    out[R_T], out[R_STEERING_WHEEL] = t, steering_wheel
+    out[R_STATE:R_AUX] = state
+    out[R_AUX:R_CONTROLS] = aux
+    out[R_CONTROLS:R_READINGS] = controls
+    out[R_READINGS:R_TRUTH] = readings
+    out[R_TRUTH:R_ESTIMATE] = truth
+    out[R_ESTIMATE:] = estimate
+
+
 @numba.njit(**JIT)
 def _advance_vehicle(b, n, progress, status, value, k, dt, state, aux, plant, sensors, drivers, estimator, controller,
-                     sample, reached, controls, series) -> None:
+                     sample, reached, controls, records) -> None:
     """Vehicle b's steps from ``progress[b]`` up to ``n`` (see the module docstring); sets
-    ``status[b]`` and ``value[b]``. ``series`` (n, B, 6): each step's t, steering-wheel angle,
-    yaw rate, lateral acceleration, u and v, before the plant moves."""
+    ``status[b]`` and ``value[b]``. ``records`` (n, B, R_WIDTH): each step's sample, plant state,
+    diagnostics and applied controls, before the plant moves (columns R_*)."""
     pk, tp, base_mu, rects, mu_given, use_map, relaxation_speed, reach = plant
     steer_codes, steer_tables, steer_follower, speed_codes, speed_tables, speed_follower, steering_ratio, \
         max_front_steer, drive_torque = drivers
@@ -130,8 +155,7 @@ def _advance_vehicle(b, n, progress, status, value, k, dt, state, aux, plant, se
             if bad:
                 status[b], value[b] = ALLOCATION_FAILED, bad
                 return
-            series[s, b, 0], series[s, b, 1], series[s, b, 2] = t[b], swa[b], state[b, S_R]
-            series[s, b, 3], series[s, b, 4], series[s, b, 5] = aux[b, A_AY], state[b, S_U], state[b, S_V]
+            _record(records[s, b], t[b], swa[b], state[b], aux[b], ctrl[0], readings[b], truth[b], est[b])
             if math.hypot(state[b, S_U], state[b, S_V]) + abs(state[b, S_R]) * reach > relaxation_speed:
                 status[b] = TOO_FAST_FOR_RELAXATION
                 return
@@ -175,11 +199,11 @@ def _advance_vehicle(b, n, progress, status, value, k, dt, state, aux, plant, se
 
 @numba.njit(nogil=True, **JIT)
 def _advance_cars(cars, n, progress, status, value, k, dt, state, aux, plant, sensors, drivers, estimator, controller,
-                  sample, reached, controls, series) -> None:
+                  sample, reached, controls, records) -> None:
     """:func:`_advance_vehicle` for each vehicle of ``cars`` (M,) int64, without the GIL."""
     for j in range(cars.shape[0]):
         _advance_vehicle(cars[j], n, progress, status, value, k, dt, state, aux, plant, sensors, drivers, estimator,
-                         controller, sample, reached, controls, series)
+                         controller, sample, reached, controls, records)
 
 
 @functools.lru_cache(maxsize=None)
@@ -231,12 +255,12 @@ def estimate_rows(estimate: Estimate) -> np.ndarray:
 
 
 def rows_estimate(rows: np.ndarray, true_beta: bool = False) -> Estimate:
-    """The :class:`Estimate` (views) of rows (B, N_OUT); ``true_beta``: beta from u and v as
+    """The :class:`Estimate` (views) of rows (..., N_OUT); ``true_beta``: beta from u and v as
     envs.simulation.true_estimate has it (the kernel leaves the truth's beta out)."""
-    fields = {name: rows[:, column] if width == 1 else rows[:, column:column + width]
+    fields = {name: rows[..., column] if width == 1 else rows[..., column:column + width]
               for name, column, width in _ESTIMATE_COLUMNS}
     if true_beta:
-        fields["beta"] = np.arctan2(rows[:, O_V], np.abs(rows[:, O_U]))
+        fields["beta"] = np.arctan2(rows[..., O_V], np.abs(rows[..., O_U]))
     return Estimate(**fields)
 
 
@@ -291,8 +315,9 @@ def _controller_form(controller, params, batch: int) -> tuple:
 def advance(loop, n: int, moving: np.ndarray | None, arrays: Arrays) -> np.ndarray:
     """``n`` steps of the vehicles of ``loop`` selected by ``moving`` (B,) bool (all if None),
     from the loop's current sample ``arrays`` (updated in place, as are ``loop``'s state, aux,
-    clock, sensors and estimator); returns the steps' series (n, B, 6) (:func:`_advance_vehicle`).
-    Raises the errors the Python loop raises (ValueError, FloatingPointError)."""
+    clock, sensors and estimator); returns the steps' records (n, B, R_WIDTH) (:func:`_record`;
+    a held vehicle's rows stay NaN). Raises the errors the Python loop raises (ValueError,
+    FloatingPointError)."""
     params, dt, batch = loop.params, loop.dt, loop.batch_size
     progress = np.zeros(batch, dtype=np.int64)
     if moving is not None:
@@ -300,7 +325,7 @@ def advance(loop, n: int, moving: np.ndarray | None, arrays: Arrays) -> np.ndarr
     status, value = np.zeros(batch, dtype=np.int64), np.zeros(batch, dtype=np.int64)
     state, aux, k = loop.state.copy(), loop.aux.copy(), loop.k.copy()
     reached, controls = np.zeros_like(state), np.zeros((batch, NU))
-    series = np.empty((n, batch, 6))
+    records = np.full((n, batch, R_WIDTH), np.nan)
     road = loop.road
     plant = (params.kernel_array, params.kernel_tyre_array, road.base_mu, road.rects, road.mu_given, road.use_map,
              RK4_REAL_LIMIT * params.min_relaxation_length / dt, params.contact_point_reach)
@@ -320,7 +345,7 @@ def advance(loop, n: int, moving: np.ndarray | None, arrays: Arrays) -> np.ndarr
                    follower_form(speed.follower), float(params.steering_ratio), float(params.max_front_steer),
                    drive_torque)
         _run(cars, n, progress, status, value, k, dt, state, aux, plant, sensor_arrays, drivers, estimator, controller,
-             sample, reached, controls, series)
+             sample, reached, controls, records)
         for b in cars[status[cars] != DONE]:
             code = status[b]
             if code == NEEDS_NOISE:
@@ -330,7 +355,7 @@ def advance(loop, n: int, moving: np.ndarray | None, arrays: Arrays) -> np.ndarr
             else:
                 raise _failure(loop, b, code, int(value[b]), state, reached, controls, arrays)
     loop.state, loop.aux, loop.k = state, aux, k
-    return series
+    return records
 
 
 def _failure(loop, b: int, code: int, value: int, state, reached, controls, arrays: Arrays) -> Exception:
@@ -353,3 +378,16 @@ def _failure(loop, b: int, code: int, value: int, state, reached, controls, arra
     if code == BAD_FOLLOWER_STATE:
         return bad_follower_state(b, state[b])
     return RuntimeError(f"vehicle {b}: compiled closed-loop status {code} ({value})")
+
+
+def step_records(rows: np.ndarray, oracle: bool):
+    """:class:`envs.simulation.StepRecords` (views) of the records (n, B, R_WIDTH) of
+    :func:`advance`; ``oracle``: the estimate is the truth."""
+    from envs.simulation import StepRecords
+
+    t = rows[..., R_T]
+    truth = rows_estimate(rows[..., R_TRUTH:R_ESTIMATE], true_beta=True)
+    reading = SensorReading(rows[..., R_READINGS:R_TRUTH], np.ones(rows.shape[:2] + (13,), dtype=bool), t)
+    return StepRecords(t, rows[..., R_STATE:R_AUX], rows[..., R_AUX:R_CONTROLS], rows[..., R_CONTROLS:R_READINGS],
+                       rows[..., R_STEERING_WHEEL], reading, truth,
+                       truth if oracle else rows_estimate(rows[..., R_ESTIMATE:]))

@@ -34,7 +34,7 @@ from envs.render import close_window, show_frame
 from envs.scenarios import SCENARIOS, Scenario, make_scenario
 from envs.sensors import Fault
 from envs.simulation import DT, ClosedLoop
-from envs.vehicle import S_DELTA_F, S_DELTA_R, S_U, S_X, S_Y
+from envs.vehicle import A_AY, S_DELTA_F, S_DELTA_R, S_R, S_U, S_X, S_Y
 from estimation import check_estimator_name
 from estimation.types import Estimate, is_integer, is_number
 
@@ -273,8 +273,8 @@ class YawStabilityCore:
         swd = [b for b, s in enumerate(self.loop.scenarios) if s.name == "sine_with_dwell" and moved[b]]
         steps = self.loop.advance_steps(self.config.substeps, moving)
         for b in swd:
-            self.stats.series[b].extend(zip(steps.t[:, b], steps.steering_wheel[:, b], steps.r[:, b], steps.ay[:, b],
-                                            steps.beta[:, b]))
+            self.stats.series[b].extend(zip(steps.t[:, b], steps.steering_wheel[:, b], steps.state[:, b, S_R],
+                                            steps.aux[:, b, A_AY], steps.truth.beta[:, b]))
         s = self.loop.sample()
         obs = self.observe()
         truth = s.truth

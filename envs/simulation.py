@@ -26,6 +26,7 @@ from control import Command, StabilityController, check_controller
 from estimation.types import Estimate, check_estimate, check_estimator, is_integer
 
 DT = 0.002  #: physics, sensor and estimator step [s] (the paper samples at 2 ms)
+SIMULATE_CHUNK = 250  #: steps :func:`simulate` advances per call (its progress bar moves by as many)
 
 
 class Controller(Protocol):
@@ -118,10 +119,6 @@ class Trajectory(NamedTuple):
     scenario: Scenario
 
 
-def _stack(items: list[Estimate]) -> Estimate:
-    return Estimate(*(np.stack([getattr(e, f)[0] for e in items]) for f in Estimate._fields))
-
-
 def _merged(full: np.ndarray, part: np.ndarray, rows: np.ndarray) -> np.ndarray:
     """A copy of ``full`` with ``rows`` replaced by ``part``."""
     out = full.copy()
@@ -166,16 +163,29 @@ class StepRecord(NamedTuple):
     estimate: Estimate
 
 
-class SubstepSeries(NamedTuple):
-    """What :meth:`ClosedLoop.advance_steps` keeps of each of its n steps, before the plant moved
-    (n, B): t [s], steering_wheel [rad], the true yaw rate r [rad/s], lateral acceleration ay
-    [m/s^2] and sideslip beta [rad]."""
+class StepRecords(NamedTuple):
+    """The :class:`StepRecord` s of n steps of a closed loop of B vehicles, stacked: every array
+    has the leading axes (n, B) (the reading's and the Estimates' fields too)."""
 
     t: np.ndarray
+    state: np.ndarray
+    aux: np.ndarray
+    controls: np.ndarray
     steering_wheel: np.ndarray
-    r: np.ndarray
-    ay: np.ndarray
-    beta: np.ndarray
+    reading: SensorReading
+    truth: Estimate
+    estimate: Estimate
+
+
+def _stacked(records: list[StepRecord]) -> StepRecords:
+    """StepRecords of a list of StepRecord s."""
+    def stack(field: str, group: str | None = None) -> np.ndarray:
+        return np.stack([getattr(getattr(r, group) if group else r, field) for r in records])
+
+    return StepRecords(stack("t"), stack("state"), stack("aux"), stack("controls"), stack("steering_wheel"),
+                       SensorReading(*(stack(f, "reading") for f in SensorReading._fields)),
+                       Estimate(*(stack(f, "truth") for f in Estimate._fields)),
+                       Estimate(*(stack(f, "estimate") for f in Estimate._fields)))
 
 
 class ClosedLoop:
@@ -385,11 +395,13 @@ class ClosedLoop:
                 self._stale |= moving
         return record
 
-    def advance_steps(self, n: int, moving: np.ndarray | None = None) -> SubstepSeries:
+    def advance_steps(self, n: int, moving: np.ndarray | None = None) -> StepRecords:
         """:meth:`advance` ``n`` times (every vehicle, or those selected by ``moving`` (B,) bool),
-        then :meth:`sample`; returns the series of the steps' samples. In one compiled call where
-        the loop has a compiled form (:func:`envs.compiled_loop.supports`: the Gymnasium envs'
-        loops), else step by step in Python; the two agree bit for bit."""
+        then :meth:`sample`; returns the steps' records. In one compiled call where the loop has
+        a compiled form (:func:`envs.compiled_loop.supports`: fourwis's estimators, no controller
+        or the envs' agent, no sensor faults, table roads, built-in drivers, up to 32 cars), else
+        step by step in Python; the two agree bit for bit, but for the rows of held vehicles,
+        which the compiled path leaves NaN."""
         if not (is_integer(n) and n >= 1):
             raise ValueError(f"n must be a positive integer, got {n!r}")
         if moving is not None:
@@ -399,21 +411,18 @@ class ClosedLoop:
         if not compiled_loop.supports(self):
             records = [self.advance(moving=moving) for _ in range(n)]
             self.sample()
-            return SubstepSeries(np.array([r.t for r in records]), np.array([r.steering_wheel for r in records]),
-                                 np.array([r.state[:, S_R] for r in records]),
-                                 np.array([r.aux[:, A_AY] for r in records]), np.array([r.truth.beta for r in records]))
+            return _stacked(records)
         check_lag_step(self.params, self.dt)
         old = self.sample()
         arrays = compiled_loop.Arrays(old.t.copy(), old.reading.values.copy(), old.reading.valid.copy(),
                                       compiled_loop.estimate_rows(old.truth), compiled_loop.estimate_rows(old.estimate),
                                       old.steering_wheel.copy(), old.front_steer.copy(), old.base_torques.copy())
-        series = compiled_loop.advance(self, n, moving, arrays)
+        rows = compiled_loop.advance(self, n, moving, arrays)
         truth = compiled_loop.rows_estimate(arrays.truth, true_beta=True)
         estimate = truth if self._needs_truth else compiled_loop.rows_estimate(arrays.estimate)
         self._sample = Sample(arrays.t, SensorReading(arrays.readings, arrays.valid, arrays.t), truth, estimate,
                               arrays.steering_wheel, arrays.front_steer, arrays.base_torques)
-        return SubstepSeries(series[..., 0], series[..., 1], series[..., 2], series[..., 3],
-                             np.arctan2(series[..., 5], np.abs(series[..., 4])))
+        return compiled_loop.step_records(rows, self._needs_truth)
 
 
 def _check_command(command, batch: int, source) -> None:
@@ -438,7 +447,8 @@ def simulate(scenario: Scenario | str, controller: Controller | str | None = Non
     :func:`estimation.make_estimator`, or None (the oracle: the controller sees the truth).
     ``seed`` seeds the sensor noise and faults. ``dt`` [s] at most :data:`envs.vehicle.MAX_DT`
     (10 ms); the sensors sample once per step, so another ``dt`` than 2 ms needs
-    ``SensorParams(sample_time=dt)``.
+    ``SensorParams(sample_time=dt)``. Without a controller (and with fourwis's estimators, no
+    sensor faults) the steps run compiled (:mod:`envs.compiled_loop`), with the same result.
     """
     if isinstance(scenario, str):
         scenario = make_scenario(scenario)
@@ -448,10 +458,22 @@ def simulate(scenario: Scenario | str, controller: Controller | str | None = Non
         raise ValueError(f"progress must be True or False, got {progress!r}")
     loop = ClosedLoop(scenario, controller, estimator, np.random.default_rng(seed), sensor_params, faults, dt)
     n = int(math.ceil(scenario.duration / dt - 1e-9))
-    records = [loop.advance(integrate=k < n)
-               for k in tqdm(range(n + 1), disable=not progress, desc=scenario.name, unit="step", mininterval=0.5)]
-    return Trajectory(np.arange(n + 1) * dt, np.stack([r.state[0] for r in records]),
-                      np.stack([r.aux[0] for r in records]), np.stack([r.controls[0] for r in records]),
-                      np.array([r.steering_wheel[0] for r in records]),
-                      np.stack([r.reading.values[0] for r in records]), np.stack([r.reading.valid[0] for r in records]),
-                      _stack([r.truth for r in records]), _stack([r.estimate for r in records]), scenario)
+    chunks = []
+    with tqdm(total=n + 1, disable=not progress, desc=scenario.name, unit="step", mininterval=0.5) as bar:
+        for start in range(0, n, SIMULATE_CHUNK):
+            chunks.append(loop.advance_steps(min(SIMULATE_CHUNK, n - start)))
+            bar.update(len(chunks[-1].t))
+        chunks.append(_stacked([loop.advance(integrate=False)]))  # the last sample, where the run ends
+        bar.update(1)
+
+    def joined(part) -> np.ndarray:
+        """The single vehicle's series of ``part`` (a function of a chunk) over the run."""
+        return np.concatenate([part(chunk)[:, 0] for chunk in chunks])
+
+    def estimates(group: str) -> Estimate:
+        return Estimate(*(joined(lambda c: getattr(getattr(c, group), f)) for f in Estimate._fields))
+
+    return Trajectory(np.arange(n + 1) * dt, joined(lambda c: c.state), joined(lambda c: c.aux),
+                      joined(lambda c: c.controls), joined(lambda c: c.steering_wheel),
+                      joined(lambda c: c.reading.values), joined(lambda c: c.reading.valid), estimates("truth"),
+                      estimates("estimate"), scenario)

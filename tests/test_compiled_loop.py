@@ -9,7 +9,7 @@ from envs import compiled_loop
 from envs.gym_env import YawStabilityVectorEnv
 from envs.scenarios import make_scenario
 from envs.sensors import Fault
-from envs.simulation import ClosedLoop
+from envs.simulation import ClosedLoop, simulate
 from envs.vehicle import S_R
 
 
@@ -85,8 +85,8 @@ def test_loops_the_compiled_path_cannot_run_take_the_python_loop():
     batch = compiled_loop.MAX_BATCH + 1
     many = ClosedLoop([scenario] * batch, None, "oracle", [np.random.default_rng(b) for b in range(batch)])
     assert not compiled_loop.supports(many)
-    records = many.advance_steps(3)  # (the Python loop's series)
-    assert records.r.shape == (3, batch) and np.all(records.t[:, 0] == [0.0, 0.002, 0.004])
+    records = many.advance_steps(3)  # (the Python loop's records)
+    assert records.state.shape[:2] == (3, batch) and np.all(records.t[:, 0] == [0.0, 0.002, 0.004])
     np.testing.assert_array_equal(many.state[:, S_R], many.sample().truth.r)
 
 
@@ -106,3 +106,15 @@ def test_failures_raise_the_python_loops_errors(break_it, error, match, monkeypa
     compiled = failure()
     _python_loop(monkeypatch)
     assert failure() == compiled
+
+
+@pytest.mark.parametrize("scenario, estimator", [("paper_sine", "joint"), ("iso3888_2", "oracle")])
+def test_simulate_without_a_controller_equals_the_python_loop(scenario, estimator, monkeypatch):
+    compiled = simulate(scenario, None, estimator, seed=2)
+    _python_loop(monkeypatch)
+    python = simulate(scenario, None, estimator, seed=2)
+    for name in ("t", "state", "aux", "controls", "steering_wheel", "sensors", "sensor_valid"):
+        np.testing.assert_array_equal(getattr(compiled, name), getattr(python, name))
+    for group in ("truth", "estimate"):
+        for a, b in zip(getattr(compiled, group), getattr(python, group)):
+            np.testing.assert_array_equal(a, b)
