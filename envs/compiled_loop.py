@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import functools
 import math
+import os
 from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
@@ -209,6 +210,9 @@ def _advance_cars(cars, n, progress, status, value, k, dt, state, aux, plant, se
 @functools.lru_cache(maxsize=None)
 def _pool(threads: int) -> ThreadPoolExecutor:
     return ThreadPoolExecutor(threads, thread_name_prefix="fourwis-loop")
+
+
+os.register_at_fork(after_in_child=_pool.cache_clear)  # (a forked child has none of the parent's threads)
 
 
 def _run(cars: np.ndarray, *args) -> None:

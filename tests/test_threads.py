@@ -61,3 +61,22 @@ def test_parallel_plant_and_estimator_on_two_threads_equal_the_serial_kernels(tw
 
 def _row(reading, i):
     return type(reading)(*(np.ascontiguousarray(f[i:i + 1]) for f in reading))
+
+
+def test_compiled_closed_loop_on_two_threads_equals_one_thread(two_threads):
+    """envs.compiled_loop shares a batch's cars among numba's thread count of Python threads."""
+    from envs.gym_env import YawStabilityVectorEnv
+
+    def run() -> list:
+        env = YawStabilityVectorEnv(num_envs=5, max_episode_steps=40)
+        obs, _ = env.reset(seed=2)
+        rng = np.random.default_rng(0)
+        seen = [obs]
+        for _ in range(60):
+            seen += list(env.step(rng.uniform(-1, 1, (5, 2)).astype(np.float32))[:4])
+        return seen
+
+    threaded = run()
+    numba.set_num_threads(1)
+    for a, b in zip(threaded, run()):
+        np.testing.assert_array_equal(a, b)
