@@ -36,10 +36,9 @@ import numpy as np
 from control.allocation import _allocate, allocation_error
 from envs.driver import FOLLOWER, _DONE, _MISSING, bad_follower_state, drive, follower_form
 from envs.road import RoadTables
-from envs.sensors import NOISE_BLOCK, SensorReading, _noisy_readings
-from envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NAUX, NU, NX, RK4_REAL_LIMIT,
-                          S_DELTA_F, S_DELTA_R, S_OMEGA, S_R, S_TORQUE, S_U, S_V, _advance_block,
-                          check_relaxation_step, plant_error)
+from envs.sensors import NOISE_BLOCK, TRUE_AUX_COLUMNS, TRUE_STATE_COLUMNS, SensorReading, _noisy_readings
+from envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NAUX, NU, NX, RK4_REAL_LIMIT, S_R,
+                          S_U, S_V, _advance_block, check_relaxation_step, plant_error)
 from estimation.joint import (N_OUT, O_AX, O_AY, O_BETA, O_BETA_STD, O_FZ, O_MU, O_MU_STD, O_R, O_U, O_V, OK,
                               STATE_FIELDS, _step_row)
 from estimation.jit import JIT, scratch
@@ -51,12 +50,6 @@ DONE, NEEDS_NOISE, NEEDS_RESPONSES = 0, 1, 2
 BAD_TRUTH, ESTIMATOR_FAILED, ALLOCATION_FAILED, TOO_FAST_FOR_RELAXATION, PLANT_FAILED, BAD_FOLLOWER_STATE = range(3, 9)
 NO_CONTROLLER, YAW_MOMENT, WHEEL_TORQUES = range(3)  #: controller modes
 ORACLE, STATE_ESTIMATOR = range(2)  #: estimator modes
-
-#: sensor channels (CHANNELS order) from the plant's diagnostics (the first two) and state (the rest)
-_SENSED_AUX = (A_AX, A_AY)
-_SENSED_STATE = (S_R, S_OMEGA, S_OMEGA + 1, S_OMEGA + 2, S_OMEGA + 3, S_DELTA_F, S_DELTA_R, S_TORQUE, S_TORQUE + 1,
-                 S_TORQUE + 2, S_TORQUE + 3)
-
 
 @numba.njit(inline="always", **JIT)
 def _control(b, base, front, est, controller, ctrl) -> int:
@@ -94,9 +87,9 @@ def _sense(b, state, aux, sensors, truth, readings, sensed) -> int:
     returns _noisy_readings' status."""
     bias, normal, noise, cursor = sensors
     for c in range(2):
-        sensed[0, c] = aux[b, _SENSED_AUX[c]]
+        sensed[0, c] = aux[b, TRUE_AUX_COLUMNS[c]]
     for c in range(11):
-        sensed[0, 2 + c] = state[b, _SENSED_STATE[c]]
+        sensed[0, 2 + c] = state[b, TRUE_STATE_COLUMNS[c]]
     truth[b, :] = 0.0
     truth[b, O_U], truth[b, O_V], truth[b, O_R] = state[b, S_U], state[b, S_V], state[b, S_R]
     truth[b, O_AX], truth[b, O_AY] = aux[b, A_AX], aux[b, A_AY]

@@ -35,6 +35,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
+from envs.vehicle import A_AX, A_AY, S_DELTA_F, S_DELTA_R, S_OMEGA, S_R, S_TORQUE
 from estimation.jit import JIT
 from estimation.types import CHANNELS, member_rows  # (the readings' layout, which the estimators read)
 
@@ -110,6 +111,12 @@ class SensorReading(NamedTuple):
     valid: np.ndarray
     t: np.ndarray
 
+
+#: where each channel's true value sits in the plant's diagnostics (channels 0-1: ax, ay) and
+#: state (channels 2-12)
+TRUE_AUX_COLUMNS = (A_AX, A_AY)
+TRUE_STATE_COLUMNS = (S_R, S_OMEGA, S_OMEGA + 1, S_OMEGA + 2, S_OMEGA + 3, S_DELTA_F, S_DELTA_R, S_TORQUE,
+                      S_TORQUE + 1, S_TORQUE + 2, S_TORQUE + 3)
 
 NOISE_BLOCK = 256  #: samples of noise each vehicle draws from its generator at a time
 _DONE, _BLOCK_USED_UP = -1, -2  #: statuses of _noisy_readings (>= 0: a non-finite channel)

@@ -19,9 +19,10 @@ from envs import compiled_loop
 from envs.driver import DriverBatch
 from envs.road import RoadTables, contact_points
 from envs.scenarios import Scenario, make_scenario
-from envs.sensors import Fault, SensorModel, SensorParams, SensorReading
-from envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NU, S_DELTA_F, S_DELTA_R,
-                          S_OMEGA, S_R, S_TORQUE, S_U, S_V, check_lag_step, check_plant_step, derivatives, step)
+from envs.sensors import (TRUE_AUX_COLUMNS, TRUE_STATE_COLUMNS, Fault, SensorModel, SensorParams,
+                          SensorReading)
+from envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NU, S_R, S_U, S_V, check_lag_step,
+                          check_plant_step, derivatives, step)
 from control import Command, StabilityController, check_controller
 from estimation.types import Estimate, check_estimate, check_estimator, is_integer
 
@@ -62,9 +63,8 @@ class Estimator(Protocol):
         """Step every vehicle, or only the rows ``members`` (the estimate then has those rows)."""
 
 
-_MEASURED_AUX = np.array([A_AX, A_AY])  #: sensor channels 0-1 from the plant diagnostics
-_MEASURED_STATE = np.array([S_R, *range(S_OMEGA, S_OMEGA + 4), S_DELTA_F, S_DELTA_R,
-                            *range(S_TORQUE, S_TORQUE + 4)])  #: sensor channels 2-12 from the plant state
+_MEASURED_AUX = np.array(TRUE_AUX_COLUMNS)  #: sensor channels 0-1 from the plant diagnostics
+_MEASURED_STATE = np.array(TRUE_STATE_COLUMNS)  #: sensor channels 2-12 from the plant state
 
 
 def front_steer_command(steering_wheel: np.ndarray, params) -> np.ndarray:
