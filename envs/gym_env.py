@@ -271,7 +271,7 @@ class YawStabilityCore:
         self.controller.action[:] = clipped
         moved = np.ones(self.batch_size, dtype=bool) if moving is None else moving
         swd = [b for b, s in enumerate(self.loop.scenarios) if s.name == "sine_with_dwell" and moved[b]]
-        steps = self.loop.advance_steps(self.config.substeps, moving)
+        steps = self.loop.advance_steps(self.config.substeps, moving, records=bool(swd))
         for b in swd:
             self.stats.series[b].extend(zip(steps.t[:, b], steps.steering_wheel[:, b], steps.state[:, b, S_R],
                                             steps.aux[:, b, A_AY], steps.truth.beta[:, b]))

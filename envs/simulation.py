@@ -395,23 +395,25 @@ class ClosedLoop:
                 self._stale |= moving
         return record
 
-    def advance_steps(self, n: int, moving: np.ndarray | None = None) -> StepRecords:
+    def advance_steps(self, n: int, moving: np.ndarray | None = None, records: bool = True) -> StepRecords | None:
         """:meth:`advance` ``n`` times (every vehicle, or those selected by ``moving`` (B,) bool),
-        then :meth:`sample`; returns the steps' records. In one compiled call where the loop has
-        a compiled form (:func:`envs.compiled_loop.supports`: fourwis's estimators, no controller
-        or the envs' agent, no sensor faults, table roads, built-in drivers, up to 32 cars), else
-        step by step in Python; the two agree bit for bit, but for the rows of held vehicles,
-        which the compiled path leaves NaN."""
+        then :meth:`sample`; returns the steps' records (None if not ``records``). In one
+        compiled call where the loop has a compiled form (:func:`envs.compiled_loop.supports`:
+        fourwis's estimators, no controller or the envs' agent, no sensor faults, table roads,
+        built-in drivers, up to 32 cars), else step by step in Python; the two agree bit for
+        bit, but for the rows of held vehicles, which the compiled path leaves NaN."""
         if not (is_integer(n) and n >= 1):
             raise ValueError(f"n must be a positive integer, got {n!r}")
+        if not isinstance(records, (bool, np.bool_)):
+            raise ValueError(f"records must be True or False, got {records!r}")
         if moving is not None:
             moving = np.asarray(moving)
             if moving.dtype != np.bool_ or moving.shape != (self.batch_size,):
                 raise ValueError(f"moving must be a bool array of shape ({self.batch_size},), got {moving!r}")
         if not compiled_loop.supports(self):
-            records = [self.advance(moving=moving) for _ in range(n)]
+            steps = [self.advance(moving=moving) for _ in range(n)]
             self.sample()
-            return _stacked(records)
+            return _stacked(steps) if records else None
         check_lag_step(self.params, self.dt)
         old = self.sample()
         arrays = compiled_loop.Arrays(old.t.copy(), old.reading.values.copy(), old.reading.valid.copy(),
@@ -422,7 +424,7 @@ class ClosedLoop:
         estimate = truth if self._needs_truth else compiled_loop.rows_estimate(arrays.estimate)
         self._sample = Sample(arrays.t, SensorReading(arrays.readings, arrays.valid, arrays.t), truth, estimate,
                               arrays.steering_wheel, arrays.front_steer, arrays.base_torques)
-        return compiled_loop.step_records(rows, self._needs_truth)
+        return compiled_loop.step_records(rows, self._needs_truth) if records else None
 
 
 def _check_command(command, batch: int, source) -> None:

@@ -85,8 +85,12 @@ def test_loops_the_compiled_path_cannot_run_take_the_python_loop():
     batch = compiled_loop.MAX_BATCH + 1
     many = ClosedLoop([scenario] * batch, None, "oracle", [np.random.default_rng(b) for b in range(batch)])
     assert not compiled_loop.supports(many)
+    for bad in ({"n": 0}, {"n": 2.5}, {"n": 1, "records": "yes"}, {"n": 1, "moving": np.ones(batch)}):
+        with pytest.raises(ValueError, match=next(iter(k for k in bad if k != "n"), "n")):
+            many.advance_steps(**bad)
+    assert many.advance_steps(1, records=False) is None
     records = many.advance_steps(3)  # (the Python loop's records)
-    assert records.state.shape[:2] == (3, batch) and np.all(records.t[:, 0] == [0.0, 0.002, 0.004])
+    assert records.state.shape[:2] == (3, batch) and np.all(records.t[:, 0] == [0.002, 0.004, 0.006])
     np.testing.assert_array_equal(many.state[:, S_R], many.sample().truth.r)
 
 
