@@ -263,7 +263,8 @@ def rows_estimate(rows: np.ndarray, true_beta: bool = False) -> Estimate:
 
 #: largest batch the compiled path runs. It runs each car's steps one after another, so the
 #: plant loses the SIMD lanes it runs blocks of cars in, and the cars are shared between Python
-#: threads instead of numba's; past ~32 cars the Python loop over the batched kernels is faster.
+#: threads instead of numba's; at 32 cars the two loops are even, beyond it the Python loop over
+#: the batched kernels is faster.
 #: Measured side by side (benchmarks/bench_env.fourwis_vector, joint / oracle, env-steps/s, slow
 #: host of 2026-12-01): 4 cars 1,426 / 1,974 Python, 2,789 / 3,906 compiled; 32: 4,916 / 10,287
 #: against 4,788 / 11,878; 64: 7,320 / 15,589 against 5,400 / 13,352.
@@ -275,10 +276,18 @@ def supports(loop) -> bool:
     most MAX_BATCH vehicles."""
     from estimation import Oracle, StateEstimator
 
+    controller = type(loop.controller)  # (a subclass that changes the call but inherits kernel_form: Python)
     return (loop.batch_size <= MAX_BATCH and type(loop.estimator) in (Oracle, StateEstimator)
-            and isinstance(loop.road, RoadTables)
-            and (loop.controller is None or hasattr(loop.controller, "kernel_form")) and not loop.sensors.faults
+            and isinstance(loop.road, RoadTables) and not loop.sensors.faults
+            and (loop.controller is None or ("kernel_form" in vars(controller) and "__call__" in vars(controller)))
             and loop.steering_drivers.compiled is not None and loop.speed_drivers.compiled is not None)
+
+
+def reports_truth(estimator) -> bool:
+    """Whether the compiled path hands the truth over as ``estimator``'s estimate (the oracle)."""
+    from estimation import Oracle
+
+    return type(estimator) is Oracle
 
 
 def _estimator_form(estimator, batch: int) -> tuple:
@@ -313,8 +322,10 @@ def advance(loop, n: int, moving: np.ndarray | None, arrays: Arrays) -> np.ndarr
     """``n`` steps of the vehicles of ``loop`` selected by ``moving`` (B,) bool (all if None),
     from the loop's current sample ``arrays`` (updated in place, as are ``loop``'s state, aux,
     clock, sensors and estimator); returns the steps' records (n, B, R_WIDTH) (:func:`_record`;
-    a held vehicle's rows stay NaN). Raises the errors the Python loop raises (ValueError,
-    FloatingPointError)."""
+    a held vehicle's rows stay NaN). A failing vehicle raises the error the Python loop raises
+    for it (ValueError, FloatingPointError; the lowest failing index, where the Python loop
+    raises the first failure in time); the loop's vehicles then stand at different steps, each
+    with its plant, clock, sensors and estimator where it stopped: reset them."""
     params, dt, batch = loop.params, loop.dt, loop.batch_size
     progress = np.zeros(batch, dtype=np.int64)
     if moving is not None:
@@ -348,11 +359,25 @@ def advance(loop, n: int, moving: np.ndarray | None, arrays: Arrays) -> np.ndarr
             if code == NEEDS_NOISE:
                 sensors.refill(b)
             elif code == NEEDS_RESPONSES:
-                (steering if steering.codes[b] == FOLLOWER else speed).follower.add_responses(int(value[b]))
-            else:
+                follower = _lacking(steering, speed, b, int(value[b]))
+                if follower is not None:  # (None: added for another vehicle just now)
+                    follower.add_responses(int(value[b]))
+            else:  # (every car's plant and clock where its sensors and estimator are)
+                loop.state, loop.aux, loop.k = state, aux, k
                 raise _failure(loop, b, code, int(value[b]), state, reached, controls, arrays)
     loop.state, loop.aux, loop.k = state, aux, k
     return records
+
+
+def _lacking(steering, speed, b: int, tenths: int):
+    """Vehicle b's path follower (its steering driver's or its speed driver's) that has no preview
+    responses at ``tenths`` x 0.1 m/s; None if both have them."""
+    for drivers in (steering, speed):
+        if drivers.codes[b] == FOLLOWER:
+            rows = drivers.follower.response_row
+            if tenths >= len(rows) or rows[tenths] < 0:
+                return drivers.follower
+    return None
 
 
 def _failure(loop, b: int, code: int, value: int, state, reached, controls, arrays: Arrays) -> Exception:

@@ -401,7 +401,10 @@ class ClosedLoop:
         compiled call where the loop has a compiled form (:func:`envs.compiled_loop.supports`:
         fourwis's estimators, no controller or the envs' agent, no sensor faults, table roads,
         built-in drivers, up to 32 cars), else step by step in Python; the two agree bit for
-        bit, but for the rows of held vehicles, which the compiled path leaves NaN."""
+        bit, but for the rows of held vehicles, which the compiled path leaves NaN, and for
+        errors: the compiled path skips held vehicles (the Python loop also allocates and
+        integrates them, and discards the result) and raises the lowest failing vehicle's
+        error, leaving the vehicles at different steps (reset them after an error)."""
         if not (is_integer(n) and n >= 1):
             raise ValueError(f"n must be a positive integer, got {n!r}")
         if not isinstance(records, (bool, np.bool_)):
@@ -419,12 +422,17 @@ class ClosedLoop:
         arrays = compiled_loop.Arrays(old.t.copy(), old.reading.values.copy(), old.reading.valid.copy(),
                                       compiled_loop.estimate_rows(old.truth), compiled_loop.estimate_rows(old.estimate),
                                       old.steering_wheel.copy(), old.front_steer.copy(), old.base_torques.copy())
-        rows = compiled_loop.advance(self, n, moving, arrays)
+        oracle = compiled_loop.reports_truth(self.estimator)
+        try:
+            rows = compiled_loop.advance(self, n, moving, arrays)
+        except (ValueError, FloatingPointError):
+            self._stale[:] = True  # (the next sample senses every vehicle where it stopped)
+            raise
         truth = compiled_loop.rows_estimate(arrays.truth, true_beta=True)
-        estimate = truth if self._needs_truth else compiled_loop.rows_estimate(arrays.estimate)
+        estimate = truth if oracle else compiled_loop.rows_estimate(arrays.estimate)
         self._sample = Sample(arrays.t, SensorReading(arrays.readings, arrays.valid, arrays.t), truth, estimate,
                               arrays.steering_wheel, arrays.front_steer, arrays.base_torques)
-        return compiled_loop.step_records(rows, self._needs_truth) if records else None
+        return compiled_loop.step_records(rows, oracle) if records else None
 
 
 def _check_command(command, batch: int, source) -> None:

@@ -94,22 +94,52 @@ def test_loops_the_compiled_path_cannot_run_take_the_python_loop():
     np.testing.assert_array_equal(many.state[:, S_R], many.sample().truth.r)
 
 
+def test_a_controller_or_estimator_that_only_looks_like_the_compiled_ones_takes_the_python_loop(monkeypatch):
+    from dataclasses import replace
+
+    from envs.gym_env import AgentController
+
+    class Braking(AgentController):  # (inherits kernel_form, but commands something else)
+        def __call__(self, t, estimate, front_steer, base_torques):
+            command = super().__call__(t, estimate, front_steer, base_torques)
+            return command._replace(torques=command.torques - 300.0)
+
+    env = gym.make("envs:FourWIS/YawStability-v0")
+    env.reset(seed=0)
+    loop = env.unwrapped._core.loop
+    loop.controller = Braking(loop.params, env.unwrapped.config, 1)
+    assert not compiled_loop.supports(loop)
+
+    def run() -> list:  # a StateEstimator that asks for the truth still reports its own estimate
+        scenario = make_scenario("paper_sine")
+        loop = ClosedLoop(scenario, None, "joint", np.random.default_rng(0))
+        loop.estimator = replace(loop.estimator, needs_truth=True)
+        loop._needs_truth = True
+        loop.estimator.reset(loop.sample().reading, np.array([scenario.speed]))
+        return [*loop.advance_steps(20).estimate, *loop.sample().estimate]
+
+    compiled = run()
+    _python_loop(monkeypatch)
+    _assert_same(compiled, run())
+
+
 @pytest.mark.parametrize("break_it, error, match", [
     (lambda loop: loop.estimator.P.fill(np.nan), ValueError, "the joint filter of vehicle 0 failed"),
     (lambda loop: loop.state.__setitem__((0, S_R), np.nan), ValueError, r"state\[0\] has a non-finite value"),
 ])
 def test_failures_raise_the_python_loops_errors(break_it, error, match, monkeypatch):
-    def failure() -> str:
+    def failure() -> tuple[str, bool]:
         loop = ClosedLoop(make_scenario("paper_sine"), None, "joint", np.random.default_rng(0))
         loop.advance_steps(5)
         break_it(loop)
         with pytest.raises(error, match=match) as caught:
             loop.advance_steps(5)
-        return str(caught.value)
+        return str(caught.value), bool(loop._stale.all())
 
-    compiled = failure()
+    compiled, resense = failure()
+    assert resense  # (the compiled loop's next sample senses the vehicles where they stopped)
     _python_loop(monkeypatch)
-    assert failure() == compiled
+    assert failure()[0] == compiled
 
 
 @pytest.mark.parametrize("scenario, estimator", [("paper_sine", "joint"), ("iso3888_2", "oracle")])
