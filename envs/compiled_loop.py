@@ -403,13 +403,13 @@ def _failure(loop, b: int, code: int, value: int, state, reached, controls, arra
 
 
 def step_records(rows: np.ndarray, oracle: bool):
-    """:class:`envs.simulation.StepRecords` (views) of the records (n, B, R_WIDTH) of
-    :func:`advance`; ``oracle``: the estimate is the truth."""
-    from envs.simulation import StepRecords
+    """The records (n, B, R_WIDTH) of :func:`advance` as one stacked
+    :class:`envs.simulation.StepRecord` (views); ``oracle``: the estimate is the truth."""
+    from envs.simulation import StepRecord
 
     t = rows[..., R_T]
     truth = rows_estimate(rows[..., R_TRUTH:R_ESTIMATE], true_beta=True)
     reading = SensorReading(rows[..., R_READINGS:R_TRUTH], np.ones(rows.shape[:2] + (13,), dtype=bool), t)
-    return StepRecords(t, rows[..., R_STATE:R_AUX], rows[..., R_AUX:R_CONTROLS], rows[..., R_CONTROLS:R_READINGS],
+    return StepRecord(t, rows[..., R_STATE:R_AUX], rows[..., R_AUX:R_CONTROLS], rows[..., R_CONTROLS:R_READINGS],
                        rows[..., R_STEERING_WHEEL], reading, truth,
                        truth if oracle else rows_estimate(rows[..., R_ESTIMATE:]))

@@ -151,7 +151,8 @@ class Sample(NamedTuple):
 class StepRecord(NamedTuple):
     """One 2 ms sample of a closed loop of B vehicles, taken before the plant advances:
     t (B,), state (B, NX), aux (B, NAUX), controls (B, NU) applied, steering_wheel (B,),
-    reading, truth, estimate."""
+    reading, truth, estimate. :meth:`ClosedLoop.advance_steps` returns n of them stacked in
+    one: every array then has the leading axes (n, B) (the reading's and the Estimates' too)."""
 
     t: np.ndarray
     state: np.ndarray
@@ -163,26 +164,12 @@ class StepRecord(NamedTuple):
     estimate: Estimate
 
 
-class StepRecords(NamedTuple):
-    """The :class:`StepRecord` s of n steps of a closed loop of B vehicles, stacked: every array
-    has the leading axes (n, B) (the reading's and the Estimates' fields too)."""
-
-    t: np.ndarray
-    state: np.ndarray
-    aux: np.ndarray
-    controls: np.ndarray
-    steering_wheel: np.ndarray
-    reading: SensorReading
-    truth: Estimate
-    estimate: Estimate
-
-
-def _stacked(records: list[StepRecord]) -> StepRecords:
-    """StepRecords of a list of StepRecord s."""
+def _stacked(records: list[StepRecord]) -> StepRecord:
+    """One StepRecord of a list of them, stacked (leading axes (n, B))."""
     def stack(field: str, group: str | None = None) -> np.ndarray:
         return np.stack([getattr(getattr(r, group) if group else r, field) for r in records])
 
-    return StepRecords(stack("t"), stack("state"), stack("aux"), stack("controls"), stack("steering_wheel"),
+    return StepRecord(stack("t"), stack("state"), stack("aux"), stack("controls"), stack("steering_wheel"),
                        SensorReading(*(stack(f, "reading") for f in SensorReading._fields)),
                        Estimate(*(stack(f, "truth") for f in Estimate._fields)),
                        Estimate(*(stack(f, "estimate") for f in Estimate._fields)))
@@ -362,14 +349,20 @@ class ClosedLoop:
         self._stale[:] = False
         return self._sample
 
+    def _checked_moving(self, moving) -> np.ndarray | None:
+        """``moving`` as an array if it is None or a bool array (B,); else ValueError naming it."""
+        if moving is None:
+            return None
+        array = np.asarray(moving)
+        if array.dtype != np.bool_ or array.shape != (self.batch_size,):
+            raise ValueError(f"moving must be a bool array of shape ({self.batch_size},), got {moving!r}")
+        return array
+
     def advance(self, integrate: bool = True, moving: np.ndarray | None = None) -> StepRecord:
         """Control at the current time from :meth:`sample`; then (if ``integrate``) advance the
         plant one step: every vehicle, or those selected by ``moving`` (B,) bool (the others
         keep their time, state and sample). Returns the sample taken before the plant moved."""
-        if moving is not None:
-            moving = np.asarray(moving)
-            if moving.dtype != np.bool_ or moving.shape != (self.batch_size,):
-                raise ValueError(f"moving must be a bool array of shape ({self.batch_size},), got {moving!r}")
+        moving = self._checked_moving(moving)
         s = self.sample()
         controls = np.zeros((self.batch_size, NU))
         controls[:, C_TORQUE:C_TORQUE + 4] = s.base_torques
@@ -395,9 +388,9 @@ class ClosedLoop:
                 self._stale |= moving
         return record
 
-    def advance_steps(self, n: int, moving: np.ndarray | None = None, records: bool = True) -> StepRecords | None:
+    def advance_steps(self, n: int, moving: np.ndarray | None = None, records: bool = True) -> StepRecord | None:
         """:meth:`advance` ``n`` times (every vehicle, or those selected by ``moving`` (B,) bool),
-        then :meth:`sample`; returns the steps' records (None if not ``records``). In one
+        then :meth:`sample`; returns the steps' records, stacked (None if not ``records``). In one
         compiled call where the loop has a compiled form (:func:`envs.compiled_loop.supports`:
         fourwis's estimators, no controller or the envs' agent, no sensor faults, table roads,
         built-in drivers, up to 32 cars), else step by step in Python; the two agree bit for
@@ -409,10 +402,7 @@ class ClosedLoop:
             raise ValueError(f"n must be a positive integer, got {n!r}")
         if not isinstance(records, (bool, np.bool_)):
             raise ValueError(f"records must be True or False, got {records!r}")
-        if moving is not None:
-            moving = np.asarray(moving)
-            if moving.dtype != np.bool_ or moving.shape != (self.batch_size,):
-                raise ValueError(f"moving must be a bool array of shape ({self.batch_size},), got {moving!r}")
+        moving = self._checked_moving(moving)
         if not compiled_loop.supports(self):
             steps = [self.advance(moving=moving) for _ in range(n)]
             self.sample()
