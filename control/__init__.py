@@ -9,16 +9,15 @@ from typing import NamedTuple
 
 import numpy as np
 
-from control.allocation import Allocation, allocate_for_estimate, allocate_torques
-from control.dyc import LQRYawController, LQRWeights, SlidingModeYawController
-from control.reference import (rear_steer_feedforward, reference_yaw_rate, sideslip_bound, weaker_axle_friction,
-                               yaw_time_constant)
+from control.allocation import Allocation, allocate_for_estimate, allocate_torques, allocation_error
+from control.dyc import (ACTIVE_SPEED, M_DELIVERED, M_FEASIBLE, M_FORCE, M_MOMENT, M_REAR, M_REFERENCE, M_TORQUES,
+                         M_WIDTH, MIN_PLANNING_MU, SETTINGS, YAW_DEADBAND, LQRWeights, LQRYawController,
+                         SlidingModeYawController, _stability_commands, actuator_lag_terms, allocation_inputs,
+                         planning_friction)
+from control.reference import understeer_gradient
 from estimation.types import check_step, check_vehicle_params, import_factory, is_number
 
 CONTROLLERS = ("none", "dyc-lqr", "dyc-smc", "dyc-lqr-4ws", "dyc-smc-4ws")
-ACTIVE_SPEED = 2.0  #: below this speed [m/s] the law's moment is zero (the allocator still shares the drive)
-YAW_DEADBAND = 0.02  #: |r - r_ref| [rad/s] tolerated without intervention (ESC practice)
-MIN_PLANNING_MU = 0.1  #: the margin's floor: it lowers no planning friction below this (nor lifts one)
 #: default StabilityController.mu_margin. Measured on the headline matrix before the yaw
 #: reference took the weaker axle's friction (DYC-LQR + joint,
 #: 2 seeds, peak sideslip [deg] on paper_step / swd_wet / mu_jump / ISO 3888-2 at 70 km/h):
@@ -27,11 +26,6 @@ MIN_PLANNING_MU = 0.1  #: the margin's floor: it lowers no planning friction bel
 #: let the planning friction sink towards MIN_PLANNING_MU after the mu jump (11.4 deg); the
 #: default stays 1, chosen then and not re-tuned on the evaluation matrix.
 MU_MARGIN = 1.0
-
-
-def _deadband(x: np.ndarray, width) -> np.ndarray:
-    """``x`` shrunk towards zero by ``width`` (zero inside the band, continuous outside)."""
-    return np.sign(x) * np.maximum(np.abs(x) - width, 0.0)
 
 
 class Command(NamedTuple):
@@ -87,7 +81,15 @@ class StabilityController:
     estimate already below it, ice, is kept), so a friction the estimator has not yet
     confirmed is not taken for granted. An estimate without
     ``mu_std``, or with zero (the oracle, fixed-mu filters), is used as it is. ``mu_margin=0``
-    plans with the point estimate."""
+    plans with the point estimate.
+
+    Each call runs :func:`control.dyc.stability_command` per vehicle, a compiled kernel that
+    the compiled closed loop (:mod:`envs.compiled_loop`) runs too, on the controller's own
+    per-vehicle memory (reference, rear angle, delivered moment, latest allocation), so the
+    two loops hand the controller over to each other mid-run. Written with the laws' and the
+    reference's functions (:mod:`control.dyc`, :mod:`control.reference`), which the numpy
+    functions of the same names evaluate too; it equals the numpy controller it replaced bit
+    for bit (2026-12-01: four scenarios, both laws, with and without 4WS)."""
 
     params: object
     law: str = "lqr"
@@ -117,60 +119,74 @@ class StabilityController:
             self._law = SlidingModeYawController(self.params)
         else:
             raise ValueError(f"unknown yaw-moment law {self.law!r}; known: ['lqr', 'smc']")
-        self._reference = None
-        self._rear = None
-        self.last_allocation: Allocation | None = None
+        p = self.params
+        c_f, c_r = p.axle_cornering_stiffness
+        understeer = max(understeer_gradient(p), 0.0) if self.reference_understeer is None else self.reference_understeer
+        values = dict(sliding_mode=float(self.law == "smc"), rear_steer=float(self.rear_steer), dt=self.dt,
+                      friction_ellipse=float(self.friction_ellipse), mu_margin=self.mu_margin, understeer=understeer,
+                      wheelbase=p.wheelbase, max_rear_steer=getattr(p, "max_rear_steer", 0.0),
+                      rear_steer_rate=getattr(p, "rear_steer_rate", np.inf), c_f=c_f, c_r=c_r, mass=p.mass,
+                      yaw_inertia=p.yaw_inertia, cg_to_front=p.cg_to_front, cg_to_rear=p.cg_to_rear)
+        values["motor_lag"], values["sigma_kappa"] = actuator_lag_terms(p)
+        self._settings = np.array([values[name] for name in SETTINGS], dtype=float)
+        if self.law == "lqr":
+            self._table = (np.ascontiguousarray(self._law.speeds, dtype=float), self._law.gains)
+            self._law_terms = (0.0,) * 11
+        else:
+            self._table = (np.zeros(1), np.zeros((1, 3)))
+            self._law_terms = self._law.terms()
+        self._memory: np.ndarray | None = None
 
     def reset(self) -> None:
-        self._reference = None
-        self._rear = None
-        self.last_allocation = None
-        self._law.reset()
+        self._memory = None
+
+    def kernel_arrays(self, batch: int) -> tuple:
+        """(settings, LQR speeds, LQR gains, sliding-mode terms, memory (batch, M_WIDTH)) as
+        :func:`control.dyc.stability_command` takes them; the memory is the controller's own,
+        which the compiled closed loop (envs.compiled_loop) updates in place."""
+        return (self._settings, *self._table, self._law_terms, self._vehicle_memory(batch))
+
+    def _vehicle_memory(self, batch: int) -> np.ndarray:
+        if self._memory is None:
+            self._memory = np.full((batch, M_WIDTH), np.nan)
+            self._memory[:, M_DELIVERED] = 0.0  # (before any moment, the wheels deliver none)
+        elif len(self._memory) != batch:
+            raise ValueError(f"the controller steers {len(self._memory)} vehicles, not {batch}: reset() it first")
+        return self._memory
+
+    @property
+    def _reference(self) -> np.ndarray | None:
+        """The lagged yaw-rate reference (B,) [rad/s] of the latest call (None before it)."""
+        return None if self._memory is None else self._memory[:, M_REFERENCE].copy()
+
+    @property
+    def last_allocation(self) -> Allocation | None:
+        """The latest :class:`control.allocation.Allocation` (None before the first call)."""
+        if self._memory is None or np.isnan(self._memory[0, M_MOMENT]):
+            return None
+        m = self._memory
+        return Allocation(m[:, M_TORQUES:M_TORQUES + 4].copy(), m[:, M_MOMENT].copy(), m[:, M_FORCE].copy(),
+                          m[:, M_FEASIBLE] == 1.0)
 
     def planning_mu(self, estimate) -> np.ndarray:
         """Per-wheel friction (B, 4) the controller plans with (see the class docstring)."""
-        mu_std = getattr(estimate, "mu_std", None)
-        if mu_std is None or self.mu_margin == 0.0:
-            return np.asarray(estimate.mu, dtype=float)
         mu = np.asarray(estimate.mu, dtype=float)
-        # the margin stops at the floor; a friction the estimate itself puts below it stays (ice)
-        return np.maximum(mu - self.mu_margin * np.asarray(mu_std, dtype=float), np.minimum(mu, MIN_PLANNING_MU))
+        mu_std = getattr(estimate, "mu_std", None)
+        return mu if mu_std is None else planning_friction(mu, np.asarray(mu_std, dtype=float), self.mu_margin)
 
     def __call__(self, t: np.ndarray, estimate, front_steer: np.ndarray, base_torques: np.ndarray) -> Command:
-        u, beta, r = estimate.u, estimate.beta, estimate.r
-        mu = self.planning_mu(estimate)
-        rear = np.zeros_like(u)
-        if self.rear_steer:
-            target = rear_steer_feedforward(u, front_steer, self.params)
-            if self._rear is None:
-                self._rear = np.zeros_like(target)
-            step = getattr(self.params, "rear_steer_rate", np.inf) * self.dt
-            self._rear = rear = self._rear + np.clip(target - self._rear, -step, step)
-        # the 2-DOF steady state of the car as steered (front minus rear road-wheel angle), bounded
-        # by the weaker axle's friction: the planning friction of the yaw reference
-        steady = reference_yaw_rate(u, front_steer - rear, weaker_axle_friction(mu)[:, None], self.params,
-                                    self.reference_understeer)
-        # first-order lag: the reference a well-behaved car can follow, not a step it cannot
-        if self._reference is None:
-            self._reference = steady.copy()
-        self._reference = self._reference + (steady - self._reference) * np.minimum(
-            self.dt / yaw_time_constant(u, self.params), 1.0)
-        r_ref = self._reference
-        bound = sideslip_bound(mu)
-        shrunk_error = _deadband(r - r_ref, YAW_DEADBAND)
-        shrunk_beta = _deadband(beta, 0.5 * bound)
-        moment = self._law(u, shrunk_beta, r_ref + shrunk_error, r_ref, front_steer, rear, self.dt, mu)
-        # a moment that turns the car further (understeer correction) is faded out as |beta|
-        # approaches its bound: at the friction limit more yaw moment only spins the car
-        turning_further = np.sign(moment) == np.sign(r_ref)
-        fade = np.clip(1.0 - np.abs(beta) / bound, 0.0, 1.0)
-        moment = np.where(turning_further, moment * fade, moment)
-        moment = np.where(np.abs(u) > ACTIVE_SPEED, moment, 0.0)
-        self.last_allocation = allocate_for_estimate(base_torques, moment, estimate, self.params,
-                                                     self.friction_ellipse, mu, front_steer, rear)
-        if isinstance(self._law, LQRYawController):
-            self._law.note_delivered(self.last_allocation.yaw_moment, u, self.dt)
-        return Command(self.last_allocation.torques, rear.copy())
+        u = np.ascontiguousarray(estimate.u, dtype=float)
+        memory = self._vehicle_memory(len(u))
+        mu_std = getattr(estimate, "mu_std", None)
+        rows = (u, *(np.ascontiguousarray(x, dtype=float) for x in (
+            estimate.beta, estimate.r, estimate.ay, estimate.mu, np.zeros((len(u), 4)) if mu_std is None else mu_std,
+            estimate.fz, front_steer, base_torques)))
+        p = self.params
+        bad, vehicle = _stability_commands(*rows, *self.kernel_arrays(len(u)), p.wheel_positions,
+                                           float(p.motor_peak_torque), float(p.motor_peak_power), float(p.wheel_radius))
+        if bad:
+            raise allocation_error(bad, allocation_inputs(memory[vehicle]))
+        return Command(memory[:, M_TORQUES:M_TORQUES + 4].copy(), memory[:, M_REAR].copy())
 
 
 def check_controller(controller, source) -> None:

@@ -9,12 +9,18 @@ with delta the front angle; a rear angle delta_r adds C_r/(m u) delta_r and -b C
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
+from numba.extending import register_jitable
 from scipy.linalg import solve_continuous_are
 
-from control.reference import GRAVITY, bicycle_state_matrix
+from control.allocation import _allocate
+from control.reference import (GRAVITY, axle_friction, bicycle_state_matrix, eq20_gain, sideslip_bound_of,
+                               slower_time_constant, steady_yaw_rate)
+from estimation.jit import JIT, scratch
 
 
 def bicycle_matrices(u: float, params) -> tuple[np.ndarray, np.ndarray]:
@@ -39,7 +45,45 @@ def actuator_lag(u, params, terms: tuple[float, float] | None = None):
     or (B,); ``terms``: :func:`actuator_lag_terms` of ``params`` if already at hand. Zero for a
     parameter object without a motor lag and tyre (a bare 2-DOF description)."""
     motor, sigma_kappa = actuator_lag_terms(params) if terms is None else terms
-    return motor + sigma_kappa / np.maximum(np.abs(np.asarray(u, dtype=float)), 1.0)
+    return lag_time(np.asarray(u, dtype=float), motor, sigma_kappa)
+
+
+@register_jitable
+def lag_time(u, motor: float, sigma_kappa: float):
+    """:func:`actuator_lag` from its terms (written once, for numpy arrays and compiled code)."""
+    return motor + sigma_kappa / np.maximum(np.abs(u), 1.0)
+
+
+@register_jitable
+def delivered_next(delivered, moment, lag, dt: float):
+    """The yaw moment [N m] the wheels deliver after ``dt`` [s] of ``moment``, a first-order lag
+    ``lag`` [s] behind it (:meth:`LQRYawController.note_delivered`)."""
+    return delivered + (moment - delivered) * np.minimum(dt / np.maximum(lag, 1e-12), 1.0)
+
+
+@register_jitable
+def lqr_moment(k_beta, k_error, k_moment, beta, r, r_ref, delivered):
+    """The LQR's yaw moment -K [beta, r - r_ref, M] [N m] (gains k_*, delivered moment M)."""
+    return -(k_beta * beta + k_error * (r - r_ref)) - k_moment * delivered
+
+
+@numba.njit(inline="always", **JIT)
+def interpolated_gain(u: float, speeds, gains, j: int) -> float:
+    """Column ``j`` of the gain table ``gains`` (S, 3) at speed |u| [m/s], linear in speed over
+    ``speeds`` (S,) and held beyond its ends (the rule of numpy.interp)."""
+    x = min(max(abs(u), speeds[0]), speeds[-1])
+    i = np.searchsorted(speeds, x, side="right") - 1
+    if i >= speeds.size - 1 or speeds[i] == x:
+        return gains[i, j]
+    slope = (gains[i + 1, j] - gains[i, j]) / (speeds[i + 1] - speeds[i])
+    return slope * (x - speeds[i]) + gains[i, j]
+
+
+@numba.njit(**JIT)
+def _interpolated_gains(u, speeds, gains, out) -> None:
+    for b in range(u.size):
+        for j in range(3):
+            out[b, j] = interpolated_gain(u[b], speeds, gains, j)
 
 
 @dataclass(frozen=True)
@@ -89,8 +133,10 @@ class LQRYawController:
 
     def gain(self, u: np.ndarray) -> np.ndarray:
         """K(u) (B, 3)."""
-        u = np.clip(np.abs(u), self.speeds[0], self.speeds[-1])
-        return np.stack([np.interp(u, self.speeds, self.gains[:, j]) for j in range(3)], axis=-1)
+        u = np.ascontiguousarray(np.atleast_1d(np.asarray(u, dtype=float)))
+        out = np.empty((u.size, 3))
+        _interpolated_gains(u, self.speeds, self.gains, out)
+        return out
 
     def reset(self) -> None:
         self._delivered = None
@@ -98,18 +144,16 @@ class LQRYawController:
     def note_delivered(self, moment: np.ndarray, u: np.ndarray, dt: float) -> None:
         """The wheels were given ``moment`` (B,) [N m] for ``dt`` [s] at speed ``u``: the moment
         they deliver follows it through the actuator lag."""
-        if self._delivered is None:
-            self._delivered = np.zeros_like(moment)
-        lag = actuator_lag(u, self.params, self._lag_terms)
-        self._delivered = self._delivered + (moment - self._delivered) * np.minimum(dt / np.maximum(lag, 1e-12), 1.0)
+        delivered = np.zeros_like(moment) if self._delivered is None else self._delivered
+        self._delivered = delivered_next(delivered, moment, actuator_lag(u, self.params, self._lag_terms), dt)
 
     def __call__(self, u, beta, r, r_ref, delta_f, delta_r, dt: float, mu: np.ndarray | None = None) -> np.ndarray:
         """Mz (B,) [N m]; the steer angles enter through the reference only (pure state feedback),
         the moment the wheels deliver now through :meth:`note_delivered` (zero before). ``mu``
         is unused (the laws' common signature): the gains are scheduled on speed only."""
         k = self.gain(u)
-        moment = -(k[:, 0] * beta + k[:, 1] * (r - r_ref))
-        return moment if self._delivered is None else moment - k[:, 2] * self._delivered
+        delivered = 0.0 if self._delivered is None else self._delivered
+        return lqr_moment(k[:, 0], k[:, 1], k[:, 2], beta, r, r_ref, delivered)
 
 
 @dataclass
@@ -154,26 +198,184 @@ class SlidingModeYawController:
         held, so its rate in the equivalent control is 0 too (the linear model's beta_dot at
         beta = 0 is not 0 in a turn: it had commanded ~-67 N m at 0.43 g, 80 km/h, with the car
         on its reference)."""
+        u, beta, r, r_ref, delta_f, delta_r = np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in (
+            u, beta, r, r_ref, delta_f, delta_r)))
+        mu_mean = np.ones_like(u) if mu is None else np.broadcast_to(np.mean(mu, axis=-1), u.shape)
+        previous = np.full(u.shape, np.nan) if self._previous_ref is None else self._previous_ref
+        flat = (np.ascontiguousarray(x, dtype=float).ravel() for x in (u, beta, r, r_ref, delta_f, delta_r, mu_mean,
+                                                                       np.broadcast_to(previous, u.shape)))
+        moment = np.empty(u.size)
+        _smc_moments(*flat, float(dt), self.terms(), moment)
+        moment = moment.reshape(u.shape)
+        self._previous_ref = r_ref.copy()
+        return moment
+
+    def terms(self) -> tuple[float, ...]:
+        """(C_f, C_r, a, b, I_z, m, L, lam, eta, phi, max_moment) as :func:`smc_moment` takes them."""
         p = self.params
         c_f, c_r = p.axle_cornering_stiffness
-        a, b, iz, m, L = p.cg_to_front, p.cg_to_rear, p.yaw_inertia, p.mass, p.wheelbase
-        u = np.maximum(np.abs(u), 1.0)
-        mu_mean = np.ones_like(u) if mu is None else np.mean(mu, axis=-1)
-        front_limit = mu_mean * m * GRAVITY * b / L
-        rear_limit = mu_mean * m * GRAVITY * a / L
-        fy_front = np.clip(c_f * (delta_f - beta - a * r / u), -front_limit, front_limit)
-        fy_rear = np.clip(c_r * (delta_r - beta + b * r / u), -rear_limit, rear_limit)
-        f_r = (a * fy_front - b * fy_rear) / iz
-        beta_dot = np.where(beta == 0.0, 0.0, (fy_front + fy_rear) / (m * u) - r)
-        ref_dot = np.zeros_like(r_ref) if self._previous_ref is None else (r_ref - self._previous_ref) / dt
-        self._previous_ref = r_ref.copy()
-        s = (r - r_ref) - self.lam * beta
-        equivalent = ref_dot + self.lam * beta_dot - f_r
-        # outside the boundary layer the model's equivalent control may only help reach the surface:
-        # the linear axle model (clipped at mu Fz) over-predicts a saturated axle's force (beyond the
-        # tyre's peak, under combined slip), by far more than the reaching rate eta, and cancelling
-        # that phantom yaw acceleration turned the moment against s (ISO 3888-2 at 70 km/h, oracle:
-        # r stuck near 0 at full right lock with +3 kN m, 5.6 m off the line)
-        equivalent = np.where((np.abs(s) > self.phi) & (equivalent * s > 0.0), 0.0, equivalent)
-        mz = iz * (equivalent - self.eta * np.clip(s / self.phi, -1.0, 1.0))
-        return np.clip(mz, -self.max_moment, self.max_moment)
+        return (float(c_f), float(c_r), float(p.cg_to_front), float(p.cg_to_rear), float(p.yaw_inertia),
+                float(p.mass), float(p.wheelbase), float(self.lam), float(self.eta), float(self.phi),
+                float(self.max_moment))
+
+
+@numba.njit(inline="always", **JIT)
+def smc_moment(u, beta, r, r_ref, delta_f, delta_r, mu_mean, previous_ref, dt, terms) -> float:
+    """:class:`SlidingModeYawController`'s moment [N m] for one vehicle; ``previous_ref``: the
+    reference at the previous call (NaN: none, its rate is then 0); ``terms``:
+    :meth:`SlidingModeYawController.terms`."""
+    c_f, c_r, a, b, iz, m, wheelbase, lam, eta, phi, max_moment = terms
+    u = max(abs(u), 1.0)
+    front_limit = mu_mean * m * GRAVITY * b / wheelbase
+    rear_limit = mu_mean * m * GRAVITY * a / wheelbase
+    fy_front = min(max(c_f * (delta_f - beta - a * r / u), -front_limit), front_limit)
+    fy_rear = min(max(c_r * (delta_r - beta + b * r / u), -rear_limit), rear_limit)
+    f_r = (a * fy_front - b * fy_rear) / iz
+    beta_dot = 0.0 if beta == 0.0 else (fy_front + fy_rear) / (m * u) - r
+    ref_dot = 0.0 if math.isnan(previous_ref) else (r_ref - previous_ref) / dt
+    s = (r - r_ref) - lam * beta
+    equivalent = ref_dot + lam * beta_dot - f_r
+    # outside the boundary layer the model's equivalent control may only help reach the surface:
+    # the linear axle model (clipped at mu Fz) over-predicts a saturated axle's force (beyond the
+    # tyre's peak, under combined slip), by far more than the reaching rate eta, and cancelling
+    # that phantom yaw acceleration turned the moment against s (ISO 3888-2 at 70 km/h, oracle:
+    # r stuck near 0 at full right lock with +3 kN m, 5.6 m off the line)
+    if abs(s) > phi and equivalent * s > 0.0:
+        equivalent = 0.0
+    mz = iz * (equivalent - eta * min(max(s / phi, -1.0), 1.0))
+    return min(max(mz, -max_moment), max_moment)
+
+
+@numba.njit(**JIT)
+def _smc_moments(u, beta, r, r_ref, delta_f, delta_r, mu_mean, previous_ref, dt, terms, out) -> None:
+    for b in range(u.size):
+        out[b] = smc_moment(u[b], beta[b], r[b], r_ref[b], delta_f[b], delta_r[b], mu_mean[b], previous_ref[b], dt,
+                            terms)
+
+
+ACTIVE_SPEED = 2.0  #: below this speed [m/s] the law's moment is zero (the allocator still shares the drive)
+YAW_DEADBAND = 0.02  #: |r - r_ref| [rad/s] tolerated without intervention (ESC practice)
+MIN_PLANNING_MU = 0.1  #: the margin's floor: it lowers no planning friction below this (nor lifts one)
+
+#: the settings of :func:`stability_command`, in the order of its settings array
+#: (:meth:`control.StabilityController.kernel_arrays`): the law (1: sliding mode, 0: LQR), rear
+#: steer and friction ellipse (1 / 0), the step [s], mu_margin, the reference's understeer
+#: gradient [rad s^2/m], wheelbase [m], the rear servo's range [rad] and rate [rad/s], the
+#: actuator lag's terms (:func:`actuator_lag_terms`) and :func:`control.reference.bicycle_terms`
+SETTINGS = ("sliding_mode", "rear_steer", "dt", "friction_ellipse", "mu_margin", "understeer", "wheelbase",
+            "max_rear_steer", "rear_steer_rate", "motor_lag", "sigma_kappa", "c_f", "c_r", "mass", "yaw_inertia",
+            "cg_to_front", "cg_to_rear")
+(S_SMC, S_REAR_STEER, S_DT, S_ELLIPSE, S_MARGIN, S_UNDERSTEER, S_WHEELBASE, S_MAX_REAR, S_REAR_RATE, S_MOTOR_LAG,
+ S_SIGMA_KAPPA, S_C_F, S_C_R, S_MASS, S_IZ, S_A, S_B) = range(len(SETTINGS))
+
+#: columns of a StabilityController's memory (B, M_WIDTH), one row per vehicle: the lagged yaw
+#: reference [rad/s], the rear angle [rad], the moment the wheels deliver [N m] (LQR), the
+#: previous reference [rad/s] (sliding mode) (NaN: no call yet); then the latest allocation
+#: (torques (4) [N m], delivered yaw moment [N m] and drive force [N], feasible 1 / 0) and the
+#: allocator's inputs of that call (for its error message): base torques (4), yaw moment, wheel
+#: loads (4), friction (4), lateral forces (4), speed, front and rear steer
+M_REFERENCE, M_REAR, M_DELIVERED, M_PREVIOUS_REF, M_TORQUES, M_MOMENT, M_FORCE, M_FEASIBLE = 0, 1, 2, 3, 4, 8, 9, 10
+M_INPUTS = 11
+M_WIDTH = M_INPUTS + 20
+
+
+@register_jitable
+def planning_friction(mu, mu_std, margin):
+    """The friction a cautious controller plans with: the lower confidence bound mu - margin mu_std,
+    stopping at MIN_PLANNING_MU (a friction already below it, ice, is kept)."""
+    return np.maximum(mu - margin * mu_std, np.minimum(mu, MIN_PLANNING_MU))
+
+
+@register_jitable
+def deadband(x, width):
+    """``x`` shrunk towards zero by ``width`` (zero inside the band, continuous outside)."""
+    return np.sign(x) * np.maximum(np.abs(x) - width, 0.0)
+
+
+@numba.njit(**JIT)
+def stability_command(u, beta, r, ay, mu_hat, mu_std, fz, front, base, settings, speeds, gains, law, memory,
+                      positions, peak_torque, peak_power, radius) -> int:
+    """One vehicle's step of :class:`control.StabilityController` (its docstring has the design):
+    from the estimate (speed u [m/s], sideslip beta [rad], yaw rate r [rad/s], ay [m/s^2], per-wheel
+    mu_hat, mu_std and loads fz [N] (4,)), the front road-wheel angle [rad] and the driver's base
+    torques (4,) [N m]. ``settings``: :data:`SETTINGS`; ``speeds``, ``gains``: the LQR's table;
+    ``law``: :meth:`SlidingModeYawController.terms`; ``memory`` (M_WIDTH,): the vehicle's row,
+    updated (its rear angle and the allocation's torques are the command); then the
+    allocator's motor and geometry arguments. Returns the allocator's status (0: fine)."""
+    dt, margin = settings[S_DT], settings[S_MARGIN]
+    mu = scratch((4,))
+    for w in range(4):
+        mu[w] = planning_friction(mu_hat[w], mu_std[w], margin)
+    c_f, c_r, mass, iz, a, b = (settings[S_C_F], settings[S_C_R], settings[S_MASS], settings[S_IZ], settings[S_A],
+                                settings[S_B])
+    rear = 0.0
+    if settings[S_REAR_STEER] != 0.0:  # eq. 20 at the servo's rate
+        limit = settings[S_MAX_REAR]
+        target = min(max(eq20_gain(u, a, b, mass, c_f, c_r) * front, -limit), limit)
+        previous = 0.0 if math.isnan(memory[M_REAR]) else memory[M_REAR]
+        step = settings[S_REAR_RATE] * dt
+        rear = previous + min(max(target - previous, -step), step)
+    memory[M_REAR] = rear
+    # the 2-DOF steady state of the car as steered, bounded by the weaker axle's friction, lagged
+    steady = steady_yaw_rate(u, front - rear, axle_friction(mu[0], mu[1], mu[2], mu[3]), settings[S_WHEELBASE],
+                             settings[S_UNDERSTEER])
+    reference = steady if math.isnan(memory[M_REFERENCE]) else memory[M_REFERENCE]
+    reference = reference + (steady - reference) * min(dt / slower_time_constant(u, c_f, c_r, mass, iz, a, b), 1.0)
+    memory[M_REFERENCE] = r_ref = reference
+    mu_mean = (mu[0] + mu[1] + mu[2] + mu[3]) / 4.0
+    bound = sideslip_bound_of(mu_mean)
+    shrunk_error, shrunk_beta = deadband(r - r_ref, YAW_DEADBAND), deadband(beta, 0.5 * bound)
+    if settings[S_SMC] != 0.0:
+        moment = smc_moment(u, shrunk_beta, r_ref + shrunk_error, r_ref, front, rear, mu_mean, memory[M_PREVIOUS_REF],
+                            dt, law)
+        memory[M_PREVIOUS_REF] = r_ref
+    else:
+        moment = lqr_moment(interpolated_gain(u, speeds, gains, 0), interpolated_gain(u, speeds, gains, 1),
+                            interpolated_gain(u, speeds, gains, 2), shrunk_beta, r_ref + shrunk_error, r_ref,
+                            memory[M_DELIVERED])
+    # a moment that turns the car further (understeer correction) fades out as |beta| approaches its bound
+    if np.sign(moment) == np.sign(r_ref):
+        moment = moment * min(max(1.0 - abs(beta) / bound, 0.0), 1.0)
+    if not abs(u) > ACTIVE_SPEED:
+        moment = 0.0
+    base_in, fz_in, mu_in, lateral = scratch((1, 4)), scratch((1, 4)), scratch((1, 4)), scratch((1, 4))
+    yaw, speed, front_in, rear_in = scratch((1,)), scratch((1,)), scratch((1,)), scratch((1,))
+    for w in range(4):
+        base_in[0, w], fz_in[0, w], mu_in[0, w] = base[w], fz[w], mu[w]
+        lateral[0, w] = fz[w] * (ay / GRAVITY) if settings[S_ELLIPSE] != 0.0 else 0.0
+    yaw[0], speed[0], front_in[0], rear_in[0] = moment, u, front, rear
+    inputs = memory[M_INPUTS:]
+    inputs[0:4], inputs[4], inputs[5:9], inputs[9:13] = base_in[0], moment, fz_in[0], mu_in[0]
+    inputs[13:17], inputs[17], inputs[18], inputs[19] = lateral[0], u, front, rear
+    torques, delivered, force, feasible = scratch((1, 4)), scratch((1,)), scratch((1,)), scratch((1,), np.bool_)
+    bad = _allocate(base_in, yaw, fz_in, mu_in, lateral, speed, front_in, rear_in, positions, peak_torque, peak_power,
+                    radius, torques, delivered, force, feasible)
+    if bad:
+        return bad
+    memory[M_TORQUES:M_TORQUES + 4] = torques[0]
+    memory[M_MOMENT], memory[M_FORCE], memory[M_FEASIBLE] = delivered[0], force[0], 1.0 if feasible[0] else 0.0
+    if settings[S_SMC] == 0.0:  # the LQR is told what the wheels now deliver
+        lag = lag_time(u, settings[S_MOTOR_LAG], settings[S_SIGMA_KAPPA])
+        memory[M_DELIVERED] = delivered_next(memory[M_DELIVERED], delivered[0], lag, dt)
+    return 0
+
+
+def allocation_inputs(row: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The allocator's eight inputs of a vehicle's last :func:`stability_command` (its memory row),
+    as :func:`control.allocation.allocation_error` takes them."""
+    inputs = row[M_INPUTS:]
+    return (inputs[None, 0:4], inputs[4:5], inputs[None, 5:9], inputs[None, 9:13], inputs[None, 13:17], inputs[17:18],
+            inputs[18:19], inputs[19:20])
+
+
+@numba.njit(**JIT)
+def _stability_commands(u, beta, r, ay, mu, mu_std, fz, front, base, settings, speeds, gains, law, memory, positions,
+                        peak_torque, peak_power, radius) -> tuple[int, int]:
+    """:func:`stability_command` for each vehicle (rows (B,) or (B, 4)); returns (status, vehicle)
+    of the first failure, (0, -1) if none."""
+    for b in range(u.size):
+        bad = stability_command(u[b], beta[b], r[b], ay[b], mu[b], mu_std[b], fz[b], front[b], base[b], settings,
+                                speeds, gains, law, memory[b], positions, peak_torque, peak_power, radius)
+        if bad:
+            return bad, b
+    return 0, -1

@@ -14,6 +14,7 @@ from importlib import resources
 
 import numba
 import numpy as np
+from numba.extending import register_jitable
 
 from estimation.jit import JIT
 from estimation.model import GRAVITY  # the controller plans with the estimation model's g
@@ -33,26 +34,45 @@ def understeer_gradient(params) -> float:
 def reference_yaw_rate(u: np.ndarray, delta_f: np.ndarray, mu: np.ndarray, params,
                        understeer: float | None = None) -> np.ndarray:
     """Desired yaw rate (B,) [rad/s]: the 2-DOF steady state u delta / (L + K_us u^2), bounded by
-    the friction limit 0.85 mu g / u with mu the mean of the estimated per-wheel mu (B, 4).
+    the friction limit 0.85 mu g / u with mu the mean of the estimated per-wheel mu (B, 4)
+    (:func:`steady_yaw_rate`).
 
     ``understeer`` [rad s^2/m]: K_us; None takes the car's own, floored at 0 (neutral): an
     oversteering car's steady state has no bound at its critical speed sqrt(L / -K_us) and
     turns against the steering above it, which no reference should ask for."""
     k = max(understeer_gradient(params), 0.0) if understeer is None else understeer
-    u = np.asarray(u, dtype=float)
-    steady = u * delta_f / (params.wheelbase + k * u**2)
-    limit = FRICTION_USE * np.mean(mu, axis=-1) * GRAVITY / np.maximum(np.abs(u), MIN_SPEED)
-    return np.clip(steady, -limit, limit)
+    return steady_yaw_rate(np.asarray(u, dtype=float), delta_f, np.mean(mu, axis=-1), params.wheelbase, k)
+
+
+@register_jitable
+def steady_yaw_rate(u, delta_f, mu_mean, wheelbase: float, understeer: float):
+    """:func:`reference_yaw_rate` from the mean friction ``mu_mean``, the wheelbase [m] and the
+    gradient K_us [rad s^2/m] (written once, for numpy arrays and for the compiled controller)."""
+    steady = u * delta_f / (wheelbase + understeer * (u * u))
+    limit = FRICTION_USE * mu_mean * GRAVITY / np.maximum(np.abs(u), MIN_SPEED)
+    return np.minimum(np.maximum(steady, -limit), limit)
 
 
 def bicycle_state_matrix(u, params) -> tuple:
     """Entries (a11, a12, a21, a22) of the linear 2-DOF model's state matrix for [beta, r] at
     speed ``u`` [m/s] (scalar or (B,)), per-axle stiffnesses (Rajamani 2012, sec. 2.3):
     beta_dot = a11 beta + a12 r, r_dot = a21 beta + a22 r (plus the steer and moment inputs)."""
+    return bicycle_entries(u, *bicycle_terms(params))
+
+
+def bicycle_terms(params) -> tuple[float, ...]:
+    """(C_f, C_r [N/rad], m [kg], I_z [kg m^2], a, b [m]) of duck-typed vehicle ``params``, as
+    :func:`bicycle_entries` and :func:`slower_time_constant` take them."""
     c_f, c_r = params.axle_cornering_stiffness
-    m, iz, a, b = params.mass, params.yaw_inertia, params.cg_to_front, params.cg_to_rear
-    return (-(c_f + c_r) / (m * u), (b * c_r - a * c_f) / (m * u**2) - 1.0,
-            (b * c_r - a * c_f) / iz, -(a**2 * c_f + b**2 * c_r) / (iz * u))
+    return (float(c_f), float(c_r), float(params.mass), float(params.yaw_inertia), float(params.cg_to_front),
+            float(params.cg_to_rear))
+
+
+@register_jitable
+def bicycle_entries(u, c_f: float, c_r: float, m: float, iz: float, a: float, b: float) -> tuple:
+    """:func:`bicycle_state_matrix` from the axle stiffnesses, mass, yaw inertia and CG position."""
+    return (-(c_f + c_r) / (m * u), (b * c_r - a * c_f) / (m * (u * u)) - 1.0,
+            (b * c_r - a * c_f) / iz, -(a * a * c_f + b * b * c_r) / (iz * u))
 
 
 def yaw_time_constant(u: np.ndarray, params) -> np.ndarray:
@@ -62,9 +82,15 @@ def yaw_time_constant(u: np.ndarray, params) -> np.ndarray:
     at 90 km/h on this car (the time constant grows with speed, as the model's damping falls).
     At most MAX_YAW_TIME_CONSTANT: an oversteering car near or above its critical speed has a
     slow or unstable mode, which no reference should follow."""
-    a11, a12, a21, a22 = bicycle_state_matrix(np.maximum(np.abs(np.asarray(u, dtype=float)), MIN_SPEED), params)
+    return slower_time_constant(np.asarray(u, dtype=float), *bicycle_terms(params))
+
+
+@register_jitable
+def slower_time_constant(u, c_f: float, c_r: float, m: float, iz: float, a: float, b: float):
+    """:func:`yaw_time_constant` from :func:`bicycle_terms`."""
+    a11, a12, a21, a22 = bicycle_entries(np.maximum(np.abs(u), MIN_SPEED), c_f, c_r, m, iz, a, b)
     half_trace, det = 0.5 * (a11 + a22), a11 * a22 - a12 * a21
-    slower = half_trace + np.sqrt(np.maximum(half_trace**2 - det, 0.0))  # real part of the slower eigenvalue
+    slower = half_trace + np.sqrt(np.maximum(half_trace * half_trace - det, 0.0))  # the slower eigenvalue's real part
     return 1.0 / np.maximum(-slower, 1.0 / MAX_YAW_TIME_CONSTANT)
 
 
@@ -77,13 +103,26 @@ def weaker_axle_friction(mu: np.ndarray) -> np.ndarray:
     car's front axle on a patch its rear axle has not reached), and equals it on a uniform road
     or one split left / right."""
     mu = np.asarray(mu, dtype=float)
-    return np.minimum(0.5 * (mu[..., 0] + mu[..., 1]), 0.5 * (mu[..., 2] + mu[..., 3]))
+    return axle_friction(mu[..., 0], mu[..., 1], mu[..., 2], mu[..., 3])
+
+
+@register_jitable
+def axle_friction(front_left, front_right, rear_left, rear_right):
+    """:func:`weaker_axle_friction` of the four wheels' friction."""
+    return np.minimum(0.5 * (front_left + front_right), 0.5 * (rear_left + rear_right))
 
 
 def sideslip_bound(mu: np.ndarray) -> np.ndarray:
     """Largest acceptable |beta| (B,) [rad]: atan(0.02 mu g), 11 deg at mu 1, 3.4 deg at 0.3 (snow),
-    1.1 deg at 0.1 (ice) (the mu-dependent bound of ESC practice; van Zanten, SAE 2000-01-1633)."""
-    return np.arctan(0.02 * np.mean(mu, axis=-1) * GRAVITY)
+    1.1 deg at 0.1 (ice) (the mu-dependent bound of ESC practice; van Zanten, SAE 2000-01-1633),
+    mu the mean of the per-wheel friction (B, 4)."""
+    return sideslip_bound_of(np.mean(mu, axis=-1))
+
+
+@register_jitable
+def sideslip_bound_of(mu_mean):
+    """:func:`sideslip_bound` of the mean friction."""
+    return np.arctan(0.02 * mu_mean * GRAVITY)
 
 
 def sideslip_rate(u: np.ndarray, v: np.ndarray, r: np.ndarray, ax: np.ndarray, ay: np.ndarray) -> np.ndarray:

@@ -1,11 +1,12 @@
 """A closed loop's 2 ms steps in one compiled call: :meth:`envs.simulation.ClosedLoop.advance_steps`'
 fast path, which the Gymnasium envs take for every control step and :func:`envs.simulation.simulate`
-for runs without a stability controller (open-loop estimation, tuning, the comparison's
-``none`` rows).
+for every run it can (open-loop estimation, tuning, the comparison's rows with or without the DYC).
 
 Each step of each vehicle runs, in order, what :meth:`ClosedLoop.advance` and
 :meth:`ClosedLoop.sample` run from Python: the agent's command (``control.allocation``'s
-minimum-workload allocator, or direct wheel torques), one RK4 step of the plant
+minimum-workload allocator, or direct wheel torques) or the DYC's
+(:func:`control.dyc.stability_command`, which :class:`control.StabilityController` calls from
+Python too), one RK4 step of the plant
 (``envs.vehicle``), the sensors' noisy reading (``envs.sensors``), the estimator's step
 (``estimation.joint``'s compiled filters, or the truth for the oracle) and the drivers
 (``envs.driver``). It calls the same compiled kernels and nothing else, so its results equal
@@ -17,8 +18,8 @@ they stopped.
 
 The fast path applies when everything in the loop has a compiled form: fourwis's own
 estimators (``StateEstimator`` of any kind, ``Oracle``), a controller with ``kernel_form``
-(the envs' agent controller) or none (the DYC laws run in Python), sensors without faults, table friction maps and
-drivers of :data:`envs.driver.COMPILED_DRIVERS` or path followers, for batches up to
+(the envs' agent controller), fourwis's DYC (``StabilityController``, any law, with or without
+4WS) or none, sensors without faults, table friction maps and drivers of :data:`envs.driver.COMPILED_DRIVERS` or path followers, for batches up to
 :data:`MAX_BATCH` cars. :func:`supports` says whether a loop takes it.
 """
 
@@ -33,7 +34,9 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
+from control import StabilityController
 from control.allocation import _allocate, allocation_error
+from control.dyc import M_REAR, M_TORQUES, M_WIDTH, allocation_inputs, stability_command
 from envs.driver import FOLLOWER, _DONE, _MISSING, bad_follower_state, drive, follower_form
 from envs.road import RoadTables
 from envs.sensors import NOISE_BLOCK, TRUE_AUX_COLUMNS, TRUE_STATE_COLUMNS, SensorReading, _noisy_readings
@@ -48,14 +51,15 @@ from estimation.types import CHANNELS, Estimate
 #: preview responses at ``value`` tenths of m/s), or failed (``value``: the part's own status)
 DONE, NEEDS_NOISE, NEEDS_RESPONSES = 0, 1, 2
 BAD_TRUTH, ESTIMATOR_FAILED, ALLOCATION_FAILED, TOO_FAST_FOR_RELAXATION, PLANT_FAILED, BAD_FOLLOWER_STATE = range(3, 9)
-NO_CONTROLLER, YAW_MOMENT, WHEEL_TORQUES = range(3)  #: controller modes
+NO_CONTROLLER, YAW_MOMENT, WHEEL_TORQUES, STABILITY = range(4)  #: controller modes (STABILITY: the DYC)
 ORACLE, STATE_ESTIMATOR = range(2)  #: estimator modes
 
 @numba.njit(inline="always", **JIT)
 def _control(b, base, front, est, controller, ctrl) -> int:
     """Vehicle b's controls (1, NU) from its sample (base torques, front steer, estimate row)
-    and the agent's held action; returns the allocator's status (0: fine)."""
-    mode, action, max_yaw_moment, max_rear_steer, positions, peak_torque, peak_power, radius = controller
+    and the agent's held action or the DYC's step; returns the allocator's status (0: fine)."""
+    mode, action, max_yaw_moment, max_rear_steer, positions, peak_torque, peak_power, radius, settings, speeds, \
+        gains, law, memory = controller
     ctrl[0, :] = 0.0
     for w in range(4):
         ctrl[0, C_TORQUE + w] = base[b, w]
@@ -78,13 +82,22 @@ def _control(b, base, front, est, controller, ctrl) -> int:
     elif mode == WHEEL_TORQUES:
         for w in range(4):
             ctrl[0, C_TORQUE + w] = min(max(base[b, w] + action[b, w] * peak_torque, -peak_torque), peak_torque)
+    elif mode == STABILITY:
+        bad = stability_command(est[b, O_U], est[b, O_BETA], est[b, O_R], est[b, O_AY], est[b, O_MU:O_MU + 4],
+                                est[b, O_MU_STD:O_MU_STD + 4], est[b, O_FZ:O_FZ + 4], front[b], base[b], settings,
+                                speeds, gains, law, memory[b], positions, peak_torque, peak_power, radius)
+        if bad:
+            return bad
+        for w in range(4):
+            ctrl[0, C_TORQUE + w] = memory[b, M_TORQUES + w]
+        ctrl[0, C_DELTA_R] = memory[b, M_REAR]
     return 0
 
 
 @numba.njit(inline="always", **JIT)
 def _sense(b, state, aux, sensors, truth, readings, sensed) -> int:
-    """Vehicle b's true values (its truth row, N_OUT layout but beta) and noisy reading;
-    returns _noisy_readings' status."""
+    """Vehicle b's true values (its truth row, N_OUT layout) and noisy reading; returns
+    _noisy_readings' status."""
     bias, normal, noise, cursor = sensors
     for c in range(2):
         sensed[0, c] = aux[b, TRUE_AUX_COLUMNS[c]]
@@ -92,6 +105,7 @@ def _sense(b, state, aux, sensors, truth, readings, sensed) -> int:
         sensed[0, 2 + c] = state[b, TRUE_STATE_COLUMNS[c]]
     truth[b, :] = 0.0
     truth[b, O_U], truth[b, O_V], truth[b, O_R] = state[b, S_U], state[b, S_V], state[b, S_R]
+    truth[b, O_BETA] = math.atan2(state[b, S_V], abs(state[b, S_U]))  # (as envs.simulation.true_estimate)
     truth[b, O_AX], truth[b, O_AY] = aux[b, A_AX], aux[b, A_AY]
     for w in range(4):
         truth[b, O_MU + w], truth[b, O_FZ + w] = aux[b, A_MU + w], aux[b, A_FZ + w]
@@ -279,7 +293,8 @@ def supports(loop) -> bool:
     controller = type(loop.controller)  # (a subclass that changes the call but inherits kernel_form: Python)
     return (loop.batch_size <= MAX_BATCH and type(loop.estimator) in (Oracle, StateEstimator)
             and isinstance(loop.road, RoadTables) and not loop.sensors.faults
-            and (loop.controller is None or ("kernel_form" in vars(controller) and "__call__" in vars(controller)))
+            and (loop.controller is None or controller is StabilityController
+                 or ("kernel_form" in vars(controller) and "__call__" in vars(controller)))
             and loop.steering_drivers.compiled is not None and loop.speed_drivers.compiled is not None)
 
 
@@ -311,11 +326,18 @@ _NO_ESTIMATOR = (ORACLE, 0, np.zeros(1), 0.0, 0.0, 0.0, 0.0, 0.0, np.zeros((1, 1
                   np.zeros((1, 1)), np.zeros(1), np.zeros((1, 1))), np.zeros(1, np.int64), np.zeros(1, np.int64))
 
 
+#: the DYC arguments of the other controller modes (which the kernel does not read)
+_NO_STABILITY = (np.zeros(1), np.zeros(1), np.zeros((1, 3)), (0.0,) * 11, np.zeros((1, M_WIDTH)))
+
+
 def _controller_form(controller, params, batch: int) -> tuple:
-    if controller is not None:
-        return controller.kernel_form()
-    return (NO_CONTROLLER, np.zeros((batch, 1)), 0.0, 0.0, params.wheel_positions, float(params.motor_peak_torque),
-            float(params.motor_peak_power), float(params.wheel_radius))
+    motors = (params.wheel_positions, float(params.motor_peak_torque), float(params.motor_peak_power),
+              float(params.wheel_radius))
+    if controller is None:
+        return (NO_CONTROLLER, np.zeros((batch, 1)), 0.0, 0.0, *motors, *_NO_STABILITY)
+    if isinstance(controller, StabilityController):
+        return (STABILITY, np.zeros((batch, 1)), 0.0, 0.0, *motors, *controller.kernel_arrays(batch))
+    return controller.kernel_form() + _NO_STABILITY
 
 
 def advance(loop, n: int, moving: np.ndarray | None, arrays: Arrays) -> np.ndarray:
@@ -386,6 +408,8 @@ def _failure(loop, b: int, code: int, value: int, state, reached, controls, arra
         return ValueError(f"non-finite true value on sensor channel {CHANNELS[value]!r}")
     if code == ESTIMATOR_FAILED:
         return loop.estimator.step_error(b, value, arrays.readings[b])
+    if code == ALLOCATION_FAILED and isinstance(loop.controller, StabilityController):
+        return allocation_error(value, allocation_inputs(loop.controller.kernel_arrays(loop.batch_size)[-1][b]))
     if code == ALLOCATION_FAILED:
         _, action, max_yaw_moment, max_rear_steer = loop.controller.kernel_form()[:4]
         est = arrays.estimate[b:b + 1]

@@ -447,8 +447,9 @@ def simulate(scenario: Scenario | str, controller: Controller | str | None = Non
     :func:`estimation.make_estimator`, or None (the oracle: the controller sees the truth).
     ``seed`` seeds the sensor noise and faults. ``dt`` [s] at most :data:`envs.vehicle.MAX_DT`
     (10 ms); the sensors sample once per step, so another ``dt`` than 2 ms needs
-    ``SensorParams(sample_time=dt)``. Without a controller (and with fourwis's estimators, no
-    sensor faults) the steps run compiled (:mod:`envs.compiled_loop`), with the same result.
+    ``SensorParams(sample_time=dt)``. With fourwis's own estimators and controllers (or none),
+    no sensor faults and a table friction map, the steps run compiled (:mod:`envs.compiled_loop`),
+    with the same result.
     """
     if isinstance(scenario, str):
         scenario = make_scenario(scenario)

@@ -99,6 +99,15 @@ def test_a_controller_or_estimator_that_only_looks_like_the_compiled_ones_takes_
 
     from envs.gym_env import AgentController
 
+    from control import StabilityController
+
+    class Gentler(StabilityController):  # a user's change to the DYC: the Python loop runs it
+        pass
+
+    dyc = ClosedLoop(make_scenario("paper_sine"), Gentler(make_scenario("paper_sine").vehicle_params), "joint",
+                     np.random.default_rng(0))
+    assert not compiled_loop.supports(dyc)
+
     class Braking(AgentController):  # (inherits kernel_form, but commands something else)
         def __call__(self, t, estimate, front_steer, base_torques):
             command = super().__call__(t, estimate, front_steer, base_torques)
@@ -142,13 +151,67 @@ def test_failures_raise_the_python_loops_errors(break_it, error, match, monkeypa
     assert failure()[0] == compiled
 
 
-@pytest.mark.parametrize("scenario, estimator", [("paper_sine", "joint"), ("iso3888_2", "oracle")])
-def test_simulate_without_a_controller_equals_the_python_loop(scenario, estimator, monkeypatch):
-    compiled = simulate(scenario, None, estimator, seed=2)
+@pytest.mark.parametrize("scenario, controller, estimator", [
+    ("paper_sine", None, "joint"), ("iso3888_2", None, "oracle"),
+    ("mu_jump", "dyc-lqr", "joint"), ("iso3888_2", "dyc-smc-4ws", "oracle"), ("paper_step", "dyc-lqr-4ws", "ckf"),
+])
+def test_simulate_equals_the_python_loop(scenario, controller, estimator, monkeypatch):
+    compiled = simulate(scenario, controller, estimator, seed=2)
     _python_loop(monkeypatch)
-    python = simulate(scenario, None, estimator, seed=2)
+    python = simulate(scenario, controller, estimator, seed=2)
     for name in ("t", "state", "aux", "controls", "steering_wheel", "sensors", "sensor_valid"):
         np.testing.assert_array_equal(getattr(compiled, name), getattr(python, name))
     for group in ("truth", "estimate"):
         for a, b in zip(getattr(compiled, group), getattr(python, group)):
             np.testing.assert_array_equal(a, b)
+    if controller is not None:  # (the DYC acted: it is not a run without control)
+        assert np.any(compiled.controls[:, :4] != compiled.controls[:, :1])
+
+
+def test_the_dyc_hands_over_between_the_loops_mid_run(monkeypatch):
+    """The controller's memory (lagged reference, rear angle, delivered moment, allocation) is
+    one array that both loops update: compiled, Python, compiled again equals Python throughout,
+    on two cars of which one is held for a while."""
+    from control import StabilityController
+
+    def run(switch: bool) -> list:
+        scenarios = [make_scenario("mu_jump"), make_scenario("paper_sine", mu=0.4)]
+        loop = ClosedLoop(scenarios, "dyc-smc-4ws", "joint", [np.random.default_rng(b) for b in range(2)])
+        assert isinstance(loop.controller, StabilityController) and compiled_loop.supports(loop)
+        if not switch:
+            monkeypatch.setattr(compiled_loop, "supports", lambda loop: False)
+        seen = [*loop.advance_steps(400)]  # then car 1 held (whose rows the compiled records leave NaN):
+        seen += [leaf[:, 0] for leaf in _leaves(loop.advance_steps(150, moving=np.array([True, False])))]
+        monkeypatch.setattr(compiled_loop, "supports", lambda loop: False)
+        seen += [loop.advance() for _ in range(30)]
+        monkeypatch.undo()
+        if not switch:
+            monkeypatch.setattr(compiled_loop, "supports", lambda loop: False)
+        seen += [*loop.advance_steps(300), loop.controller.last_allocation]
+        monkeypatch.undo()
+        return [np.asarray(leaf) for leaf in _leaves(seen)]
+
+    _assert_same(run(True), run(False))
+
+
+def _leaves(tree) -> list:
+    """The arrays of nested tuples / lists of records."""
+    if isinstance(tree, (tuple, list)):
+        return [leaf for item in tree for leaf in _leaves(item)]
+    return [tree]
+
+
+def test_a_dyc_failure_raises_the_python_loops_error(monkeypatch):
+    from control.dyc import M_DELIVERED
+
+    def failure() -> str:
+        loop = ClosedLoop(make_scenario("paper_step"), "dyc-lqr", "oracle", np.random.default_rng(0))
+        loop.advance_steps(5)
+        loop.controller.kernel_arrays(1)[-1][:, M_DELIVERED] = np.nan  # a corrupted memory: the LQR's moment is NaN
+        with pytest.raises(ValueError, match=r"yaw moment must be finite, got \[nan\]") as caught:
+            loop.advance_steps(5)
+        return str(caught.value)
+
+    compiled = failure()
+    _python_loop(monkeypatch)
+    assert failure() == compiled

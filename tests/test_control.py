@@ -137,6 +137,15 @@ def test_lqr_reduces_yaw_error_on_an_oversteering_plant():
 def test_bad_input_raises():
     with pytest.raises(ValueError, match="pid"):
         make_controller("pid", P)
+    controller = StabilityController(P)
+    two = Estimate(u=np.full(2, 20.0), v=np.zeros(2), beta=np.zeros(2), r=np.zeros(2), ax=np.zeros(2), ay=np.zeros(2),
+                   mu=np.ones((2, 4)), fz=np.full((2, 4), 3000.0), beta_std=np.zeros(2), mu_std=np.zeros((2, 4)))
+    controller(np.zeros(2), two, np.zeros(2), np.zeros((2, 4)))
+    three = Estimate(*(np.concatenate([field, field[:1]]) for field in two))
+    with pytest.raises(ValueError, match="steers 2 vehicles, not 3: reset"):
+        controller(np.zeros(3), three, np.zeros(3), np.zeros((3, 4)))
+    controller.reset()
+    assert controller(np.zeros(3), three, np.zeros(3), np.zeros((3, 4))).torques.shape == (3, 4)
     assert set(CONTROLLERS) >= {"none", "dyc-lqr", "dyc-smc"}
     with pytest.raises(ValueError, match="-0.01"):
         StabilityController(P, reference_understeer=-0.01)
