@@ -35,7 +35,7 @@ class Command(NamedTuple):
     rear_steer: np.ndarray
 
 
-@dataclass
+@dataclass(frozen=True)
 class StabilityController:
     """Reference + yaw-moment law + allocation (+ optional eq. 20 rear steer).
 
@@ -49,9 +49,9 @@ class StabilityController:
     With the eq. 20 rear steer the controller's rear angle moves at most at the rear servo's
     rate (``params.rear_steer_rate``), so the reference is built on an angle the car has.
 
-    The LQR law is told the moment the allocation delivered (:meth:`LQRYawController.note_delivered`),
-    which reaches the car through the actuator lag (:func:`control.dyc.actuator_lag`) it was
-    designed with.
+    The LQR law is told the moment the allocation delivered (the update of
+    :meth:`LQRYawController.note_delivered`, :func:`control.dyc.delivered_next`), which reaches
+    the car through the actuator lag (:func:`control.dyc.actuator_lag`) it was designed with.
 
     The law acts on the yaw-rate error outside a deadband of 0.02 rad/s (smoothly: the error
     is shrunk by the deadband) and on sideslip beyond half the mu-dependent bound, so that
@@ -73,7 +73,8 @@ class StabilityController:
 
     ``last_allocation`` holds the latest :class:`control.allocation.Allocation`: the yaw moment
     and drive force the wheels delivered and whether the demand was feasible (None before the
-    first call).
+    first call). The fields are fixed at construction (frozen; ``dataclasses.replace`` makes a
+    changed copy): the compiled step reads them as its settings.
 
     Cautious friction: the controller plans (reference, sideslip bound, the sliding mode's axle
     saturation, allocation; the LQR's gains depend on speed only) with the lower confidence
@@ -114,9 +115,9 @@ class StabilityController:
             raise ValueError(f"reference_understeer must be a finite gradient >= 0 [rad s^2/m], got "
                              f"{self.reference_understeer!r}")
         if self.law == "lqr":
-            self._law = LQRYawController(self.params, LQRWeights())
+            law = LQRYawController(self.params, LQRWeights())
         elif self.law == "smc":
-            self._law = SlidingModeYawController(self.params)
+            law = SlidingModeYawController(self.params)
         else:
             raise ValueError(f"unknown yaw-moment law {self.law!r}; known: ['lqr', 'smc']")
         p = self.params
@@ -124,32 +125,38 @@ class StabilityController:
         understeer = max(understeer_gradient(p), 0.0) if self.reference_understeer is None else self.reference_understeer
         values = dict(sliding_mode=float(self.law == "smc"), rear_steer=float(self.rear_steer), dt=self.dt,
                       friction_ellipse=float(self.friction_ellipse), mu_margin=self.mu_margin, understeer=understeer,
-                      wheelbase=p.wheelbase, max_rear_steer=getattr(p, "max_rear_steer", 0.0),
+                      wheelbase=p.wheelbase, max_rear_steer=p.max_rear_steer if self.rear_steer else 0.0,
                       rear_steer_rate=getattr(p, "rear_steer_rate", np.inf), c_f=c_f, c_r=c_r, mass=p.mass,
                       yaw_inertia=p.yaw_inertia, cg_to_front=p.cg_to_front, cg_to_rear=p.cg_to_rear)
         values["motor_lag"], values["sigma_kappa"] = actuator_lag_terms(p)
-        self._settings = np.array([values[name] for name in SETTINGS], dtype=float)
+        motors = (p.wheel_positions, float(p.motor_peak_torque), float(p.motor_peak_power), float(p.wheel_radius))
         if self.law == "lqr":
-            self._table = (np.ascontiguousarray(self._law.speeds, dtype=float), self._law.gains)
-            self._law_terms = (0.0,) * 11
+            table, terms = (np.ascontiguousarray(law.speeds, dtype=float), law.gains), (0.0,) * 11
         else:
-            self._table = (np.zeros(1), np.zeros((1, 3)))
-            self._law_terms = self._law.terms()
-        self._memory: np.ndarray | None = None
+            table, terms = (np.zeros(1), np.zeros((1, 3))), law.terms()
+        # (frozen: the fields are the settings, so these are set once)
+        object.__setattr__(self, "_kernel", (*motors, np.array([values[name] for name in SETTINGS]), *table, terms))
+        object.__setattr__(self, "_memory", None)
 
-    def reset(self) -> None:
-        self._memory = None
+    def reset(self, members: np.ndarray | None = None) -> None:
+        """Forget the past of every vehicle, or of those selected by ``members`` (B,) bool."""
+        if members is None or self._memory is None:
+            object.__setattr__(self, "_memory", None)
+        else:
+            self._memory[np.asarray(members, dtype=bool)] = _fresh_memory(1)
 
     def kernel_arrays(self, batch: int) -> tuple:
-        """(settings, LQR speeds, LQR gains, sliding-mode terms, memory (batch, M_WIDTH)) as
-        :func:`control.dyc.stability_command` takes them; the memory is the controller's own,
-        which the compiled closed loop (envs.compiled_loop) updates in place."""
-        return (self._settings, *self._table, self._law_terms, self._vehicle_memory(batch))
+        """The arguments of :func:`control.dyc.stability_command` after the vehicle's estimate,
+        steer and base torques, reordered as the compiled closed loop (envs.compiled_loop) takes
+        them: the allocator's wheel positions and motor limits (this controller's vehicle
+        parameters), the settings (:data:`control.dyc.SETTINGS`), the LQR's speeds and gains, the
+        sliding mode's terms and the memory (batch, M_WIDTH), the controller's own, which the
+        compiled loop updates in place."""
+        return (*self._kernel, self._vehicle_memory(batch))
 
     def _vehicle_memory(self, batch: int) -> np.ndarray:
         if self._memory is None:
-            self._memory = np.full((batch, M_WIDTH), np.nan)
-            self._memory[:, M_DELIVERED] = 0.0  # (before any moment, the wheels deliver none)
+            object.__setattr__(self, "_memory", _fresh_memory(batch))
         elif len(self._memory) != batch:
             raise ValueError(f"the controller steers {len(self._memory)} vehicles, not {batch}: reset() it first")
         return self._memory
@@ -161,8 +168,9 @@ class StabilityController:
 
     @property
     def last_allocation(self) -> Allocation | None:
-        """The latest :class:`control.allocation.Allocation` (None before the first call)."""
-        if self._memory is None or np.isnan(self._memory[0, M_MOMENT]):
+        """The latest :class:`control.allocation.Allocation` (None before the first call; a
+        vehicle held in every call so far has NaN rows)."""
+        if self._memory is None or np.isnan(self._memory[:, M_MOMENT]).all():
             return None
         m = self._memory
         return Allocation(m[:, M_TORQUES:M_TORQUES + 4].copy(), m[:, M_MOMENT].copy(), m[:, M_FORCE].copy(),
@@ -172,21 +180,44 @@ class StabilityController:
         """Per-wheel friction (B, 4) the controller plans with (see the class docstring)."""
         mu = np.asarray(estimate.mu, dtype=float)
         mu_std = getattr(estimate, "mu_std", None)
-        return mu if mu_std is None else planning_friction(mu, np.asarray(mu_std, dtype=float), self.mu_margin)
+        if mu_std is None or self.mu_margin == 0.0:
+            return mu
+        return planning_friction(mu, np.asarray(mu_std, dtype=float), self.mu_margin)
 
-    def __call__(self, t: np.ndarray, estimate, front_steer: np.ndarray, base_torques: np.ndarray) -> Command:
+    def __call__(self, t: np.ndarray, estimate, front_steer: np.ndarray, base_torques: np.ndarray,
+                 moving: np.ndarray | None = None) -> Command:
+        """The command (B vehicles) at the estimate, the driver's front road-wheel angles (B,) [rad]
+        and base torques (B, 4) [N m]. ``moving`` (B,) bool: only these vehicles' memories step
+        (a closed loop's held vehicles keep theirs; their rows of the command are stale); all if
+        None. A call that fails (ValueError naming the allocator's bad input) changes nothing."""
         u = np.ascontiguousarray(estimate.u, dtype=float)
-        memory = self._vehicle_memory(len(u))
+        B = u.shape[0] if u.ndim == 1 else -1
         mu_std = getattr(estimate, "mu_std", None)
-        rows = (u, *(np.ascontiguousarray(x, dtype=float) for x in (
-            estimate.beta, estimate.r, estimate.ay, estimate.mu, np.zeros((len(u), 4)) if mu_std is None else mu_std,
-            estimate.fz, front_steer, base_torques)))
-        p = self.params
-        bad, vehicle = _stability_commands(*rows, *self.kernel_arrays(len(u)), p.wheel_positions,
-                                           float(p.motor_peak_torque), float(p.motor_peak_power), float(p.wheel_radius))
+        inputs = {"u": u, **{name: np.ascontiguousarray(value, dtype=float) for name, value in (
+            ("beta", estimate.beta), ("r", estimate.r), ("ay", estimate.ay), ("mu", estimate.mu),
+            ("mu_std", np.zeros((max(B, 0), 4)) if mu_std is None else mu_std), ("fz", estimate.fz),
+            ("front_steer", front_steer), ("base_torques", base_torques))}}
+        moving = np.ones(max(B, 0), dtype=bool) if moving is None else np.asarray(moving)
+        shapes = {name: value.shape for name, value in inputs.items()} | {"moving": moving.shape}
+        expected = {name: (B, 4) if name in ("mu", "mu_std", "fz", "base_torques") else (B,) for name in shapes}
+        if B < 0 or shapes != expected or moving.dtype != np.bool_:
+            raise ValueError(f"the estimate's u, beta, r, ay, front_steer and moving (bool) must have shape (B,), "
+                             f"mu, mu_std, fz and base_torques (B, 4); got {shapes}")
+        memory = self._vehicle_memory(B)
+        before = memory.copy()
+        bad, vehicle = _stability_commands(*inputs.values(), moving, *self._kernel, memory)
         if bad:
-            raise allocation_error(bad, allocation_inputs(memory[vehicle]))
+            failed = memory[vehicle].copy()
+            memory[:] = before
+            raise allocation_error(bad, allocation_inputs(failed))
         return Command(memory[:, M_TORQUES:M_TORQUES + 4].copy(), memory[:, M_REAR].copy())
+
+
+def _fresh_memory(batch: int) -> np.ndarray:
+    """A :class:`StabilityController`'s memory (batch, M_WIDTH) before its first call."""
+    memory = np.full((batch, M_WIDTH), np.nan)
+    memory[:, M_DELIVERED] = 0.0  # (before any moment, the wheels deliver none)
+    return memory
 
 
 def check_controller(controller, source) -> None:
@@ -230,5 +261,5 @@ def make_controller(name: str, params, dt: float = 0.002, **options):
     return StabilityController(params, law, rear_steer=rear_steer, dt=dt, **options)
 
 
-__all__ = ["CONTROLLERS", "Allocation", "Command", "StabilityController", "allocate_for_estimate", "allocate_torques",
-           "check_controller", "make_controller"]
+__all__ = ["ACTIVE_SPEED", "CONTROLLERS", "MIN_PLANNING_MU", "YAW_DEADBAND", "Allocation", "Command",
+           "StabilityController", "allocate_for_estimate", "allocate_torques", "check_controller", "make_controller"]

@@ -132,11 +132,11 @@ class LQRYawController:
         self.gains = np.array(gains)  # (S, 3): on beta, r - r_ref and the delivered moment
 
     def gain(self, u: np.ndarray) -> np.ndarray:
-        """K(u) (B, 3)."""
-        u = np.ascontiguousarray(np.atleast_1d(np.asarray(u, dtype=float)))
+        """K(u): shape u.shape + (3,) (u scalar or any array of speeds [m/s])."""
+        u = np.asarray(u, dtype=float)
         out = np.empty((u.size, 3))
-        _interpolated_gains(u, self.speeds, self.gains, out)
-        return out
+        _interpolated_gains(np.ascontiguousarray(u).ravel(), self.speeds, self.gains, out)
+        return out.reshape(u.shape + (3,))
 
     def reset(self) -> None:
         self._delivered = None
@@ -153,7 +153,7 @@ class LQRYawController:
         is unused (the laws' common signature): the gains are scheduled on speed only."""
         k = self.gain(u)
         delivered = 0.0 if self._delivered is None else self._delivered
-        return lqr_moment(k[:, 0], k[:, 1], k[:, 2], beta, r, r_ref, delivered)
+        return lqr_moment(k[..., 0], k[..., 1], k[..., 2], beta, r, r_ref, delivered)
 
 
 @dataclass
@@ -259,9 +259,10 @@ MIN_PLANNING_MU = 0.1  #: the margin's floor: it lowers no planning friction bel
 
 #: the settings of :func:`stability_command`, in the order of its settings array
 #: (:meth:`control.StabilityController.kernel_arrays`): the law (1: sliding mode, 0: LQR), rear
-#: steer and friction ellipse (1 / 0), the step [s], mu_margin, the reference's understeer
-#: gradient [rad s^2/m], wheelbase [m], the rear servo's range [rad] and rate [rad/s], the
-#: actuator lag's terms (:func:`actuator_lag_terms`) and :func:`control.reference.bicycle_terms`
+#: steer (1 / 0), the step [s], the friction ellipse (1 / 0), mu_margin, the reference's
+#: understeer gradient [rad s^2/m], wheelbase [m], the rear servo's range [rad] and rate
+#: [rad/s], the actuator lag's terms (:func:`actuator_lag_terms`) and
+#: :func:`control.reference.bicycle_terms`
 SETTINGS = ("sliding_mode", "rear_steer", "dt", "friction_ellipse", "mu_margin", "understeer", "wheelbase",
             "max_rear_steer", "rear_steer_rate", "motor_lag", "sigma_kappa", "c_f", "c_r", "mass", "yaw_inertia",
             "cg_to_front", "cg_to_rear")
@@ -293,19 +294,20 @@ def deadband(x, width):
 
 
 @numba.njit(**JIT)
-def stability_command(u, beta, r, ay, mu_hat, mu_std, fz, front, base, settings, speeds, gains, law, memory,
-                      positions, peak_torque, peak_power, radius) -> int:
+def stability_command(u, beta, r, ay, mu_hat, mu_std, fz, front, base, positions, peak_torque, peak_power, radius,
+                      settings, speeds, gains, law, memory) -> int:
     """One vehicle's step of :class:`control.StabilityController` (its docstring has the design):
     from the estimate (speed u [m/s], sideslip beta [rad], yaw rate r [rad/s], ay [m/s^2], per-wheel
     mu_hat, mu_std and loads fz [N] (4,)), the front road-wheel angle [rad] and the driver's base
-    torques (4,) [N m]. ``settings``: :data:`SETTINGS`; ``speeds``, ``gains``: the LQR's table;
-    ``law``: :meth:`SlidingModeYawController.terms`; ``memory`` (M_WIDTH,): the vehicle's row,
-    updated (its rear angle and the allocation's torques are the command); then the
-    allocator's motor and geometry arguments. Returns the allocator's status (0: fine)."""
+    torques (4,) [N m]; the allocator's wheel positions and motor limits; ``settings``:
+    :data:`SETTINGS`; ``speeds``, ``gains``: the LQR's table; ``law``:
+    :meth:`SlidingModeYawController.terms`; ``memory`` (M_WIDTH,): the vehicle's row, updated
+    (its rear angle and the allocation's torques are the command). Returns the allocator's
+    status (0: fine)."""
     dt, margin = settings[S_DT], settings[S_MARGIN]
     mu = scratch((4,))
-    for w in range(4):
-        mu[w] = planning_friction(mu_hat[w], mu_std[w], margin)
+    for w in range(4):  # (margin 0: the estimate as it is, whatever its sigma)
+        mu[w] = mu_hat[w] if margin == 0.0 else planning_friction(mu_hat[w], mu_std[w], margin)
     c_f, c_r, mass, iz, a, b = (settings[S_C_F], settings[S_C_R], settings[S_MASS], settings[S_IZ], settings[S_A],
                                 settings[S_B])
     rear = 0.0
@@ -369,13 +371,15 @@ def allocation_inputs(row: np.ndarray) -> tuple[np.ndarray, ...]:
 
 
 @numba.njit(**JIT)
-def _stability_commands(u, beta, r, ay, mu, mu_std, fz, front, base, settings, speeds, gains, law, memory, positions,
-                        peak_torque, peak_power, radius) -> tuple[int, int]:
-    """:func:`stability_command` for each vehicle (rows (B,) or (B, 4)); returns (status, vehicle)
-    of the first failure, (0, -1) if none."""
+def _stability_commands(u, beta, r, ay, mu, mu_std, fz, front, base, moving, positions, peak_torque, peak_power,
+                        radius, settings, speeds, gains, law, memory) -> tuple[int, int]:
+    """:func:`stability_command` for each vehicle selected by ``moving`` (B,) bool (rows (B,) or
+    (B, 4)); returns (status, vehicle) of the first failure, (0, -1) if none."""
     for b in range(u.size):
-        bad = stability_command(u[b], beta[b], r[b], ay[b], mu[b], mu_std[b], fz[b], front[b], base[b], settings,
-                                speeds, gains, law, memory[b], positions, peak_torque, peak_power, radius)
+        if not moving[b]:
+            continue
+        bad = stability_command(u[b], beta[b], r[b], ay[b], mu[b], mu_std[b], fz[b], front[b], base[b], positions,
+                                peak_torque, peak_power, radius, settings, speeds, gains, law, memory[b])
         if bad:
             return bad, b
     return 0, -1

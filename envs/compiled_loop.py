@@ -41,7 +41,7 @@ from envs.driver import FOLLOWER, _DONE, _MISSING, bad_follower_state, drive, fo
 from envs.road import RoadTables
 from envs.sensors import NOISE_BLOCK, TRUE_AUX_COLUMNS, TRUE_STATE_COLUMNS, SensorReading, _noisy_readings
 from envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NAUX, NU, NX, RK4_REAL_LIMIT, S_R,
-                          S_U, S_V, _advance_block, check_relaxation_step, plant_error)
+                          S_U, S_V, _advance_block, check_relaxation_step, plant_error, sideslip)
 from estimation.joint import (N_OUT, O_AX, O_AY, O_BETA, O_BETA_STD, O_FZ, O_MU, O_MU_STD, O_R, O_U, O_V, OK,
                               STATE_FIELDS, _step_row)
 from estimation.jit import JIT, scratch
@@ -84,8 +84,8 @@ def _control(b, base, front, est, controller, ctrl) -> int:
             ctrl[0, C_TORQUE + w] = min(max(base[b, w] + action[b, w] * peak_torque, -peak_torque), peak_torque)
     elif mode == STABILITY:
         bad = stability_command(est[b, O_U], est[b, O_BETA], est[b, O_R], est[b, O_AY], est[b, O_MU:O_MU + 4],
-                                est[b, O_MU_STD:O_MU_STD + 4], est[b, O_FZ:O_FZ + 4], front[b], base[b], settings,
-                                speeds, gains, law, memory[b], positions, peak_torque, peak_power, radius)
+                                est[b, O_MU_STD:O_MU_STD + 4], est[b, O_FZ:O_FZ + 4], front[b], base[b], positions,
+                                peak_torque, peak_power, radius, settings, speeds, gains, law, memory[b])
         if bad:
             return bad
         for w in range(4):
@@ -105,7 +105,7 @@ def _sense(b, state, aux, sensors, truth, readings, sensed) -> int:
         sensed[0, 2 + c] = state[b, TRUE_STATE_COLUMNS[c]]
     truth[b, :] = 0.0
     truth[b, O_U], truth[b, O_V], truth[b, O_R] = state[b, S_U], state[b, S_V], state[b, S_R]
-    truth[b, O_BETA] = math.atan2(state[b, S_V], abs(state[b, S_U]))  # (as envs.simulation.true_estimate)
+    truth[b, O_BETA] = sideslip(state[b, S_U], state[b, S_V])  # (as envs.simulation.true_estimate)
     truth[b, O_AX], truth[b, O_AY] = aux[b, A_AX], aux[b, A_AY]
     for w in range(4):
         truth[b, O_MU + w], truth[b, O_FZ + w] = aux[b, A_MU + w], aux[b, A_FZ + w]
@@ -235,8 +235,8 @@ def _run(cars: np.ndarray, *args) -> None:
 class Arrays(NamedTuple):
     """A closed loop's sample as the kernel reads and writes it (B vehicles): times t (B,) [s],
     sensor readings (B, 13) and their validity, the truth and the estimate as rows (B, N_OUT) of
-    estimation.joint's output layout (the truth's beta is left to :func:`rows_estimate`),
-    steering-wheel angles (B,), front steer (B,) and base torques (B, 4)."""
+    estimation.joint's output layout, steering-wheel angles (B,), front steer (B,) and base
+    torques (B, 4)."""
 
     t: np.ndarray
     readings: np.ndarray
@@ -265,14 +265,10 @@ def estimate_rows(estimate: Estimate) -> np.ndarray:
     return rows
 
 
-def rows_estimate(rows: np.ndarray, true_beta: bool = False) -> Estimate:
-    """The :class:`Estimate` (views) of rows (..., N_OUT); ``true_beta``: beta from u and v as
-    envs.simulation.true_estimate has it (the kernel leaves the truth's beta out)."""
-    fields = {name: rows[..., column] if width == 1 else rows[..., column:column + width]
-              for name, column, width in _ESTIMATE_COLUMNS}
-    if true_beta:
-        fields["beta"] = np.arctan2(rows[..., O_V], np.abs(rows[..., O_U]))
-    return Estimate(**fields)
+def rows_estimate(rows: np.ndarray) -> Estimate:
+    """The :class:`Estimate` (views) of rows (..., N_OUT)."""
+    return Estimate(**{name: rows[..., column] if width == 1 else rows[..., column:column + width]
+                       for name, column, width in _ESTIMATE_COLUMNS})
 
 
 #: largest batch the compiled path runs. It runs each car's steps one after another, so the
@@ -331,12 +327,11 @@ _NO_STABILITY = (np.zeros(1), np.zeros(1), np.zeros((1, 3)), (0.0,) * 11, np.zer
 
 
 def _controller_form(controller, params, batch: int) -> tuple:
-    motors = (params.wheel_positions, float(params.motor_peak_torque), float(params.motor_peak_power),
-              float(params.wheel_radius))
     if controller is None:
-        return (NO_CONTROLLER, np.zeros((batch, 1)), 0.0, 0.0, *motors, *_NO_STABILITY)
-    if isinstance(controller, StabilityController):
-        return (STABILITY, np.zeros((batch, 1)), 0.0, 0.0, *motors, *controller.kernel_arrays(batch))
+        return (NO_CONTROLLER, np.zeros((batch, 1)), 0.0, 0.0, params.wheel_positions, float(params.motor_peak_torque),
+                float(params.motor_peak_power), float(params.wheel_radius), *_NO_STABILITY)
+    if isinstance(controller, StabilityController):  # (its own vehicle parameters, as from Python)
+        return (STABILITY, np.zeros((batch, 1)), 0.0, 0.0, *controller.kernel_arrays(batch))
     return controller.kernel_form() + _NO_STABILITY
 
 
@@ -432,7 +427,7 @@ def step_records(rows: np.ndarray, oracle: bool):
     from envs.simulation import StepRecord
 
     t = rows[..., R_T]
-    truth = rows_estimate(rows[..., R_TRUTH:R_ESTIMATE], true_beta=True)
+    truth = rows_estimate(rows[..., R_TRUTH:R_ESTIMATE])
     reading = SensorReading(rows[..., R_READINGS:R_TRUTH], np.ones(rows.shape[:2] + (13,), dtype=bool), t)
     return StepRecord(t, rows[..., R_STATE:R_AUX], rows[..., R_AUX:R_CONTROLS], rows[..., R_CONTROLS:R_READINGS],
                        rows[..., R_STEERING_WHEEL], reading, truth,

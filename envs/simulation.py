@@ -22,7 +22,7 @@ from envs.scenarios import Scenario, make_scenario
 from envs.sensors import (TRUE_AUX_COLUMNS, TRUE_STATE_COLUMNS, Fault, SensorModel, SensorParams,
                           SensorReading)
 from envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NU, S_R, S_U, S_V, check_lag_step,
-                          check_plant_step, derivatives, step)
+                          check_plant_step, derivatives, sideslip_angles, step)
 from control import Command, StabilityController, check_controller
 from estimation.types import Estimate, check_estimate, check_estimator, is_integer
 
@@ -94,7 +94,7 @@ def true_estimate(state: np.ndarray, aux: np.ndarray) -> Estimate:
     body, diag = state[:, _TRUTH_STATE], aux[:, _TRUTH_AUX]
     u, v = body[:, 0], body[:, 1]
     zeros = np.zeros((len(state), 5))
-    return Estimate(u=u, v=v, beta=np.arctan2(v, np.abs(u)), r=body[:, 2], ax=diag[:, 0], ay=diag[:, 1],
+    return Estimate(u=u, v=v, beta=sideslip_angles(u, v), r=body[:, 2], ax=diag[:, 0], ay=diag[:, 1],
                     mu=diag[:, 2:6], fz=diag[:, 6:10], beta_std=zeros[:, 0], mu_std=zeros[:, 1:])
 
 
@@ -293,8 +293,9 @@ class ClosedLoop:
     def reset_members(self, mask: np.ndarray, scenarios: Sequence[Scenario],
                       rngs: Sequence[np.random.Generator]) -> None:
         """Restart the vehicles selected by ``mask`` (B,) bool on new ``scenarios`` with new sensor
-        generators (one each, in order): fresh plant state, clock, sensors and estimator. The
-        other vehicles' current sample stands (each time instant is sensed once)."""
+        generators (one each, in order): fresh plant state, clock, sensors and estimator (and
+        fourwis's DYC's memory of them). The other vehicles' current sample stands (each time
+        instant is sensed once)."""
         members = np.flatnonzero(mask)
         if len(scenarios) != len(members):
             raise ValueError(f"need one scenario per reset vehicle ({len(members)}), got {len(scenarios)}")
@@ -305,6 +306,8 @@ class ClosedLoop:
         self.steering_drivers.replace(members, [s.steering for s in scenarios])
         self.speed_drivers.replace(members, [s.speed_driver() for s in scenarios])
         self.sensors.reset_members(mask, rngs)
+        if isinstance(self.controller, StabilityController):
+            self.controller.reset(mask)
         self.k[members] = 0
         self._fresh[members] = True
         self._stale[members] = True
@@ -367,10 +370,13 @@ class ClosedLoop:
         controls = np.zeros((self.batch_size, NU))
         controls[:, C_TORQUE:C_TORQUE + 4] = s.base_torques
         controls[:, C_DELTA_F] = s.front_steer
-        if self.controller is not None:
+        if isinstance(self.controller, StabilityController):  # (held vehicles keep its memory, as when compiled)
+            command = self.controller(s.t, s.estimate, controls[:, C_DELTA_F].copy(), s.base_torques.copy(), moving)
+        elif self.controller is not None:
             command = self.controller(s.t, s.estimate, controls[:, C_DELTA_F].copy(), s.base_torques.copy())
             if self._check_commands:
                 _check_command(command, self.batch_size, self._labels[1])
+        if self.controller is not None:
             controls[:, C_TORQUE:C_TORQUE + 4] = command.torques
             controls[:, C_DELTA_R] = command.rear_steer
         record = StepRecord(s.t, self.state.copy(), self.aux.copy(), controls, s.steering_wheel, s.reading, s.truth,
@@ -392,12 +398,13 @@ class ClosedLoop:
         """:meth:`advance` ``n`` times (every vehicle, or those selected by ``moving`` (B,) bool),
         then :meth:`sample`; returns the steps' records, stacked (None if not ``records``). In one
         compiled call where the loop has a compiled form (:func:`envs.compiled_loop.supports`:
-        fourwis's estimators, no controller or the envs' agent, no sensor faults, table roads,
-        built-in drivers, up to 32 cars), else step by step in Python; the two agree bit for
-        bit, but for the rows of held vehicles, which the compiled path leaves NaN, and for
-        errors: the compiled path skips held vehicles (the Python loop also allocates and
-        integrates them, and discards the result) and raises the lowest failing vehicle's
-        error, leaving the vehicles at different steps (reset them after an error)."""
+        fourwis's estimators, no controller, the envs' agent or fourwis's DYC, no sensor faults,
+        table roads, built-in drivers, up to 32 cars), else step by step in Python; the two agree
+        bit for bit, but for the rows of held vehicles, which the compiled path leaves NaN, and
+        for errors: the compiled path skips held vehicles (the Python loop also allocates and
+        integrates them, and discards the result; the DYC's memory of them stays in both) and
+        raises the lowest failing vehicle's error, leaving the vehicles at different steps (reset
+        them after an error)."""
         if not (is_integer(n) and n >= 1):
             raise ValueError(f"n must be a positive integer, got {n!r}")
         if not isinstance(records, (bool, np.bool_)):
@@ -418,7 +425,7 @@ class ClosedLoop:
         except (ValueError, FloatingPointError):
             self._stale[:] = True  # (the next sample senses every vehicle where it stopped)
             raise
-        truth = compiled_loop.rows_estimate(arrays.truth, true_beta=True)
+        truth = compiled_loop.rows_estimate(arrays.truth)
         estimate = truth if oracle else compiled_loop.rows_estimate(arrays.estimate)
         self._sample = Sample(arrays.t, SensorReading(arrays.readings, arrays.valid, arrays.t), truth, estimate,
                               arrays.steering_wheel, arrays.front_steer, arrays.base_torques)

@@ -623,6 +623,27 @@ PARALLEL_MIN_BATCH = 64  #: batches at least this large run on all cores
 MAX_DT = 0.01
 
 
+@numba.njit(inline="always", **JIT)
+def sideslip(u: float, v: float) -> float:
+    """Sideslip angle [rad] of a body moving at u, v [m/s]: atan2(v, |u|) (libm's, in compiled and
+    Python code alike, so that the two loops' truths agree bit for bit on every machine)."""
+    return math.atan2(v, abs(u))
+
+
+@numba.njit(**JIT)
+def _sideslips(u, v, out) -> None:
+    for i in range(u.size):
+        out[i] = sideslip(u[i], v[i])
+
+
+def sideslip_angles(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """:func:`sideslip` of (B,) speeds [m/s]: (B,) [rad]."""
+    u, v = np.ascontiguousarray(u, dtype=float), np.ascontiguousarray(v, dtype=float)
+    out = np.empty(u.shape)
+    _sideslips(u.ravel(), v.ravel(), out.ravel())
+    return out
+
+
 def check_plant_step(dt) -> float:
     """``dt`` [s] as a float if it is a step in (0, :data:`MAX_DT`]; else ValueError naming it."""
     if not (is_number(dt) and 0.0 < dt <= MAX_DT):

@@ -171,17 +171,22 @@ def test_simulate_equals_the_python_loop(scenario, controller, estimator, monkey
 def test_the_dyc_hands_over_between_the_loops_mid_run(monkeypatch):
     """The controller's memory (lagged reference, rear angle, delivered moment, allocation) is
     one array that both loops update: compiled, Python, compiled again equals Python throughout,
-    on two cars of which one is held for a while."""
+    on two cars of which one, turning, is held for a while: its memory stands still in both."""
     from control import StabilityController
+    from control.dyc import M_REFERENCE
 
     def run(switch: bool) -> list:
-        scenarios = [make_scenario("mu_jump"), make_scenario("paper_sine", mu=0.4)]
+        scenarios = [make_scenario("paper_step", mu=0.4), make_scenario("mu_jump")]
         loop = ClosedLoop(scenarios, "dyc-smc-4ws", "joint", [np.random.default_rng(b) for b in range(2)])
         assert isinstance(loop.controller, StabilityController) and compiled_loop.supports(loop)
         if not switch:
             monkeypatch.setattr(compiled_loop, "supports", lambda loop: False)
-        seen = [*loop.advance_steps(400)]  # then car 1 held (whose rows the compiled records leave NaN):
+        seen = [*loop.advance_steps(900)]  # then car 1 held in its turn (the compiled records leave its rows NaN):
+        memory = loop.controller.kernel_arrays(2)[-1]
+        assert abs(memory[1, M_REFERENCE]) > 0.05  # (turning: a held step of the law would move it)
+        held_row = memory[1].copy()
         seen += [leaf[:, 0] for leaf in _leaves(loop.advance_steps(150, moving=np.array([True, False])))]
+        np.testing.assert_array_equal(memory[1], held_row)
         monkeypatch.setattr(compiled_loop, "supports", lambda loop: False)
         seen += [loop.advance() for _ in range(30)]
         monkeypatch.undo()
@@ -192,6 +197,39 @@ def test_the_dyc_hands_over_between_the_loops_mid_run(monkeypatch):
         return [np.asarray(leaf) for leaf in _leaves(seen)]
 
     _assert_same(run(True), run(False))
+
+
+def test_the_dyc_allocates_with_its_own_vehicle_parameters(monkeypatch):
+    """A controller designed for other motors than the plant's (150 N m, a heavier car) commands the
+    same torques in both loops: its own limits, never more than 150 N m."""
+    from dataclasses import replace
+
+    from control import StabilityController
+
+    scenario = make_scenario("paper_step", mu=0.4)
+    params = scenario.vehicle_params
+    designed = replace(params, motor_peak_torque=150.0, mass=1.1 * params.mass)
+
+    def run() -> np.ndarray:
+        return simulate(scenario, StabilityController(designed), "oracle", seed=0).controls
+
+    compiled = run()
+    assert np.max(np.abs(compiled[:, :4])) <= 150.0 + 1e-9
+    _python_loop(monkeypatch)
+    np.testing.assert_array_equal(compiled, run())
+
+
+def test_a_reset_member_restarts_the_dyc_memory_of_that_car_only():
+    from control.dyc import M_DELIVERED, M_REFERENCE
+
+    scenarios = [make_scenario("paper_sine"), make_scenario("paper_step")]
+    loop = ClosedLoop(scenarios, "dyc-lqr", "joint", [np.random.default_rng(b) for b in range(2)])
+    loop.advance_steps(800)
+    memory = loop.controller.kernel_arrays(2)[-1]
+    kept = memory[0].copy()
+    loop.reset_members(np.array([False, True]), [make_scenario("paper_step")], [np.random.default_rng(5)])
+    np.testing.assert_array_equal(memory[0], kept)
+    assert np.isnan(memory[1, M_REFERENCE]) and memory[1, M_DELIVERED] == 0.0
 
 
 def _leaves(tree) -> list:

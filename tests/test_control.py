@@ -146,6 +146,34 @@ def test_bad_input_raises():
         controller(np.zeros(3), three, np.zeros(3), np.zeros((3, 4)))
     controller.reset()
     assert controller(np.zeros(3), three, np.zeros(3), np.zeros((3, 4))).torques.shape == (3, 4)
+    with pytest.raises(ValueError, match=r"'front_steer': \(1,\)"):  # (not read past its end)
+        controller(np.zeros(3), three, np.zeros(1), np.zeros((3, 4)))
+    with pytest.raises(ValueError, match=r"'base_torques': \(12,\)"):
+        controller(np.zeros(3), three, np.zeros(3), np.zeros(12))
+    with pytest.raises(AttributeError):  # frozen: the compiled step reads the fields as its settings
+        controller.mu_margin = 0.0
+    assert LQRYawController(P).gain(20.0).shape == (3,) and LQRYawController(P).gain(np.ones((2, 2))).shape == (2, 2, 3)
+
+
+def test_a_failed_dyc_call_changes_nothing():
+    """A bad estimate (a negative wheel load on the second of three cars) raises the allocator's
+    ValueError naming it and leaves the controller as it was: the same next command."""
+    controller = StabilityController(P)
+    est = Estimate(u=np.full(3, 20.0), v=np.zeros(3), beta=np.zeros(3), r=np.array([0.1, 0.2, 0.3]), ax=np.zeros(3),
+                   ay=np.zeros(3), mu=np.ones((3, 4)), fz=np.full((3, 4), 3000.0), beta_std=np.zeros(3),
+                   mu_std=np.zeros((3, 4)))
+    front = np.full(3, 0.02)
+    controller(np.zeros(3), est, front, np.zeros((3, 4)))
+    before = controller.last_allocation
+    bad = est._replace(fz=np.where(np.arange(3)[:, None] == 1, -10.0, est.fz))
+    with pytest.raises(ValueError, match=r"wheel loads must be >= 0 N, got \[-10\."):
+        controller(np.zeros(3), bad, front, np.zeros((3, 4)))
+    for a, b in zip(controller.last_allocation, before):
+        np.testing.assert_array_equal(a, b)
+    again = StabilityController(P)
+    again(np.zeros(3), est, front, np.zeros((3, 4)))
+    np.testing.assert_array_equal(controller(np.zeros(3), est, front, np.zeros((3, 4))).torques,
+                                  again(np.zeros(3), est, front, np.zeros((3, 4))).torques)
     assert set(CONTROLLERS) >= {"none", "dyc-lqr", "dyc-smc"}
     with pytest.raises(ValueError, match="-0.01"):
         StabilityController(P, reference_understeer=-0.01)
