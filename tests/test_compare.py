@@ -201,3 +201,29 @@ def test_output_folders_must_be_named():
     for empty in ("", "  "):
         with pytest.raises(ValueError, match="--out must not be empty"):
             check_writable(empty)
+
+
+def test_the_report_shows_each_estimator_against_the_oracle():
+    """Ratios of the seed means to the oracle's under the same controller, bold above 1.10, none
+    where the oracle's value is at the noise floor; no section without the oracle or a controller."""
+    from training.compare import markdown_report
+
+    metrics = ("peak_beta", "phase_plane_peak", "yaw_tracking_rms", "spin_out", "yaw_moment_rms", "rmse_u", "rmse_v",
+               "rmse_beta", "mae_beta", "rmse_r", "rmse_mu", "final_mu_error")
+
+    def run(peak_beta: float, yaw: float) -> dict:
+        return {m: 0.0 for m in metrics} | {"peak_beta": peak_beta, "yaw_tracking_rms": yaw}
+
+    table = {("paper_step", "oracle", "dyc-lqr"): run(0.010, 0.020), ("paper_step", "joint", "dyc-lqr"): run(0.0122, 0.021),
+             ("paper_step", "ckf", "dyc-lqr"): run(0.031, 0.0219),
+             ("paper_dlc", "oracle", "dyc-lqr"): run(0.0004, 0.020), ("paper_dlc", "joint", "dyc-lqr"): run(0.0004, 0.020),
+             ("paper_dlc", "ckf", "dyc-lqr"): run(0.0004, 0.020)}
+    table |= {(s, e, "none"): run(0.02, 0.03) for s in ("paper_step", "paper_dlc") for e in ("oracle", "joint", "ckf")}
+    text = markdown_report(table, ["paper_step", "paper_dlc"], ["oracle", "joint", "ckf"], ["none", "dyc-lqr"], 2)
+    section = text.split("## Against the oracle")[1].split("##")[0]
+    assert "| scenario | controller | joint | ckf |" in section and "| none |" not in section
+    assert "| paper_step | dyc-lqr | **1.22** / 1.05 | **3.10** / 1.09 |" in section
+    assert "| paper_dlc | dyc-lqr | — / 1.00 | — / 1.00 |" in section  # (0.0004 rad: below the floor)
+    for estimators, controllers in ((["joint", "ckf"], ["none", "dyc-lqr"]), (["oracle", "joint", "ckf"], ["none"])):
+        sub = {key: value for key, value in table.items() if key[1] in estimators and key[2] in controllers}
+        assert "Against the oracle" not in markdown_report(sub, ["paper_step", "paper_dlc"], estimators, controllers, 2)

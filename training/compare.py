@@ -346,6 +346,7 @@ def markdown_report(table: dict, scenarios: Sequence[str], estimators: Sequence[
                              f"| {_fmt(m.get('swd_ratio_1000'), 100, 0)}{'%' if 'swd_ratio_1000' in m else ''} "
                              f"| {_fmt(m.get('swd_ratio_1750'), 100, 0)}{'%' if 'swd_ratio_1750' in m else ''} "
                              f"| {_fmt(m.get('swd_displacement'))} | {_fmt(m['yaw_moment_rms'], 1, 0)} |")
+    lines += oracle_ratio_lines(table, scenarios, estimators, controllers)
     lines += ["", "## Estimation accuracy (paper Table 2 form, open loop: controller none)" if "none" in controllers
               else "## Estimation accuracy (first controller)", "",
               "| scenario | estimator | RMSE u [m/s] | RMSE v [m/s] | RMSE beta [deg] | MAE beta [deg] "
@@ -358,6 +359,46 @@ def markdown_report(table: dict, scenarios: Sequence[str], estimators: Sequence[
                          f"| {_fmt(m['rmse_beta'], deg, 3)} | {_fmt(m['mae_beta'], deg, 3)} | {_fmt(m['rmse_r'], deg, 3)} "
                          f"| {_fmt(m['rmse_mu'], 1, 3)} | {_fmt(m['final_mu_error'], 1, 3)} |")
     return "\n".join(lines) + "\n"
+
+
+#: the issue's target: a stability controller on the joint estimator within 10% of it on the truth
+ORACLE_TOLERANCE = 1.10
+#: below this [rad, rad/s] in the oracle's run a ratio is not shown (both values at the noise floor)
+RATIO_FLOOR = 1e-3
+
+
+def oracle_ratio(value: float, oracle: float) -> float:
+    """``value`` / ``oracle``; NaN where the oracle's value is below RATIO_FLOOR or not finite."""
+    return value / oracle if math.isfinite(oracle) and oracle >= RATIO_FLOOR else math.nan
+
+
+def oracle_ratio_lines(table: dict, scenarios: Sequence[str], estimators: Sequence[str],
+                       controllers: Sequence[str]) -> list[str]:
+    """The report's section of ratios to the oracle (peak sideslip / yaw-rate RMS, means over
+    seeds) for every controlled (scenario, controller) and every other estimator; none without
+    the oracle or a controller."""
+    others = [e for e in estimators if e != "oracle"]
+    controlled = [c for c in controllers if c != "none"]
+    if "oracle" not in estimators or not others or not controlled:
+        return []
+
+    def cell(value: float) -> str:
+        text = _fmt(value)
+        return f"**{text}**" if math.isfinite(value) and value > ORACLE_TOLERANCE else text
+
+    lines = ["", "## Against the oracle", "",
+             "Each estimator's mean over seeds as a ratio to the oracle's, same scenario and controller: peak "
+             f"sideslip / yaw-rate RMS error; bold above {ORACLE_TOLERANCE:.2f} (the target for the joint "
+             f"estimator: within 10%); — where the oracle's value is below {RATIO_FLOOR:g} rad (rad/s).", "",
+             "| scenario | controller | " + " | ".join(others) + " |", "|---|---|" + "---:|" * len(others)]
+    for s in scenarios:
+        for c in controlled:
+            oracle = table[(s, "oracle", c)]
+            cells = [f"{cell(oracle_ratio(table[(s, e, c)]['peak_beta'], oracle['peak_beta']))} / "
+                     f"{cell(oracle_ratio(table[(s, e, c)]['yaw_tracking_rms'], oracle['yaw_tracking_rms']))}"
+                     for e in others]
+            lines.append(f"| {s} | {c} | " + " | ".join(cells) + " |")
+    return lines
 
 
 def plot_report(table: dict, trajectories: dict, scenarios, estimators, controllers, out: Path) -> list[Path]:
