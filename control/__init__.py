@@ -9,7 +9,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from control.allocation import Allocation, allocate_for_estimate, allocate_torques, allocation_error
+from control.allocation import (Allocation, allocate_for_estimate, allocate_torques, allocation_error,
+                                allocator_limits)
 from control.dyc import (ACTIVE_SPEED, M_DELIVERED, M_FEASIBLE, M_FORCE, M_MOMENT, M_REAR, M_REFERENCE, M_TORQUES,
                          M_WIDTH, MIN_PLANNING_MU, SETTINGS, YAW_DEADBAND, LQRWeights, LQRYawController,
                          SlidingModeYawController, _stability_commands, actuator_lag_terms, allocation_inputs,
@@ -122,20 +123,22 @@ class StabilityController:
             raise ValueError(f"unknown yaw-moment law {self.law!r}; known: ['lqr', 'smc']")
         p = self.params
         c_f, c_r = p.axle_cornering_stiffness
-        understeer = max(understeer_gradient(p), 0.0) if self.reference_understeer is None else self.reference_understeer
+        understeer = self.reference_understeer
+        if understeer is None:  # the car's own, floored at neutral
+            understeer = max(understeer_gradient(p), 0.0)
         values = dict(sliding_mode=float(self.law == "smc"), rear_steer=float(self.rear_steer), dt=self.dt,
                       friction_ellipse=float(self.friction_ellipse), mu_margin=self.mu_margin, understeer=understeer,
                       wheelbase=p.wheelbase, max_rear_steer=p.max_rear_steer if self.rear_steer else 0.0,
                       rear_steer_rate=getattr(p, "rear_steer_rate", np.inf), c_f=c_f, c_r=c_r, mass=p.mass,
                       yaw_inertia=p.yaw_inertia, cg_to_front=p.cg_to_front, cg_to_rear=p.cg_to_rear)
         values["motor_lag"], values["sigma_kappa"] = actuator_lag_terms(p)
-        motors = (p.wheel_positions, float(p.motor_peak_torque), float(p.motor_peak_power), float(p.wheel_radius))
         if self.law == "lqr":
             table, terms = (np.ascontiguousarray(law.speeds, dtype=float), law.gains), (0.0,) * 11
         else:
             table, terms = (np.zeros(1), np.zeros((1, 3))), law.terms()
         # (frozen: the fields are the settings, so these are set once)
-        object.__setattr__(self, "_kernel", (*motors, np.array([values[name] for name in SETTINGS]), *table, terms))
+        settings = np.array([values[name] for name in SETTINGS])
+        object.__setattr__(self, "_kernel", (*allocator_limits(p), settings, *table, terms))
         object.__setattr__(self, "_memory", None)
 
     def reset(self, members: np.ndarray | None = None) -> None:
@@ -180,9 +183,7 @@ class StabilityController:
         """Per-wheel friction (B, 4) the controller plans with (see the class docstring)."""
         mu = np.asarray(estimate.mu, dtype=float)
         mu_std = getattr(estimate, "mu_std", None)
-        if mu_std is None or self.mu_margin == 0.0:
-            return mu
-        return planning_friction(mu, np.asarray(mu_std, dtype=float), self.mu_margin)
+        return mu if mu_std is None else planning_friction(mu, np.asarray(mu_std, dtype=float), self.mu_margin)
 
     def __call__(self, t: np.ndarray, estimate, front_steer: np.ndarray, base_torques: np.ndarray,
                  moving: np.ndarray | None = None) -> Command:

@@ -250,14 +250,19 @@ def allocate_torques(base_torques: np.ndarray, yaw_moment: np.ndarray, fz: np.nd
         raise ValueError(f"yaw_moment, speed and the steer angles must have shape ({B},) and fz, mu, "
                          f"lateral_forces ({B}, 4); got "
                          + ", ".join(f"{name} {shape}" for name, shape in zip(_INPUTS[1:], shapes)))
-    p = params
     torques, moment, force = np.empty((B, 4)), np.empty(B), np.empty(B)
     feasible = np.empty(B, dtype=np.bool_)
-    bad = _allocate(*inputs, p.wheel_positions, float(p.motor_peak_torque),
-                    float(p.motor_peak_power), float(p.wheel_radius), torques, moment, force, feasible)
+    bad = _allocate(*inputs, *allocator_limits(params), torques, moment, force, feasible)
     if bad:
         raise allocation_error(bad, inputs)
     return Allocation(torques, moment, force, feasible)
+
+
+def allocator_limits(params) -> tuple[np.ndarray, float, float, float]:
+    """The allocator's vehicle arguments of duck-typed ``params``: wheel positions (4, 2) [m],
+    motor peak torque [N m] and power [W], wheel radius [m]."""
+    return params.wheel_positions, float(params.motor_peak_torque), float(params.motor_peak_power), \
+        float(params.wheel_radius)
 
 
 def allocation_error(bad: int, inputs: tuple[np.ndarray, ...]) -> ValueError:

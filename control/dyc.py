@@ -281,9 +281,12 @@ M_WIDTH = M_INPUTS + 20
 
 
 @register_jitable
-def planning_friction(mu, mu_std, margin):
+def planning_friction(mu, mu_std, margin: float):
     """The friction a cautious controller plans with: the lower confidence bound mu - margin mu_std,
-    stopping at MIN_PLANNING_MU (a friction already below it, ice, is kept)."""
+    stopping at MIN_PLANNING_MU (a friction already below it, ice, is kept); margin 0: mu as it
+    is, whatever its sigma."""
+    if margin == 0.0:
+        return mu
     return np.maximum(mu - margin * mu_std, np.minimum(mu, MIN_PLANNING_MU))
 
 
@@ -306,8 +309,8 @@ def stability_command(u, beta, r, ay, mu_hat, mu_std, fz, front, base, positions
     status (0: fine)."""
     dt, margin = settings[S_DT], settings[S_MARGIN]
     mu = scratch((4,))
-    for w in range(4):  # (margin 0: the estimate as it is, whatever its sigma)
-        mu[w] = mu_hat[w] if margin == 0.0 else planning_friction(mu_hat[w], mu_std[w], margin)
+    for w in range(4):
+        mu[w] = planning_friction(mu_hat[w], mu_std[w], margin)
     c_f, c_r, mass, iz, a, b = (settings[S_C_F], settings[S_C_R], settings[S_MASS], settings[S_IZ], settings[S_A],
                                 settings[S_B])
     rear = 0.0

@@ -19,8 +19,9 @@ they stopped.
 The fast path applies when everything in the loop has a compiled form: fourwis's own
 estimators (``StateEstimator`` of any kind, ``Oracle``), a controller with ``kernel_form``
 (the envs' agent controller), fourwis's DYC (``StabilityController``, any law, with or without
-4WS) or none, sensors without faults, table friction maps and drivers of :data:`envs.driver.COMPILED_DRIVERS` or path followers, for batches up to
-:data:`MAX_BATCH` cars. :func:`supports` says whether a loop takes it.
+4WS) or none, sensors without faults, table friction maps and drivers of
+:data:`envs.driver.COMPILED_DRIVERS` or path followers, for batches up to :data:`MAX_BATCH` cars.
+:func:`supports` says whether a loop takes it.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ import numba
 import numpy as np
 
 from control import StabilityController
-from control.allocation import _allocate, allocation_error
+from control.allocation import _allocate, allocation_error, allocator_limits
 from control.dyc import M_REAR, M_TORQUES, M_WIDTH, allocation_inputs, stability_command
 from envs.driver import FOLLOWER, _DONE, _MISSING, bad_follower_state, drive, follower_form
 from envs.road import RoadTables
@@ -328,8 +329,7 @@ _NO_STABILITY = (np.zeros(1), np.zeros(1), np.zeros((1, 3)), (0.0,) * 11, np.zer
 
 def _controller_form(controller, params, batch: int) -> tuple:
     if controller is None:
-        return (NO_CONTROLLER, np.zeros((batch, 1)), 0.0, 0.0, params.wheel_positions, float(params.motor_peak_torque),
-                float(params.motor_peak_power), float(params.wheel_radius), *_NO_STABILITY)
+        return (NO_CONTROLLER, np.zeros((batch, 1)), 0.0, 0.0, *allocator_limits(params), *_NO_STABILITY)
     if isinstance(controller, StabilityController):  # (its own vehicle parameters, as from Python)
         return (STABILITY, np.zeros((batch, 1)), 0.0, 0.0, *controller.kernel_arrays(batch))
     return controller.kernel_form() + _NO_STABILITY

@@ -25,7 +25,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from control import Command
-from control.allocation import allocate_for_estimate
+from control.allocation import allocate_for_estimate, allocator_limits
 from control.reference import PhasePlaneRegion, reference_yaw_rate
 from envs import compiled_loop
 from envs.fmvss126 import characterise
@@ -179,8 +179,7 @@ class AgentController:
         [W], wheel radius [m])."""
         p = self.params
         mode = compiled_loop.YAW_MOMENT if self.action_mode == "yaw_moment" else compiled_loop.WHEEL_TORQUES
-        return (mode, self.action, MAX_YAW_MOMENT, float(p.max_rear_steer), p.wheel_positions,
-                float(p.motor_peak_torque), float(p.motor_peak_power), float(p.wheel_radius))
+        return (mode, self.action, MAX_YAW_MOMENT, float(p.max_rear_steer), *allocator_limits(p))
 
 
 class _EpisodeStats:
