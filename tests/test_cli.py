@@ -6,6 +6,7 @@ import json
 import math
 import shutil
 
+import numpy as np
 import pytest
 
 from training.cli import build_parser, main
@@ -147,6 +148,17 @@ def test_simulate_takes_the_comparisons_overrides_and_swd_an_a_with_a_series(tmp
     main(["simulate", "paper_step:duration=0.2,mu=0.5", "--speed-kph", "30", "--out", str(tmp_path)])
     header, first, *rows = (tmp_path / "paper_step_duration_0.2_mu_0.5.csv").read_text().splitlines()
     assert len(rows) == 100  # 0.2 s at 2 ms
+    # the columns (training.trajectory_io.trajectory_columns) carry the run: SI units, overrides
+    names = header.split(",")
+    table = np.array([line.split(",") for line in [first, *rows]], dtype=float)
+    column = dict(zip(names, table.T))
+    assert names[:3] == ["t", "x", "y"] and len(set(names)) == len(names)
+    np.testing.assert_allclose(np.diff(column["t"]), 0.002, atol=1e-12)
+    np.testing.assert_allclose(column["u"], 30 / 3.6, rtol=0.01)  # m/s, not km/h
+    for w in ("fl", "fr", "rl", "rr"):
+        np.testing.assert_array_equal(column[f"mu_{w}"], 0.5)
+        assert np.all(column[f"fz_{w}"] > 1000.0) and np.all(np.isfinite(column[f"est_mu_{w}"]))
+    np.testing.assert_allclose(column["est_r"], column["r"], atol=0.01)  # (the default joint estimator)
     with pytest.raises(SystemExit, match=r"fourwis swd: --A must be a steering-wheel angle in \(0, 200\] deg"):
         main(["swd", "--A", "201"])  # 1.5A above 300 deg: no run in the series
 

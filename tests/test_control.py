@@ -627,3 +627,52 @@ def test_simulate_takes_a_controller_by_name_as_it_takes_an_estimator():
     for bad, match in (("pid", "'pid'"), (3, "got 3")):
         with pytest.raises(ValueError, match=match):
             simulate(scenario, bad)
+
+
+def _turning(u: np.ndarray, r: float, ay: float = 0.0) -> Estimate:
+    """Estimates of B cars at speeds u (B,) yawing at r [rad/s] straight ahead, on a dry road."""
+    B = u.shape[0]
+    return Estimate(u=u, v=np.zeros(B), beta=np.zeros(B), r=np.full(B, r), ax=np.zeros(B), ay=np.full(B, ay),
+                    mu=np.ones((B, 4)), fz=np.full((B, 4), 2000.0), beta_std=np.zeros(B), mu_std=np.zeros((B, 4)))
+
+
+@pytest.mark.parametrize("law", ["lqr", "smc"])
+def test_the_dyc_asks_no_moment_below_its_active_speed_but_still_shares_the_drive(law):
+    """Below ACTIVE_SPEED (2 m/s: slip angles mean little at walking pace) the law's moment is 0
+    and the allocator only shares the driver's torque; just above it a car yawing at 0.3 rad/s
+    with the wheels straight gets a counter-moment (clockwise)."""
+    from control.dyc import ACTIVE_SPEED
+
+    controller = StabilityController(P, law=law)
+    u = np.array([0.5 * ACTIVE_SPEED, 0.99 * ACTIVE_SPEED, 1.5 * ACTIVE_SPEED])
+    base = np.full((3, 4), 40.0)
+    command = controller(np.zeros(3), _turning(u, 0.3), np.zeros(3), base)
+    moment = controller.last_allocation.yaw_moment
+    np.testing.assert_array_equal(moment[:2], 0.0)
+    np.testing.assert_allclose(command.torques[:2], base[:2])
+    assert moment[2] < -50.0
+    np.testing.assert_allclose(command.torques[2].sum(), base[2].sum(), rtol=1e-9)
+
+
+def test_the_friction_ellipse_leaves_a_cornering_tyre_less_longitudinal_force():
+    """friction_ellipse=True bounds each tyre's Fx by what its quasi-static lateral force
+    Fz ay / g leaves of mu Fz: at ay = 0.8 g on mu 1, sqrt(1 - 0.8^2) = 0.6 of the circle. A
+    moment the circle meets is cut to the ellipse's largest, 4 x 0.6 x 2 kN x half-track
+    0.708 m = 3.4 kN m with no drive force asked, and flagged infeasible; a small one is met by
+    both."""
+    from control.allocation import allocate_for_estimate
+
+    estimate = _turning(np.full(2, 10.0), 0.0, ay=0.8 * GRAVITY)
+    base, demand = np.zeros((2, 4)), np.array([4000.0, 500.0])
+    circle = allocate_for_estimate(base, demand, estimate, P)
+    ellipse = allocate_for_estimate(base, demand, estimate, P, friction_ellipse=True)
+    np.testing.assert_allclose(circle.yaw_moment, demand, rtol=1e-6)
+    assert circle.feasible.all()
+    half_track = P.track_front / 2
+    bound = 4 * 0.6 * 2000.0 * half_track
+    assert not ellipse.feasible[0]
+    np.testing.assert_allclose(ellipse.yaw_moment[0], bound, rtol=1e-6)
+    np.testing.assert_allclose(ellipse.yaw_moment[1], 500.0, rtol=1e-6)
+    assert ellipse.feasible[1]
+    tyre_fx = np.abs(ellipse.torques[0]) / P.wheel_radius
+    assert np.all(tyre_fx <= 0.6 * 2000.0 * (1 + 1e-6))

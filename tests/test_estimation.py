@@ -385,10 +385,16 @@ def test_estimators_track_sideslip_and_yaw_rate(name, scenario, beta_deg):
 
 
 def test_robust_filter_shrugs_off_gyro_spikes():
+    """0.5 rad/s gyro spikes at 20/s for 6 s of paper_sine: alo-fkf's Huber weighting (c = 3)
+    keeps the yaw-rate RMSE below 0.4 of the same filter's with the weighting off (measured 0.20:
+    0.0030 against 0.0149 rad/s) and of the plain fkf's (0.078)."""
     faults = (Fault("yaw_rate", "spike", start=2.0, end=8.0, magnitude=0.5, rate=20.0),)
-    plain = simulate("paper_sine", estimator="fkf", seed=2, faults=faults)
     robust = simulate("paper_sine", estimator="alo-fkf", seed=2, faults=faults)
-    assert rmse(robust.estimate.r, robust.truth.r) < 0.7 * rmse(plain.estimate.r, plain.truth.r)
+    error = rmse(robust.estimate.r, robust.truth.r)
+    unweighted = make_estimator("alo-fkf", VehicleParams(), huber_c=math.inf)
+    for plain in (simulate("paper_sine", estimator=unweighted, seed=2, faults=faults),
+                  simulate("paper_sine", estimator="fkf", seed=2, faults=faults)):
+        assert error < 0.4 * rmse(plain.estimate.r, plain.truth.r)
 
 
 def test_estimator_is_deterministic_under_a_seed_and_names_are_checked():
@@ -656,9 +662,9 @@ def test_tyre_fit_plot_option_draws_the_figure_and_leaves_the_fit_alone(tmp_path
 
 def test_joint_estimator_follows_a_friction_drop_and_the_dyc_stays_stable():
     """mu_jump (0.9 -> 0.3 in a 0.4 g turn) with DYC-LQR on the estimate: the joint estimator's
-    mu follows the drop (measured mean 0.33 over the last 2 s) and the car's peak sideslip
-    stays below half of what the fixed-dry-mu ckf lets it reach (measured 1.3 against 11.5 deg,
-    the oracle 1.2)."""
+    mu follows the drop (measured mean 0.35 over the last 2 s, 2026-12-01) and the car's peak
+    sideslip stays below half of what the fixed-dry-mu ckf lets it reach (measured 1.5 against
+    14.6 deg)."""
     from control import make_controller
 
     runs = {name: simulate("mu_jump", controller=make_controller("dyc-lqr", VehicleParams()), estimator=name, seed=0)
@@ -667,7 +673,7 @@ def test_joint_estimator_follows_a_friction_drop_and_the_dyc_stays_stable():
     assert peak["joint"] < 0.5 * peak["ckf"]
     joint = runs["joint"]
     last = joint.t >= joint.t[-1] - 2.0
-    assert abs(joint.estimate.mu[last].mean() - 0.3) < 0.15
+    assert abs(joint.estimate.mu[last].mean() - 0.3) < 0.1
     assert np.all(joint.truth.mu[last] == pytest.approx(0.3))
 
 

@@ -91,6 +91,37 @@ def test_true_observation_fills_every_slot_as_the_docstring_table_scales_it():
     assert max(np.abs(steers)) == params.max_front_steer  # the steering wheel passed the lock
 
 
+def test_estimated_and_sensor_observations_fill_their_slots_as_documented():
+    """observation="estimated" (joint): the estimate's u/30, beta/0.2, r, ax/10, ay/10, mu x4,
+    beta_std/0.05 and the wheels' mean mu_std/0.3 (not 0: the joint estimator's uncertainty),
+    then the reference at the estimate's speed and friction, the steer / 0.3 and r - r_ref;
+    observation="sensors": the 13 raw readings over (10, 10, 1, 100 x4, 0.3 x2, 600 x4), then
+    r_ref from the mean wheel-centre speed, the front steer reading and mu 0.8."""
+    for mode in ("estimated", "sensors"):
+        env = YawStabilityEnv(scenario="paper_sine", estimator="joint", observation=mode)
+        env.reset(seed=1)
+        loop, params = env.unwrapped.core.loop, env.unwrapped.core.params
+        lateral = []
+        for k in range(100):  # 2 s: into the sine
+            obs, *_, info = env.step(np.zeros(2, dtype=np.float32))
+            lateral.append(obs[4 if mode == "estimated" else 1])
+            sample = loop.sample()
+            if mode == "estimated":
+                e, delta_f = info["estimate"], float(sample.front_steer[0])
+                r_ref = float(reference_yaw_rate(np.array([e.u]), np.array([delta_f]), e.mu[None, :], params)[0])
+                expected = [e.u / 30, e.beta / 0.2, e.r, e.ax / 10, e.ay / 10, *e.mu, e.beta_std / 0.05,
+                            np.mean(e.mu_std) / 0.3, r_ref, delta_f / 0.3, e.r - r_ref]
+                assert e.beta_std > 0 and np.all(e.mu_std > 0)
+            else:
+                raw = sample.reading.values[0]
+                scale = [10, 10, 1, 100, 100, 100, 100, 0.3, 0.3, 600, 600, 600, 600]
+                speed = np.mean(raw[3:7]) * params.wheel_radius
+                r_ref = reference_yaw_rate(np.array([speed]), raw[7:8], np.full((1, 4), 0.8), params)[0]
+                expected = [*(raw / scale), r_ref]
+            np.testing.assert_allclose(obs, expected, rtol=1e-6, atol=1e-6, err_msg=f"{mode}, step {k}")
+        assert max(np.abs(lateral)) > 0.1  # (the car turned: ay above 1 m/s^2)
+
+
 def test_bad_and_out_of_range_actions():
     env = YawStabilityEnv(scenario="paper_dlc", estimator="oracle")
     env.reset(seed=0)
@@ -239,11 +270,24 @@ def test_gymnasium_stateful_vector_wrappers_take_the_next_step_native_env():
 
     with pytest.raises(ValueError, match="NEXT_STEP"):
         NormalizeObservation(YawStabilityVectorEnv(num_envs=2, estimator="oracle", autoreset_mode="SameStep"))
-    env = RecordEpisodeStatistics(NormalizeObservation(YawStabilityVectorEnv(
-        num_envs=2, scenario="paper_sine", estimator="oracle", max_episode_steps=5, autoreset_mode="NextStep")))
-    env.reset(seed=0)
-    observations = [env.step(np.zeros((2, 2), dtype=np.float32))[0] for _ in range(12)]
-    assert np.all(np.isfinite(observations)) and np.abs(np.mean(observations)) < 1.0
+    def make():
+        return YawStabilityVectorEnv(num_envs=2, scenario="paper_sine", estimator="oracle", max_episode_steps=5,
+                                     autoreset_mode="NextStep")
+
+    normalised, raw_env = NormalizeObservation(make()), make()
+    env = RecordEpisodeStatistics(normalised)
+    raw = [raw_env.reset(seed=0)[0]]
+    observations = [env.reset(seed=0)[0]]
+    for _ in range(12):
+        observations.append(env.step(np.zeros((2, 2), dtype=np.float32))[0])
+        raw.append(raw_env.step(np.zeros((2, 2), dtype=np.float32))[0])
+    # the wrapper's running statistics are those of the env's own observations, and it applies them
+    seen = np.concatenate(raw).astype(float)
+    # (gymnasium's RunningMeanStd starts from a count of 1e-4: relative 1e-5 off the plain mean)
+    np.testing.assert_allclose(normalised.obs_rms.mean, seen.mean(axis=0), rtol=1e-4, atol=1e-9)
+    np.testing.assert_allclose(observations[-1], (raw[-1] - normalised.obs_rms.mean)
+                               / np.sqrt(normalised.obs_rms.var + normalised.epsilon), rtol=1e-5, atol=1e-6)
+    assert np.abs(np.concatenate(observations[-3:])).max() > 0.5  # (not all squashed to 0)
     assert len(env.return_queue) == 4  # two cars x two whole 5-step episodes (the 11th step restarts them)
 
 
@@ -356,6 +400,31 @@ def test_reward_and_termination_follow_the_documented_formula():
     assert terminated and not info["spin_out"] and info["path_deviation"] > 5.0
     metrics = info["episode_metrics"]  # the episode's totals, as the steps gave them
     assert metrics["length"] == len(rewards) and metrics["return"] == pytest.approx(sum(rewards), rel=1e-9)
+
+
+def test_a_longer_control_step_runs_the_same_substeps_and_scales_the_reward():
+    """control_dt = 0.05 s holds the agent's command for 25 substeps of the same 2 ms physics,
+    sensors and estimator: with a held action one such step leaves the car, the estimate and the
+    observation bit for bit where five steps of 0.01 s do, and its reward is the per-second rate
+    times 0.05 s."""
+    coarse = YawStabilityEnv(scenario="paper_sine", estimator="joint", control_dt=0.05)
+    fine = YawStabilityEnv(scenario="paper_sine", estimator="joint", control_dt=0.01)
+    coarse.reset(seed=3)
+    fine.reset(seed=3)
+    action, ays = np.array([0.3, 0.0], dtype=np.float32), []
+    for k in range(60):  # 3 s: through the sine's first cycle
+        obs, reward, terminated, truncated, info = coarse.step(action)
+        ays.append(info["truth"].ay)
+        for _ in range(5):
+            fine_obs, *_, fine_info = fine.step(action)
+        np.testing.assert_array_equal(obs, fine_obs, err_msg=f"step {k}")
+        for name in ("truth", "estimate"):
+            for a, b in zip(info[name], fine_info[name]):
+                np.testing.assert_array_equal(a, b)
+        expected = -0.05 * ((info["yaw_rate_error"] / 0.1) ** 2 + (info["beta"] / 0.05) ** 2
+                            + 0.1 * np.sum(action.astype(float) ** 2) + info["path_deviation"] ** 2)
+        assert reward == pytest.approx(expected, rel=1e-9) and not (terminated or truncated)
+    assert max(np.abs(ays)) > 1.0  # (the car turned)
 
 
 @pytest.mark.parametrize("scenario", ["paper_dlc", "iso3888_2"])
@@ -602,7 +671,7 @@ def test_privileged_observation_appends_the_truth(observation):
     sb3_check(YawStabilityEnv(**kwargs, observation=observation, privileged=True), warn=True)
 
 
-def test_random_course_episodes_reward_keeping_to_the_line():
+def test_random_course_episodes_measure_the_deviation_from_their_line():
     """scenario_kwargs course_share=1: the randomised episodes are lane changes with the path
     follower; the env measures the deviation from their line (small for a car left alone)."""
     env = YawStabilityEnv(estimator="oracle", scenario_kwargs={"course_share": 1.0})

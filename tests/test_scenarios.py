@@ -175,10 +175,12 @@ def test_overrides_apply():
 
 @pytest.mark.parametrize("name", PAPER_SCENARIOS)
 def test_paper_scenarios_hold_their_speed(name):
+    """The speed-holding driver keeps each paper scenario within 3% of its speed (measured at
+    most 1.1%, on the step, the sine and the slalom; 0.03% on the lane changes)."""
     traj = simulate(name, seed=1)
     speed = traj.state[:, S_U]
     assert np.all(np.isfinite(traj.state))
-    assert np.abs(speed - SCENARIOS[name].speed).max() < 0.08 * SCENARIOS[name].speed
+    assert np.abs(speed - SCENARIOS[name].speed).max() < 0.03 * SCENARIOS[name].speed
 
 
 def test_random_scenarios_differ_by_seed_and_repeat_by_seed():
