@@ -147,8 +147,8 @@ def _advance_vehicle(b, n, progress, status, value, k, dt, state, aux, plant, se
     pk, tp, base_mu, rects, mu_given, use_map, relaxation_speed, reach = plant
     steer_codes, steer_tables, steer_follower, speed_codes, speed_tables, speed_follower, steering_ratio, \
         max_front_steer, drive_torque = drivers
-    mode, kind, epk, edt, huber_c, zero_point_tau, stuck, slide, process_var, sensor_var, mu_var, fields, rows, \
-        est_status = estimator
+    mode, kind, epk, edt, huber_c, zero_point_tau, stuck, slide, yaw_balance, process_var, sensor_var, mu_var, \
+        fields, rows, est_status = estimator
     X, P, MU, P_MU, BETA, BETA_MU, OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS, ZERO_POINT, LAST_NLL, \
         SLIP_RELAXED = fields
     t, readings, valid, truth, est, swa, front, base = sample
@@ -185,8 +185,8 @@ def _advance_vehicle(b, n, progress, status, value, k, dt, state, aux, plant, se
                 status[b], value[b] = BAD_TRUTH, sensed_status
                 return
             if mode == STATE_ESTIMATOR:
-                _step_row(b, rows, kind, epk, edt, huber_c, zero_point_tau, stuck, slide, process_var, sensor_var,
-                          mu_var, X, P, MU, P_MU, BETA, BETA_MU, OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV,
+                _step_row(b, rows, kind, epk, edt, huber_c, zero_point_tau, stuck, slide, yaw_balance, process_var,
+                          sensor_var, mu_var, X, P, MU, P_MU, BETA, BETA_MU, OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV,
                           INERTIAL_REPEATS, ZERO_POINT, LAST_NLL, SLIP_RELAXED, readings, valid, est, est_status)
                 if est_status[b] != OK:
                     status[b], value[b] = ESTIMATOR_FAILED, est_status[b]
@@ -311,13 +311,14 @@ def _estimator_form(estimator, batch: int) -> tuple:
             raise ValueError(f"per-member noise for {members} members, the batch has {batch}")
         return (STATE_ESTIMATOR, estimator.kind_code, estimator.params.packed, float(estimator.dt),
                 float(estimator.huber_c), float(estimator.zero_point_time_constant), float(estimator.stuck_samples),
-                float(estimator.slide_rate), *estimator.noise_arrays,
+                float(estimator.slide_rate), float(estimator.yaw_balance_std), *estimator.noise_arrays,
                 tuple(getattr(estimator, name) for name in STATE_FIELDS), np.arange(batch), np.zeros(batch, np.int64))
     return _NO_ESTIMATOR
 
 
 #: the estimator arguments of the oracle (which the kernel does not read)
-_NO_ESTIMATOR = (ORACLE, 0, np.zeros(1), 0.0, 0.0, 0.0, 0.0, 0.0, np.zeros((1, 1)), np.zeros((1, 1)), np.zeros(1),
+_NO_ESTIMATOR = (ORACLE, 0, np.zeros(1), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, np.zeros((1, 1)), np.zeros((1, 1)),
+                 np.zeros(1),
                  (np.zeros((1, 1)), np.zeros((1, 1, 1)), np.zeros((1, 1)), np.zeros((1, 1, 1)), np.zeros((1, 1)),
                   np.zeros((1, 1)), np.zeros((1, 1)), np.zeros((1, 1)), np.zeros((1, 1)), np.zeros((1, 1)),
                   np.zeros((1, 1)), np.zeros(1), np.zeros((1, 1))), np.zeros(1, np.int64), np.zeros(1, np.int64))
