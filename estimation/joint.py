@@ -7,12 +7,12 @@ four wheel speeds, front and rear road-wheel steer, four motor torques) and retu
 * ``ekf``: extended Kalman filter (finite-difference Jacobians of the same model), all
   measurements, nominal mu;
 * ``ckf``: one cubature Kalman filter, all measurements, nominal mu;
-* ``fkf``: federated CKF, sub-filter 1 [ax, ay, r, wheel speeds], sub-filter 2 [ay, r] (and, in
-  steady driving, the yaw balance Gamma = 0: YAW_BALANCE_STD);
+* ``fkf``: federated CKF, sub-filter 1 [ax, ay, r, wheel speeds], sub-filter 2 [ay, r];
 * ``alo-fkf``: the paper's section 3: robust (Huber, :data:`HUBER_C`) sub-filters, nominal mu;
 * ``joint``: the paper's section 4: the robust state FKF plus a mu FKF (random-walk mu per
   wheel, measured [ax, ay, r] / [ay, r] predicted from the tyre forces) exchanging estimates
-  every step.
+  every step; in steady driving its state sub-filter 2 also measures the yaw balance
+  (YAW_BALANCE_STD).
 
 ``estimation.make_estimator`` gives ``alo-fkf`` and ``joint`` the ALO-tuned noise
 (estimation/data/tuned_noise.json, written by ``fourwis tune``); a StateEstimator built
@@ -25,9 +25,10 @@ STUCK_SAMPLES times is a frozen sensor and counts as invalid (no information) un
 Deviation from the paper, on purpose: its measurement sets [ax, ay, r] leave u unobservable
 (it is only integrated from ax and drifts); sub-filter 1 also measures the four wheel-centre
 speeds R*omega (zero-slip model, variance allowing 2% slip) as production ESC speed observers do.
-And in steady driving sub-filter 2 also measures the yaw balance (the net yaw moment is zero
-while the yaw rate holds still: YAW_BALANCE_STD), which the paper's [ay, r] see only through the
-gyro, too weakly to keep a long turn at the limit from drifting.
+And in steady driving the joint estimator's state sub-filter 2 also measures the yaw balance
+(the net yaw moment is zero while the yaw rate holds still: YAW_BALANCE_STD), which the paper's
+[ay, r] see only through the gyro, too weakly to keep friction and sideslip from drifting
+together in a long turn at the limit.
 
 mu is held, not drifting, when it is unobservable: with Dugoff's lambda >= 1 (force demand
 below mu*Fz/2) dF/dmu = 0. The cubature points of a wide mu prior still straddle lambda = 1,
@@ -83,7 +84,6 @@ I_U, I_V, I_AX, I_AY, I_R, I_GAMMA = range(N_STATE)
 KINDS = ("ekf", "ckf", "fkf", "alo-fkf", "joint")
 FIRST_ROBUST_KIND = 3  #: KINDS from this index on update with Huber weights (huber_c): alo-fkf, joint
 ROBUST_KINDS = KINDS[FIRST_ROBUST_KIND:]
-FEDERATED_KINDS = KINDS[2:]  #: fkf, alo-fkf, joint: two state sub-filters and a master
 MU_BOUNDS = (0.1, 1.2)  #: estimated mu stays inside these bounds
 EXCITATION_LAMBDA = 1.0  #: a wheel's mu is updated only while its lateral Dugoff lambda is below this
 #: below this estimated forward speed [m/s] the friction filter does not run (mu and its
@@ -265,19 +265,21 @@ SLIDE_RATE = math.radians(2.0)
 SLIDE_TAU = 0.25
 SLIDE_ACCEL_STD = 1.0
 SLIDE_MIN_SPEED = 5.0
-#: Yaw balance in steady driving (the state's sub-filter 2 of the federated estimators fkf,
-#: alo-fkf and joint). In the steady state the zero-point learning detects (ZERO_POINT_*: steering
-#: held and yaw rate steady for ZERO_POINT_SETTLE s, above ZERO_POINT_MIN_SPEED) the yaw rate does
-#: not change, so the tyre forces' net yaw moment is zero: sub-filter 2 then also measures the
-#: model's Gamma = 0, with this standard deviation [N m], the yaw acceleration the steady window
-#: still allows (|r - its 0.5 s low-pass| < 0.02 rad/s: |r_dot| up to 0.04 rad/s^2) times I_z
-#: (1110 kg m^2). Otherwise the yaw balance reaches the filters only through the gyro (dt Gamma / I_z
-#: per step: 1e-4 rad/s for a 60 N m imbalance, far under the gyro's noise), and in a long turn at
-#: the limit they drift towards a car with linear tyres, more friction and less slip that explains
-#: ay and r as well: paper_step held for 30 s (mu 0.3, sensor seeds 0-2) read mu_hat 0.45-0.46 and a
-#: sideslip of +0.55 against the true -0.57 deg at 30 s (RMSE after 10 s 0.87-0.95 deg; found by a
-#: review, 2026-12-01); with it 0.33 and -0.24 to -0.36 deg (0.20-0.29). math.inf: off (the
-#: paper's sub-filter 2, [ay, r]).
+#: Yaw balance in steady driving (the joint estimator's state sub-filter 2). In the steady state
+#: the zero-point learning detects (ZERO_POINT_*: steering held and yaw rate steady for
+#: ZERO_POINT_SETTLE s, above ZERO_POINT_MIN_SPEED) the yaw rate does not change, so the tyre
+#: forces' net yaw moment is zero: sub-filter 2 then also measures the model's Gamma = 0, with
+#: this standard deviation [N m], the yaw acceleration the steady window still allows (|r - its
+#: 0.5 s low-pass| < 0.02 rad/s: |r_dot| up to 0.04 rad/s^2) times I_z (1110 kg m^2). Otherwise
+#: the yaw balance reaches the filters only through the gyro (dt Gamma / I_z per step: 1e-4 rad/s
+#: for a 60 N m imbalance, far under the gyro's noise), and in a long turn at the limit they drift
+#: towards a car with linear tyres, more friction and less slip that explains ay and r as well:
+#: paper_step held for 30 s (mu 0.3, sensor seeds 0-2) read mu_hat 0.45-0.46 and a sideslip of
+#: +0.55 against the true -0.57 deg at 30 s (RMSE after 10 s 0.87-0.95 deg; found by a review,
+#: 2026-12-01); with it 0.32-0.33 and -0.37 to -0.49 deg (0.12-0.20). math.inf: off (the paper's
+#: sub-filter 2, [ay, r]). Only the joint estimator measures it: it pins the friction-sideslip
+#: ridge, and a filter holding a wrong nominal friction cannot meet the balance and ay together
+#: (fkf on paper_step, mu 0.8 on a 0.3 road: forward-speed RMSE 0.012 -> 0.031 m/s with it).
 YAW_BALANCE_STD = 45.0
 #: columns of the zero-point state: learnt ay offset [m/s^2], steady time [s], steering angle
 #: the steady time counts from [rad], low-passed yaw rate [rad/s], low-passed kinematic
@@ -303,8 +305,11 @@ def measure_state_1(points, k, out, args) -> None:
 
 @numba.njit(inline="always", **JIT)
 def measure_state_2(points, k, out, args) -> None:
-    """State sub-filter 2: [ay, r, Gamma] (Gamma: the yaw-balance pseudo-measurement, YAW_BALANCE_STD)."""
-    out[k, 0], out[k, 1], out[k, 2] = points[k, I_AY], points[k, I_R], points[k, I_GAMMA]
+    """State sub-filter 2: [ay, r], and Gamma where out has a third column (the joint estimator's
+    yaw balance, YAW_BALANCE_STD)."""
+    out[k, 0], out[k, 1] = points[k, I_AY], points[k, I_R]
+    if out.shape[1] > 2:
+        out[k, 2] = points[k, I_GAMMA]
 
 
 @numba.njit(inline="always", **JIT)
@@ -576,16 +581,18 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rat
     for w in range(4):
         z1[3 + w] = values[3 + w] * pk[P_RW]
     valid1, z2, valid2 = valid[:7], values[1:3], valid[1:3]
-    # the state's sub-filter 2: [ay, r] and, in steady driving, the yaw balance Gamma = 0
-    z2_state, valid2_state, R2_state = scratch((3,)), scratch((3,), np.bool_), scratch((3, 3))
-    z2_state[0], z2_state[1], z2_state[2] = values[1], values[2], 0.0
-    valid2_state[0], valid2_state[1] = valid[1], valid[2]
-    valid2_state[2] = (yaw_balance_std < math.inf and zero_point_new[ZP_STEADY] > ZERO_POINT_SETTLE
-                       and x[I_U] > ZERO_POINT_MIN_SPEED)
     R1, R2, Q = scratch((7, 7)), scratch((2, 2)), scratch((6, 6))
     _fill_diagonal((accel_var, accel_var, gyro_var, wheel_var, wheel_var, wheel_var, wheel_var), R1)
     _fill_diagonal((accel_var, gyro_var), R2)
-    _fill_diagonal((accel_var, gyro_var, yaw_balance_std**2 if yaw_balance_std < math.inf else 1.0), R2_state)
+    # the state's sub-filter 2: [ay, r], and for the joint estimator the yaw balance Gamma = 0,
+    # measured in steady driving (a third channel, invalid otherwise)
+    balance = joint and yaw_balance_std < math.inf
+    m2 = 3 if balance else 2
+    z2_state, valid2_state, R2_state = scratch((m2,)), scratch((m2,), np.bool_), scratch((m2, m2))
+    z2_state[:2], valid2_state[:2], R2_state[:2, :2] = z2, valid2, R2
+    if balance:
+        z2_state[2], R2_state[2, :2], R2_state[:2, 2], R2_state[2, 2] = 0.0, 0.0, 0.0, yaw_balance_std**2
+        valid2_state[2] = zero_point_new[ZP_STEADY] > ZERO_POINT_SETTLE and x[I_U] > ZERO_POINT_MIN_SPEED
     _fill_diagonal(process_var, Q)
     unseen_slide = False  # (SLIDE_*: sliding in a steady turn while the friction gate is shut)
     outward = -zero_point_new[ZP_SLIDE] * math.copysign(1.0, zero_point_new[ZP_YAW])
@@ -731,7 +738,7 @@ class StateEstimator:
     #: the joint estimator's slide detection threshold [rad/s] (SLIDE_*); math.inf switches it
     #: off (the paper's joint estimator, whose friction gate can stay shut after a drop)
     slide_rate: float = SLIDE_RATE
-    #: the federated estimators' yaw-balance pseudo-measurement in steady driving, its standard
+    #: the joint estimator's yaw-balance pseudo-measurement in steady driving, its standard
     #: deviation [N m] (YAW_BALANCE_STD); math.inf switches it off (the paper's sub-filter 2)
     yaw_balance_std: float = YAW_BALANCE_STD
     needs_truth: bool = False
@@ -753,9 +760,9 @@ class StateEstimator:
             raise ValueError(f"slide_rate must be > 0 [rad/s] (math.inf: off), got {self.slide_rate!r}")
         if not (is_number(self.yaw_balance_std) and self.yaw_balance_std > 0):
             raise ValueError(f"yaw_balance_std must be > 0 [N m] (math.inf: off), got {self.yaw_balance_std!r}")
-        if self.yaw_balance_std != YAW_BALANCE_STD and self.kind not in FEDERATED_KINDS:
-            raise ValueError(f"yaw_balance_std applies to the federated estimators {list(FEDERATED_KINDS)}; "
-                             f"{self.kind!r} has no sub-filter 2, got yaw_balance_std={self.yaw_balance_std!r}")
+        if self.yaw_balance_std != YAW_BALANCE_STD and self.kind != "joint":
+            raise ValueError(f"yaw_balance_std applies to the joint estimator; {self.kind!r} has no friction "
+                             f"filter to balance, got yaw_balance_std={self.yaw_balance_std!r}")
         if not (is_number(self.zero_point_time_constant) and self.zero_point_time_constant > 0):
             raise ValueError(f"zero_point_time_constant must be > 0 [s], got {self.zero_point_time_constant!r}")
         self._kind_code = KINDS.index(self.kind)

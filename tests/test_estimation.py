@@ -1134,6 +1134,6 @@ def test_the_yaw_balance_keeps_a_long_turn_at_the_limit_from_drifting():
     assert abs(late[YAW_BALANCE_STD][0] - 0.3) < 0.05 and late[YAW_BALANCE_STD][1] < 0.25
     assert late[math.inf][0] > 0.4 and late[math.inf][1] > 0.5
     for kwargs, named in (({"yaw_balance_std": 0.0}, "yaw_balance_std must be > 0"),
-                          ({"yaw_balance_std": math.inf, "kind": "ckf"}, "applies to the federated estimators")):
+                          ({"yaw_balance_std": math.inf, "kind": "fkf"}, "applies to the joint estimator")):
         with pytest.raises(ValueError, match=named):
             StateEstimator(PARAMS, **kwargs)
