@@ -528,6 +528,25 @@ def test_the_shipped_phase_plane_region_is_a_refit_and_grows_with_friction():
     assert np.all(np.diff(np.asarray(region.bound), axis=1) > 0.0)
 
 
+def test_phase_plane_fit_help_prints_usage_and_leaves_the_table_alone(monkeypatch, capsys, tmp_path):
+    """``python -m training.phase_plane_fit --help`` prints usage and exits without fitting (the
+    fit takes minutes and overwrites control/data/phase_plane.json); unknown arguments are
+    refused; a plain run still fits and writes the table."""
+    import training.phase_plane_fit as phase_plane_fit
+
+    monkeypatch.setattr(phase_plane_fit, "fit_table", lambda *a, **k: pytest.fail("--help ran the fit"))
+    with pytest.raises(SystemExit) as exit_info:
+        phase_plane_fit.main(["--help"])
+    assert exit_info.value.code == 0 and "usage: python -m training.phase_plane_fit" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as exit_info:
+        phase_plane_fit.main(["--bogus"])
+    assert exit_info.value.code == 2 and "--bogus" in capsys.readouterr().err
+    monkeypatch.setattr(phase_plane_fit, "fit_table", lambda: {"slope": [[1.0]]})
+    monkeypatch.setattr(phase_plane_fit, "OUTPUT", tmp_path / "phase_plane.json")
+    phase_plane_fit.main([])
+    assert '"slope"' in (tmp_path / "phase_plane.json").read_text()
+
+
 @pytest.mark.parametrize("u, mu", [(20.0, 0.5), (15.0, 0.3), (30.0, 1.0)])
 def test_the_phase_plane_band_separates_recovery_from_spin_on_the_full_plant(u, mu):
     """Started with the steering straight and no torque, the full plant (load transfer, wheel

@@ -29,6 +29,7 @@ road friction. Run: ``python -m training.phase_plane_fit`` (~3.5 min).
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 import numpy as np
@@ -140,7 +141,12 @@ def fit_table(params: VehicleParams | None = None) -> dict:
                       "2-DOF model with the plant tyre (PAC2002) at static axle loads, steering straight"}
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        prog="python -m training.phase_plane_fit",
+        description="Derive this car's sideslip phase-plane stability region (Inagaki et al.) for a table of "
+                    "speeds x road friction and overwrite control/data/phase_plane.json (~3.5 min).")
+    parser.parse_args(argv)
     table = fit_table()
     print(atomic_write_json(OUTPUT, table), end="")
 
