@@ -177,6 +177,28 @@ def test_a_resumed_run_reseeds_its_cars_and_evaluates_its_held_out_scenario_whol
     assert made[0]["max_episode_steps"] == 40 and "max_episode_steps" not in made[1]  # training, evaluation
 
 
+def test_a_policy_controller_holds_its_actions_for_control_dt_at_the_loop_step_or_refuses_it(tmp_path):
+    """PolicyController counts the loop's steps to hold each action for its control_dt (20 ms): run
+    at another dt than it was built for, simulate refuses it naming both steps (it had acted every
+    10 ms at dt = 1 ms); built for that dt it acts every 20 steps; a dt that does not divide
+    control_dt is refused."""
+    from envs.sensors import SensorParams
+
+    out = tmp_path / "run"
+    _train("ppo", out, 512)
+    params, scenario = make_scenario("paper_sine").vehicle_params, make_scenario("paper_sine", duration=0.09)
+    fine = {"dt": 0.001, "sensor_params": SensorParams(sample_time=0.001)}
+    with pytest.raises(ValueError, match=r"controller steps at dt = 0\.002 s, the simulation at 0\.001 s"):
+        simulate(scenario, PolicyController(out, params), "oracle", **fine)
+    controller = PolicyController(out, params, dt=0.001)
+    predict, calls = controller.model.predict, []
+    controller.model.predict = lambda *a, **k: calls.append(1) or predict(*a, **k)
+    simulate(scenario, controller, "oracle", **fine)
+    assert controller.substeps == 20 and len(calls) == 5
+    with pytest.raises(ValueError, match=r"control_dt = 0\.02 s, which is no whole number of dt = 0\.003 s"):
+        PolicyController(out, params, dt=0.003)
+
+
 def test_a_run_with_sensor_faults_resumes_and_becomes_a_controller(tmp_path):
     """config.json holds a Fault as a dict of its fields; resume and PolicyController take it back."""
     from envs.sensors import Fault

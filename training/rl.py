@@ -543,7 +543,9 @@ class PolicyController:
     accordingly, as README's truth-trained comparison does on purpose); ``"sensors"`` policies
     need raw readings and are not supported here (``fourwis evaluate`` refuses them). A policy
     trained with ``privileged=True`` (training.asymmetric) acts on the agent's slots alone: the
-    truth's slots are filled with their normalising mean, which its actor does not read."""
+    truth's slots are filled with their normalising mean, which its actor does not read. ``dt``
+    [s]: the simulation's step, which it counts to hold each action for ``control_dt``
+    (``envs.simulate`` refuses another step, as it does for the estimator and the DYC)."""
 
     def __init__(self, run: str | Path, params, dt: float = 0.002):
         model_path, normalizer_path, config_path = run_files(run)
@@ -559,7 +561,11 @@ class PolicyController:
             normalizer = pickle.load(handle)
         self._mean, self._var = normalizer.obs_rms.mean, normalizer.obs_rms.var
         self._clip, self._epsilon = normalizer.clip_obs, normalizer.epsilon
-        self.params, self.substeps = params, int(round(env.control_dt / dt))
+        substeps = int(round(env.control_dt / dt)) if dt > 0 else 0
+        if substeps < 1 or abs(env.control_dt - substeps * dt) > 1e-6 * env.control_dt:
+            raise ValueError(f"the policy acts every control_dt = {env.control_dt!r} s, which is no whole number of "
+                             f"dt = {dt!r} s steps")
+        self.params, self.dt, self.substeps = params, dt, substeps  # dt [s]: the loop's step (ClosedLoop checks it)
         self.env_config = env
         self._agent: AgentController | None = None
         self._k = 0
