@@ -179,10 +179,24 @@ def paper_split_dlc(speed_kph=25.0, mu=(0.5, 0.3), duration=None, steering=None,
                           steering, params, rear_steer_feedforward=rear_steer_feedforward)
 
 
-def paper_step(speed_kph=40.0, mu=0.3, duration=10.0, steering=None, step_time=5.0, angle=1.0,
+def _starts_in_time(name: str, parameter: str, start, duration) -> float:
+    """A manoeuvre's start time [s] given as ``parameter``, checked to come before ``duration`` [s]
+    (a later one would leave the run without its manoeuvre)."""
+    start, duration = _finite(parameter, start, 0.0), _positive("duration", duration)
+    if start >= duration:
+        raise ValueError(f"{name}: {parameter} = {start!r} s is not before the end of the run (duration = "
+                         f"{duration!r} s): the run would end before its manoeuvre starts; lower {parameter} or "
+                         "raise duration")
+    return start
+
+
+def paper_step(speed_kph=40.0, mu=0.3, duration=10.0, steering=None, step_time=None, angle=1.0,
                rear_steer_feedforward=False, params=VehicleParams()) -> Scenario:
-    """Paper 3.3.3 (2): steering-wheel step of ``angle`` [rad] (1 rad) at ``step_time`` (5 s), mu 0.3, 40 km/h."""
-    steering = steering if steering is not None else Step(_finite("angle", angle), _finite("step_time", step_time, 0.0))
+    """Paper 3.3.3 (2): steering-wheel step of ``angle`` [rad] (1 rad) at ``step_time`` [s] (5 s;
+    given, it must come before ``duration``), mu 0.3, 40 km/h."""
+    if steering is None:
+        step_time = 5.0 if step_time is None else _starts_in_time("paper_step", "step_time", step_time, duration)
+        steering = Step(_finite("angle", angle), step_time)
     return Scenario("paper_step", _positive("speed_kph", speed_kph), _road(mu), _positive("duration", duration),
                     steering, rear_steer_feedforward=rear_steer_feedforward, params=params)
 
@@ -205,13 +219,18 @@ def paper_serpentine(speed_kph=40.0, mu=0.5, duration=None, steering=None, spaci
 
 
 def sine_with_dwell(speed_kph=80.0, mu=1.0, duration=5.0, steering=None, amplitude_deg=180.0, direction=1,
-                    start=1.0, rear_steer_feedforward=False, params=VehicleParams()) -> Scenario:
+                    start=None, rear_steer_feedforward=False, params=VehicleParams()) -> Scenario:
     """FMVSS 126 sine with dwell at ``amplitude_deg`` of steering wheel, first towards ``direction``
-    (+1 left, -1 right); speed held until the steering starts at ``start`` [s], then coasting.
-    The amplitude series (1.5A ... max(6.5A, 270 deg), capped at 300 deg) and A come from
-    :mod:`envs.fmvss126`."""
+    (+1 left, -1 right); speed held until the steering starts at ``start`` [s] (1 s; given, it
+    must come before ``duration``), then coasting. The amplitude series (1.5A ... max(6.5A,
+    270 deg), capped at 300 deg) and A come from :mod:`envs.fmvss126`."""
     amplitude = math.radians(_positive("amplitude_deg", amplitude_deg)) * _direction(direction)
-    start = _finite("start", start, 0.0)
+    if start is None:
+        start = 1.0
+    elif steering is None:
+        start = _starts_in_time("sine_with_dwell", "start", start, duration)
+    else:  # (another steering: start only ends the speed holding)
+        start = _finite("start", start, 0.0)
     steering = steering if steering is not None else SineWithDwell(amplitude, start)
     return Scenario("sine_with_dwell", _positive("speed_kph", speed_kph), _road(mu), _positive("duration", duration),
                     steering, coast_after=start, rear_steer_feedforward=rear_steer_feedforward, params=params)

@@ -37,7 +37,21 @@ def test_paper_step_is_one_radian_at_five_seconds():
     assert steer(5.2, STATE) == 1.0
 
 
-def test_paper_sine_is_a_sine():
+def test_a_given_manoeuvre_start_before_the_end_steers_and_the_default_start_keeps_short_runs():
+    """A step_time or start just before the end gives a run with its manoeuvre; left at its
+    default (5 s, 1 s), a shorter run (a quick check) is still built, straight."""
+    assert make_scenario("paper_step", step_time=9.9).steering(9.95, STATE) == pytest.approx(0.5)
+    assert make_scenario("sine_with_dwell", start=4.5).coast_after == 4.5
+    assert make_scenario("paper_step", duration=0.2).steering(0.2, STATE) == 0.0
+    assert make_scenario("sine_with_dwell", duration=0.5).coast_after == 1.0
+
+
+    ("mu_jump", {"patch_x": 0.5}, "start on the patch"),  # under the front wheels at the start
+    # a manoeuvre that starts at or after the end (it had given a run without steering)
+    ("paper_step", {"step_time": 20}, r"step_time = 20\.0 s .*duration = 10\.0 s"),
+    ("paper_step", {"step_time": 3.0, "duration": 3.0}, r"step_time = 3\.0 s .*duration = 3\.0 s"),
+    ("sine_with_dwell", {"start": 6}, r"start = 6\.0 s .*duration = 5\.0 s"),
+
     steer = SCENARIOS["paper_sine"].steering
     t = np.linspace(1.0, 9.0, 801)
     values = np.array([steer(x, STATE) for x in t])
@@ -111,6 +125,10 @@ def test_speed_hold_feeds_forward_the_resistance_and_coasts():
     ("mu_jump", {"speed_kph": 30.0}, "short of the patch"),  # circles 17.7 m across at 0.4 g
     ("mu_jump", {"duration": 1.2}, "short of the patch"),
     ("mu_jump", {"patch_x": 0.5}, "start on the patch"),  # under the front wheels at the start
+    # a manoeuvre that starts at or after the end (it had given a run without steering)
+    ("paper_step", {"step_time": 20}, r"step_time = 20\.0 s .*duration = 10\.0 s"),
+    ("paper_step", {"step_time": 3.0, "duration": 3.0}, r"step_time = 3\.0 s .*duration = 3\.0 s"),
+    ("sine_with_dwell", {"start": 6}, r"start = 6\.0 s .*duration = 5\.0 s"),
     ("random", {"seed": -1}, r"seed must be an integer >= 0 \(or a numpy SeedSequence or Generator\), got -1"),
     ("random", {"seed": 1.5}, r"seed must be an integer >= 0 .*, got 1.5"),
 ])
