@@ -45,6 +45,9 @@ def test_config_records_the_timesteps_trained_beside_the_requested(run):
 def test_train_prints_the_steps_it_trained(tmp_path, capsys):
     main([*TRAIN, "--timesteps", "100", "--out", str(tmp_path / "run")])
     assert "trained 1,024 env steps" in capsys.readouterr().out
+    assert not (tmp_path / "run" / "evaluations.npz").exists()  # shorter than --eval-every: as the help says
+    help_text = " ".join(build_parser()._subparsers._group_actions[0].choices["train"].format_help().split())
+    assert "evaluations.npz and learning_curve.png once it passes --eval-every" in help_text
 
 
 def test_resume_to_fewer_timesteps_than_the_run_has_is_refused_and_changes_nothing(run, tmp_path):
@@ -64,7 +67,7 @@ def test_a_run_resumed_into_a_new_folder_logs_there_and_leaves_the_old_one_alone
     assert any((tmp_path / "next" / "tb").rglob("events.out.tfevents.*"))
 
 
-def test_train_refuses_to_overwrite_a_run_unless_told(run, tmp_path):
+def test_train_refuses_to_overwrite_a_run_unless_told(run, tmp_path, capsys):
     from training.rl import train
 
     out = _copy(run, tmp_path)
@@ -80,7 +83,10 @@ def test_train_refuses_to_overwrite_a_run_unless_told(run, tmp_path):
     stale = out / "checkpoints" / "step_000002048.zip"
     assert stale.exists()
     (out / "notes.txt").write_text("mine")
+    capsys.readouterr()
     main([*TRAIN, "--timesteps", "100", "--seed", "1", "--overwrite", "--out", str(out)])
+    wrote = capsys.readouterr().out.strip().splitlines()[-1]  # lists the run's files, not the folder's others
+    assert wrote.endswith(f"(+ checkpoints/, config.json, tb/, vecnormalize.pkl in {out})"), wrote
     config = json.loads((out / "config.json").read_text())
     assert (config["seed"], config["timesteps"]) == (1, 1024)
     assert not stale.exists()  # the replaced run's checkpoints do not pass for the new run's

@@ -203,7 +203,7 @@ def _json_object(text: str) -> dict:
 
 
 def _train(args: argparse.Namespace) -> int:
-    from training.rl import train
+    from training.rl import RUN_FILES, train
 
     try:
         if args.seed is not None:
@@ -217,7 +217,8 @@ def _train(args: argparse.Namespace) -> int:
         print(f"\nfourwis train: {str(err) or 'interrupted'}", file=sys.stderr)  # (an exception is always truthy)
         return 130
     trained = json.loads((path.parent / "config.json").read_text())["timesteps"]
-    others = [p.name + "/" * p.is_dir() for p in sorted(path.parent.iterdir()) if p != path and not p.name.startswith(".")]
+    others = [p.name + "/" * p.is_dir() for p in sorted(path.parent.iterdir())  # the run's, not the folder's others
+              if p != path and p.name in RUN_FILES and not p.name.startswith(".")]
     print(f"wrote {path}, trained {trained:,} env steps (+ {', '.join(others)} in {path.parent})")
     return 0
 
@@ -353,8 +354,9 @@ def build_parser() -> argparse.ArgumentParser:
     from training.rl_config import ALGO_CONFIGS, ALGOS, EVAL_SCENARIO
 
     train = command("train", "train an RL stability controller (stable-baselines3) on the vector env; writes the "
-                             "run directory OUT (model.zip, vecnormalize.pkl, config.json, checkpoints/, "
-                             "evaluations.npz, learning_curve.png)")
+                             "run directory OUT (model.zip, vecnormalize.pkl, config.json, tb/; checkpoints/ once "
+                             "the run passes --checkpoint-every env steps, evaluations.npz and learning_curve.png "
+                             "once it passes --eval-every)")
     train.add_argument("--algo", choices=ALGOS, default="ppo",
                        help="RL algorithm (settings: training.rl_config.ALGO_CONFIGS)")
     train.add_argument("--env-kwargs", type=_json_object, default={},
