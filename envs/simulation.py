@@ -9,7 +9,6 @@ torques and rear steer using the estimate only, and the plant advances one RK4 s
 from __future__ import annotations
 
 import math
-import sys
 from collections.abc import Sequence
 from typing import NamedTuple, Protocol
 
@@ -235,20 +234,16 @@ class ClosedLoop:
             controller = make_controller(controller, params, dt)
         elif controller is not None:
             check_controller(controller, controller)
-        self._check_commands = type(controller).__module__.split(".")[0] not in ("control", "envs", "training")
-        # an estimator integrates over its dt, and so does our DYC; a trained policy counts its dt to hold each
-        # action for its control_dt (a user's controller's dt is its own business)
-        integrates, rl = "it integrates over its own step", sys.modules.get("training.rl")  # (optional: SB3)
-        own_controller, reason = None, integrates
-        if isinstance(controller, StabilityController):
-            own_controller = controller
-        elif rl is not None and isinstance(controller, rl.PolicyController):
-            own_controller, reason = controller, "it holds each action for control_dt / dt of its steps"
-        for kind, part, why in (("estimator", estimator, integrates), ("controller", own_controller, reason)):
+        ours = type(controller).__module__.split(".")[0] in ("control", "envs", "training")
+        self._check_commands = not ours
+        # an estimator integrates over its dt; our controllers count their dt too (the DYC integrates over it, a
+        # trained policy holds each action for control_dt / dt steps); a user's controller's dt is its own business
+        for kind, part in (("estimator", estimator), ("controller", controller if ours else None)):
             part_dt = getattr(part, "dt", None)
             if part_dt is not None and not math.isclose(part_dt, dt, rel_tol=1e-12):
                 raise ValueError(f"the {kind} steps at dt = {part_dt!r} s, the simulation at {dt!r} s: build it with "
-                                 f"the simulation's dt ({why})")
+                                 "the simulation's dt (it counts its own steps in it: the DYC integrates over them, "
+                                 "a trained policy holds each action for control_dt / dt of them)")
         if getattr(controller, "rear_steer", False) and any(s.vehicle_params.rear_steer_feedforward
                                                             for s in self.scenarios):
             raise ValueError("the controller steers the rear axle (eq. 20) and the scenario's "
