@@ -16,7 +16,8 @@ run draws a constant turn-on bias per channel from N(0, bias_std). Default magni
   ratio of 16), rear actuator encoder 1e-4 rad std, no bias;
 * motor torques (estimated from phase currents by the inverter): 2 N m std, 2 N m bias std.
 
-These are the DESIGN's reference magnitudes; :meth:`SensorParams.scaled` scales all of them.
+These are the package's reference magnitudes (SensorParams' defaults); :meth:`SensorParams.scaled` scales
+all of them.
 
 Faults (:class:`Fault`) act on one channel over a time window: ``spike`` outliers (Poisson
 arrivals at ``rate`` [1/s], +/-``magnitude``; each spike fault draws its own arrivals and
