@@ -499,6 +499,14 @@ def _low_pass(value: float, target: float, dt: float, time_constant: float) -> f
     return value + (target - value) * min(dt / time_constant, 1.0)
 
 
+@numba.njit(inline="always", **JIT)
+def _settled(zero_point, speed: float) -> bool:
+    """The steady state of the zero-point state (5,) at ``speed`` [m/s]: steering held and yaw
+    rate steady for ZERO_POINT_SETTLE s, above ZERO_POINT_MIN_SPEED (ZERO_POINT_*), where ay = u r
+    (the offset is learnt) and the net yaw moment is zero (YAW_BALANCE_STD)."""
+    return zero_point[ZP_STEADY] > ZERO_POINT_SETTLE and speed > ZERO_POINT_MIN_SPEED
+
+
 @numba.njit(**JIT)
 def _learn_zero_point(zero_point, reading, valid, speed, dt, time_constant) -> None:
     """Advance the zero-point state (5,) by one reading (see ZERO_POINT_*, SLIDE_*); ``speed`` [m/s];
@@ -511,7 +519,7 @@ def _learn_zero_point(zero_point, reading, valid, speed, dt, time_constant) -> N
         zero_point[ZP_YAW] = _low_pass(zero_point[ZP_YAW], yaw_rate, dt, ZERO_POINT_YAW_LOWPASS)
     steady = not moved and valid[2] and abs(yaw_rate - zero_point[ZP_YAW]) < ZERO_POINT_YAW_TOL
     zero_point[ZP_STEADY] = zero_point[ZP_STEADY] + dt if steady else 0.0
-    if zero_point[ZP_STEADY] > ZERO_POINT_SETTLE and speed > ZERO_POINT_MIN_SPEED and valid[1]:
+    if _settled(zero_point, speed) and valid[1]:
         residual = reading[1] - speed * yaw_rate
         zero_point[ZP_OFFSET] = _low_pass(zero_point[ZP_OFFSET], residual, dt, time_constant)
     if speed > SLIDE_MIN_SPEED and valid[1] and valid[2]:
@@ -592,7 +600,7 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rat
     z2_state[:2], valid2_state[:2], R2_state[:2, :2] = z2, valid2, R2
     if balance:
         z2_state[2], R2_state[2, :2], R2_state[:2, 2], R2_state[2, 2] = 0.0, 0.0, 0.0, yaw_balance_std**2
-        valid2_state[2] = zero_point_new[ZP_STEADY] > ZERO_POINT_SETTLE and x[I_U] > ZERO_POINT_MIN_SPEED
+        valid2_state[2] = _settled(zero_point_new, x[I_U])
     _fill_diagonal(process_var, Q)
     unseen_slide = False  # (SLIDE_*: sliding in a steady turn while the friction gate is shut)
     outward = -zero_point_new[ZP_SLIDE] * math.copysign(1.0, zero_point_new[ZP_YAW])
@@ -608,8 +616,7 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rat
     m_args = (x, steer, omega, torque, od, pk, dt)  # the mu measurements, unused by the state filter
     if federated:
         nll = _federated(x, P, Q, beta, TRANSITION, z1, valid1, R1, STATE_1, z2_state, valid2_state, R2_state,
-                         STATE_2,
-                         huber_c if robust else NO_HUBER, f_args, h_args, m_args, x_new, P_new, beta_new)
+                         STATE_2, huber_c if robust else NO_HUBER, f_args, h_args, m_args, x_new, P_new, beta_new)
     elif kind == 1:
         x_pred, P_pred = scratch((6,)), scratch((6, 6))
         if not _ckf_predict(x, P, Q, TRANSITION, f_args, h_args, m_args, x_pred, P_pred):
