@@ -15,8 +15,8 @@ import numpy as np
 from _common import report
 from scipy.optimize import minimize
 
-from control.allocation import allocate_torques, wheel_force_map
-from envs.vehicle import VehicleParams
+from fourwis.control.allocation import allocate_torques, wheel_force_map
+from fourwis.envs.vehicle import VehicleParams
 
 
 def _demands(batch: int, seed: int = 0):

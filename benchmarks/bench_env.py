@@ -40,7 +40,7 @@ def _rate(step: Callable[[], int], seconds: float = SECONDS) -> float:
 def fourwis_single(estimator: str) -> float:
     import gymnasium as gym
 
-    env = gym.make("envs:FourWIS/YawStability-v0", estimator=estimator)
+    env = gym.make("fourwis:FourWIS/YawStability-v0", estimator=estimator)
     env.reset(seed=0)
     action = np.zeros(2, dtype=np.float32)
 
@@ -54,7 +54,7 @@ def fourwis_single(estimator: str) -> float:
 
 
 def fourwis_vector(estimator: str, n: int, course_share: float = 0.0) -> float:
-    from envs.gym_env import YawStabilityVectorEnv
+    from fourwis.envs.gym_env import YawStabilityVectorEnv
 
     env = YawStabilityVectorEnv(num_envs=n, estimator=estimator, scenario_kwargs={"course_share": course_share},
                                 autoreset_mode="SameStep")

@@ -14,13 +14,13 @@ from collections.abc import Callable
 
 import numpy as np
 
-from envs.sensors import SensorModel, SensorParams
-from envs.simulation import DT, sensor_truth
-from envs.scenarios import make_scenario
-from envs.vehicle import NU, VehicleParams, derivatives
-from estimation import make_estimator
-from estimation.joint import measure_state_1
-from estimation.model import steer_trig, transition
+from fourwis.envs.sensors import SensorModel, SensorParams
+from fourwis.envs.simulation import DT, sensor_truth
+from fourwis.envs.scenarios import make_scenario
+from fourwis.envs.vehicle import NU, VehicleParams, derivatives
+from fourwis.estimation import make_estimator
+from fourwis.estimation.joint import measure_state_1
+from fourwis.estimation.model import steer_trig, transition
 
 
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import tempfile
 import time
 
-from training.rl import train
+from fourwis.training.rl import train
 
 STEPS = {"ppo": 16_384, "sac": 8_192}
 

@@ -12,8 +12,8 @@ import time
 
 import numpy as np
 
-from estimation.optimizers import METHODS, minimize
-from training.tune import BOUNDS, calibration_run, replay_cost
+from fourwis.estimation.optimizers import METHODS, minimize
+from fourwis.training.tune import BOUNDS, calibration_run, replay_cost
 
 DURATION = 2.5  #: calibration run [s] (shorter than fourwis tune's 10 s to keep the bench short)
 AGENTS, ITERATIONS, SEEDS = 6, 6, 5

@@ -5,18 +5,18 @@ an estimator provides (an Estimate-like object: u, v, beta, r, ay, mu, fz; mu_st
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
 
-from control.allocation import (Allocation, allocate_for_estimate, allocate_torques, allocation_error,
+from fourwis.control.allocation import (Allocation, allocate_for_estimate, allocate_torques, allocation_error,
                                 allocator_limits)
-from control.dyc import (ACTIVE_SPEED, M_DELIVERED, M_FEASIBLE, M_FORCE, M_MOMENT, M_REAR, M_REFERENCE, M_TORQUES,
+from fourwis.control.dyc import (ACTIVE_SPEED, M_DELIVERED, M_FEASIBLE, M_FORCE, M_MOMENT, M_REAR, M_REFERENCE, M_TORQUES,
                          M_WIDTH, MIN_PLANNING_MU, SETTINGS, YAW_DEADBAND, LQRWeights, LQRYawController,
                          SlidingModeYawController, _stability_commands, actuator_lag_terms, allocation_inputs,
                          planning_friction)
-from control.reference import understeer_gradient
-from estimation.types import check_step, check_vehicle_params, import_factory, is_number
+from fourwis.control.reference import understeer_gradient
+from fourwis.core.checks import check_controller, check_step, check_vehicle_params, import_factory, is_number
+from fourwis.core.types import Command
 
 CONTROLLERS = ("none", "dyc-lqr", "dyc-smc", "dyc-lqr-4ws", "dyc-smc-4ws")
 #: default StabilityController.mu_margin. Measured on the headline matrix before the yaw
@@ -27,13 +27,6 @@ CONTROLLERS = ("none", "dyc-lqr", "dyc-smc", "dyc-lqr-4ws", "dyc-smc-4ws")
 #: let the planning friction sink towards MIN_PLANNING_MU after the mu jump (11.4 deg); the
 #: default stays 1, chosen then and not re-tuned on the evaluation matrix.
 MU_MARGIN = 1.0
-
-
-class Command(NamedTuple):
-    """Controller output for a batch: wheel torques [N m] (B, 4) and rear steer [rad] (B,)."""
-
-    torques: np.ndarray
-    rear_steer: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -219,14 +212,6 @@ def _fresh_memory(batch: int) -> np.ndarray:
     memory = np.full((batch, M_WIDTH), np.nan)
     memory[:, M_DELIVERED] = 0.0  # (before any moment, the wheels deliver none)
     return memory
-
-
-def check_controller(controller, source) -> None:
-    """ValueError naming ``source`` (a name, or the object) unless ``controller`` has the
-    interface of :class:`envs.simulation.Controller` (``reset`` and a call)."""
-    if not (callable(controller) and callable(getattr(controller, "reset", None))):
-        raise ValueError(f"controller {source!r} lacks reset() or a call, got {controller!r}: give a Controller, "
-                         "a name from control.CONTROLLERS or None")
 
 
 #: the DYC controllers' (law, rear steer) by name

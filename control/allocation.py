@@ -38,9 +38,9 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from control.reference import GRAVITY
-from estimation.ckf import dot
-from estimation.jit import JIT, scratch
+from fourwis.control.reference import GRAVITY
+from fourwis.core.kernels import dot
+from fourwis.core.kernels import JIT, scratch
 
 #: the 3^4 = 81 activity patterns (81, 4): each wheel free (0), at its lower (1) or upper (2) bound
 _FACES = np.array([[(face // 3**w) % 3 for w in range(4)] for face in range(81)], dtype=np.int64)

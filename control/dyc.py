@@ -17,10 +17,10 @@ import numpy as np
 from numba.extending import register_jitable
 from scipy.linalg import solve_continuous_are
 
-from control.allocation import _allocate
-from control.reference import (GRAVITY, axle_friction, bicycle_state_matrix, eq20_gain, sideslip_bound_of,
+from fourwis.control.allocation import _allocate
+from fourwis.control.reference import (GRAVITY, axle_friction, bicycle_state_matrix, eq20_gain, sideslip_bound_of,
                                slower_time_constant, steady_yaw_rate)
-from estimation.jit import JIT, scratch
+from fourwis.core.kernels import JIT, scratch
 
 
 def bicycle_matrices(u: float, params) -> tuple[np.ndarray, np.ndarray]:

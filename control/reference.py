@@ -16,8 +16,8 @@ import numba
 import numpy as np
 from numba.extending import register_jitable
 
-from estimation.jit import JIT
-from estimation.model import GRAVITY  # the controller plans with the estimation model's g
+from fourwis.core.kernels import JIT
+from fourwis.estimation.model import GRAVITY  # the controller plans with the estimation model's g
 
 FRICTION_USE = 0.85  #: share of mu*g the reference may ask for (Rajamani 2012, sec. 8.5)
 MIN_SPEED = 1.0  #: speed floor in divisions [m/s]
@@ -143,9 +143,9 @@ class PhasePlaneRegion:
     the steering straight (on the 2-DOF model it was derived on; the full plant is checked in the
     tests). Slope c1 [1/s] and half-width c2 [rad/s] tabulated over speed [m/s] x road friction,
     interpolated bilinearly and clamped to the table's range. The shipped table is this car's
-    (derived by ``python -m training.phase_plane_fit``; Inagaki et al.'s dry-road numbers, c1 = 2.49
+    (derived by ``python -m fourwis.training.phase_plane_fit``; Inagaki et al.'s dry-road numbers, c1 = 2.49
     1/s and c2 = 9.55 deg/s, are their car's); :meth:`default` loads it. For another car:
-    ``PhasePlaneRegion.from_table(training.phase_plane_fit.fit_table(params))`` (~3.5 min)."""
+    ``PhasePlaneRegion.from_table(fourwis.training.phase_plane_fit.fit_table(params))`` (~3.5 min)."""
 
     speeds: tuple[float, ...]
     frictions: tuple[float, ...]
@@ -169,7 +169,7 @@ class PhasePlaneRegion:
     @staticmethod
     def from_table(table: dict) -> "PhasePlaneRegion":
         """From the layout of control/data/phase_plane.json, which
-        ``training.phase_plane_fit.fit_table(params)`` returns for any car."""
+        ``fourwis.training.phase_plane_fit.fit_table(params)`` returns for any car."""
         return PhasePlaneRegion(tuple(table["speeds_m_s"]), tuple(table["frictions"]),
                                 tuple(map(tuple, table["slope_1_s"])), tuple(map(tuple, table["bound_rad_s"])),
                                 float(table["yaw_rate_window"]))
@@ -179,7 +179,7 @@ class PhasePlaneRegion:
     def default() -> "PhasePlaneRegion":
         """The region of the default car (control/data/phase_plane.json)."""
         return PhasePlaneRegion.from_table(
-            json.loads(resources.files("control").joinpath("data/phase_plane.json").read_text()))
+            json.loads(resources.files("fourwis.control").joinpath("data/phase_plane.json").read_text()))
 
     @functools.cached_property
     def _grids(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

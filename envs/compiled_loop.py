@@ -35,18 +35,19 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from control import StabilityController
-from control.allocation import _allocate, allocation_error, allocator_limits
-from control.dyc import M_REAR, M_TORQUES, M_WIDTH, allocation_inputs, stability_command
-from envs.driver import FOLLOWER, _DONE, _MISSING, bad_follower_state, drive, follower_form
-from envs.road import RoadTables
-from envs.sensors import NOISE_BLOCK, TRUE_AUX_COLUMNS, TRUE_STATE_COLUMNS, SensorReading, _noisy_readings
-from envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NAUX, NU, NX, RK4_REAL_LIMIT, S_R,
+from fourwis.control import StabilityController
+from fourwis.control.allocation import _allocate, allocation_error, allocator_limits
+from fourwis.control.dyc import M_REAR, M_TORQUES, M_WIDTH, allocation_inputs, stability_command
+from fourwis.envs.driver import FOLLOWER, _DONE, _MISSING, bad_follower_state, drive, follower_form
+from fourwis.envs.road import RoadTables
+from fourwis.envs.sensors import NOISE_BLOCK, TRUE_AUX_COLUMNS, TRUE_STATE_COLUMNS, _noisy_readings
+from fourwis.core.types import SensorReading
+from fourwis.envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NAUX, NU, NX, RK4_REAL_LIMIT, S_R,
                           S_U, S_V, _advance_block, check_relaxation_step, plant_error, sideslip)
-from estimation.joint import (N_OUT, O_AX, O_AY, O_BETA, O_BETA_STD, O_FZ, O_MU, O_MU_STD, O_R, O_U, O_V, OK,
+from fourwis.estimation.joint import (N_OUT, O_AX, O_AY, O_BETA, O_BETA_STD, O_FZ, O_MU, O_MU_STD, O_R, O_U, O_V, OK,
                               STATE_FIELDS, _step_row)
-from estimation.jit import JIT, scratch
-from estimation.types import CHANNELS, Estimate
+from fourwis.core.kernels import JIT, scratch
+from fourwis.core.types import CHANNELS, Estimate
 
 #: statuses of a vehicle after a call: done, or stopped for Python to act (refill its noise, add
 #: preview responses at ``value`` tenths of m/s), or failed (``value``: the part's own status)
@@ -285,7 +286,7 @@ MAX_BATCH = 32
 def supports(loop) -> bool:
     """Whether the closed loop ``loop`` has a compiled form (see the module docstring) and at
     most MAX_BATCH vehicles."""
-    from estimation import Oracle, StateEstimator
+    from fourwis.estimation import Oracle, StateEstimator
 
     controller = type(loop.controller)  # (a subclass that changes the call but inherits kernel_form: Python)
     return (loop.batch_size <= MAX_BATCH and type(loop.estimator) in (Oracle, StateEstimator)
@@ -297,13 +298,13 @@ def supports(loop) -> bool:
 
 def reports_truth(estimator) -> bool:
     """Whether the compiled path hands the truth over as ``estimator``'s estimate (the oracle)."""
-    from estimation import Oracle
+    from fourwis.estimation import Oracle
 
     return type(estimator) is Oracle
 
 
 def _estimator_form(estimator, batch: int) -> tuple:
-    from estimation import StateEstimator
+    from fourwis.estimation import StateEstimator
 
     if isinstance(estimator, StateEstimator):
         members = estimator.noise_arrays[0].shape[0]
@@ -425,7 +426,7 @@ def _failure(loop, b: int, code: int, value: int, state, reached, controls, arra
 def step_records(rows: np.ndarray, oracle: bool):
     """The records (n, B, R_WIDTH) of :func:`advance` as one stacked
     :class:`envs.simulation.StepRecord` (views); ``oracle``: the estimate is the truth."""
-    from envs.simulation import StepRecord
+    from fourwis.envs.simulation import StepRecord
 
     t = rows[..., R_T]
     truth = rows_estimate(rows[..., R_TRUTH:R_ESTIMATE])

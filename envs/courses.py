@@ -32,8 +32,8 @@ import numpy as np
 from scipy import sparse
 from scipy.optimize import linprog
 
-from envs.vehicle import VehicleParams
-from estimation.types import is_integer, is_number
+from fourwis.envs.vehicle import VehicleParams
+from fourwis.core.checks import is_integer, is_number
 
 CONE_SPACING = 3.0  #: largest distance between cones along a lane edge [m]
 CONE_RADIUS = 0.15  #: cone base radius [m]; cone centres stand this far outside the lane edge

@@ -22,10 +22,11 @@ import numba
 import numpy as np
 from scipy.linalg import expm
 
-from control.reference import bicycle_state_matrix
-from envs.courses import stack_polylines
-from envs.vehicle import GRAVITY, S_PSI, S_R, S_U, S_V, S_X, S_Y, VehicleParams
-from estimation.jit import JIT, scratch
+from fourwis.control.reference import bicycle_state_matrix
+from fourwis.envs.courses import stack_polylines
+from fourwis.core.constants import GRAVITY
+from fourwis.envs.vehicle import S_PSI, S_R, S_U, S_V, S_X, S_Y, VehicleParams
+from fourwis.core.kernels import JIT, scratch
 
 SWD_FREQUENCY = 0.7  #: FMVSS 126 sine-with-dwell frequency [Hz]
 SWD_DWELL = 0.5  #: FMVSS 126 dwell at the second peak [s]

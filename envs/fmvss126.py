@@ -22,10 +22,10 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
-from envs.metrics import SineWithDwellResult, peak_abs, sine_with_dwell_metrics, steering_angle_at_lateral_acceleration
-from envs.scenarios import make_scenario
-from envs.simulation import simulate
-from envs.vehicle import A_AY, S_R, VehicleParams
+from fourwis.envs.metrics import SineWithDwellResult, peak_abs, sine_with_dwell_metrics, steering_angle_at_lateral_acceleration
+from fourwis.envs.scenarios import make_scenario
+from fourwis.envs.simulation import simulate
+from fourwis.envs.vehicle import A_AY, S_R, VehicleParams
 
 MAX_AMPLITUDE = math.radians(300.0)  #: no sine-with-dwell run above this [rad]
 MIN_LAST_AMPLITUDE = math.radians(270.0)  #: the series reaches at least this unless 6.5A is larger [rad]

@@ -24,19 +24,20 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from control import Command
-from control.allocation import allocate_for_estimate, allocator_limits
-from control.reference import PhasePlaneRegion, reference_yaw_rate
-from envs import compiled_loop
-from envs.fmvss126 import characterise
-from envs.metrics import SPIN_OUT_SIDESLIP, CoursePaths, rolling_sideslip, sine_with_dwell_metrics, spun_sideslip
-from envs.render import close_window, show_frame
-from envs.scenarios import SCENARIOS, Scenario, make_scenario
-from envs.sensors import Fault
-from envs.simulation import DT, ClosedLoop
-from envs.vehicle import A_AY, S_DELTA_F, S_DELTA_R, S_R, S_U, S_X, S_Y
-from estimation import check_estimator_name
-from estimation.types import Estimate, is_integer, is_number
+from fourwis.core.types import Command
+from fourwis.control.allocation import allocate_for_estimate, allocator_limits
+from fourwis.control.reference import PhasePlaneRegion, reference_yaw_rate
+from fourwis.envs import compiled_loop
+from fourwis.envs.fmvss126 import characterise
+from fourwis.envs.metrics import SPIN_OUT_SIDESLIP, CoursePaths, rolling_sideslip, sine_with_dwell_metrics, spun_sideslip
+from fourwis.envs.render import close_window, show_frame
+from fourwis.envs.scenarios import SCENARIOS, Scenario, make_scenario
+from fourwis.envs.sensors import Fault
+from fourwis.envs.simulation import DT, ClosedLoop
+from fourwis.envs.vehicle import A_AY, S_DELTA_F, S_DELTA_R, S_R, S_U, S_X, S_Y
+from fourwis.estimation import check_estimator_name
+from fourwis.core.types import Estimate
+from fourwis.core.checks import is_integer, is_number
 
 MAX_YAW_MOMENT = 3000.0  #: yaw-moment action scale [N m]
 MAX_PATH_DEVIATION = 5.0  #: termination distance from the path [m]
@@ -343,7 +344,7 @@ class YawStabilityCore:
     def render(self, b: int = 0, moment: "_Moment | None" = None) -> np.ndarray:
         """A frame of vehicle ``b`` (see :mod:`envs.render`) now, or at a ``moment`` taken earlier."""
         if self._renderer is None:
-            from envs.render import Renderer
+            from fourwis.envs.render import Renderer
 
             self._renderer = Renderer()
         moment = moment or self.moment()

@@ -19,9 +19,9 @@ import numba
 import numpy as np
 from scipy.signal import butter, find_peaks, sosfiltfilt
 
-from envs.courses import CONE_RADIUS, stack_polylines
-from estimation.jit import JIT
-from estimation.types import is_number
+from fourwis.envs.courses import CONE_RADIUS, stack_polylines
+from fourwis.core.kernels import JIT
+from fourwis.core.checks import is_number
 
 STEERING_CUTOFF = 10.0  #: S7.11.1: steering-wheel angle filter cutoff [Hz]
 RESPONSE_CUTOFF = 6.0  #: S7.11.2-3: yaw rate and lateral acceleration filter cutoff [Hz]

@@ -20,8 +20,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from envs.vehicle import MU_MAX, S_PSI, S_X, S_Y, VehicleParams
-from estimation.types import is_number
+from fourwis.envs.vehicle import MU_MAX, S_PSI, S_X, S_Y, VehicleParams
+from fourwis.core.checks import is_number
 
 
 def check_mu(name: str, value: float) -> float:

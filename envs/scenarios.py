@@ -28,11 +28,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from envs import courses
-from envs.driver import Constant, PathFollower, Ramp, Sine, SineWithDwell, SpeedHold, Step, SumOfSines
-from envs.road import FrictionMap, PatchMap, as_friction_map, check_mu, patch, split, uniform
-from envs.vehicle import GRAVITY, VehicleParams, initial_state
-from estimation.types import is_integer, is_number
+from fourwis.envs import courses
+from fourwis.envs.driver import Constant, PathFollower, Ramp, Sine, SineWithDwell, SpeedHold, Step, SumOfSines
+from fourwis.envs.road import FrictionMap, PatchMap, as_friction_map, check_mu, patch, split, uniform
+from fourwis.core.constants import GRAVITY
+from fourwis.envs.vehicle import VehicleParams, initial_state
+from fourwis.core.checks import is_integer, is_number
 
 Steering = Callable[[float, np.ndarray], float]
 

@@ -31,14 +31,14 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import NamedTuple
 
 import numba
 import numpy as np
 
-from envs.vehicle import A_AX, A_AY, S_DELTA_F, S_DELTA_R, S_OMEGA, S_R, S_TORQUE
-from estimation.jit import JIT
-from estimation.types import CHANNELS, member_rows  # (the readings' layout, which the estimators read)
+from fourwis.envs.vehicle import A_AX, A_AY, S_DELTA_F, S_DELTA_R, S_OMEGA, S_R, S_TORQUE
+from fourwis.core.kernels import JIT
+from fourwis.core.types import CHANNELS, SensorReading
+from fourwis.core.checks import member_rows  # (the readings' layout, which the estimators read)
 
 FAULT_KINDS = ("spike", "dropout", "stuck", "bias_step")
 
@@ -103,14 +103,6 @@ class Fault:
     @property
     def index(self) -> int:
         return CHANNELS.index(self.channel)
-
-
-class SensorReading(NamedTuple):
-    """One sample for B vehicles: ``values`` (B, 13), ``valid`` (B, 13) bool, times ``t`` (B,) [s]."""
-
-    values: np.ndarray
-    valid: np.ndarray
-    t: np.ndarray
 
 
 #: where each channel's true value sits in the plant's diagnostics (channels 0-1: ax, ay) and

@@ -10,57 +10,26 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import NamedTuple, Protocol
+from typing import NamedTuple
 
 import numpy as np
 from tqdm import tqdm
 
-from envs import compiled_loop
-from envs.driver import DriverBatch
-from envs.road import RoadTables, contact_points
-from envs.scenarios import Scenario, make_scenario
-from envs.sensors import (TRUE_AUX_COLUMNS, TRUE_STATE_COLUMNS, Fault, SensorModel, SensorParams,
-                          SensorReading)
-from envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NU, S_R, S_U, S_V, check_lag_step,
+from fourwis.envs import compiled_loop
+from fourwis.envs.driver import DriverBatch
+from fourwis.envs.road import RoadTables, contact_points
+from fourwis.envs.scenarios import Scenario, make_scenario
+from fourwis.envs.sensors import TRUE_AUX_COLUMNS, TRUE_STATE_COLUMNS, Fault, SensorModel, SensorParams
+from fourwis.core.types import SensorReading
+from fourwis.envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NU, S_R, S_U, S_V, check_lag_step,
                           check_plant_step, derivatives, sideslip_angles, step)
-from control import Command, StabilityController, check_controller
-from estimation.types import Estimate, check_estimate, check_estimator, is_integer
+from fourwis.control import StabilityController
+from fourwis.core.checks import check_command, check_controller
+from fourwis.core.types import Controller, Estimate, Estimator
+from fourwis.core.checks import check_estimate, check_estimator, is_integer
 
 DT = 0.002  #: physics, sensor and estimator step [s] (the paper samples at 2 ms)
 SIMULATE_CHUNK = 250  #: steps :func:`simulate` advances per call (its progress bar moves by as many)
-
-
-class Controller(Protocol):
-    """A stability controller: sees the estimate and the driver's commands, never the truth."""
-
-    def reset(self) -> None: ...
-
-    def __call__(self, t: np.ndarray, estimate: Estimate, front_steer: np.ndarray, base_torques: np.ndarray) -> Command: ...
-
-
-class Estimator(Protocol):
-    """A batched estimator: sensor readings in, estimate out (``needs_truth``: oracle only).
-
-    ``reading`` is an :class:`envs.sensors.SensorReading`: ``values`` (B, 13) in
-    :data:`envs.sensors.CHANNELS` order and units, ``valid`` (B, 13) bool (False: a dropout or
-    a stuck sensor the fault model flags; ``values`` then holds the last good value), ``t``
-    (B,) [s]. ``reset`` (re)initialises the members selected by ``mask`` (B,) bool (all if
-    None) from a reading and the initial speed [m/s] (B,) (a car starts from a known speed,
-    like a vehicle's speed estimate that has been running since standstill). ``step`` with
-    ``members`` (M,) row indices (the vector env's partial resets) steps only those rows: the
-    reading still has all B rows, ``truth`` only the M, and the estimate must have M rows.
-    The estimate's mu, mu_std and fz steer the DYC (it plans with a cautious mu_hat - k
-    mu_std), so a friction estimator's mu_std should be calibrated; an estimator holding a
-    nominal mu keeps mu_hat constant (the reports read a constant mu_hat without mu_std as
-    'not estimated').
-    """
-
-    needs_truth: bool
-
-    def reset(self, reading, initial_speed: np.ndarray, mask: np.ndarray | None = None) -> None: ...
-
-    def step(self, reading, truth: Estimate | None = None, members: np.ndarray | None = None) -> Estimate:
-        """Step every vehicle, or only the rows ``members`` (the estimate then has those rows)."""
 
 
 _MEASURED_AUX = np.array(TRUE_AUX_COLUMNS)  #: sensor channels 0-1 from the plant diagnostics
@@ -217,24 +186,24 @@ class ClosedLoop:
         self._check_params(self.scenarios)
         self._labels = (estimator, controller)  # how errors name a user's estimator and controller: as given
         if isinstance(estimator, str) or estimator is None:
-            from estimation import make_estimator
+            from fourwis.estimation import make_estimator
 
             estimator = make_estimator(estimator or "oracle", params, dt)
         else:
             check_estimator(estimator, estimator)
-        from estimation import Oracle, StateEstimator
+        from fourwis.estimation import Oracle, StateEstimator
 
         # fourwis's own estimators and controllers guard their outputs; anyone else's are
         # checked every step
         self._check_estimates = type(estimator) not in (Oracle, StateEstimator)
         self._needs_truth = bool(getattr(estimator, "needs_truth", False))
         if isinstance(controller, str):
-            from control import make_controller
+            from fourwis.control import make_controller
 
             controller = make_controller(controller, params, dt)
         elif controller is not None:
             check_controller(controller, controller)
-        ours = type(controller).__module__.split(".")[0] in ("control", "envs", "training")
+        ours = type(controller).__module__.startswith("fourwis.")
         self._check_commands = not ours
         # an estimator integrates over its dt; our controllers count their dt too (the DYC integrates over it, a
         # trained policy holds each action for control_dt / dt steps); a user's controller's dt is its own business
@@ -377,7 +346,7 @@ class ClosedLoop:
         elif self.controller is not None:
             command = self.controller(s.t, s.estimate, controls[:, C_DELTA_F].copy(), s.base_torques.copy())
             if self._check_commands:
-                _check_command(command, self.batch_size, self._labels[1])
+                check_command(command, self.batch_size, self._labels[1])
         if self.controller is not None:
             controls[:, C_TORQUE:C_TORQUE + 4] = command.torques
             controls[:, C_DELTA_R] = command.rear_steer
@@ -432,18 +401,6 @@ class ClosedLoop:
         self._sample = Sample(arrays.t, SensorReading(arrays.readings, arrays.valid, arrays.t), truth, estimate,
                               arrays.steering_wheel, arrays.front_steer, arrays.base_torques)
         return compiled_loop.step_records(rows, oracle) if records else None
-
-
-def _check_command(command, batch: int, source) -> None:
-    """ValueError naming ``source`` (a user's controller) unless ``command`` is a Command of
-    finite torques (B, 4) [N m] and rear steer (B,) [rad]."""
-    if not isinstance(command, Command):
-        raise ValueError(f"controller {source!r} returned {type(command).__name__}, not a control.Command")
-    for name, shape in (("torques", (batch, 4)), ("rear_steer", (batch,))):
-        value = getattr(command, name)
-        if np.shape(value) != shape or np.asarray(value).dtype.kind not in "fiu" or not np.all(np.isfinite(value)):
-            raise ValueError(f"controller {source!r} returned {name} {value!r}: expected finite real numbers of "
-                             f"shape {shape}")
 
 
 def simulate(scenario: Scenario | str, controller: Controller | str | None = None,

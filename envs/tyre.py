@@ -42,8 +42,8 @@ from dataclasses import dataclass, fields
 import numba
 import numpy as np
 
-from envs import vecmath
-from estimation.jit import JIT
+from fourwis.core import vecmath
+from fourwis.core.kernels import JIT
 
 
 @dataclass(frozen=True)

@@ -56,14 +56,14 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from control.reference import eq20_gain  # the 4WS law, written once (control)
-from envs import vecmath
-from envs.tyre import TyreParams, combined_forces, relaxation_lengths
-from envs.vecmath import LANE_MULTIPLE
-from estimation.jit import JIT
-from estimation.types import is_integer, is_number
+from fourwis.control.reference import eq20_gain  # the 4WS law, written once (control)
+from fourwis.core import vecmath
+from fourwis.envs.tyre import TyreParams, combined_forces, relaxation_lengths
+from fourwis.core.vecmath import LANE_MULTIPLE
+from fourwis.core.constants import GRAVITY
+from fourwis.core.kernels import JIT
+from fourwis.core.checks import is_integer, is_number
 
-GRAVITY = 9.80665  #: standard gravity [m/s^2]
 
 
 #: VehicleParams fields that may be 0 (switching off a resistance or the low-speed damping);
@@ -749,7 +749,7 @@ def step(state: np.ndarray, controls: np.ndarray, params: VehicleParams, road, d
     Non-finite controls or road friction outside (0, 2] raise ValueError; a state that turns
     non-finite raises FloatingPointError (a run never silently produces NaN).
     """
-    from envs.road import RoadTables, road_tables
+    from fourwis.envs.road import RoadTables, road_tables
 
     state = np.asarray(state, dtype=np.float64)
     controls = np.ascontiguousarray(controls, dtype=np.float64)

@@ -5,11 +5,12 @@ from __future__ import annotations
 
 from dataclasses import fields
 
-from estimation.joint import KINDS, NoiseParams, StateEstimator, tuned_noise
-from estimation.model import ModelParams
-from estimation.online import OnlineTuner
-from estimation.oracle import TRUE_SUFFIX, TRUTH_GROUPS, Oracle, PartialOracle, parse_truth_groups
-from estimation.types import Estimate, check_estimator, check_step, check_vehicle_params, import_factory
+from fourwis.estimation.joint import KINDS, NoiseParams, StateEstimator, tuned_noise
+from fourwis.estimation.model import ModelParams
+from fourwis.estimation.online import OnlineTuner
+from fourwis.estimation.oracle import TRUE_SUFFIX, TRUTH_GROUPS, Oracle, PartialOracle, parse_truth_groups
+from fourwis.core.types import Estimate
+from fourwis.core.checks import check_estimator, check_step, check_vehicle_params, import_factory
 
 ESTIMATORS = ("oracle",) + KINDS  #: names accepted by make_estimator; "joint" is the paper's full system
 
@@ -86,8 +87,8 @@ def make_estimator(name: str, params, dt: float = 0.002, noise: NoiseParams | No
 def relaxed_joint(params, dt: float = 0.002):
     """The joint estimator with the tyre relaxation in its model (``make_estimator("joint", params,
     dt, tyre_relaxation=True)``), as a factory, so that a name reaches it wherever names go:
-    ``fourwis compare --estimators joint estimation:relaxed_joint``, ``gym.make(...,
-    estimator="estimation:relaxed_joint")``."""
+    ``fourwis compare --estimators joint fourwis.estimation:relaxed_joint``, ``gym.make(...,
+    estimator="fourwis.estimation:relaxed_joint")``."""
     return make_estimator("joint", params, dt, tyre_relaxation=True)
 
 

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
-from estimation.types import is_integer
+from fourwis.core.checks import is_integer
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from estimation.jit import JIT, scratch
+from fourwis.core.kernels import JIT, scratch
 
 DROPOUT_VARIANCE = 1e12  #: variance given to a channel without valid data (no information)
 NO_HUBER = math.inf  #: Huber threshold meaning "plain (non-robust) update"
@@ -72,28 +72,6 @@ def covariance_sqrt(P: np.ndarray, S: np.ndarray) -> bool:
             sym[i, i] -= jitter
         jitter *= 10.0
     return False
-
-
-@numba.njit(inline="always", **JIT)
-def dot(a: np.ndarray, b: np.ndarray) -> float:
-    """sum_i a_i b_i, summed in index order (as numba's ``(a * b).sum()``, without the
-    temporary array)."""
-    t = 0.0
-    for i in range(a.shape[0]):
-        t += a[i] * b[i]
-    return t
-
-
-@numba.njit(**JIT)
-def matmul(A: np.ndarray, B: np.ndarray, out: np.ndarray) -> None:
-    """out = A @ B for small matrices (plain loops: numba's BLAS call cannot be cached); out
-    must not overlap A or B."""
-    out[:, :] = 0.0
-    for i in range(A.shape[0]):
-        for k in range(A.shape[1]):
-            a = A[i, k]
-            for j in range(B.shape[1]):
-                out[i, j] += a * B[k, j]
 
 
 @numba.njit(inline="always", **JIT)

@@ -28,8 +28,8 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from estimation.ckf import batch_arrays, ckf_predict, ckf_update, noise_matrix, spd_inverse
-from estimation.jit import JIT, scratch
+from fourwis.estimation.ckf import batch_arrays, ckf_predict, ckf_update, noise_matrix, spd_inverse
+from fourwis.core.kernels import JIT, scratch
 
 BETA_FLOOR = 0.05
 

@@ -71,13 +71,14 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from estimation.ckf import (NO_HUBER, cholesky, cholesky_solve, cubature_points, dot, innovation, innovation_nll,
-                            matmul, measurement_update, predicted_moments)
-from estimation.federated import fuse, sharing_coefficients
-from estimation.jit import JIT, scratch
-from estimation.model import (MIN_SPEED, P_IZ, P_RELAX, P_RW, ModelParams, body_forces, dugoff_lambdas,
+from fourwis.estimation.ckf import NO_HUBER, cholesky, cholesky_solve, cubature_points, innovation, innovation_nll, measurement_update, predicted_moments
+from fourwis.core.kernels import dot, matmul
+from fourwis.estimation.federated import fuse, sharing_coefficients
+from fourwis.core.kernels import JIT, scratch
+from fourwis.estimation.model import (MIN_SPEED, P_IZ, P_RELAX, P_RW, ModelParams, body_forces, dugoff_lambdas,
                               fill_steer_trig, transition, wheel_kinematics, wheel_loads, wheel_trig)
-from estimation.types import CHANNELS, Estimate, check_step, is_number, member_rows
+from fourwis.core.types import CHANNELS, Estimate
+from fourwis.core.checks import check_step, is_number, member_rows
 
 N_STATE = 6
 I_U, I_V, I_AX, I_AY, I_R, I_GAMMA = range(N_STATE)
@@ -203,7 +204,7 @@ def tuned_noise(path=None) -> NoiseParams | None:
     default."""
     if path is not None and not Path(path).is_file():
         raise FileNotFoundError(f"no tuning file {str(path)!r}; `fourwis tune --out {path}` writes one")
-    path = resources.files("estimation").joinpath(TUNED_NOISE_FILE) if path is None else Path(path)
+    path = resources.files("fourwis.estimation").joinpath(TUNED_NOISE_FILE) if path is None else Path(path)
     if not path.is_file():
         return None
     try:

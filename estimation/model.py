@@ -52,14 +52,14 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from estimation.jit import JIT, fixed_tuple, scratch
+from fourwis.core.kernels import JIT, fixed_tuple, scratch
 
 GRAVITY = 9.81  #: [m/s^2] (the plant uses standard gravity 9.80665; the model's own value)
 MIN_SPEED = 1.0  #: denominator floor for slip quantities [m/s]
 
 
 def _load_fit() -> dict:
-    return json.loads(resources.files("estimation").joinpath("data/dugoff_fit.json").read_text())
+    return json.loads(resources.files("fourwis.estimation").joinpath("data/dugoff_fit.json").read_text())
 
 
 @dataclass(frozen=True)

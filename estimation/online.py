@@ -30,9 +30,10 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from estimation.optimizers import METHODS, minimize
-from estimation.joint import STATE_FIELDS, StateEstimator
-from estimation.types import Estimate, is_integer
+from fourwis.estimation.optimizers import METHODS, minimize
+from fourwis.estimation.joint import STATE_FIELDS, StateEstimator
+from fourwis.core.types import Estimate
+from fourwis.core.checks import is_integer
 
 BOUNDS = [(-1.0, 1.0)] * 4  #: log10 factors on (process, accelerometer, gyro, wheel-speed) noise
 

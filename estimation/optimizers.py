@@ -20,8 +20,8 @@ from collections.abc import Callable
 import numpy as np
 from tqdm import tqdm
 
-from estimation.antlion import OptimizeResult, antlion, check_bounds, check_budget, evaluate_population
-from estimation.types import is_integer
+from fourwis.estimation.antlion import OptimizeResult, antlion, check_bounds, check_budget, evaluate_population
+from fourwis.core.checks import is_integer
 
 METHODS = ("alo", "cmaes", "random")
 CMA_SIGMA_FRACTION = 0.25  #: CMA-ES initial step size as a fraction of the mean box width

@@ -10,7 +10,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from estimation.types import Estimate
+from fourwis.core.types import Estimate
 
 #: what a PartialOracle can take from the truth (the name after ``+true-``) and the Estimate
 #: fields each replaces; a replaced standard deviation becomes zero, as the oracle's

@@ -3,8 +3,8 @@ name (tests/test_custom_models.py): this folder is on sys.path under pytest."""
 
 import numpy as np
 
-from control import Command
-from estimation import Estimate, make_estimator
+from fourwis.core.types import Command
+from fourwis.estimation import Estimate, make_estimator
 
 
 class BiasedFriction:

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.optimize import linprog, minimize
 
-from control.allocation import allocate_torques
-from envs.vehicle import VehicleParams
+from fourwis.control.allocation import allocate_torques
+from fourwis.envs.vehicle import VehicleParams
 
 P = VehicleParams()
 LEVER = np.array([-1.0, 1.0, -1.0, 1.0]) * P.track_front / 2  # dMz / dFx_i of straight wheels, ISO axes

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from estimation.antlion import antlion
+from fourwis.estimation.antlion import antlion
 
 
 def sphere(X):

@@ -9,7 +9,7 @@ import shutil
 import numpy as np
 import pytest
 
-from training.cli import build_parser, main
+from fourwis.training.cli import build_parser, main
 
 #: a PPO run of 4 cars: whole rollouts of 256 x 4 = 1024 env steps, so 1500 requested -> 2048 trained
 TRAIN = ["train", "--n-envs", "4", "--env-kwargs", '{"estimator": "oracle"}', "--eval-every", "100000",
@@ -68,7 +68,7 @@ def test_a_run_resumed_into_a_new_folder_logs_there_and_leaves_the_old_one_alone
 
 
 def test_train_refuses_to_overwrite_a_run_unless_told(run, tmp_path, capsys):
-    from training.rl import train
+    from fourwis.training.rl import train
 
     out = _copy(run, tmp_path)
     before = _files(out)
@@ -94,9 +94,9 @@ def test_train_refuses_to_overwrite_a_run_unless_told(run, tmp_path, capsys):
 
 
 def test_negative_seed_is_refused_before_anything_is_written(tmp_path, monkeypatch):
-    import training.tune
-    from training.rl import train
-    from training.tune import tune
+    from fourwis.training import tune as training_tune
+    from fourwis.training.rl import train
+    from fourwis.training.tune import tune
 
     out = tmp_path / "run"
     with pytest.raises(SystemExit, match="fourwis train: --seed must be >= 0, got -1"):
@@ -104,7 +104,7 @@ def test_negative_seed_is_refused_before_anything_is_written(tmp_path, monkeypat
     with pytest.raises(ValueError, match="seed must be a non-negative integer, got -1"):
         train("ppo", out, 100, seed=-1)
     assert not out.exists()
-    monkeypatch.setattr(training.tune, "calibration_run", lambda **kwargs: pytest.fail("tuning started"))
+    monkeypatch.setattr(training_tune, "calibration_run", lambda **kwargs: pytest.fail("tuning started"))
     with pytest.raises(SystemExit, match="fourwis tune: --seed must be >= 0, got -1"):
         main(["tune", "--seed", "-1", "--out", str(tmp_path / "tuned.json")])
     with pytest.raises(ValueError, match="seed must be a non-negative integer, got -1"):
@@ -113,19 +113,19 @@ def test_negative_seed_is_refused_before_anything_is_written(tmp_path, monkeypat
 
 
 def test_tune_mu_noise_refuses_the_options_it_would_ignore(tmp_path, monkeypatch):
-    import training.tune
+    from fourwis.training import tune as training_tune
 
-    monkeypatch.setattr(training.tune, "mu_noise_scan", lambda: pytest.fail("scan started"))
+    monkeypatch.setattr(training_tune, "mu_noise_scan", lambda: pytest.fail("scan started"))
     with pytest.raises(SystemExit, match=r"--mu-noise takes no other option, got \['--out', '--seed'\]"):
         main(["tune", "--mu-noise", "--out", str(tmp_path / "mn.json"), "--seed", "-5"])
-    monkeypatch.setattr(training.tune, "mu_noise_scan", lambda: {0.3: 0.05})
+    monkeypatch.setattr(training_tune, "mu_noise_scan", lambda: {0.3: 0.05})
     assert main(["tune", "--mu-noise"]) == 0
 
 
 def test_tune_checks_its_output_file_before_any_work(tmp_path, monkeypatch):
-    import training.tune
+    from fourwis.training import tune as training_tune
 
-    monkeypatch.setattr(training.tune, "calibration_run", lambda **kwargs: pytest.fail("tuning started"))
+    monkeypatch.setattr(training_tune, "calibration_run", lambda **kwargs: pytest.fail("tuning started"))
     with pytest.raises(SystemExit, match=f"fourwis tune: --out must be a file, but {tmp_path} is a directory"):
         main(["tune", "--out", str(tmp_path)])
     (tmp_path / "notes.txt").write_text("a file")
@@ -133,16 +133,16 @@ def test_tune_checks_its_output_file_before_any_work(tmp_path, monkeypatch):
         main(["tune", "--out", str(tmp_path / "notes.txt" / "tuned.json")])
     monkeypatch.undo()
     nested = tmp_path / "new" / "dir" / "tuned.json"  # a parent that can be created is fine
-    training.tune.tune(2, 1, out=nested, optimizer="random", duration=0.6, progress=False)
+    training_tune.tune(2, 1, out=nested, optimizer="random", duration=0.6, progress=False)
     assert json.loads(nested.read_text())["optimizer"] == "random"
 
 
 @pytest.mark.parametrize("command", [["compare"], ["estimate"], ["simulate", "paper_step"], ["swd", "--A", "20"],
                                      ["train"]])
 def test_every_command_checks_its_output_folder_before_any_work(command, tmp_path, monkeypatch):
-    import envs.simulation
+    from fourwis.envs import simulation as envs_simulation
 
-    monkeypatch.setattr(envs.simulation.ClosedLoop, "__init__", lambda *a, **k: pytest.fail("a run started"))
+    monkeypatch.setattr(envs_simulation.ClosedLoop, "__init__", lambda *a, **k: pytest.fail("a run started"))
     (tmp_path / "notes.txt").write_text("a file")
     for out, named in ((tmp_path / "notes.txt", "must be a directory, but .*notes.txt is a file"),
                        (tmp_path / "notes.txt" / "sub", "notes.txt is not a writable directory")):
@@ -181,8 +181,8 @@ def test_every_command_refuses_fewer_than_one_job_naming_the_option(command, job
 
 @pytest.mark.parametrize("jobs", [0, -1])
 def test_parallel_map_refuses_fewer_than_one_job_before_iterating(jobs, tmp_path):
-    from training.compare import compare
-    from training.pool import parallel_map
+    from fourwis.training.compare import compare
+    from fourwis.training.pool import parallel_map
 
     with pytest.raises(ValueError, match=f"jobs must be >= 1, got {jobs}"):
         parallel_map(abs, [1, 2], jobs, "test")  # at the call, not at the first result
@@ -194,10 +194,10 @@ def test_parallel_map_refuses_fewer_than_one_job_before_iterating(jobs, tmp_path
 @pytest.mark.parametrize("given, header, other", [(True, "A = 10.0 deg (given)", "0.3 g at 80 km/h"),
                                                   (False, "A = 16.6 deg (0.3 g at 80 km/h, dry road)", "given")])
 def test_swd_header_says_whether_a_was_given_or_measured(given, header, other, monkeypatch, capsys):
-    import envs.fmvss126
+    from fourwis.envs import fmvss126 as envs_fmvss126
 
-    monkeypatch.setattr(envs.fmvss126, "run_series", lambda *args, **kwargs: [])
-    monkeypatch.setattr(envs.fmvss126, "characterise",
+    monkeypatch.setattr(envs_fmvss126, "run_series", lambda *args, **kwargs: [])
+    monkeypatch.setattr(envs_fmvss126, "characterise",
                         lambda: pytest.fail("measured a given A") if given else math.radians(16.6))
     main(["swd", "--mu", "1.0", "0.5", *(["--A", "10"] if given else [])])
     text = capsys.readouterr().out

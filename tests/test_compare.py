@@ -4,9 +4,9 @@ import math
 
 import pytest
 
-from control.reference import rear_steer_gain
-from envs.vehicle import VehicleParams
-from training.compare import SWD_MU, SWD_MULTIPLE, build_scenario, entry_A, parse_scenario, run_matrix
+from fourwis.control.reference import rear_steer_gain
+from fourwis.envs.vehicle import VehicleParams
+from fourwis.training.compare import SWD_MU, SWD_MULTIPLE, build_scenario, entry_A, parse_scenario, run_matrix
 
 
 def test_scenario_entries_parse_into_name_and_overrides():
@@ -59,7 +59,7 @@ def test_overrides_reach_the_runs():
 
 
 def test_cli_names_bad_scenarios_and_controllers():
-    from training.cli import main
+    from fourwis.training.cli import main
 
     with pytest.raises(SystemExit, match="iso9999"):
         main(["compare", "--scenarios", "iso9999", "--out", "unused"])
@@ -78,7 +78,7 @@ def test_cli_names_bad_scenarios_and_controllers():
 
 def test_integer_overrides_stay_integers():
     """A seed override reaches the scenario as an int (a float seed is refused by numpy)."""
-    from training.compare import parse_scenario
+    from fourwis.training.compare import parse_scenario
 
     assert parse_scenario("random:seed=3,speed_kph=50.5") == ("random", {"seed": 3, "speed_kph": 50.5})
     assert parse_scenario("paper_step:rear_steer_feedforward=1") == ("paper_step", {"rear_steer_feedforward": True})
@@ -89,7 +89,7 @@ def test_integer_overrides_stay_integers():
 def test_report_is_reproducible_byte_for_byte_in_one_or_two_processes_and_the_fault_variant_bites(tmp_path):
     """Two seeds run in one worker process and then spread over two (as `make compare` does):
     runs.csv is byte-identical. Gyro spikes and a stuck gyro raise ckf's yaw-rate error."""
-    from training.compare import compare
+    from fourwis.training.compare import compare
 
     scenarios = ["paper_sine:duration=1.0", "paper_sine:duration=1.0+faults"]
     reports = [compare(tmp_path / name, scenarios, ["ckf"], ["none", "dyc-lqr"], seeds=2, jobs=jobs)
@@ -182,7 +182,7 @@ def test_a_failing_run_is_named_and_keeps_its_error_type():
     type built from more than a message keeps itself and gets the run as a note."""
     from types import SimpleNamespace
 
-    from training.compare import naming_the_run
+    from fourwis.training.compare import naming_the_run
 
     spec = SimpleNamespace(scenario="paper_step", estimator="joint", controller="dyc-lqr", seed=3)
 
@@ -197,7 +197,7 @@ def test_a_failing_run_is_named_and_keeps_its_error_type():
 
 
 def test_output_folders_must_be_named():
-    from training.io import check_writable
+    from fourwis.training.io import check_writable
 
     for empty in ("", "  "):
         with pytest.raises(ValueError, match="--out must not be empty"):
@@ -207,7 +207,7 @@ def test_output_folders_must_be_named():
 def test_the_report_shows_each_estimator_against_the_oracle():
     """Ratios of the seed means to the oracle's under the same controller, bold above 1.10, none
     where the oracle's value is at the noise floor; no section without the oracle or a controller."""
-    from training.compare import markdown_report
+    from fourwis.training.compare import markdown_report
 
     metrics = ("peak_beta", "phase_plane_peak", "yaw_tracking_rms", "spin_out", "yaw_moment_rms", "rmse_u", "rmse_v",
                "rmse_beta", "mae_beta", "rmse_r", "rmse_mu", "final_mu_error")

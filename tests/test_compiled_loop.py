@@ -4,13 +4,13 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-import envs  # noqa: F401  (registers the environment)
-from envs import compiled_loop
-from envs.gym_env import YawStabilityVectorEnv
-from envs.scenarios import make_scenario
-from envs.sensors import Fault
-from envs.simulation import ClosedLoop, simulate
-from envs.vehicle import S_R
+import fourwis  # noqa: F401  (registers the environment)
+from fourwis.envs import compiled_loop
+from fourwis.envs.gym_env import YawStabilityVectorEnv
+from fourwis.envs.scenarios import make_scenario
+from fourwis.envs.sensors import Fault
+from fourwis.envs.simulation import ClosedLoop, simulate
+from fourwis.envs.vehicle import S_R
 
 
 def _python_loop(monkeypatch) -> None:
@@ -49,7 +49,7 @@ def _assert_same(first: list, second: list) -> None:
 ])
 def test_single_env_steps_equal_the_python_loop(kwargs, monkeypatch):
     def make():
-        return gym.make("envs:FourWIS/YawStability-v0", max_episode_steps=120, **kwargs)
+        return gym.make("fourwis:FourWIS/YawStability-v0", max_episode_steps=120, **kwargs)
 
     env = make()
     env.reset(seed=0)
@@ -97,9 +97,9 @@ def test_loops_the_compiled_path_cannot_run_take_the_python_loop():
 def test_a_controller_or_estimator_that_only_looks_like_the_compiled_ones_takes_the_python_loop(monkeypatch):
     from dataclasses import replace
 
-    from envs.gym_env import AgentController
+    from fourwis.envs.gym_env import AgentController
 
-    from control import StabilityController
+    from fourwis.control import StabilityController
 
     class Gentler(StabilityController):  # a user's change to the DYC: the Python loop runs it
         pass
@@ -113,7 +113,7 @@ def test_a_controller_or_estimator_that_only_looks_like_the_compiled_ones_takes_
             command = super().__call__(t, estimate, front_steer, base_torques)
             return command._replace(torques=command.torques - 300.0)
 
-    env = gym.make("envs:FourWIS/YawStability-v0")
+    env = gym.make("fourwis:FourWIS/YawStability-v0")
     env.reset(seed=0)
     loop = env.unwrapped._core.loop
     loop.controller = Braking(loop.params, env.unwrapped.config, 1)
@@ -172,8 +172,8 @@ def test_the_dyc_hands_over_between_the_loops_mid_run(monkeypatch):
     """The controller's memory (lagged reference, rear angle, delivered moment, allocation) is
     one array that both loops update: compiled, Python, compiled again equals Python throughout,
     on two cars of which one, turning, is held for a while: its memory stands still in both."""
-    from control import StabilityController
-    from control.dyc import M_REFERENCE
+    from fourwis.control import StabilityController
+    from fourwis.control.dyc import M_REFERENCE
 
     def run(switch: bool) -> list:
         scenarios = [make_scenario("paper_step", mu=0.4), make_scenario("mu_jump")]
@@ -204,7 +204,7 @@ def test_the_dyc_allocates_with_its_own_vehicle_parameters(monkeypatch):
     same torques in both loops: its own limits, never more than 150 N m."""
     from dataclasses import replace
 
-    from control import StabilityController
+    from fourwis.control import StabilityController
 
     scenario = make_scenario("paper_step", mu=0.4)
     params = scenario.vehicle_params
@@ -220,7 +220,7 @@ def test_the_dyc_allocates_with_its_own_vehicle_parameters(monkeypatch):
 
 
 def test_a_reset_member_restarts_the_dyc_memory_of_that_car_only():
-    from control.dyc import M_DELIVERED, M_REFERENCE
+    from fourwis.control.dyc import M_DELIVERED, M_REFERENCE
 
     scenarios = [make_scenario("paper_sine"), make_scenario("paper_step")]
     loop = ClosedLoop(scenarios, "dyc-lqr", "joint", [np.random.default_rng(b) for b in range(2)])
@@ -240,7 +240,7 @@ def _leaves(tree) -> list:
 
 
 def test_a_dyc_failure_raises_the_python_loops_error(monkeypatch):
-    from control.dyc import M_DELIVERED
+    from fourwis.control.dyc import M_DELIVERED
 
     def failure() -> str:
         loop = ClosedLoop(make_scenario("paper_step"), "dyc-lqr", "oracle", np.random.default_rng(0))

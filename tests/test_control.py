@@ -5,15 +5,15 @@ import math
 import numpy as np
 import pytest
 
-from control import CONTROLLERS, MIN_PLANNING_MU, StabilityController, make_controller
-from control.dyc import LQRWeights, LQRYawController, SlidingModeYawController, bicycle_matrices
-from control.reference import (GRAVITY, rear_steer_gain, reference_yaw_rate, sideslip_bound, understeer_gradient,
+from fourwis.control import CONTROLLERS, MIN_PLANNING_MU, StabilityController, make_controller
+from fourwis.control.dyc import LQRWeights, LQRYawController, SlidingModeYawController, bicycle_matrices
+from fourwis.control.reference import (GRAVITY, rear_steer_gain, reference_yaw_rate, sideslip_bound, understeer_gradient,
                                weaker_axle_friction)
-from envs.fmvss126 import amplitudes, characterise, run_series
-from envs.scenarios import make_scenario
-from envs.simulation import simulate
-from envs.vehicle import VehicleParams
-from estimation.types import Estimate
+from fourwis.envs.fmvss126 import amplitudes, characterise, run_series
+from fourwis.envs.scenarios import make_scenario
+from fourwis.envs.simulation import simulate
+from fourwis.envs.vehicle import VehicleParams
+from fourwis.core.types import Estimate
 
 P = VehicleParams()
 
@@ -56,7 +56,7 @@ def test_eq20_gain_changes_phase_at_the_closed_form_speed():
 
 def _with_actuator_lag(u: float):
     """The 2-DOF model with the delivered moment lagging the command: states [beta, r, M]."""
-    from control.dyc import actuator_lag
+    from fourwis.control.dyc import actuator_lag
 
     A, B = bicycle_matrices(u, P)
     tau = float(actuator_lag(u, P))
@@ -70,7 +70,7 @@ def test_lqr_gains_solve_the_riccati_equation_of_the_lagged_model_and_damp_it_we
     without the lag, the 2-DOF gains leave it at zeta 0.41-0.45 from 40 km/h up."""
     from scipy.linalg import solve_continuous_are
 
-    from control.dyc import actuator_lag
+    from fourwis.control.dyc import actuator_lag
 
     # motors 10 ms + sigma_kappa / u (0.39 m at the static load): 28 ms at 80 km/h, 80 ms at 20
     assert float(actuator_lag(80 / 3.6, P)) == pytest.approx(0.0275, abs=5e-4)
@@ -98,9 +98,9 @@ def test_the_dyc_holds_a_gentle_low_speed_turn_without_spinning_its_wheels(name)
     With a fixed 0.15 s reference lag and the lag-free LQR the wheels spun up to slip 1.2-1.6
     with the motors at +/- 550-590 N m and the yaw rate swinging +/- 0.13 rad/s; dyc-smc-4ws
     spun the car (90 deg)."""
-    from envs.vehicle import A_KAPPA
+    from fourwis.envs.vehicle import A_KAPPA
 
-    from envs.scenarios import make_scenario
+    from fourwis.envs.scenarios import make_scenario
 
     traj = simulate(make_scenario("paper_step", speed_kph=20.0, mu=0.8, angle=2.0),
                     controller=make_controller(name, P), estimator="oracle")
@@ -212,9 +212,9 @@ def test_a_reference_understeer_gradient_lowers_the_yaw_reference_the_controller
 
 @pytest.mark.parametrize("law", ["lqr", "smc"])
 def test_4ws_variants_add_the_eq20_rear_steer_and_the_plain_ones_do_not(law):
-    from control.reference import rear_steer_feedforward
-    from envs.simulation import true_estimate
-    from envs.vehicle import NU, derivatives, initial_state
+    from fourwis.control.reference import rear_steer_feedforward
+    from fourwis.envs.simulation import true_estimate
+    from fourwis.envs.vehicle import NU, derivatives, initial_state
 
     state = initial_state(P, np.array([10.0, 25.0]), 2)
     aux = derivatives(state, np.zeros((2, NU)), np.full((2, 4), 0.9), P)[1]
@@ -269,8 +269,8 @@ def test_the_controller_reports_what_the_wheels_delivered():
     """A car yawing too little on ice: the LQR asks for a moment the tyres cannot give;
     ``last_allocation`` flags it and reports the (smaller, same-sign) moment the torques make,
     while on a dry road the same demand is met."""
-    from envs.simulation import true_estimate
-    from envs.vehicle import NU, S_R, S_U, derivatives, initial_state
+    from fourwis.envs.simulation import true_estimate
+    from fourwis.envs.vehicle import NU, S_R, S_U, derivatives, initial_state
 
     state = initial_state(P, np.array([20.0, 20.0]), 2)
     mu, front = np.array([[0.1] * 4, [1.0] * 4]), np.array([0.02, 0.02])
@@ -353,7 +353,7 @@ def test_sliding_mode_sees_the_rear_steer_angle():
     front-steered car in its own steady state. A law blind to the rear angle takes the rear
     tyre's moment b C_r delta_r for a disturbance and cancels it (such a law spun dyc-smc-4ws
     on a 90 km/h step, peak sideslip 67 deg)."""
-    from control.reference import rear_steer_feedforward
+    from fourwis.control.reference import rear_steer_feedforward
 
     u, front = np.array([25.0]), np.array([0.02])
     rear = rear_steer_feedforward(u, front, P)
@@ -407,8 +407,8 @@ def test_sliding_mode_never_pushes_away_from_its_surface_outside_the_boundary_la
 def test_dyc_smc_keeps_the_car_steerable_on_iso3888_2_at_70_kph():
     """Closed loop with the oracle: the car follows the lane change (path within 2 m of the line;
     before the guard above: 3.2 m RMS, 5.6 m at most, yaw-rate RMS error 21 deg/s)."""
-    from envs.scenarios import make_scenario
-    from training.compare import run_metrics
+    from fourwis.envs.scenarios import make_scenario
+    from fourwis.training.compare import run_metrics
 
     metrics = run_metrics(simulate(make_scenario("iso3888_2", speed_kph=70.0), "dyc-smc", "oracle"))
     assert metrics["path_max"] < 2.0 and not metrics["spin_out"]
@@ -419,7 +419,7 @@ def test_the_lqr_subtracts_the_moment_the_wheels_already_deliver():
     """Mz = -K [beta, r - r_ref, M]: the moment M the wheels deliver (note_delivered, a first-order
     lag tau(u) behind the command) lowers the next command by K_M M. K_M > 0 at every speed: a
     moment still building up in the tyres is not asked for again (the lag-aware design)."""
-    from control.dyc import actuator_lag
+    from fourwis.control.dyc import actuator_lag
 
     lqr = LQRYawController(P)
     assert np.all(lqr.gains[:, 2] > 0.0)
@@ -477,7 +477,7 @@ def test_only_a_moment_that_turns_the_car_further_fades_near_the_sideslip_bound(
     est = Estimate(u=u, v=u * np.tan(beta), beta=beta, r=r_ref + error, ax=np.zeros(8), ay=np.zeros(8), mu=mu,
                    fz=np.full((8, 4), P.mass * GRAVITY / 4), beta_std=np.zeros(8), mu_std=np.zeros((8, 4)))
     # what the law asks for: LQR on the state shrunk by the deadbands (0.02 rad/s, half the bound)
-    from control import YAW_DEADBAND
+    from fourwis.control import YAW_DEADBAND
 
     shrunk_error = np.sign(error) * (np.abs(error) - YAW_DEADBAND)
     shrunk_beta = np.sign(beta) * np.maximum(np.abs(beta) - 0.5 * bound, 0.0)
@@ -496,8 +496,8 @@ def test_with_rear_steer_the_reference_is_the_four_wheel_steered_car_s():
     """dyc-lqr-4ws asks for the yaw rate of the car as steered (front minus the eq. 20 rear
     angle), so at steady state it leaves the 4WS law alone instead of cancelling it; and a
     scenario that adds eq. 20 itself cannot be combined with it."""
-    from control.reference import rear_steer_feedforward
-    from envs.scenarios import make_scenario
+    from fourwis.control.reference import rear_steer_feedforward
+    from fourwis.envs.scenarios import make_scenario
 
     controller = make_controller("dyc-lqr-4ws", P)
     u, delta = np.array([22.0]), np.array([0.02])
@@ -516,8 +516,8 @@ def test_with_rear_steer_the_reference_is_the_four_wheel_steered_car_s():
 def test_the_shipped_phase_plane_region_is_a_refit_and_grows_with_friction():
     """control/data/phase_plane.json is what training.phase_plane_fit derives (two cells refit),
     the interpolation returns the table at its nodes, and more grip means a wider band."""
-    from control.reference import PhasePlaneRegion
-    from training.phase_plane_fit import FRICTIONS, SPEEDS, fit_cell
+    from fourwis.control.reference import PhasePlaneRegion
+    from fourwis.training.phase_plane_fit import FRICTIONS, SPEEDS, fit_cell
 
     region = PhasePlaneRegion.default()
     for i, j in ((2, 2), (4, 4)):
@@ -529,15 +529,15 @@ def test_the_shipped_phase_plane_region_is_a_refit_and_grows_with_friction():
 
 
 def test_phase_plane_fit_help_prints_usage_and_leaves_the_table_alone(monkeypatch, capsys, tmp_path):
-    """``python -m training.phase_plane_fit --help`` prints usage and exits without fitting (the
+    """``python -m fourwis.training.phase_plane_fit --help`` prints usage and exits without fitting (the
     fit takes minutes and overwrites control/data/phase_plane.json); unknown arguments are
     refused; a plain run still fits and writes the table."""
-    import training.phase_plane_fit as phase_plane_fit
+    import fourwis.training.phase_plane_fit as phase_plane_fit
 
     monkeypatch.setattr(phase_plane_fit, "fit_table", lambda *a, **k: pytest.fail("--help ran the fit"))
     with pytest.raises(SystemExit) as exit_info:
         phase_plane_fit.main(["--help"])
-    assert exit_info.value.code == 0 and "usage: python -m training.phase_plane_fit" in capsys.readouterr().out
+    assert exit_info.value.code == 0 and "usage: python -m fourwis.training.phase_plane_fit" in capsys.readouterr().out
     with pytest.raises(SystemExit) as exit_info:
         phase_plane_fit.main(["--bogus"])
     assert exit_info.value.code == 2 and "--bogus" in capsys.readouterr().err
@@ -556,10 +556,10 @@ def test_the_phase_plane_band_separates_recovery_from_spin_on_the_full_plant(u, 
     mu 0.3 it also recovers at 1.2: the band is conservative, as its fit intends.) Mirror-symmetric."""
     from scipy.optimize import brentq
 
-    from control.reference import PhasePlaneRegion
-    from envs.road import uniform
-    from envs.vehicle import NU, S_R, S_U, S_V, initial_state, step
-    from training.phase_plane_fit import sideslip_dynamics
+    from fourwis.control.reference import PhasePlaneRegion
+    from fourwis.envs.road import uniform
+    from fourwis.envs.vehicle import NU, S_R, S_U, S_V, initial_state, step
+    from fourwis.training.phase_plane_fit import sideslip_dynamics
 
     p = VehicleParams()
     region = PhasePlaneRegion.default()
@@ -592,9 +592,9 @@ def test_sideslip_rate_from_the_specific_forces_matches_the_derivative_of_sidesl
     within 0.01 deg/s (measured 0.0013 on the sine steer, 0.0006 on ISO 3888-2, peaks 3.9 and
     9.9 deg/s; the constant-speed form u (ay - u r) / (u^2 + v^2) errs 0.010 and 0.14 deg/s:
     the lane change slows the car)."""
-    from control.reference import sideslip_rate
-    from envs.scenarios import make_scenario
-    from envs.vehicle import A_AX, A_AY
+    from fourwis.control.reference import sideslip_rate
+    from fourwis.envs.scenarios import make_scenario
+    from fourwis.envs.vehicle import A_AX, A_AY
 
     traj = simulate(make_scenario(scenario), estimator="oracle")
     T = traj.truth
@@ -605,7 +605,7 @@ def test_sideslip_rate_from_the_specific_forces_matches_the_derivative_of_sidesl
 
 
 def test_the_phase_plane_region_refuses_bad_tables_and_mismatched_shapes():
-    from control.reference import PhasePlaneRegion
+    from fourwis.control.reference import PhasePlaneRegion
 
     with pytest.raises(ValueError, match="speeds"):
         PhasePlaneRegion((20.0, 10.0), (0.5, 1.0), ((1.0, 1.0), (1.0, 1.0)), ((0.1, 0.1), (0.1, 0.1)))
@@ -621,7 +621,7 @@ def test_the_phase_plane_region_refuses_bad_tables_and_mismatched_shapes():
 
 
 def test_the_reference_lag_is_the_2dof_models_slower_mode_capped_for_an_oversteering_car():
-    from control.reference import MAX_YAW_TIME_CONSTANT, yaw_time_constant
+    from fourwis.control.reference import MAX_YAW_TIME_CONSTANT, yaw_time_constant
 
     speeds = np.array([3.0, 5.56, 12.0, 22.2, 40.0])
     slower = [max(np.linalg.eigvals(bicycle_matrices(float(u), P)[0]).real) for u in speeds]
@@ -635,8 +635,8 @@ def test_the_reference_lag_is_the_2dof_models_slower_mode_capped_for_an_overstee
 
 
 def test_simulate_takes_a_controller_by_name_as_it_takes_an_estimator():
-    from envs.scenarios import make_scenario
-    from envs.simulation import simulate
+    from fourwis.envs.scenarios import make_scenario
+    from fourwis.envs.simulation import simulate
 
     scenario = make_scenario("paper_step", duration=1.5)
     by_name = simulate(scenario, "dyc-lqr", "joint", seed=1)
@@ -660,7 +660,7 @@ def test_the_dyc_asks_no_moment_below_its_active_speed_but_still_shares_the_driv
     """Below ACTIVE_SPEED (2 m/s: slip angles mean little at walking pace) the law's moment is 0
     and the allocator only shares the driver's torque; just above it a car yawing at 0.3 rad/s
     with the wheels straight gets a counter-moment (clockwise)."""
-    from control.dyc import ACTIVE_SPEED
+    from fourwis.control.dyc import ACTIVE_SPEED
 
     controller = StabilityController(P, law=law)
     u = np.array([0.5 * ACTIVE_SPEED, 0.99 * ACTIVE_SPEED, 1.5 * ACTIVE_SPEED])
@@ -679,7 +679,7 @@ def test_the_friction_ellipse_leaves_a_cornering_tyre_less_longitudinal_force():
     moment the circle meets is cut to the ellipse's largest, 4 x 0.6 x 2 kN x half-track
     0.708 m = 3.4 kN m with no drive force asked, and flagged infeasible; a small one is met by
     both."""
-    from control.allocation import allocate_for_estimate
+    from fourwis.control.allocation import allocate_for_estimate
 
     estimate = _turning(np.full(2, 10.0), 0.0, ay=0.8 * GRAVITY)
     base, demand = np.zeros((2, 4)), np.array([4000.0, 500.0])

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from envs.courses import CONE_RADIUS, iso3888_1, iso3888_2, lane_change, slalom
+from fourwis.envs.courses import CONE_RADIUS, iso3888_1, iso3888_2, lane_change, slalom
 
 WIDTH = 1.60  # the paper car's body width [m]
 

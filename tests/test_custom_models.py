@@ -5,9 +5,9 @@ checked, naming them (tests/custom_models.py defines them)."""
 import numpy as np
 import pytest
 
-from envs.scenarios import make_scenario
-from envs.simulation import simulate
-from training.compare import run_matrix
+from fourwis.envs.scenarios import make_scenario
+from fourwis.envs.simulation import simulate
+from fourwis.training.compare import run_matrix
 
 BIASED, DAMPER = "custom_models:biased_friction", "custom_models:yaw_damper"
 
@@ -44,7 +44,7 @@ def test_the_env_runs_a_named_estimator():
 
     infos = []
     for estimator in ("ckf", BIASED):
-        env = gym.make("envs:FourWIS/YawStability-v0", scenario="paper_step", estimator=estimator)
+        env = gym.make("fourwis:FourWIS/YawStability-v0", scenario="paper_step", estimator=estimator)
         env.reset(seed=0)
         infos.append(env.step(np.zeros(2, dtype=np.float32))[4])
     np.testing.assert_allclose(infos[1]["estimate"].mu, infos[0]["estimate"].mu + 0.1)
@@ -52,7 +52,7 @@ def test_the_env_runs_a_named_estimator():
 
 
 def test_bad_names_objects_and_outputs_are_named():
-    from estimation import make_estimator
+    from fourwis.estimation import make_estimator
 
     scenario = make_scenario("paper_step", duration=0.1)
     for name, match in (("custom_models:nothing", "cannot import 'nothing'"), ("no_such_module:f", "no_such_module"),
@@ -85,7 +85,7 @@ def test_the_command_line_finds_a_module_in_the_working_directory(tmp_path, monk
     import sys
     from pathlib import Path
 
-    from training.cli import main
+    from fourwis.training.cli import main
 
     shutil.copy(Path(__file__).with_name("custom_models.py"), tmp_path / "my_filters.py")
     monkeypatch.chdir(tmp_path)
@@ -96,7 +96,7 @@ def test_the_command_line_finds_a_module_in_the_working_directory(tmp_path, monk
 
 
 def test_a_users_controller_and_broken_modules_are_named():
-    from control import Command
+    from fourwis.core.types import Command
 
     class NaNTorques:
         def reset(self):
@@ -108,7 +108,7 @@ def test_a_users_controller_and_broken_modules_are_named():
     scenario = make_scenario("paper_step", duration=0.1)
     with pytest.raises(ValueError, match="NaNTorques.*returned torques"):
         simulate(scenario, NaNTorques())
-    with pytest.raises(ValueError, match="returned NoneType, not a control.Command"):
+    with pytest.raises(ValueError, match="returned NoneType, not a fourwis.Command"):
         simulate(scenario, type("Silent", (NaNTorques,), {"__call__": lambda self, *a: None})())
     with pytest.raises(ValueError, match="custom_models:WrongShape' returned mu"):  # named as given
         simulate(scenario, None, "custom_models:WrongShape")
@@ -119,7 +119,7 @@ def test_a_users_controller_and_broken_modules_are_named():
 def test_an_estimator_reusing_its_arrays_keeps_its_history_and_can_be_partly_oracled():
     """simulate keeps every step's estimate though the estimator writes into the same arrays;
     a +true-<group> wrapper works without the optional needs_truth."""
-    from training.estimate import run_metrics
+    from fourwis.training.estimate import run_metrics
 
     scenario = make_scenario("paper_sine", duration=1.0)
     traj = simulate(scenario, None, "custom_models:ReusesArrays", seed=0)
@@ -135,7 +135,7 @@ def test_an_estimator_reusing_its_arrays_keeps_its_history_and_can_be_partly_ora
 
 
 def test_a_factory_that_cannot_take_params_and_dt_is_named():
-    from estimation import make_estimator
+    from fourwis.estimation import make_estimator
 
     with pytest.raises(ValueError, match=r"'custom_models:takes_params_only' cannot be called as factory\(params, dt\)"):
         make_estimator("custom_models:takes_params_only", make_scenario("paper_step").vehicle_params, 0.002)

@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from envs.metrics import mae, rmse
-from envs.scenarios import make_scenario
-from envs.simulation import simulate
-from training.cli import main
-from training.estimate import METRICS, convergence_time, estimate_report, markdown_report
+from fourwis.envs.metrics import mae, rmse
+from fourwis.envs.scenarios import make_scenario
+from fourwis.envs.simulation import simulate
+from fourwis.training.cli import main
+from fourwis.training.estimate import METRICS, convergence_time, estimate_report, markdown_report
 
 T = np.arange(0.0, 5.0, 0.5)  # 0.0 .. 4.5 s
 
@@ -111,7 +111,7 @@ def test_ratio_section_divides_each_sideslip_rmse_by_fkfs():
 def test_the_convergence_column_tells_a_true_mu_from_a_nominal_one():
     """An estimator that reports the truth's mu (oracle, +true-mu) is labelled so, not as holding
     a nominal mu (ckf on paper_sine even holds the road's 0.8)."""
-    from training.estimate import _convergence
+    from fourwis.training.estimate import _convergence
 
     held = {"mu_estimated": 0.0, "mu_convergence_time": math.nan}
     assert _convergence(held, "joint+true-mu") == _convergence(held, "oracle") == "n/a (true mu)"
@@ -120,7 +120,7 @@ def test_the_convergence_column_tells_a_true_mu_from_a_nominal_one():
 
 
 def test_a_true_mu_is_not_counted_as_estimated_where_the_road_changes(tmp_path):
-    from training.estimate import run_all
+    from fourwis.training.estimate import run_all
 
     results, _ = run_all([make_scenario("mu_jump", duration=2.5)], ["oracle", "ckf+true-mu"], 1, jobs=1,
                          progress=False)
@@ -129,7 +129,7 @@ def test_a_true_mu_is_not_counted_as_estimated_where_the_road_changes(tmp_path):
 
 
 def test_scenarios_take_the_comparisons_overrides_and_are_named_by_them():
-    from training.estimate import _scenarios
+    from fourwis.training.estimate import _scenarios
 
     wet, dry, swd = _scenarios(["paper_step:mu=0.5", "paper_step", "swd_wet"])
     assert (wet.name, dry.name, swd.name) == ("paper_step:mu=0.5", "paper_step", "swd_wet")
@@ -141,7 +141,7 @@ def test_road_mu_gives_the_fixed_mu_filters_the_roads_friction_and_leaves_joint_
     """The paper's reading of its section-3 filters: they know the road's friction. On the
     step's 0.3 road the fixed-mu filter then holds 0.3 (no mu error) and its sideslip error
     falls (0.92 -> 0.67 deg over 5 seeds, README); the joint estimator runs as ever."""
-    from training.estimate import road_friction, run_all
+    from fourwis.training.estimate import road_friction, run_all
 
     scenario = make_scenario("paper_step", duration=7.0)
     assert road_friction(scenario) == pytest.approx(0.3)

@@ -6,16 +6,17 @@ import math
 import numpy as np
 import pytest
 
-from envs import simulate
-from envs.scenarios import PAPER_SCENARIOS, make_scenario
-from envs.sensors import CHANNELS, Fault, SensorParams
-from envs.vehicle import A_USAGE, VehicleParams
-from estimation import ESTIMATORS, make_estimator
-from estimation.joint import SLIDE_RATE, YAW_BALANCE_STD, ZERO_POINT_TIME_CONSTANT, ZP_OFFSET, StateEstimator
-from estimation.ckf import ckf_predict, ckf_update
-from estimation.federated import BETA_FLOOR, SubMeasurement, federated_step, fuse, sharing_coefficients
-from estimation.model import GRAVITY, ModelParams, dugoff, normal_loads, state_transition, Inputs
-from envs.metrics import rmse
+from fourwis.envs.simulation import simulate
+from fourwis.envs.scenarios import PAPER_SCENARIOS, make_scenario
+from fourwis.core.types import CHANNELS
+from fourwis.envs.sensors import Fault, SensorParams
+from fourwis.envs.vehicle import A_USAGE, VehicleParams
+from fourwis.estimation import ESTIMATORS, make_estimator
+from fourwis.estimation.joint import SLIDE_RATE, YAW_BALANCE_STD, ZERO_POINT_TIME_CONSTANT, ZP_OFFSET, StateEstimator
+from fourwis.estimation.ckf import ckf_predict, ckf_update
+from fourwis.estimation.federated import BETA_FLOOR, SubMeasurement, federated_step, fuse, sharing_coefficients
+from fourwis.estimation.model import GRAVITY, ModelParams, dugoff, normal_loads, state_transition, Inputs
+from fourwis.envs.metrics import rmse
 
 RNG = np.random.default_rng(0)
 F_LIN = np.array([[1.0, 0.1], [0.0, 0.95]])
@@ -231,8 +232,8 @@ def test_the_compiled_federated_cycle_equals_federated_step_on_the_vehicle_model
     """The estimators' compiled cycle (joint._federated: share, predict, update, fuse) is the
     one federated_step runs, model for model: both driven by the compiled vehicle models, in
     a hard turn (ay 6 m/s^2 at 20 m/s on mu 0.8), with one invalid channel."""
-    from estimation.joint import MU_1, MU_2, RANDOM_WALK, STATE_1, STATE_2, TRANSITION, _evaluate, _federated
-    from estimation.model import fill_steer_trig
+    from fourwis.estimation.joint import MU_1, MU_2, RANDOM_WALK, STATE_1, STATE_2, TRANSITION, _evaluate, _federated
+    from fourwis.estimation.model import fill_steer_trig
 
     pk, dt = PARAMS.packed, 0.002
     state = np.array([20.0, -0.4, -0.3, 6.0, 0.3, 0.01])  # [u, v, ax, ay, r, Gamma]
@@ -444,8 +445,8 @@ def test_dugoff_at_the_true_state_matches_the_plant_force_near_saturation(scenar
     estimator's mu reads a few hundredths high (README, comparison section)."""
     import dataclasses
 
-    from envs.vehicle import A_AX, A_AY, A_FY, A_FZ, A_MU, A_USAGE, S_DELTA_F, S_DELTA_R, S_OMEGA, S_R, S_U, S_V
-    from estimation.model import dugoff, steer_trig, tyre_operating_point, wheel_loads
+    from fourwis.envs.vehicle import A_AX, A_AY, A_FY, A_FZ, A_MU, A_USAGE, S_DELTA_F, S_DELTA_R, S_OMEGA, S_R, S_U, S_V
+    from fourwis.estimation.model import dugoff, steer_trig, tyre_operating_point, wheel_loads
 
     traj = simulate(scenario, seed=1)
     S, A = traj.state, traj.aux
@@ -480,8 +481,8 @@ def test_the_model_loses_speed_to_drag_and_rolling_resistance_as_the_plant_does(
     both lose (1/2) rho Cd A u^2 to drag and f_r Fz to rolling resistance (coasting from 25 m/s,
     -0.34 m/s^2 after the second, 0.08 of it rolling resistance). Without them (the paper's model) its ax is off
     by the whole loss (> 0.1 m/s^2)."""
-    from envs.road import uniform
-    from envs.vehicle import A_AX, C_TORQUE, NU, S_OMEGA, S_TORQUE, S_U, derivatives, initial_state, step
+    from fourwis.envs.road import uniform
+    from fourwis.envs.vehicle import A_AX, C_TORQUE, NU, S_OMEGA, S_TORQUE, S_U, derivatives, initial_state, step
 
     vehicle = VehicleParams()
     controls = np.zeros((1, NU))
@@ -509,9 +510,9 @@ def test_tyre_relaxation_follows_the_plants_lateral_force_build_up():
     (PAC2002 tyres with relaxation) while it builds up: its RMS error over the first 0.25 s of the
     steer is less than half the paper's instantaneous tyre's (measured 0.054 against 0.25 m/s^2),
     and once the turn is steady the two models agree within 1%."""
-    from envs.vehicle import S_DELTA_F, S_DELTA_R, S_OMEGA, S_R, S_TORQUE, S_U, S_V
-    from estimation.joint import _relax_slip
-    from estimation.model import body_forces, steer_trig
+    from fourwis.envs.vehicle import S_DELTA_F, S_DELTA_R, S_OMEGA, S_R, S_TORQUE, S_U, S_V
+    from fourwis.estimation.joint import _relax_slip
+    from fourwis.estimation.model import body_forces, steer_trig
 
     traj, dt = simulate("paper_step", seed=0), 0.002
     T, S = traj.truth, traj.state
@@ -544,18 +545,18 @@ def test_tyre_relaxation_follows_the_plants_lateral_force_build_up():
 
 
 def test_tyre_relaxation_cuts_the_joint_estimators_sideslip_error_in_the_sine():
-    """make_estimator(..., tyre_relaxation=True), by name ``estimation:relaxed_joint``: on the
+    """make_estimator(..., tyre_relaxation=True), by name ``fourwis.estimation:relaxed_joint``: on the
     paper's sine steer (open loop, sensor seed 0) the joint estimator's sideslip RMSE falls
     below 0.6x the paper model's (measured 0.059 against 0.177 deg): without the lag the model's
     lateral force leads the plant's at every steering reversal. The option is off by default,
     and refused by estimators without the model."""
     scenario = make_scenario("paper_sine")
     errors = [rmse(traj.estimate.beta, traj.truth.beta)
-              for traj in (simulate(scenario, estimator=name) for name in ("joint", "estimation:relaxed_joint"))]
+              for traj in (simulate(scenario, estimator=name) for name in ("joint", "fourwis.estimation:relaxed_joint"))]
     assert errors[1] < 0.6 * errors[0]
-    assert make_estimator("estimation:relaxed_joint", scenario.params).params.relaxation_length > 0.3
+    assert make_estimator("fourwis.estimation:relaxed_joint", scenario.params).params.relaxation_length > 0.3
     assert make_estimator("joint", scenario.params).params.relaxation_length == 0.0
-    for name in ("oracle", "estimation:relaxed_joint"):
+    for name in ("oracle", "fourwis.estimation:relaxed_joint"):
         with pytest.raises(ValueError, match="tyre_relaxation"):
             make_estimator(name, scenario.params, tyre_relaxation=True)
     with pytest.raises(ValueError, match="tyre_relaxation must be True or False, got 'yes'"):
@@ -567,7 +568,7 @@ def test_a_masked_reset_restarts_the_relaxed_slip_with_the_row():
     vector env's autoreset) continues exactly as a fresh estimator started on the same readings:
     its relaxed slip angles restart with it (none of the old car's lag is carried over), and
     the other rows go on as before."""
-    from envs.sensors import SensorReading
+    from fourwis.core.types import SensorReading
 
     traj = simulate("paper_sine", seed=0)  # readings of a car in the sine: its slip keeps moving
     params, restart = traj.scenario.params, 1400
@@ -601,7 +602,7 @@ def test_the_dugoff_fit_reproduces_the_plant_tyre():
     import json
     from importlib import resources
 
-    from training.tyre_fit import LOADS, fit_dugoff
+    from fourwis.training.tyre_fit import LOADS, fit_dugoff
 
     fit = fit_dugoff()
     tyre = VehicleParams().tyre
@@ -610,7 +611,7 @@ def test_the_dugoff_fit_reproduces_the_plant_tyre():
         np.testing.assert_allclose(m * LOADS - n * LOADS**2, exact, rtol=0.05)
     assert 1.0 < fit["mu_scale"] < 1.2
     assert fit["lateral_rms_error_mu_fz"] < 0.8 * fit["lateral_rms_error_mu_fz_unscaled"]
-    shipped = json.loads(resources.files("estimation").joinpath("data/dugoff_fit.json").read_text())
+    shipped = json.loads(resources.files("fourwis.estimation").joinpath("data/dugoff_fit.json").read_text())
     assert set(shipped) == set(fit)
     for key, value in shipped.items():
         if isinstance(value, str):
@@ -628,7 +629,7 @@ def test_tyre_curves_of_the_papers_figures_2_and_3(load, tmp_path):
     peaks at mu Fz scaled by its load-dependent peak friction relative to the reference load
     (to 1%; 0.95 / 0.87 at 5 kN longitudinally / laterally) and falls beyond (the shapes the
     README names as the friction estimate's limit). The PNG is written and not blank."""
-    from training.tyre_fit import plot_tyre_curves, tyre_curves
+    from fourwis.training.tyre_fit import plot_tyre_curves, tyre_curves
 
     mu = 0.5
     c = tyre_curves(load, mu)
@@ -651,9 +652,9 @@ def test_tyre_curves_of_the_papers_figures_2_and_3(load, tmp_path):
 
 
 def test_tyre_fit_plot_option_draws_the_figure_and_leaves_the_fit_alone(tmp_path, monkeypatch):
-    """``python -m training.tyre_fit --plot DIR`` (README) writes DIR/tyre_curves.png and does not
+    """``python -m fourwis.training.tyre_fit --plot DIR`` (README) writes DIR/tyre_curves.png and does not
     refit: the shipped fit file is not touched."""
-    import training.tyre_fit as tyre_fit
+    import fourwis.training.tyre_fit as tyre_fit
 
     monkeypatch.setattr(tyre_fit, "fit_dugoff", lambda *a, **k: pytest.fail("--plot refitted the tyre"))
     tyre_fit.main(["--plot", str(tmp_path / "figures")])
@@ -665,7 +666,7 @@ def test_joint_estimator_follows_a_friction_drop_and_the_dyc_stays_stable():
     mu follows the drop (measured mean 0.34 over the last 2 s, 2026-12-01) and the car's peak
     sideslip stays below half of what the fixed-dry-mu ckf lets it reach (measured 1.2 against
     14.6 deg; the oracle 1.2)."""
-    from control import make_controller
+    from fourwis.control import make_controller
 
     runs = {name: simulate("mu_jump", controller=make_controller("dyc-lqr", VehicleParams()), estimator=name, seed=0)
             for name in ("joint", "ckf")}
@@ -684,7 +685,7 @@ def test_slide_detection_sees_a_friction_drop_the_gate_misses_and_is_silent_wher
     (SLIDE_*: the sensors' sideslip rate in a steady turn) mu_hat comes down (measured 0.42 over
     the last 2 s) and the peak sideslip is 2.6 deg. From the nominal 0.8, where the gate opens
     by itself, the detection never fires: the estimates are identical with it off."""
-    from control import make_controller
+    from fourwis.control import make_controller
 
     def run(nominal_mu, slide_rate):
         estimator = make_estimator("joint", VehicleParams(), nominal_mu=nominal_mu, slide_rate=slide_rate)
@@ -707,8 +708,8 @@ def test_slide_detection_stays_silent_while_the_car_turns_and_on_an_acceleromete
     estimator from 0.9, DYC-LQR, +1 m/s^2 from 2.5 s) is no slide: the car cannot give more
     lateral force than the turn takes (one reading low, -1 m/s^2, is the documented false
     alarm)."""
-    from control import make_controller
-    from envs.sensors import Fault
+    from fourwis.control import make_controller
+    from fourwis.envs.sensors import Fault
 
     dyc = make_controller("dyc-lqr", VehicleParams())
     on, off = (simulate("paper_sine", controller=dyc, seed=0,
@@ -767,7 +768,7 @@ def test_joint_mu_converges_on_a_friction_value_never_used_in_development(seed):
     over the last half of the run the wheel-mean mu_hat is within 0.1 of the truth (measured
     0.05 for both seeds; with the wheels' mu correlated at 0.8 instead of 0.99 it stayed near
     0.9, an error of ~0.6)."""
-    from envs.scenarios import make_scenario
+    from fourwis.envs.scenarios import make_scenario
 
     traj = simulate(make_scenario("mu_jump", mu_patch=0.27, duration=8.0), estimator="joint", seed=seed)
     half = traj.t > traj.t[-1] / 2
@@ -803,39 +804,43 @@ def test_the_kernel_cache_follows_every_compiled_module(tmp_path):
 
     import numba
 
-    from estimation.jit import ROOT, kernel_fingerprint
+    from fourwis.core.kernels import cache_dir, kernel_fingerprint, package_dirs
 
-    for package in ("envs", "estimation", "control"):
-        (tmp_path / package).mkdir()
+    folders = [tmp_path / package for package in ("core", "envs", "estimation", "control")]
+    for folder in folders:
+        folder.mkdir()
     (tmp_path / "envs" / "tyre.py").write_text("import numba\ndef force(): return 1.0\n")
     (tmp_path / "envs" / "gym_env.py").write_text("import gymnasium\n")
-    before = kernel_fingerprint(tmp_path)
+    before = kernel_fingerprint(folders)
     (tmp_path / "envs" / "gym_env.py").write_text("import gymnasium  # edited\n")
-    assert kernel_fingerprint(tmp_path) == before
+    assert kernel_fingerprint(folders) == before
     (tmp_path / "envs" / "tyre.py").write_text("import numba\ndef force(): return 1.1\n")
-    assert kernel_fingerprint(tmp_path) != before
+    assert kernel_fingerprint(folders) != before
+    assert {folder.name for folder in package_dirs()} == {"core", "envs", "estimation", "control"}
     if "NUMBA_CACHE_DIR" not in os.environ:
-        assert numba.config.CACHE_DIR == str(ROOT / ".numba_cache" / kernel_fingerprint())
+        assert numba.config.CACHE_DIR == str(cache_dir())
 
 
 def test_an_installed_package_caches_its_kernels_in_the_users_cache(tmp_path, monkeypatch):
-    """A checkout (pyproject.toml beside the packages) keeps its kernels in .numba_cache; an
+    """A checkout (pyproject.toml beside the layer folders) keeps its kernels in .numba_cache; an
     installed package, whose site-packages may be read-only and which pip should be able to
     uninstall whole, in $XDG_CACHE_HOME/fourwis/numba (numba's own fallback has no fingerprint)."""
-    from estimation.jit import cache_dir, kernel_fingerprint
+    from fourwis.core.kernels import cache_dir, kernel_fingerprint
 
-    (tmp_path / "envs").mkdir()
+    folders = [tmp_path / "fourwis" / "core", tmp_path / "envs"]
+    for folder in folders:
+        folder.mkdir(parents=True)
     (tmp_path / "envs" / "tyre.py").write_text("import numba\n")
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
-    assert cache_dir(tmp_path) == tmp_path / "cache" / "fourwis" / "numba" / kernel_fingerprint(tmp_path)
+    assert cache_dir(folders) == tmp_path / "cache" / "fourwis" / "numba" / kernel_fingerprint(folders)
     (tmp_path / "pyproject.toml").write_text("")
-    assert cache_dir(tmp_path) == tmp_path / ".numba_cache" / kernel_fingerprint(tmp_path)
+    assert cache_dir(folders) == tmp_path / ".numba_cache" / kernel_fingerprint(folders)
 
 
 def test_scratch_arrays_live_on_the_stack_and_large_ones_on_the_heap(heap_allocations):
     import numba
 
-    from estimation.jit import SCRATCH_BYTES, scratch
+    from fourwis.core.kernels import SCRATCH_BYTES, scratch
 
     @numba.njit
     def fill(rows, cols):
@@ -861,7 +866,7 @@ def test_scratch_arrays_live_on_the_stack_and_large_ones_on_the_heap(heap_alloca
 def test_an_estimator_step_allocates_nothing_per_vehicle(name, heap_allocations):
     """The compiled step keeps its work arrays on the stack: a step of 64 vehicles makes as
     many heap allocations (the Python entry's output arrays) as a step of one."""
-    from envs.sensors import SensorReading
+    from fourwis.core.types import SensorReading
 
     counts = []
     for batch in (1, 64):
@@ -899,7 +904,7 @@ def test_zero_point_learning_finds_an_accelerometer_offset_in_steady_driving_onl
 
 @pytest.mark.parametrize("members", [[3], [-1], [1, 1], [0.5]])
 def test_a_step_on_bad_members_raises_and_leaves_the_filters_alone(members):
-    from envs.sensors import SensorReading
+    from fourwis.core.types import SensorReading
 
     est = make_estimator("joint", VehicleParams())
     values = np.zeros((3, len(CHANNELS)))
@@ -915,7 +920,7 @@ def test_a_step_on_bad_members_raises_and_leaves_the_filters_alone(members):
 def test_a_nan_input_is_named_even_on_an_invalid_channel():
     """Wheel speeds, steer angles and torques drive the model every step: a NaN there, flagged
     invalid or not, is named (not reported as a failed covariance)."""
-    from envs.sensors import SensorReading
+    from fourwis.core.types import SensorReading
 
     est = make_estimator("joint", VehicleParams())
     values = np.zeros((2, len(CHANNELS)))
@@ -939,8 +944,8 @@ def test_a_standing_or_creeping_car_keeps_its_friction_and_a_bounded_sideslip(sp
     friction filter holds mu and its covariance; the sideslip stays within 3 deg (v noise over
     a floored 1 m/s) and, after the first second, within 3 of its reported sigmas (measured
     <= 0.43; at rest the sigma was 0 while the sideslip reached 88 deg)."""
-    from envs.sensors import SensorReading
-    from estimation.joint import MU_MIN_SPEED
+    from fourwis.core.types import SensorReading
+    from fourwis.estimation.joint import MU_MIN_SPEED
 
     assert speed < MU_MIN_SPEED
     params = VehicleParams()
@@ -974,7 +979,7 @@ def test_a_sustained_differential_torque_on_a_straight_does_not_move_mu():
     (at slip 0.023 on mu 0.5: Dugoff -18%, the plant -1%). Gated on the longitudinal slip too,
     the joint estimator ran mu to its 1.2 bound within 1.5 s; gated on the lateral demand it
     holds its nominal 0.8."""
-    from control import Command
+    from fourwis.core.types import Command
 
     class Differential:
         def reset(self):
@@ -992,8 +997,8 @@ def test_a_sustained_differential_torque_on_a_straight_does_not_move_mu():
 def test_estimator_input_errors_name_the_bad_value():
     from dataclasses import replace
 
-    from envs.sensors import SensorReading
-    from estimation import NoiseParams
+    from fourwis.core.types import SensorReading
+    from fourwis.estimation import NoiseParams
 
     params = VehicleParams()
     est = make_estimator("joint", params)
@@ -1056,7 +1061,7 @@ def test_the_low_passes_stay_stable_on_a_log_sampled_slower_than_their_time_cons
     gain dt / tau capped at 1: on paper_step's readings sampled at 50 ms the wheel acceleration
     stays physical and the friction is still read (before the cap it grew to 4e21 rad/s^2 and
     the mean friction error after the step reached 0.65)."""
-    from envs.sensors import SensorReading
+    from fourwis.core.types import SensorReading
 
     run = simulate("paper_step", estimator="oracle", seed=1)
     every = 25  # 50 ms
@@ -1076,7 +1081,7 @@ def test_a_filter_at_another_step_keeps_its_noise_per_unit_time():
     """The noise is given per 2 ms step: at 10 ms the process and mu random-walk variances are
     5x (the sensors' stay per sample), and the joint estimator still follows the mu jump
     (without the scaling its mean mu error over the last half was 0.53)."""
-    from envs.sensors import SensorParams
+    from fourwis.envs.sensors import SensorParams
 
     fine, coarse = (make_estimator("joint", VehicleParams(), dt=dt) for dt in (0.002, 0.01))
     np.testing.assert_allclose(coarse._process_var, 5.0 * fine._process_var, rtol=1e-12)

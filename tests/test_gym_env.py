@@ -12,12 +12,12 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 from gymnasium.vector import AutoresetMode
 
-from control.reference import reference_yaw_rate
-import envs  # noqa: F401  (registers the environment)
-from envs.gym_env import YawStabilityEnv, YawStabilityVectorEnv
-from envs.sensors import Fault
-from envs.render import FRAME_HEIGHT, FRAME_WIDTH
-from envs.vehicle import S_DELTA_R
+from fourwis.control.reference import reference_yaw_rate
+import fourwis  # noqa: F401  (registers the environment)
+from fourwis.envs.gym_env import YawStabilityEnv, YawStabilityVectorEnv
+from fourwis.envs.sensors import Fault
+from fourwis.envs.render import FRAME_HEIGHT, FRAME_WIDTH
+from fourwis.envs.vehicle import S_DELTA_R
 
 
 @pytest.mark.parametrize("observation", ["estimated", "true", "sensors"])
@@ -32,7 +32,7 @@ def test_gymnasium_and_sb3_checkers_pass(observation, action):
 
 
 def test_make_and_determinism_under_seed():
-    env = gym.make("envs:FourWIS/YawStability-v0", scenario="random", estimator="ckf")
+    env = gym.make("fourwis:FourWIS/YawStability-v0", scenario="random", estimator="ckf")
     runs = []
     for _ in range(2):
         obs, _ = env.reset(seed=7)
@@ -304,7 +304,7 @@ def test_async_vector_env_with_spawned_workers():
 
 
 def test_make_works_in_a_fresh_interpreter_without_prior_import():
-    code = ("import gymnasium as gym, numpy as np; env = gym.make('envs:FourWIS/YawStability-v0', "
+    code = ("import gymnasium as gym, numpy as np; env = gym.make('fourwis:FourWIS/YawStability-v0', "
             "estimator='oracle'); obs, _ = env.reset(seed=0); print(obs.shape)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                          cwd=Path(__file__).resolve().parent.parent)
@@ -356,7 +356,7 @@ def test_numpy_scalars_sequences_of_seeds_and_masked_resets_are_accepted():
     assert not np.array_equal(again[1], after[1])
     np.testing.assert_array_equal(info["_truth"], [False, True, False])
     # numpy integers in a sequence, through gym.make_vec (gymnasium itself wants Python ints)
-    vec = gym.make_vec("envs:FourWIS/YawStability-v0", num_envs=3, vectorization_mode="vector_entry_point",
+    vec = gym.make_vec("fourwis:FourWIS/YawStability-v0", num_envs=3, vectorization_mode="vector_entry_point",
                        scenario="random", estimator="ckf")
     by_numpy, _ = vec.reset(seed=np.array([4, 5, 6]))
     np.testing.assert_array_equal(by_numpy, vec.reset(seed=[4, 5, 6])[0])
@@ -371,8 +371,8 @@ def test_numpy_scalars_sequences_of_seeds_and_masked_resets_are_accepted():
 def test_scenario_durations_fit_the_registered_time_limit():
     """gym.make's TimeLimit never cuts a default scenario at the default 20 ms control step:
     episodes end at their scenario's end, with their metrics."""
-    from envs import MAX_EPISODE_STEPS
-    from envs.scenarios import SCENARIOS, make_scenario
+    from fourwis.envs import MAX_EPISODE_STEPS
+    from fourwis.envs.scenarios import SCENARIOS, make_scenario
 
     longest = max(make_scenario(name).duration for name in SCENARIOS)
     assert longest <= MAX_EPISODE_STEPS * 0.02
@@ -461,7 +461,7 @@ def test_rear_steer_is_optional_and_the_single_env_reports_one_car():
         with4ws.step(np.ones(2, dtype=np.float32))
     assert with4ws.core.loop.state[0, S_DELTA_R] > 0.01
     with pytest.raises(ValueError, match="warp"):
-        gym.make("envs:FourWIS/YawStability-v0", warp=9)
+        gym.make("fourwis:FourWIS/YawStability-v0", warp=9)
 
 
 def test_the_rear_steer_action_commands_its_share_of_the_rear_steer_limit():
@@ -536,7 +536,7 @@ def test_the_vector_env_draws_each_cars_frame_when_read_and_records_with_gymnasi
     RecordVideo with record_first_only draws car 0 alone."""
     from gymnasium.wrappers.vector import RecordVideo
 
-    from envs.gym_env import YawStabilityCore
+    from fourwis.envs.gym_env import YawStabilityCore
 
     env = YawStabilityVectorEnv(num_envs=3, scenario="random", estimator="oracle", render_mode="rgb_array")
     env.reset(seed=0)
@@ -587,13 +587,13 @@ def test_human_mode_without_a_display_warns(monkeypatch):
 @pytest.mark.parametrize("amplitude_deg", [40.0, 180.0])
 def test_episode_metrics_on_sine_with_dwell_give_the_fmvss126_verdict(amplitude_deg):
     """Uncontrolled SWD episodes end with the regulation's verdict, the same as the run evaluated
-    from envs.simulate (same plant and driver; zero corrective moment): 40 deg (2.4A) passes with its
+    from fourwis.envs.simulate (same plant and driver; zero corrective moment): 40 deg (2.4A) passes with its
     ratios reported, 180 deg on mu 1.0 spins out (terminated early, failed)."""
-    from envs.fmvss126 import characterise
-    from envs.metrics import sine_with_dwell_metrics
-    from envs.scenarios import make_scenario
-    from envs.simulation import simulate
-    from envs.vehicle import A_AY, S_R
+    from fourwis.envs.fmvss126 import characterise
+    from fourwis.envs.metrics import sine_with_dwell_metrics
+    from fourwis.envs.scenarios import make_scenario
+    from fourwis.envs.simulation import simulate
+    from fourwis.envs.vehicle import A_AY, S_R
 
     env = YawStabilityEnv(scenario="sine_with_dwell", estimator="oracle",
                           scenario_kwargs={"amplitude_deg": amplitude_deg})
@@ -618,7 +618,7 @@ def test_the_fmvss126_verdict_includes_responsiveness_from_5A():
     """Sine with dwell at 5.5A on mu 0.3 under a yaw-rate feedback that keeps the car from
     spinning (yaw moment against r - r_ref): the yaw ratios pass, but the car moves less than
     the 1.83 m sideways that FMVSS 126 asks from 5A on, so the episode fails (as in compare)."""
-    from envs.fmvss126 import characterise
+    from fourwis.envs.fmvss126 import characterise
 
     amplitude_deg = 5.5 * math.degrees(characterise())
     env = YawStabilityEnv(scenario="sine_with_dwell", mu=0.3, estimator="oracle", observation="true",
@@ -685,7 +685,7 @@ def test_friction_speed_and_sensor_fault_arguments_reach_the_episode():
     """mu and speed_kph set the scenario's road and speed; a stuck gyro (from 0.5 s) freezes the
     yaw-rate channel of the sensors observation while the car turns."""
 
-    env = gym.make("envs:FourWIS/YawStability-v0", scenario="paper_sine", mu=0.4, speed_kph=30.0, estimator="oracle",
+    env = gym.make("fourwis:FourWIS/YawStability-v0", scenario="paper_sine", mu=0.4, speed_kph=30.0, estimator="oracle",
                    observation="sensors", sensor_faults=(Fault("yaw_rate", "stuck", start=0.5),))
     obs, info = env.reset(seed=0)
     assert np.all(info["truth"].mu == 0.4) and info["truth"].u == pytest.approx(30.0 / 3.6, rel=1e-3)
@@ -700,7 +700,7 @@ def test_friction_speed_and_sensor_fault_arguments_reach_the_episode():
 def test_a_numpy_control_step_is_the_multiple_of_2_ms_it_stands_for():
     """float32 steps (what a config read back or an array gives) are accepted up to the 1 s limit
     and stored as the exact multiple of the 2 ms substep; a step between multiples is refused."""
-    from envs.gym_env import EnvConfig
+    from fourwis.envs.gym_env import EnvConfig
 
     for k in (1, 10, 32, 137, 500):
         assert EnvConfig(control_dt=np.float32(k * 0.002)).control_dt == k * 0.002

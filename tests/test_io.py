@@ -5,7 +5,7 @@ import os
 
 import pytest
 
-from training.io import atomic_write, atomic_write_json, atomic_write_text
+from fourwis.training.io import atomic_write, atomic_write_json, atomic_write_text
 
 
 def test_a_failed_write_keeps_the_previous_file_and_leaves_no_temporary(tmp_path):

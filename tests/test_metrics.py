@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.signal import find_peaks, lfilter
 
-from envs.fmvss126 import amplitudes, characterise, run_series
-from envs.metrics import (cone_hits, mae, path_deviation, peak_abs, phaseless_butterworth, rms, rmse,
+from fourwis.envs.fmvss126 import amplitudes, characterise, run_series
+from fourwis.envs.metrics import (cone_hits, mae, path_deviation, peak_abs, phaseless_butterworth, rms, rmse,
                           sine_with_dwell_metrics, spin_out, steering_angle_at_lateral_acceleration,
                           yaw_rate_tracking_rms)
 
@@ -210,8 +210,8 @@ def test_a_turn_near_the_lock_is_rolling_only_at_walking_pace():
     """The geometry's sideslip counts as a rolling car's only where the turn asks at most 1 g:
     at the lock (0.6 rad, radius ~3.4 m) up to ~6 m/s; at 13 m/s (a counter-steered slide on
     ISO 3888-2) it would ask ~5 g."""
-    from envs.metrics import kinematic_sideslip, rolling_sideslip
-    from envs.vehicle import VehicleParams
+    from fourwis.envs.metrics import kinematic_sideslip, rolling_sideslip
+    from fourwis.envs.vehicle import VehicleParams
 
     p = VehicleParams()
     geometry = kinematic_sideslip(0.6, 0.0, p.cg_to_front, p.cg_to_rear)
@@ -283,7 +283,7 @@ def test_uncontrolled_car_is_characterised_and_fails_the_yaw_criterion_on_dry_ro
 
 
 def test_course_paths_measure_each_car_from_its_own_path_while_alongside_it():
-    from envs.metrics import CoursePaths, alongside_path
+    from fourwis.envs.metrics import CoursePaths, alongside_path
 
     corner = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [20.0, 10.0]])
     straight = np.column_stack([np.linspace(-5.0, 30.0, 8), np.full(8, 2.0)])

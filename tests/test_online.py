@@ -4,13 +4,13 @@ determinism, a non-degenerate criterion, bad input."""
 import numpy as np
 import pytest
 
-from envs.scenarios import make_scenario
-from envs.sensors import SensorReading
-from envs.simulation import simulate
-from envs.vehicle import VehicleParams
-from estimation import make_estimator
-from estimation.joint import STATE_FIELDS
-from estimation.online import OnlineTuner, WindowReplay
+from fourwis.envs.scenarios import make_scenario
+from fourwis.core.types import SensorReading
+from fourwis.envs.simulation import simulate
+from fourwis.envs.vehicle import VehicleParams
+from fourwis.estimation import make_estimator
+from fourwis.estimation.joint import STATE_FIELDS
+from fourwis.estimation.online import OnlineTuner, WindowReplay
 
 RUN = simulate(make_scenario("paper_sine", duration=3.0), seed=0)  # truth + sensor readings, 1501 samples
 

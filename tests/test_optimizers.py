@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from estimation import NoiseParams
-from estimation.optimizers import minimize
+from fourwis.estimation import NoiseParams
+from fourwis.estimation.optimizers import minimize
 
 
 def sphere(X):
@@ -53,7 +53,7 @@ def test_unknown_optimizer_and_a_bad_budget_or_seed_are_named():
 
 
 def test_batched_tuning_objective_equals_single_replays_and_tune_writes_its_result(tmp_path):
-    from training.tune import calibration_run, replay_cost, tune
+    from fourwis.training.tune import calibration_run, replay_cost, tune
 
     traj = calibration_run(duration=0.6)
     X = np.array([[0.0, 0.0, 0.0, 0.0], [0.5, -0.5, 0.2, -0.2], [-1.0, 1.0, -0.5, 0.5]])
@@ -77,8 +77,8 @@ def test_batched_tuning_objective_equals_single_replays_and_tune_writes_its_resu
 def test_tune_keeps_the_hand_set_noise_when_the_optimizer_finds_nothing_better(tmp_path, monkeypatch):
     """A tuning whose best candidate is worse than the hand-set noise writes factors 0 (flagged),
     never the worse noise."""
-    import training.tune as tune_module
-    from estimation.optimizers import OptimizeResult
+    import fourwis.training.tune as tune_module
+    from fourwis.estimation.optimizers import OptimizeResult
 
     worse = np.array([1.0, 1.0, 1.0, 1.0])  # every noise 10x: far above the default's cost
     monkeypatch.setattr(tune_module, "minimize", lambda objective, *args, **kwargs: OptimizeResult(
@@ -90,14 +90,14 @@ def test_tune_keeps_the_hand_set_noise_when_the_optimizer_finds_nothing_better(t
 
 
 def test_tuning_file_missing_means_hand_set_noise_a_named_one_missing_or_corrupted_raises(tmp_path, monkeypatch):
-    import estimation.joint
-    from estimation.joint import tuned_noise
+    from fourwis.estimation import joint as estimation_joint
+    from fourwis.estimation.joint import tuned_noise
 
     for absent in (tmp_path / "absent.json", str(tmp_path / "absent.json"), tmp_path):  # a typo, a directory
         with pytest.raises(FileNotFoundError, match="absent.json|no tuning file"):
             tuned_noise(absent)
     with monkeypatch.context() as patch:  # a package without the shipped file: the hand-set noise
-        patch.setattr(estimation.joint, "TUNED_NOISE_FILE", "data/absent.json")
+        patch.setattr(estimation_joint, "TUNED_NOISE_FILE", "data/absent.json")
         assert tuned_noise() is None
     shipped = tuned_noise()
     assert shipped is not None and shipped.accel_std != NoiseParams().accel_std
@@ -115,10 +115,10 @@ def _shipped_and_hand_set(scenario_name, seeds):
     readings (a car's readings depend only on its generator, envs.sensors.SensorModel), and
     each filter member its own noise, as in training.tune.replay (for seed 5 this reproduces
     ``replay(..., simulate(scenario_name, seed=5))``, the README's table, to the last digit)."""
-    from envs.scenarios import make_scenario
-    from envs.simulation import ClosedLoop
-    from estimation import make_estimator
-    from training.tune import OUTPUT
+    from fourwis.envs.scenarios import make_scenario
+    from fourwis.envs.simulation import ClosedLoop
+    from fourwis.estimation import make_estimator
+    from fourwis.training.tune import OUTPUT
 
     scenario = make_scenario(scenario_name)
     shipped = json.loads(OUTPUT.read_text())["log10_factors"]
@@ -180,8 +180,8 @@ def test_tuning_criteria_likelihood_and_truth_and_a_bad_name():
     100-fold (overconfident) or inflating everything 100-fold (underconfident) both raise the
     mean innovation NLL above the hand-set noise's; the truth criterion is the documented sum of
     RMSEs, each over its scale; an unknown criterion is named."""
-    from envs.metrics import rmse
-    from training.tune import calibration_run, replay, replay_cost
+    from fourwis.envs.metrics import rmse
+    from fourwis.training.tune import calibration_run, replay, replay_cost
 
     traj = calibration_run(duration=0.6)
     X = np.array([[0.0, 0.0, 0.0, 0.0], [0.0, -2.0, -2.0, -2.0], [2.0, 2.0, 2.0, 2.0]])
@@ -197,7 +197,7 @@ def test_tuning_criteria_likelihood_and_truth_and_a_bad_name():
 
 
 def test_mu_noise_scan_rejects_a_bad_candidate_by_value():
-    from training.tune import mu_noise_scan
+    from fourwis.training.tune import mu_noise_scan
 
     with pytest.raises(ValueError, match="-0.5"):
         mu_noise_scan(grid=(0.3, -0.5), seeds=(2000,), progress=False)

@@ -10,10 +10,10 @@ import numba
 import numpy as np
 import pytest
 
-from control import make_controller
-from envs.scenarios import make_scenario
-from envs.simulation import simulate
-from envs.vehicle import A_USAGE, VehicleParams
+from fourwis.control import make_controller
+from fourwis.envs.scenarios import make_scenario
+from fourwis.envs.simulation import simulate
+from fourwis.envs.vehicle import A_USAGE, VehicleParams
 
 # 2.5 s of the mu jump with DYC-LQR on the joint estimator: the plant's tyres, the estimator's
 # friction update (the car reaches the 0.3 patch at ~1.5 s and saturates its tyres), the
@@ -22,10 +22,10 @@ RUN = """
 import sys, warnings
 import numpy as np
 warnings.simplefilter("ignore", RuntimeWarning)  # numpy scalars warn where compiled code gives inf quietly
-from control import make_controller
-from envs.scenarios import make_scenario
-from envs.simulation import simulate
-from envs.vehicle import VehicleParams
+from fourwis.control import make_controller
+from fourwis.envs.scenarios import make_scenario
+from fourwis.envs.simulation import simulate
+from fourwis.envs.vehicle import VehicleParams
 traj = simulate(make_scenario("mu_jump", duration=2.5), make_controller("dyc-lqr", VehicleParams()), "joint", seed=3)
 np.savez(sys.argv[1], state=traj.state, controls=traj.controls, mu=traj.estimate.mu, v=traj.estimate.v)
 """
@@ -54,8 +54,8 @@ import sys, warnings
 import gymnasium as gym
 import numpy as np
 warnings.simplefilter("ignore")
-from envs import compiled_loop
-env = gym.make("envs:FourWIS/YawStability-v0")
+from fourwis.envs import compiled_loop
+env = gym.make("fourwis:FourWIS/YawStability-v0")
 env.reset(seed=4)
 assert compiled_loop.supports(env.unwrapped._core.loop)
 np.save(sys.argv[1], np.array([env.step(np.array([0.5, -0.3], np.float32))[0] for _ in range(5)]))

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
-from envs.scenarios import SCENARIOS, make_scenario
+from fourwis.envs.scenarios import SCENARIOS, make_scenario
 
 README = Path(__file__).resolve().parent.parent / "README.md"
 

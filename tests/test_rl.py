@@ -5,10 +5,10 @@ import json
 import numpy as np
 import pytest
 
-from envs.gym_env import YawStabilityEnv, YawStabilityVectorEnv
-from envs.scenarios import make_scenario
-from envs.simulation import simulate
-from training.rl import ALGOS, PolicyController, SB3VecEnv, train
+from fourwis.envs.gym_env import YawStabilityEnv, YawStabilityVectorEnv
+from fourwis.envs.scenarios import make_scenario
+from fourwis.envs.simulation import simulate
+from fourwis.training.rl import ALGOS, PolicyController, SB3VecEnv, train
 
 FAST = {"ppo": {"n_steps": 128, "batch_size": 256}, "sac": {"learning_starts": 256}, "td3": {"learning_starts": 256}}
 
@@ -54,7 +54,7 @@ def test_privileged_training_gives_an_actor_that_needs_no_truth(algo, tmp_path):
     drives the plant exactly as in the privileged env, where those slots hold the truth."""
     import torch as th
 
-    from training.asymmetric import POLICIES
+    from fourwis.training.asymmetric import POLICIES
 
     out = tmp_path / algo
     _train(algo, out, privileged=True)
@@ -82,8 +82,8 @@ def test_privileged_training_gives_an_actor_that_needs_no_truth(algo, tmp_path):
 
 
 def test_asymmetric_policies_refuse_an_observation_without_the_truth_or_a_shared_extractor():
-    from training.asymmetric import POLICIES
-    from training.rl import _algo_class
+    from fourwis.training.asymmetric import POLICIES
+    from fourwis.training.rl import _algo_class
 
     plain = SB3VecEnv(YawStabilityVectorEnv(num_envs=2, estimator="oracle", autoreset_mode="SameStep"))
     for algo in ALGOS:
@@ -127,7 +127,7 @@ def test_an_off_policy_resume_keeps_its_replay_buffer_and_an_earlier_checkpoint_
     the run's own folder past later checkpoints, or with another seed or car count, is refused."""
     from stable_baselines3 import SAC
 
-    from training.rl import ALGO_CONFIGS, REPLAY_BUFFER
+    from fourwis.training.rl import ALGO_CONFIGS, REPLAY_BUFFER
 
     out = tmp_path / "run"
     _train("sac", out, 512)
@@ -155,7 +155,7 @@ def test_a_resumed_run_reseeds_its_cars_and_evaluates_its_held_out_scenario_whol
     """The resumed part's cars are seeded from (seed, steps trained), not the run's seed again
     (which replayed its first episodes); the evaluation env drops a training max_episode_steps
     (it would cut the held-out sine with dwell before the FMVSS 126 checks)."""
-    import training.rl as rl
+    import fourwis.training.rl as rl
 
     seeds, made = [], []
     original_seed, original_vec_env = rl.SB3VecEnv.seed, rl._vec_env
@@ -182,7 +182,7 @@ def test_a_policy_controller_holds_its_actions_for_control_dt_at_the_loop_step_o
     at another dt than it was built for, simulate refuses it naming both steps (it had acted every
     10 ms at dt = 1 ms); built for that dt it acts every 20 steps; a dt that does not divide
     control_dt is refused."""
-    from envs.sensors import SensorParams
+    from fourwis.envs.sensors import SensorParams
 
     out = tmp_path / "run"
     _train("ppo", out, 512)
@@ -201,7 +201,7 @@ def test_a_policy_controller_holds_its_actions_for_control_dt_at_the_loop_step_o
 
 def test_a_run_with_sensor_faults_resumes_and_becomes_a_controller(tmp_path):
     """config.json holds a Fault as a dict of its fields; resume and PolicyController take it back."""
-    from envs.sensors import Fault
+    from fourwis.envs.sensors import Fault
 
     faults = (Fault("yaw_rate", "spike", magnitude=0.2, rate=5.0),)
     out = tmp_path / "faults"
@@ -217,8 +217,8 @@ def test_a_run_with_sensor_faults_resumes_and_becomes_a_controller(tmp_path):
 def test_env_kwargs_that_config_json_cannot_give_back_are_refused_before_training(tmp_path):
     """A FrictionMap or a steering object would come back from config.json as a dict of its
     fields, which the env cannot take (it had turned the training env's own kwargs into such dicts)."""
-    from envs.driver import Constant
-    from envs.road import uniform
+    from fourwis.envs.driver import Constant
+    from fourwis.envs.road import uniform
 
     for kwargs in ({"mu": uniform(0.5)}, {"scenario": "paper_step", "scenario_kwargs": {"steering": Constant(0.1)}}):
         with pytest.raises(ValueError, match="cannot be recorded in config.json"):
@@ -236,7 +236,7 @@ def test_reward_normalisation_discounts_as_the_algorithm_does(tmp_path):
 
 
 def test_ppo_minibatches_split_the_rollout_evenly():
-    from training.rl import _minibatch
+    from fourwis.training.rl import _minibatch
 
     assert _minibatch(1024, 16 * 256) == 1024  # the shipped configuration
     assert _minibatch(1024, 6 * 256) == 768
@@ -334,7 +334,7 @@ def test_sb3_video_recorder_records_car_0_and_the_adapter_refuses_a_later_reset(
 
 
 def test_evaluate_puts_the_policy_into_the_comparison(tmp_path):
-    from training.rl import evaluate
+    from fourwis.training.rl import evaluate
 
     run = tmp_path / "run"
     _train("ppo", run, 512)
@@ -352,7 +352,7 @@ def test_an_interrupted_run_saves_its_model_and_resumes(tmp_path, monkeypatch):
     normaliser and config.json with the steps trained so far; --resume then continues."""
     from stable_baselines3.common.callbacks import BaseCallback
 
-    import training.rl as rl
+    import fourwis.training.rl as rl
 
     class CtrlC(BaseCallback):
         def _on_step(self) -> bool:
@@ -424,7 +424,7 @@ def test_training_is_deterministic_for_a_seed(tmp_path):
 def test_the_shipped_policy_is_found_from_any_directory(tmp_path, monkeypatch):
     """README's rl:training/policies/ppo_joint names the package's own policy: it resolves from a
     directory that holds no such path (an installed package), and a run of that name there wins."""
-    from training.rl import SHIPPED_POLICIES, run_files
+    from fourwis.training.rl import SHIPPED_POLICIES, run_files
 
     monkeypatch.chdir(tmp_path)
     assert run_files("training/policies/ppo_joint")[0] == SHIPPED_POLICIES / "ppo_joint" / "model.zip"

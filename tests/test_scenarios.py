@@ -5,11 +5,12 @@ import math
 import numpy as np
 import pytest
 
-from envs import simulate
-from envs.driver import SWD_DWELL, SWD_FREQUENCY, Constant, DriverBatch, Ramp, Sine, SineWithDwell, SpeedHold, Step
-from envs.road import patch
-from envs.scenarios import PAPER_SCENARIOS, SCENARIOS, make_scenario
-from envs.vehicle import S_DELTA_R, S_U, GRAVITY, VehicleParams
+from fourwis.envs.simulation import simulate
+from fourwis.envs.driver import SWD_DWELL, SWD_FREQUENCY, Constant, DriverBatch, Ramp, Sine, SineWithDwell, SpeedHold, Step
+from fourwis.envs.road import patch
+from fourwis.envs.scenarios import PAPER_SCENARIOS, SCENARIOS, make_scenario
+from fourwis.envs.vehicle import S_DELTA_R, S_U, VehicleParams
+from fourwis.core.constants import GRAVITY
 
 STATE = np.zeros(26)
 
@@ -142,8 +143,8 @@ def test_the_parameters_rear_steer_switch_reaches_the_scenario():
 
 
 def test_bad_simulation_arguments_are_named():
-    from control import StabilityController
-    from envs.sensors import Fault, SensorParams
+    from fourwis.control import StabilityController
+    from fourwis.envs.sensors import Fault, SensorParams
 
     scenario = make_scenario("paper_step", duration=0.1)
     params = scenario.vehicle_params
@@ -162,7 +163,7 @@ def test_bad_simulation_arguments_are_named():
         simulate(make_scenario("paper_step", duration=0.1, mu=lambda x, y: np.full(7, 0.5)))
     finer = simulate(scenario, dt=0.001, sensor_params=SensorParams(sample_time=0.001))  # the two agree: fine
     assert len(finer.t) == 101
-    from envs.simulation import ClosedLoop
+    from fourwis.envs.simulation import ClosedLoop
 
     loop = ClosedLoop((s for s in [scenario, scenario]), None, "oracle", [np.random.default_rng(k) for k in (0, 1)])
     for bad in ([1, 0], np.array([True]), np.array([1, 0])):
@@ -173,7 +174,7 @@ def test_bad_simulation_arguments_are_named():
 
 
 def test_mu_jump_lays_its_patch_over_the_given_road_and_numpy_frictions_are_numbers():
-    from envs.road import split
+    from fourwis.envs.road import split
 
     road = make_scenario("mu_jump", mu=split(0.9, 0.5), mu_patch=0.3).road
     np.testing.assert_array_equal(road.mu_at(np.array([0.0, 0.0, 100.0]), np.array([1.0, -1.0, 1.0])), [0.9, 0.5, 0.3])
@@ -241,7 +242,7 @@ def test_random_course_episodes_follow_a_lane_change_with_the_path_follower():
     """course_share 1: every episode is a drawn double lane change steered by the path
     follower, run to 20 m past the exit; the car keeps to the line (uncontrolled, the oracle).
     course_share 0 leaves the draws alone."""
-    from envs.driver import PathFollower
+    from fourwis.envs.driver import PathFollower
 
     for seed in (3, 4):
         s = make_scenario("random", seed=seed, course_share=1.0)
@@ -274,7 +275,7 @@ def test_simulation_is_deterministic_under_a_seed():
 
 @pytest.mark.parametrize("speed_kph, mu", [(60.0, 1.0), (50.0, 0.6)])
 def test_driver_clears_iso3888_2_without_cone_hits(speed_kph, mu):
-    from training.compare import run_metrics
+    from fourwis.training.compare import run_metrics
 
     metrics = run_metrics(simulate(make_scenario("iso3888_2", speed_kph=speed_kph, mu=mu)))
     assert metrics["cone_hits"] == 0
@@ -285,7 +286,7 @@ def test_iso3888_2_enters_the_course_at_the_test_speed_and_coasts_from_there():
     """ISO 3888-2: the driver holds the test speed up to the first gate (X = 0) and lifts off
     there (before, it lifted off 10 m early, where the driver's line begins, and entered at 59.56
     km/h instead of 60)."""
-    from envs.vehicle import C_TORQUE, S_U, S_X
+    from fourwis.envs.vehicle import C_TORQUE, S_U, S_X
 
     run = simulate(make_scenario("iso3888_2", speed_kph=60.0, duration=2.5))
     x, torque = run.state[:, S_X], run.controls[:, C_TORQUE:C_TORQUE + 4]
@@ -298,8 +299,8 @@ def test_iso3888_2_enters_the_course_at_the_test_speed_and_coasts_from_there():
 def test_driver_settles_on_a_circle_at_the_neutral_steer_angle():
     from dataclasses import replace
 
-    from envs.driver import PathFollower
-    from envs.vehicle import VehicleParams, S_X, S_Y
+    from fourwis.envs.driver import PathFollower
+    from fourwis.envs.vehicle import VehicleParams, S_X, S_Y
 
     params, radius, speed, offset = VehicleParams(), 40.0, 8.0, 0.3
     angle = np.linspace(0.0, 1.5 * math.pi, 600)
@@ -321,7 +322,7 @@ def test_driver_settles_on_a_circle_at_the_neutral_steer_angle():
                                            ({"preview_time": math.inf}, "preview_time .*, got inf"),
                                            ({"points": 0.5}, "points must be a whole number, got 0.5")])
 def test_path_follower_rejects_bad_arguments(kwargs, match):
-    from envs.driver import PathFollower
+    from fourwis.envs.driver import PathFollower
 
     with pytest.raises(ValueError, match=match):
         PathFollower(**({"path": np.column_stack([np.arange(3.0), np.zeros(3)])} | kwargs))
@@ -331,9 +332,9 @@ def test_path_follower_scan_steers_as_the_whole_path_seen_from_the_car():
     """The compiled driver scans the path from its start; written out over every point (the
     path in the car's frame, np.interp at the preview distances) it steers the same, for cars
     before the course, on it, past its end and facing away from it."""
-    from envs.courses import lane_change
-    from envs.driver import PathFollower, _preview_responses
-    from envs.vehicle import NX, S_PSI, S_R, S_U, S_V, S_X, S_Y
+    from fourwis.envs.courses import lane_change
+    from fourwis.envs.driver import PathFollower, _preview_responses
+    from fourwis.envs.vehicle import NX, S_PSI, S_R, S_U, S_V, S_X, S_Y
 
     follower, rng = PathFollower(lane_change(2.0, scale=1.4, offset=2.5, direction=-1).centreline), np.random.default_rng(5)
     path, p = follower.path, follower.params
@@ -366,8 +367,8 @@ def test_path_follower_scan_steers_as_the_whole_path_seen_from_the_car():
 
 
 def test_path_follower_names_a_speed_it_cannot_steer_at():
-    from envs.driver import DriverBatch, PathFollower
-    from envs.vehicle import NX, S_U
+    from fourwis.envs.driver import DriverBatch, PathFollower
+    from fourwis.envs.vehicle import NX, S_U
 
     follower = PathFollower(np.column_stack([np.arange(50.0), np.zeros(50)]))
     states = np.zeros((2, NX))

@@ -6,8 +6,9 @@ import re
 import numpy as np
 import pytest
 
-from envs.sensors import CHANNELS, Fault, SensorModel, SensorParams
-from envs.simulation import DT
+from fourwis.core.types import CHANNELS
+from fourwis.envs.sensors import Fault, SensorModel, SensorParams
+from fourwis.envs.simulation import DT
 
 
 
@@ -31,7 +32,7 @@ def test_same_seed_same_stream_different_seed_different_stream():
 def test_a_reading_is_truth_plus_bias_plus_the_vehicles_own_draws_across_block_refills():
     """One car's stream, redrawn from its generator: a bias draw, then blocks of NOISE_BLOCK
     normal and uniform draws; the compiled noise step must follow it sample for sample."""
-    from envs.sensors import NOISE_BLOCK
+    from fourwis.envs.sensors import NOISE_BLOCK
 
     params = SensorParams()
     n = 2 * NOISE_BLOCK + 10

@@ -7,11 +7,11 @@ import numba
 import numpy as np
 import pytest
 
-from envs.road import uniform
-from envs.sensors import SensorModel, SensorParams
-from envs.simulation import sensor_truth
-from envs.vehicle import NU, VehicleParams, initial_state, step
-from estimation import make_estimator
+from fourwis.envs.road import uniform
+from fourwis.envs.sensors import SensorModel, SensorParams
+from fourwis.envs.simulation import sensor_truth
+from fourwis.envs.vehicle import NU, VehicleParams, initial_state, step
+from fourwis.estimation import make_estimator
 
 P = VehicleParams()
 
@@ -65,7 +65,7 @@ def _row(reading, i):
 
 def test_compiled_closed_loop_on_two_threads_equals_one_thread(two_threads):
     """envs.compiled_loop shares a batch's cars among numba's thread count of Python threads."""
-    from envs.gym_env import YawStabilityVectorEnv
+    from fourwis.envs.gym_env import YawStabilityVectorEnv
 
     def run() -> list:
         env = YawStabilityVectorEnv(num_envs=5, max_episode_steps=40)

@@ -5,7 +5,7 @@ import math
 import numba
 import numpy as np
 
-from envs import vecmath
+from fourwis.core import vecmath
 
 
 @numba.njit

@@ -5,12 +5,11 @@ import math
 import numpy as np
 import pytest
 
-from envs.road import RoadTables, split, uniform
-from envs.simulation import DT
-from envs.tyre import TyreParams, tyre_forces
-from envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, GRAVITY, NU, NX, S_AX, S_AY, S_DELTA_F,
-                          S_DELTA_R, S_OMEGA, S_PSI, S_R, S_TORQUE, S_U, S_V, S_Y, VehicleParams, derivatives,
-                          initial_state, step)
+from fourwis.envs.road import RoadTables, split, uniform
+from fourwis.envs.simulation import DT
+from fourwis.envs.tyre import TyreParams, tyre_forces
+from fourwis.envs.vehicle import A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NU, NX, S_AX, S_AY, S_DELTA_F, S_DELTA_R, S_OMEGA, S_PSI, S_R, S_TORQUE, S_U, S_V, S_Y, VehicleParams, derivatives, initial_state, step
+from fourwis.core.constants import GRAVITY
 
 P = VehicleParams()
 
@@ -51,7 +50,7 @@ def test_a_walking_pace_full_lock_turn_has_the_geometrys_sideslip_and_is_no_spin
     is the kinematic one, atan((b tan delta_f + a tan delta_r) / L) = 21.1 deg, within 1.5 deg
     (the parallel-steered wheels scrub at the lock); no spin-out even at a 15 deg threshold,
     which the sideslip alone passes."""
-    from envs.metrics import kinematic_sideslip, rolling_sideslip, spin_out
+    from fourwis.envs.metrics import kinematic_sideslip, rolling_sideslip, spin_out
 
     state = initial_state(P, 2.0)
     tables = RoadTables.from_roads(uniform(1.0), 1)
@@ -211,7 +210,7 @@ def test_rk4_converges_at_fourth_order_for_constant_inputs():
     rate-limit kink), the position error after 0.4 s against a 0.25 ms solution falls ~16x per
     halving of dt (measured 19.4 / 17.7 / 17.8 from 4 to 0.5 ms); a second-order scheme gives
     ~4x (a review's mutation, dt/4 (k1 + k2 + k3 + k4), passed the 1% halving test above)."""
-    from envs.vehicle import S_X
+    from fourwis.envs.vehicle import S_X
 
     state = initial_state(P, 20.0)
     state[0, S_DELTA_F] = 0.05
@@ -376,9 +375,9 @@ def test_a_callable_road_gives_the_diagnostics_a_table_road_gives():
     jump, so a controller fed the truth acts identically."""
     from dataclasses import replace
 
-    from envs.road import CallableMap
-    from envs.scenarios import make_scenario
-    from envs.simulation import simulate
+    from fourwis.envs.road import CallableMap
+    from fourwis.envs.scenarios import make_scenario
+    from fourwis.envs.simulation import simulate
 
     table = make_scenario("mu_jump", duration=2.5)
     function = replace(table, road=CallableMap(lambda x, y: table.road.mu_at(x, y)))
@@ -390,7 +389,7 @@ def test_a_callable_road_gives_the_diagnostics_a_table_road_gives():
 
 
 def test_precomputed_tables_of_a_callable_road_step_with_the_start_friction():
-    from envs.road import CallableMap, road_tables
+    from fourwis.envs.road import CallableMap, road_tables
 
     road = CallableMap(lambda x, y: np.full(np.shape(x), 0.7))
     state = initial_state(P, 20.0)
@@ -412,7 +411,7 @@ def test_resistances_and_low_speed_damping_may_be_switched_off():
 
 
 def test_bad_tyre_coefficients_and_road_friction_are_named():
-    from envs.tyre import TyreParams, tyre_forces
+    from fourwis.envs.tyre import TyreParams, tyre_forces
 
     with pytest.raises(ValueError, match="nominal_load must be > 0, got 0.0"):  # it divides every load
         TyreParams(nominal_load=0.0)

@@ -19,7 +19,7 @@ from stable_baselines3.sac.policies import SACPolicy
 from stable_baselines3.td3.policies import TD3Policy
 from torch import nn
 
-from envs.gym_env import N_OBS
+from fourwis.envs.gym_env import N_OBS
 
 
 class AgentObservation(BaseFeaturesExtractor):

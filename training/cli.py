@@ -54,7 +54,7 @@ def _check_seed(args: argparse.Namespace) -> None:
 
 def _check_estimator_and_seed(args: argparse.Namespace) -> None:
     """ValueError naming a bad --estimator or a negative --seed (the jobs that take them)."""
-    from estimation import check_estimator_name
+    from fourwis.estimation import check_estimator_name
 
     check_estimator_name(args.estimator)
     _check_seed(args)
@@ -63,11 +63,11 @@ def _check_estimator_and_seed(args: argparse.Namespace) -> None:
 def _simulate(args: argparse.Namespace) -> int:
     import math
 
-    from envs.scenarios import make_scenario
-    from envs.simulation import simulate
-    from training.compare import FAULT_SUFFIX, build_controller, build_scenario, entry_A, file_stem, parse_scenario
-    from training.io import check_writable, pyplot
-    from training.trajectory_io import plot_trajectory, write_trajectory_csv
+    from fourwis.envs.scenarios import make_scenario
+    from fourwis.envs.simulation import simulate
+    from fourwis.training.compare import FAULT_SUFFIX, build_controller, build_scenario, entry_A, file_stem, parse_scenario
+    from fourwis.training.io import check_writable, pyplot
+    from fourwis.training.trajectory_io import plot_trajectory, write_trajectory_csv
 
     try:
         name, overrides = parse_scenario(args.scenario)
@@ -95,12 +95,12 @@ def _simulate(args: argparse.Namespace) -> int:
 def _sine_with_dwell(args: argparse.Namespace) -> int:
     import math
 
-    from envs.fmvss126 import MAX_A_DEG, MEASURED_A, characterise, format_table, run_series
-    from training.io import atomic_write_text, check_writable
+    from fourwis.envs.fmvss126 import MAX_A_DEG, MEASURED_A, characterise, format_table, run_series
+    from fourwis.training.io import atomic_write_text, check_writable
 
-    from envs.road import check_mu
-    from envs.vehicle import VehicleParams
-    from training.compare import build_controller
+    from fourwis.envs.road import check_mu
+    from fourwis.envs.vehicle import VehicleParams
+    from fourwis.training.compare import build_controller
 
     try:  # fail early, before the characterisation, on every argument
         if args.A is not None and not (math.isfinite(args.A) and 0 < args.A <= MAX_A_DEG):
@@ -149,21 +149,21 @@ def _report(command: str, make_report: Callable[[], Path], table: str,
 
 
 def _compare(args: argparse.Namespace) -> int:
-    from training.compare import compare
+    from fourwis.training.compare import compare
 
     return _report("compare", lambda: compare(args.out, args.scenarios, args.estimators, args.controllers, args.seeds,
                                               args.jobs), "runs.csv")
 
 
 def _estimate(args: argparse.Namespace) -> int:
-    from training.estimate import estimate_report
+    from fourwis.training.estimate import estimate_report
 
     return _report("estimate", lambda: estimate_report(args.out, args.scenarios, args.estimators, args.seeds,
                                                        args.jobs, road_mu=args.road_mu), "estimate.csv")
 
 
 def _tune(args: argparse.Namespace) -> int:
-    from training.tune import OUTPUT, mu_noise_scan, tune
+    from fourwis.training.tune import OUTPUT, mu_noise_scan, tune
 
     if args.mu_noise:
         defaults = vars(build_parser().parse_args(["tune"]))
@@ -203,7 +203,7 @@ def _json_object(text: str) -> dict:
 
 
 def _train(args: argparse.Namespace) -> int:
-    from training.rl import RUN_FILES, train
+    from fourwis.training.rl import RUN_FILES, train
 
     try:
         if args.seed is not None:
@@ -224,7 +224,7 @@ def _train(args: argparse.Namespace) -> int:
 
 
 def _evaluate(args: argparse.Namespace) -> int:
-    from training.rl import evaluate
+    from fourwis.training.rl import evaluate
 
     return _report("evaluate", lambda: evaluate(args.model, args.out, args.scenarios, args.estimator, args.seeds,
                                                 args.jobs), "runs.csv", (ValueError, FileNotFoundError))
@@ -264,7 +264,7 @@ def _add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
 def _add_matrix_arguments(parser: argparse.ArgumentParser, scenarios, estimators, seeds: int, out: str,
                           scenarios_help: str) -> None:
     """The scenario x estimator x seed matrix arguments that compare and estimate share."""
-    from estimation import ESTIMATORS, TRUTH_GROUPS
+    from fourwis.estimation import ESTIMATORS, TRUTH_GROUPS
 
     parser.add_argument("--scenarios", nargs="+", default=list(scenarios), help=scenarios_help)
     parser.add_argument("--estimators", nargs="+", default=list(estimators),
@@ -293,7 +293,7 @@ def build_parser() -> argparse.ArgumentParser:
                                       "(iso3888_2:mu=0.6,speed_kph=50; the options below apply on top)")
     _add_scenario_arguments(sim)
     sim.add_argument("--estimator", default="oracle", help="estimator run alongside (a name or module:factory)")
-    from control import CONTROLLERS
+    from fourwis.control import CONTROLLERS
 
     sim.add_argument("--controller", default="none",
                      help=f"stability controller ({', '.join(CONTROLLERS)}, or module:factory) or rl:<run dir>, fed "
@@ -301,7 +301,7 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--seed", type=int, default=0, help="sensor noise seed (>= 0)")
     sim.add_argument("--out", default="results/simulate", help="output directory")
     sim.set_defaults(func=_simulate)
-    from training.compare import DEFAULT_CONTROLLERS, DEFAULT_ESTIMATORS, HEADLINE
+    from fourwis.training.compare import DEFAULT_CONTROLLERS, DEFAULT_ESTIMATORS, HEADLINE
 
     cmp_ = command("compare", "closed-loop matrix estimator x controller x scenario; writes OUT/report.md, "
                               "runs.csv and PNG plots")
@@ -313,8 +313,8 @@ def build_parser() -> argparse.ArgumentParser:
                            "rl:<run dir> (or rl:<run dir>/checkpoints/step_N.zip) for a policy trained by fourwis "
                            "train")
     cmp_.set_defaults(func=_compare)
-    from envs.scenarios import PAPER_SCENARIOS
-    from training.estimate import DEFAULT_ESTIMATORS as ESTIMATE_ESTIMATORS
+    from fourwis.envs.scenarios import PAPER_SCENARIOS
+    from fourwis.training.estimate import DEFAULT_ESTIMATORS as ESTIMATE_ESTIMATORS
 
     est = command("estimate", "open-loop estimator accuracy (paper Table 2 form); writes OUT/estimate.md, "
                               "estimate.csv, a PNG per scenario and tyre_curves.png (paper Figs. 2-3)")
@@ -324,8 +324,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="the fixed-mu filters (ekf, ckf, fkf, alo-fkf) assume the road's friction at the start "
                           "instead of 0.8 (the paper's section-3 reading)")
     est.set_defaults(func=_estimate)
-    from estimation.optimizers import METHODS
-    from training.tune import CRITERIA
+    from fourwis.estimation.optimizers import METHODS
+    from fourwis.training.tune import CRITERIA
 
     tune = command("tune", "offline tuning of alo-fkf's noise on a calibration run; writes a JSON file "
                            "(default: the shipped one)")
@@ -351,7 +351,7 @@ def build_parser() -> argparse.ArgumentParser:
     swd.add_argument("--seed", type=int, default=0, help="sensor noise seed (>= 0)")
     swd.add_argument("--out", help="directory for sine_with_dwell.md (default: print only)")
     swd.set_defaults(func=_sine_with_dwell)
-    from training.rl_config import ALGO_CONFIGS, ALGOS, EVAL_SCENARIO
+    from fourwis.training.rl_config import ALGO_CONFIGS, ALGOS, EVAL_SCENARIO
 
     train = command("train", "train an RL stability controller (stable-baselines3) on the vector env; writes the "
                              "run directory OUT (model.zip, vecnormalize.pkl, config.json, tb/; checkpoints/ once "

@@ -20,21 +20,21 @@ from pathlib import Path
 
 import numpy as np
 
-from control import CONTROLLERS, make_controller
-from control.allocation import wheel_force_map
-from control.reference import PhasePlaneRegion, reference_yaw_rate
-from envs.fmvss126 import characterise
-from envs.metrics import (alongside_path, cone_hits, mae, path_deviation, peak_abs, rms, rmse, rolling_sideslip,
+from fourwis.control import CONTROLLERS, make_controller
+from fourwis.control.allocation import wheel_force_map
+from fourwis.control.reference import PhasePlaneRegion, reference_yaw_rate
+from fourwis.envs.fmvss126 import characterise
+from fourwis.envs.metrics import (alongside_path, cone_hits, mae, path_deviation, peak_abs, rms, rmse, rolling_sideslip,
                           sine_with_dwell_metrics, spin_out, yaw_rate_tracking_rms)
-from envs.scenarios import SCENARIOS, make_scenario
-from envs.sensors import Fault
-from envs.simulation import Trajectory, simulate
-from envs.vehicle import A_AY, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_X, S_Y
-from estimation import check_estimator_name
-from estimation.types import import_factory, is_integer, is_number
-from training.io import atomic_write, atomic_write_text, check_writable, pyplot
-from training.pool import check_jobs, parallel_map
-from training.tables import mean_over_seeds, require_distinct, write_runs_csv
+from fourwis.envs.scenarios import SCENARIOS, make_scenario
+from fourwis.envs.sensors import Fault
+from fourwis.envs.simulation import Trajectory, simulate
+from fourwis.envs.vehicle import A_AY, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_X, S_Y
+from fourwis.estimation import check_estimator_name
+from fourwis.core.checks import import_factory, is_integer, is_number
+from fourwis.training.io import atomic_write, atomic_write_text, check_writable, pyplot
+from fourwis.training.pool import check_jobs, parallel_map
+from fourwis.training.tables import mean_over_seeds, require_distinct, write_runs_csv
 
 #: headline scenarios: the paper's five conditions, FMVSS 126 at 5.5A on a wet road, the mu jump,
 #: and ISO 3888-2 at 70 km/h on mu 1.0 (where the uncontrolled car spins; it clears 60 km/h)
@@ -218,7 +218,7 @@ def build_controller(name: str, params):
     """A fresh controller: a :data:`control.CONTROLLERS` name, ``module:factory`` for your own
     (:func:`control.make_controller`), or ``rl:<run dir>`` for a policy."""
     if name.startswith(RL_PREFIX):
-        from training.rl import PolicyController
+        from fourwis.training.rl import PolicyController
 
         return PolicyController(name.removeprefix(RL_PREFIX), params)
     return make_controller(name, params)
@@ -286,7 +286,7 @@ def run_matrix(scenarios: Sequence[str] = HEADLINE, estimators: Sequence[str] = 
     _check("controller(s)", [c for c in controllers if not c.startswith(RL_PREFIX) and c not in user], CONTROLLERS)
     for name in controllers:
         if name.startswith(RL_PREFIX):
-            from training.rl import run_files
+            from fourwis.training.rl import run_files
 
             try:
                 run_files(name.removeprefix(RL_PREFIX))

@@ -17,19 +17,19 @@ from pathlib import Path
 
 import numpy as np
 
-from envs.metrics import mae, rmse
-from envs.road import contact_points
-from envs.scenarios import PAPER_SCENARIOS, Scenario
-from envs.simulation import Trajectory, simulate
-from estimation import ESTIMATORS, Estimate, check_estimator_name, make_estimator, parse_estimator_name
-from estimation.joint import KINDS
-from estimation.types import is_integer
-from training.compare import (FAULT_SUFFIX, build_scenario, check_file_stems, entry_A, file_stem, naming_the_run,
+from fourwis.envs.metrics import mae, rmse
+from fourwis.envs.road import contact_points
+from fourwis.envs.scenarios import PAPER_SCENARIOS, Scenario
+from fourwis.envs.simulation import Trajectory, simulate
+from fourwis.estimation import ESTIMATORS, Estimate, check_estimator_name, make_estimator, parse_estimator_name
+from fourwis.estimation.joint import KINDS
+from fourwis.core.checks import is_integer
+from fourwis.training.compare import (FAULT_SUFFIX, build_scenario, check_file_stems, entry_A, file_stem, naming_the_run,
                               parse_scenario)
-from training.io import atomic_write, atomic_write_text, check_writable, pyplot
-from training.pool import parallel_map
-from training.tables import mean_over_seeds, require_distinct, write_runs_csv
-from training.tyre_fit import plot_tyre_curves
+from fourwis.training.io import atomic_write, atomic_write_text, check_writable, pyplot
+from fourwis.training.pool import parallel_map
+from fourwis.training.tables import mean_over_seeds, require_distinct, write_runs_csv
+from fourwis.training.tyre_fit import plot_tyre_curves
 
 DEFAULT_ESTIMATORS = tuple(e for e in ESTIMATORS if e != "oracle")  #: the oracle is the truth itself
 MU_TOLERANCE = 0.1  #: mean |mu_hat - mu| over the wheels below which mu counts as converged

@@ -24,7 +24,7 @@ therefore conservative on the 2-DOF model within the window: inside it, the car 
 itself with the steering straight.
 
 Writes control/data/phase_plane.json (SI: slope [1/s], bound [rad/s]) for a table of speeds x
-road friction. Run: ``python -m training.phase_plane_fit`` (~3.5 min).
+road friction. Run: ``python -m fourwis.training.phase_plane_fit`` (~3.5 min).
 """
 
 from __future__ import annotations
@@ -35,9 +35,10 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from envs.tyre import tyre_forces
-from envs.vehicle import GRAVITY, VehicleParams
-from training.io import atomic_write_json
+from fourwis.envs.tyre import tyre_forces
+from fourwis.core.constants import GRAVITY
+from fourwis.envs.vehicle import VehicleParams
+from fourwis.training.io import atomic_write_json
 
 OUTPUT = Path(__file__).resolve().parent.parent / "control" / "data" / "phase_plane.json"
 SPEEDS = (10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0)  #: table speeds [m/s]
@@ -137,13 +138,13 @@ def fit_table(params: VehicleParams | None = None) -> dict:
             "slope_1_s": [[c[0] for c in row] for row in cells],
             "bound_rad_s": [[c[1] for c in row] for row in cells],
             "coverage": [[c[2] for c in row] for row in cells], "yaw_rate_window": YAW_RATE_WINDOW,
-            "source": "python -m training.phase_plane_fit: Inagaki et al. (AVEC '94) phase-plane method on the "
+            "source": "python -m fourwis.training.phase_plane_fit: Inagaki et al. (AVEC '94) phase-plane method on the "
                       "2-DOF model with the plant tyre (PAC2002) at static axle loads, steering straight"}
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
-        prog="python -m training.phase_plane_fit",
+        prog="python -m fourwis.training.phase_plane_fit",
         description="Derive this car's sideslip phase-plane stability region (Inagaki et al.) for a table of "
                     "speeds x road friction and overwrite control/data/phase_plane.json (~3.5 min).")
     parser.parse_args(argv)

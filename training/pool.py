@@ -9,7 +9,7 @@ from typing import TypeVar
 
 from tqdm import tqdm
 
-from estimation.types import is_integer
+from fourwis.core.checks import is_integer
 
 T = TypeVar("T")
 R = TypeVar("R")

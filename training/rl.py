@@ -38,18 +38,18 @@ from pathlib import Path
 import numpy as np
 from gymnasium.vector import AutoresetMode
 
-from training.rl_config import ALGO_CONFIGS, ALGOS, EVAL_SCENARIO, RL_EXTRA_MISSING
+from fourwis.training.rl_config import ALGO_CONFIGS, ALGOS, EVAL_SCENARIO, RL_EXTRA_MISSING
 
 try:
     from stable_baselines3.common.vec_env import VecEnv
 except ModuleNotFoundError as err:  # an optional dependency (the rl extra)
     raise ModuleNotFoundError(RL_EXTRA_MISSING) from err
 
-from envs.gym_env import N_OBS, AgentController, EnvConfig, YawStabilityVectorEnv, state_observation
-from envs.sensors import Fault
-from estimation.types import is_integer
-from training.asymmetric import POLICIES
-from training.io import atomic_write, atomic_write_json, atomic_write_text, check_writable, pyplot
+from fourwis.envs.gym_env import N_OBS, AgentController, EnvConfig, YawStabilityVectorEnv, state_observation
+from fourwis.envs.sensors import Fault
+from fourwis.core.checks import is_integer
+from fourwis.training.asymmetric import POLICIES
+from fourwis.training.io import atomic_write, atomic_write_json, atomic_write_text, check_writable, pyplot
 
 EVALUATIONS = "evaluations.npz"  #: the run's evaluation log (SB3's EvalCallback format)
 SHIPPED_POLICIES = Path(__file__).resolve().parent / "policies"  #: the trained policies shipped as package data
@@ -596,7 +596,7 @@ def evaluate(run: str | Path, out: str | Path, scenarios, estimator: str | None 
     """``fourwis evaluate``: the policy of ``run`` as controller ``rl:<run>`` next to no control,
     through :func:`training.compare.compare`, with ``estimator`` in the loop (None: the one the
     run was trained with, from its config.json); returns the report path."""
-    from training.compare import compare
+    from fourwis.training.compare import compare
 
     config = run_files(run)[2]
     if estimator is None:

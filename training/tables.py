@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from training.io import atomic_write_text
+from fourwis.training.io import atomic_write_text
 
 
 def require_distinct(kind: str, names: Sequence[str]) -> None:

@@ -35,14 +35,14 @@ from typing import NamedTuple
 
 import numpy as np
 
-from envs.scenarios import make_scenario
-from envs.sensors import SensorReading
-from envs.simulation import Trajectory, simulate
-from estimation import NoiseParams, make_estimator, tuned_noise
-from estimation.optimizers import minimize
-from estimation.types import is_integer
-from training.io import atomic_write_json, check_writable
-from training.pool import parallel_map
+from fourwis.envs.scenarios import make_scenario
+from fourwis.core.types import SensorReading
+from fourwis.envs.simulation import Trajectory, simulate
+from fourwis.estimation import NoiseParams, make_estimator, tuned_noise
+from fourwis.estimation.optimizers import minimize
+from fourwis.core.checks import is_integer
+from fourwis.training.io import atomic_write_json, check_writable
+from fourwis.training.pool import parallel_map
 
 OUTPUT = Path(__file__).resolve().parent.parent / "estimation" / "data" / "tuned_noise.json"
 BOUNDS = [(-1.5, 1.5)] * 4  #: log10 factors on (process, accelerometer, gyro, wheel-speed) noise

@@ -9,7 +9,7 @@ Writes estimation/data/dugoff_fit.json; :func:`plot_tyre_curves` draws the fitte
 the plant's in the form of the paper's Figures 2 and 3 (``fourwis estimate`` writes it beside its
 report).
 
-Run: ``python -m training.tyre_fit`` (``--plot DIR``: only the figure, DIR/tyre_curves.png)
+Run: ``python -m fourwis.training.tyre_fit`` (``--plot DIR``: only the figure, DIR/tyre_curves.png)
 """
 
 from __future__ import annotations
@@ -21,10 +21,10 @@ from typing import NamedTuple
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from envs.tyre import TyreParams, tyre_forces
-from envs.vehicle import VehicleParams
-from estimation.model import MIN_SPEED, ModelParams, dugoff, stiffness
-from training.io import atomic_write, atomic_write_json, pyplot
+from fourwis.envs.tyre import TyreParams, tyre_forces
+from fourwis.envs.vehicle import VehicleParams
+from fourwis.estimation.model import MIN_SPEED, ModelParams, dugoff, stiffness
+from fourwis.training.io import atomic_write, atomic_write_json, pyplot
 
 OUTPUT = Path(__file__).resolve().parent.parent / "estimation" / "data" / "dugoff_fit.json"
 LOADS = np.linspace(1000.0, 5000.0, 17)  #: fit loads [N]
@@ -144,7 +144,7 @@ def plot_tyre_curves(path: str | Path, mu: float = 1.0, loads=FIGURE_LOADS, vehi
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m training.tyre_fit", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m fourwis.training.tyre_fit", description=__doc__.splitlines()[0])
     parser.add_argument("--plot", metavar="DIR", help="only draw DIR/tyre_curves.png (paper Figs. 2-3) from the "
                                                       "shipped fit; the fit file is left as it is")
     args = parser.parse_args(argv)

@@ -1,5 +1,6 @@
-"""Types shared by every estimator: what goes out of a step, its step check, and which rows of
-a batch a step works on."""
+"""Input checks shared by every layer: numbers, steps, vehicle parameters, a user's factory,
+estimator and controller objects and what they return, and the rows a batched step works on.
+Each raises ValueError naming the bad value."""
 
 from __future__ import annotations
 
@@ -8,47 +9,10 @@ import inspect
 import math
 import numbers
 from functools import lru_cache
-from typing import NamedTuple
 
 import numpy as np
 
-#: Channel order of every sensor reading (13 channels; envs.sensors produces them, the
-#: estimators read them): accelerations [m/s^2], yaw rate [rad/s], wheel speeds [rad/s], road-
-#: wheel steer angles [rad], motor torques [N m].
-CHANNELS = ("ax", "ay", "yaw_rate", "omega_fl", "omega_fr", "omega_rl", "omega_rr", "delta_f", "delta_r",
-            "torque_fl", "torque_fr", "torque_rl", "torque_rr")
-
-
-class Estimate(NamedTuple):
-    """One estimator step's output for a batch of B vehicles (SI units).
-
-    u, v: body velocities [m/s] (B,); beta = atan2(v, |u|) [rad] (B,) (the filters floor |u| at
-    1 m/s: a car at rest has no defined sideslip); r: yaw rate [rad/s] (B,); ax, ay: body
-    specific forces [m/s^2] (B,) (the joint estimator's are its model's, whose lack of rolling
-    resistance and drag reads ~0.1 m/s^2 high on the paper's sine); mu: road friction per wheel (B, 4); fz: normal loads per
-    wheel [N] (B, 4); beta_std [rad] (B,) and mu_std (B, 4): the filter's own one-sigma
-    uncertainty, from its covariance (zero for the oracle; mu_std also zero for the filters that
-    assume a nominal mu). The state filters' covariance does not model the estimation model's
-    error, so beta_std is far too confident where the tyres work (RMS of error / beta_std on the
-    paper's step, sine and slalom: joint 10 / 36 / 22, ekf, ckf and fkf 37 / 7 / 10, alo-fkf
-    200 / 38 / 52 and 320 on mu_jump, its ALO-tuned noise being smaller); the joint
-    estimator's mu_std matches its mu error on the paper's scenarios (0.64-1.5; README,
-    "Estimators") but not in the second after a friction change (mu_jump: RMS 2.2, single
-    samples 10-12 sigma off). The DYC plans with mu - k mu_std (control.MU_MARGIN), so an
-    estimator's mu_std moves the closed loop.
-    """
-
-    u: np.ndarray
-    v: np.ndarray
-    beta: np.ndarray
-    r: np.ndarray
-    ax: np.ndarray
-    ay: np.ndarray
-    mu: np.ndarray
-    fz: np.ndarray
-    beta_std: np.ndarray
-    mu_std: np.ndarray
-
+from fourwis.core.types import Command, Estimate
 
 def import_factory(name: str, kind: str):
     """The callable a ``module:attribute`` name points to (a user's ``kind``, e.g. "estimator",
@@ -81,7 +45,7 @@ def check_vehicle_params(params) -> None:
 
 def check_estimator(estimator, source) -> None:
     """ValueError naming ``source`` (a name, or the object) unless ``estimator`` has the step
-    interface of :class:`envs.simulation.Estimator` (``reset`` and ``step``)."""
+    interface of :class:`fourwis.core.types.Estimator` (``reset`` and ``step``)."""
     if not (callable(getattr(estimator, "step", None)) and callable(getattr(estimator, "reset", None))):
         raise ValueError(f"estimator {source!r} lacks reset() and step(), got {estimator!r}: give an Estimator, "
                          "a name for estimation.make_estimator or None")
@@ -153,3 +117,23 @@ def member_rows(members, batch_size: int) -> np.ndarray:
             or len(np.unique(rows)) != len(rows):
         raise ValueError(f"members must be distinct indices into the batch of {batch_size}, got {members!r}")
     return rows
+
+
+def check_controller(controller, source) -> None:
+    """ValueError naming ``source`` (a name, or the object) unless ``controller`` has the
+    interface of :class:`fourwis.core.types.Controller` (``reset`` and a call)."""
+    if not (callable(controller) and callable(getattr(controller, "reset", None))):
+        raise ValueError(f"controller {source!r} lacks reset() or a call, got {controller!r}: give a Controller, "
+                         "a name from control.CONTROLLERS or None")
+
+
+def check_command(command, batch: int, source) -> None:
+    """ValueError naming ``source`` (a user's controller) unless ``command`` is a Command of
+    finite torques (B, 4) [N m] and rear steer (B,) [rad]."""
+    if not isinstance(command, Command):
+        raise ValueError(f"controller {source!r} returned {type(command).__name__}, not a fourwis.Command")
+    for name, shape in (("torques", (batch, 4)), ("rear_steer", (batch,))):
+        value = getattr(command, name)
+        if np.shape(value) != shape or np.asarray(value).dtype.kind not in "fiu" or not np.all(np.isfinite(value)):
+            raise ValueError(f"controller {source!r} returned {name} {value!r}: expected finite real numbers of "
+                             f"shape {shape}")

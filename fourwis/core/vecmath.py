@@ -42,7 +42,7 @@ import numpy as np
 from numba import types
 from numba.extending import intrinsic, overload
 
-from estimation.jit import JIT
+from fourwis.core.kernels import JIT
 
 LANE_MULTIPLE = 8  #: pad lane loops to this many doubles: one AVX-512 register, two AVX2 ones
 

@@ -1,34 +1,30 @@
-"""Compilation options shared by every numba kernel of fourwis, and an on-disk cache that
-follows the code.
+"""The compiled-kernel plumbing every layer shares: numba options, an on-disk cache that follows
+the code, stack scratch arrays and the small vector helpers.
 
-numba's cache (``cache=True``) is invalidated only when the source file of the cached
-function itself changes, not when a function it calls from another module does (numba
-documentation, "Notes on caching"). fourwis's kernels call across modules (the estimators in
-``joint.py`` inline ``model.py`` and ``ckf.py``; the plant in ``vehicle.py`` inlines
-``tyre.py``), so an edit to the tyre or estimation model would otherwise leave stale compiled
-code in use, silently. Importing this module therefore points numba's cache at
-``<checkout>/.numba_cache/<fingerprint>`` (an installed package, which has no pyproject.toml
-beside it: ``$XDG_CACHE_HOME/fourwis/numba/<fingerprint>``, default ``~/.cache``, so that
-site-packages stays as pip left it and a read-only one works), the fingerprint hashing the
-source of every module with compiled kernels: after any edit to one of them everything
-compiles afresh once (~45 s), and switching back to an earlier version finds its cache again.
-A ``NUMBA_CACHE_DIR`` set by the user is left as it is (and with it numba's own invalidation
-rule). Delete the cache directory to reclaim the disk space of old versions (~15 MB each).
+numba's cache (``cache=True``) is invalidated only when the source file of the cached function
+itself changes, not when a function it calls from another module does (numba documentation,
+"Notes on caching"). fourwis's kernels call across modules and packages (the estimators inline
+the estimation model, the compiled loop inlines every stage), so importing this module points
+numba's cache at ``<checkout>/.numba_cache/<fingerprint>`` (an installed package:
+``$XDG_CACHE_HOME/fourwis/numba/<fingerprint>``, default ``~/.cache``, so that site-packages
+stays as pip left it), the fingerprint hashing the source of every fourwis module that uses
+numba: after an edit to any of them everything compiles afresh once, and switching back to an
+earlier version finds its cache again. A ``NUMBA_CACHE_DIR`` set by the user is left as it is
+(and with it numba's own invalidation rule).
 
 Every kernel module imports :data:`JIT` from here, so the cache directory is set before its
-first decorator runs. The setting is numba's process-wide ``config.CACHE_DIR``.
+first decorator runs (numba's process-wide ``config.CACHE_DIR``).
 
-:func:`scratch` gives kernels small work arrays on the stack instead of the heap. A step of the
-joint estimator used ~140 small arrays per vehicle (cubature points, gains, covariances);
-numba allocates each with malloc plus an atomically reference-counted header, which cost
-~30% of the step (B = 256, serial: 17.2 -> 12.2 us per vehicle-step without them). Stack
-arrays also let the compiler prove that a loop's arrays do not overlap, which it needs
-before it runs the loop in SIMD lanes (``estimation.model.body_forces``).
+:func:`scratch` gives kernels small work arrays on the stack instead of the heap: numba
+allocates each heap array with malloc and an atomically reference-counted header, which costs
+a sizeable share of a filter step made of ~140 small arrays; stack arrays also let the compiler
+prove that a loop's arrays do not overlap, which it needs before it runs the loop in SIMD lanes.
 """
 
 from __future__ import annotations
 
 import hashlib
+import importlib.util
 import os
 from pathlib import Path
 
@@ -46,28 +42,37 @@ from numba.np.unsafe.ndarray import to_fixed_tuple
 #: (division by zero gives inf/nan instead of raising, as in vectorised NumPy code)
 JIT = dict(cache=True, error_model="numpy")
 
-ROOT = Path(__file__).resolve().parent.parent  #: the checkout (or site-packages) holding the packages
-PACKAGES = ("envs", "estimation", "control")  #: where compiled kernels live
+#: the packages whose modules hold compiled kernels
+KERNEL_PACKAGES = ("fourwis.core", "fourwis.envs", "fourwis.estimation", "fourwis.control")
 
 
-def kernel_fingerprint(root: Path = ROOT, packages: tuple[str, ...] = PACKAGES) -> str:
-    """16 hex digits hashing the path and source of every ``.py`` file under ``root/packages``
-    that uses numba (a file mentioning ``numba``); other files do not affect it."""
+def package_dirs(packages: tuple[str, ...] = KERNEL_PACKAGES) -> list[Path]:
+    """The folders of ``packages`` (found without importing them: the layers map to folders of
+    their own in a checkout, pyproject.toml's package-dir)."""
+    return [Path(importlib.util.find_spec(name).submodule_search_locations[0]) for name in packages]
+
+
+def kernel_fingerprint(folders: list[Path] | None = None) -> str:
+    """16 hex digits hashing the package-relative path and source of every ``.py`` file in
+    ``folders`` (default: :func:`package_dirs`) that uses numba (a file mentioning ``numba``)."""
     digest = hashlib.sha256()
-    for package in packages:
-        for path in sorted((root / package).glob("*.py")):
+    for folder in package_dirs() if folders is None else folders:
+        for path in sorted(folder.glob("*.py")):
             source = path.read_bytes()
             if b"numba" in source:
-                digest.update(path.relative_to(root).as_posix().encode() + b"\0" + source + b"\0")
+                digest.update(f"{folder.name}/{path.name}".encode() + b"\0" + source + b"\0")
     return digest.hexdigest()[:16]
 
 
-def cache_dir(root: Path = ROOT) -> Path:
-    """Where the compiled kernels of the sources under ``root`` are cached (module docstring)."""
-    if (root / "pyproject.toml").is_file():  # a checkout
-        return root / ".numba_cache" / kernel_fingerprint(root)
+def cache_dir(folders: list[Path] | None = None) -> Path:
+    """Where the compiled kernels of the sources in ``folders`` are cached (module docstring):
+    beside pyproject.toml in a checkout, else in the user's cache."""
+    folders = package_dirs() if folders is None else folders
+    checkout = folders[-1].parent
+    if (checkout / "pyproject.toml").is_file():
+        return checkout / ".numba_cache" / kernel_fingerprint(folders)
     user_cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
-    return user_cache / "fourwis" / "numba" / kernel_fingerprint(root)
+    return user_cache / "fourwis" / "numba" / kernel_fingerprint(folders)
 
 
 if not numba.config.CACHE_DIR:
@@ -162,3 +167,25 @@ def _nbytes(typingctx, shape, dtype):
         return size
 
     return types.intp(shape, dtype), codegen
+
+
+@numba.njit(inline="always", **JIT)
+def dot(a: np.ndarray, b: np.ndarray) -> float:
+    """sum_i a_i b_i, summed in index order (as numba's ``(a * b).sum()``, without the
+    temporary array)."""
+    t = 0.0
+    for i in range(a.shape[0]):
+        t += a[i] * b[i]
+    return t
+
+
+@numba.njit(**JIT)
+def matmul(A: np.ndarray, B: np.ndarray, out: np.ndarray) -> None:
+    """out = A @ B for small matrices (plain loops: numba's BLAS call cannot be cached); out
+    must not overlap A or B."""
+    out[:, :] = 0.0
+    for i in range(A.shape[0]):
+        for k in range(A.shape[1]):
+            a = A[i, k]
+            for j in range(B.shape[1]):
+                out[i, j] += a * B[k, j]

@@ -1,0 +1,99 @@
+"""The contracts every layer shares: what an estimator reads (the sensor channel layout and
+:class:`SensorReading`) and returns (:class:`Estimate`), what a controller returns
+(:class:`Command`), and the :class:`Estimator` and :class:`Controller` protocols a closed loop
+drives."""
+
+from __future__ import annotations
+
+from typing import NamedTuple, Protocol
+
+import numpy as np
+
+#: Channel order of every sensor reading (13 channels; fourwis.envs.sensors produces them, the
+#: estimators read them): accelerations [m/s^2], yaw rate [rad/s], wheel speeds [rad/s], road-
+#: wheel steer angles [rad], motor torques [N m].
+CHANNELS = ("ax", "ay", "yaw_rate", "omega_fl", "omega_fr", "omega_rl", "omega_rr", "delta_f", "delta_r",
+            "torque_fl", "torque_fr", "torque_rl", "torque_rr")
+N_CHANNELS = len(CHANNELS)
+
+
+class SensorReading(NamedTuple):
+    """One sample for B vehicles: ``values`` (B, 13) in :data:`CHANNELS` order and units,
+    ``valid`` (B, 13) bool (False: a dropout or a stuck sensor the fault model flags; ``values``
+    then holds the last good value), times ``t`` (B,) [s]."""
+
+    values: np.ndarray
+    valid: np.ndarray
+    t: np.ndarray
+
+
+class Estimate(NamedTuple):
+    """One estimator step's output for a batch of B vehicles (SI units).
+
+    u, v: body velocities [m/s] (B,); beta = atan2(v, |u|) [rad] (B,) (the filters floor |u| at
+    1 m/s: a car at rest has no defined sideslip); r: yaw rate [rad/s] (B,); ax, ay: body
+    specific forces [m/s^2] (B,) (the joint estimator's are its model's, whose lack of rolling
+    resistance and drag reads ~0.1 m/s^2 high on the paper's sine); mu: road friction per wheel (B, 4); fz: normal loads per
+    wheel [N] (B, 4); beta_std [rad] (B,) and mu_std (B, 4): the filter's own one-sigma
+    uncertainty, from its covariance (zero for the oracle; mu_std also zero for the filters that
+    assume a nominal mu). The state filters' covariance does not model the estimation model's
+    error, so beta_std is far too confident where the tyres work (RMS of error / beta_std on the
+    paper's step, sine and slalom: joint 10 / 36 / 22, ekf, ckf and fkf 37 / 7 / 10, alo-fkf
+    200 / 38 / 52 and 320 on mu_jump, its ALO-tuned noise being smaller); the joint
+    estimator's mu_std matches its mu error on the paper's scenarios (0.64-1.5; README,
+    "Estimators") but not in the second after a friction change (mu_jump: RMS 2.2, single
+    samples 10-12 sigma off). The DYC plans with mu - k mu_std (control.MU_MARGIN), so an
+    estimator's mu_std moves the closed loop.
+    """
+
+    u: np.ndarray
+    v: np.ndarray
+    beta: np.ndarray
+    r: np.ndarray
+    ax: np.ndarray
+    ay: np.ndarray
+    mu: np.ndarray
+    fz: np.ndarray
+    beta_std: np.ndarray
+    mu_std: np.ndarray
+
+
+class Command(NamedTuple):
+    """Controller output for a batch: wheel torques [N m] (B, 4) and rear steer [rad] (B,)."""
+
+    torques: np.ndarray
+    rear_steer: np.ndarray
+
+
+class Controller(Protocol):
+    """A stability controller: sees the estimate and the driver's commands, never the truth.
+
+    ``t`` (B,) [s]; ``estimate`` an :class:`Estimate` of B rows; ``front_steer`` (B,) the
+    driver's road-wheel angle [rad]; ``base_torques`` (B, 4) the speed-holding driver's wheel
+    torques [N m]. Returns the :class:`Command` the wheels and rear servo get."""
+
+    def reset(self) -> None: ...
+
+    def __call__(self, t: np.ndarray, estimate: Estimate, front_steer: np.ndarray, base_torques: np.ndarray) -> Command: ...
+
+
+class Estimator(Protocol):
+    """A batched estimator: sensor readings in, estimate out (``needs_truth``: oracle only).
+
+    ``reading`` is a :class:`SensorReading`. ``reset`` (re)initialises the members selected by
+    ``mask`` (B,) bool (all if None) from a reading and the initial speed [m/s] (B,) (a car
+    starts from a known speed, like a vehicle's speed estimate that has been running since
+    standstill). ``step`` with ``members`` (M,) row indices (the vector env's partial resets)
+    steps only those rows: the reading still has all B rows, ``truth`` only the M, and the
+    estimate must have M rows. The estimate's mu, mu_std and fz steer the DYC (it plans with a
+    cautious mu_hat - k mu_std), so a friction estimator's mu_std should be calibrated; an
+    estimator holding a nominal mu keeps mu_hat constant (the reports read a constant mu_hat
+    without mu_std as 'not estimated')."""
+
+    needs_truth: bool
+
+    def reset(self, reading: SensorReading, initial_speed: np.ndarray, mask: np.ndarray | None = None) -> None: ...
+
+    def step(self, reading: SensorReading, truth: Estimate | None = None,
+             members: np.ndarray | None = None) -> Estimate:
+        """Step every vehicle, or only the rows ``members`` (the estimate then has those rows)."""
