@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 OUT ?= results
 
-.PHONY: venv compare test bench clean
+.PHONY: venv compare lint test bench clean
 
 venv: $(STAMP)
 
@@ -24,7 +24,12 @@ $(STAMP): pyproject.toml
 compare: $(STAMP)
 	$(BIN)/fourwis compare --out $(OUT)/compare
 
-test: $(STAMP)
+# ruff's lint and format rules (pyproject.toml); the import-layer contracts run in the tests
+lint: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+
+test: lint
 	$(BIN)/python -m pytest -q -n 2 tests
 
 bench: $(STAMP)

@@ -24,8 +24,14 @@ def _demands(batch: int, seed: int = 0):
     fz = rng.uniform(500.0, 3500.0, (batch, 4))
     mu = rng.uniform(0.1, 1.0, (batch, 4))
     lateral = rng.uniform(-0.9, 0.9, (batch, 4)) * mu * fz
-    return (rng.normal(0.0, 150.0, (batch, 4)), rng.normal(0.0, 1500.0, batch), fz, mu, lateral,
-            rng.uniform(0.0, 35.0, batch))
+    return (
+        rng.normal(0.0, 150.0, (batch, 4)),
+        rng.normal(0.0, 1500.0, batch),
+        fz,
+        mu,
+        lateral,
+        rng.uniform(0.0, 35.0, batch),
+    )
 
 
 def _best_time(fn, repeats: int = 5) -> float:
@@ -46,8 +52,14 @@ def _scipy_allocate(params, base, moment, fz, mu, lateral, speed) -> None:
         limit = np.minimum(motor / params.wheel_radius, np.sqrt(np.maximum(cap**2 - lateral[b] ** 2, 0.0)))
         drive = base[b].sum() / params.wheel_radius
         equalities = {"type": "eq", "fun": lambda y: [(cap @ y - drive) / 1e3, (lever * cap @ y - moment[b]) / 1e3]}
-        minimize(lambda y: y @ y, np.zeros(4), jac=lambda y: 2 * y, method="SLSQP",
-                 bounds=list(zip(-limit / cap, limit / cap)), constraints=[equalities])
+        minimize(
+            lambda y: y @ y,
+            np.zeros(4),
+            jac=lambda y: 2 * y,
+            method="SLSQP",
+            bounds=list(zip(-limit / cap, limit / cap)),
+            constraints=[equalities],
+        )
 
 
 def main() -> dict:
@@ -55,8 +67,12 @@ def main() -> dict:
     results = {}
     for batch in (1, 256):
         demands = _demands(batch)
-        ours = _best_time(lambda: allocate_torques(demands[0], demands[1], demands[2], demands[3], params,
-                                                   demands[4], demands[5])) / batch
+        ours = (
+            _best_time(
+                lambda: allocate_torques(demands[0], demands[1], demands[2], demands[3], params, demands[4], demands[5])
+            )
+            / batch
+        )
         results[f"compiled allocator, batch {batch} [us per vehicle-step]"] = ours * 1e6
     # the side by side on the same 200 demands, split by feasibility: SLSQP solves the feasible QPs;
     # on an infeasible demand its equality constraints cannot hold and it fails (iteration limit,
@@ -73,6 +89,7 @@ def main() -> dict:
         results[f"scipy SLSQP, {name} demands [us per vehicle]"] = theirs * 1e6
         results[f"scipy / compiled, {name} demands"] = theirs / ours
     return report(results, decimals=2)
+
 
 if __name__ == "__main__":
     main()

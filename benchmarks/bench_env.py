@@ -56,8 +56,9 @@ def fourwis_single(estimator: str) -> float:
 def fourwis_vector(estimator: str, n: int, course_share: float = 0.0) -> float:
     from fourwis.envs.gym_env import YawStabilityVectorEnv
 
-    env = YawStabilityVectorEnv(num_envs=n, estimator=estimator, scenario_kwargs={"course_share": course_share},
-                                autoreset_mode="SameStep")
+    env = YawStabilityVectorEnv(
+        num_envs=n, estimator=estimator, scenario_kwargs={"course_share": course_share}, autoreset_mode="SameStep"
+    )
     env.reset(seed=0)
     action = np.zeros((n, 2), dtype=np.float32)
 
@@ -149,9 +150,11 @@ def main() -> None:
     highway = next(rate for name, rate, _ in rows if name.startswith("highway-env"))
     import numba
 
-    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, numba threads "
-          f"{numba.get_num_threads()}; load average {os.getloadavg()[0]:.2f} at the end (benchmark an idle "
-          f"machine); {time.strftime('%Y-%m-%d')}")
+    print(
+        f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, numba threads "
+        f"{numba.get_num_threads()}; load average {os.getloadavg()[0]:.2f} at the end (benchmark an idle "
+        f"machine); {time.strftime('%Y-%m-%d')}"
+    )
     print("| env | env-steps/s | simulated s per wall s | sim-time ratio to highway-fast-v0 |")
     print("|---|---:|---:|---:|")
     for name, rate, sim_dt in rows:

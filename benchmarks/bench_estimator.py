@@ -14,14 +14,13 @@ from collections.abc import Callable
 
 import numpy as np
 
+from fourwis.envs.scenarios import make_scenario
 from fourwis.envs.sensors import SensorModel, SensorParams
 from fourwis.envs.simulation import DT, sensor_truth
-from fourwis.envs.scenarios import make_scenario
 from fourwis.envs.vehicle import NU, VehicleParams, derivatives
 from fourwis.estimation import make_estimator
 from fourwis.estimation.joint import measure_state_1
 from fourwis.estimation.model import steer_trig, transition
-
 
 
 def _per_call(fn: Callable[[], None], seconds: float = 3.0) -> float:
@@ -103,8 +102,9 @@ def main() -> None:
     try:  # the peer, from the bench extra: named before the timed runs, not after them
         import filterpy  # noqa: F401
     except ModuleNotFoundError as err:
-        raise ModuleNotFoundError("the estimator benchmark's peer needs filterpy: pip install 'fourwis[bench]'") \
-            from err
+        raise ModuleNotFoundError(
+            "the estimator benchmark's peer needs filterpy: pip install 'fourwis[bench]'"
+        ) from err
     single = joint_step_time(1)
     batch = joint_step_time(1024)
     relaxed = joint_step_time(1024, tyre_relaxation=True)
@@ -112,10 +112,14 @@ def main() -> None:
     print("| measurement | time | target | ratio to target |")
     print("|---|---:|---:|---:|")
     print(f"| joint estimator, one vehicle, per step | {single * 1e6:,.0f} us | <= 100 us | {100e-6 / single:.2f}x |")
-    print(f"| joint estimator, batch 1024, per vehicle-step | {batch / 1024 * 1e6:,.1f} us | <= 20 us "
-          f"| {20e-6 / (batch / 1024):.2f}x |")
-    print(f"| ... with the tyre-relaxation option | {relaxed / 1024 * 1e6:,.1f} us | <= 20 us "
-          f"| {20e-6 / (relaxed / 1024):.2f}x |")
+    print(
+        f"| joint estimator, batch 1024, per vehicle-step | {batch / 1024 * 1e6:,.1f} us | <= 20 us "
+        f"| {20e-6 / (batch / 1024):.2f}x |"
+    )
+    print(
+        f"| ... with the tyre-relaxation option | {relaxed / 1024 * 1e6:,.1f} us | <= 20 us "
+        f"| {20e-6 / (relaxed / 1024):.2f}x |"
+    )
     print(f"| ckf estimator step, one vehicle (6 states, 7 measurements) | {ours * 1e6:,.1f} us | | |")
     print(f"| filterpy UKF predict + update, same model | {theirs * 1e6:,.0f} us | | |")
     print(f"| CKF speed-up over filterpy | {theirs / ours:.1f}x | >= 3x | {theirs / ours / 3:.2f}x |")

@@ -16,8 +16,17 @@ STEPS = {"ppo": 16_384, "sac": 8_192}
 
 
 def _train(algo: str, out: str, steps: int) -> None:
-    train(algo, out, steps, env_kwargs={"estimator": "joint"}, n_envs=16, eval_every=10**9, checkpoint_every=10**9,
-          progress=False, algo_overrides={"learning_starts": 1024} if algo == "sac" else None)
+    train(
+        algo,
+        out,
+        steps,
+        env_kwargs={"estimator": "joint"},
+        n_envs=16,
+        eval_every=10**9,
+        checkpoint_every=10**9,
+        progress=False,
+        algo_overrides={"learning_starts": 1024} if algo == "sac" else None,
+    )
 
 
 def main() -> None:

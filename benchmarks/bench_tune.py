@@ -23,8 +23,10 @@ def main() -> None:
     traj = calibration_run(duration=DURATION)
     default = replay_cost(np.zeros((1, 4)), traj)[0]
     replay_cost(np.zeros((AGENTS, 4)), traj)  # warm-up: compile the batched (parallel) estimator step
-    print(f"calibration: random scenario, {DURATION} s; budget {AGENTS} agents x ({ITERATIONS} + 1) populations "
-          f"= {AGENTS * (ITERATIONS + 1)} evaluations; default-noise cost {default:.3f}")
+    print(
+        f"calibration: random scenario, {DURATION} s; budget {AGENTS} agents x ({ITERATIONS} + 1) populations "
+        f"= {AGENTS * (ITERATIONS + 1)} evaluations; default-noise cost {default:.3f}"
+    )
     print("| optimizer | best cost mean | std | min | max | wall per run [s] |")
     print("|---|---:|---:|---:|---:|---:|")
     for method in METHODS:
@@ -40,9 +42,11 @@ def main() -> None:
     start = time.perf_counter()
     result = minimize(lambda X: replay_cost(X, long_run), BOUNDS, "alo", 30, 100, seed=0)
     wall = time.perf_counter() - start
-    print(f"ALO, 30 agents x 100 iterations ({result.n_evaluations} evaluations) on a 10 s run: {wall:.0f} s "
-          f"(target <= 120 s: {120 / wall:.2f}x); best cost {result.fun:.3f}, default noise "
-          f"{replay_cost(np.zeros((1, 4)), long_run)[0]:.3f}")
+    print(
+        f"ALO, 30 agents x 100 iterations ({result.n_evaluations} evaluations) on a 10 s run: {wall:.0f} s "
+        f"(target <= 120 s: {120 / wall:.2f}x); best cost {result.fun:.3f}, default noise "
+        f"{replay_cost(np.zeros((1, 4)), long_run)[0]:.3f}"
+    )
 
 
 if __name__ == "__main__":

@@ -8,12 +8,34 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fourwis.control.allocation import (Allocation, allocate_for_estimate, allocate_torques, allocation_error,
-                                allocator_limits)
-from fourwis.control.dyc import (ACTIVE_SPEED, M_DELIVERED, M_FEASIBLE, M_FORCE, M_MOMENT, M_REAR, M_REFERENCE, M_TORQUES,
-                         M_WIDTH, MIN_PLANNING_MU, SETTINGS, YAW_DEADBAND, LQRWeights, LQRYawController,
-                         SlidingModeYawController, _stability_commands, actuator_lag_terms, allocation_inputs,
-                         planning_friction)
+from fourwis.control.allocation import (
+    Allocation,
+    allocate_for_estimate,
+    allocate_torques,
+    allocation_error,
+    allocator_limits,
+)
+from fourwis.control.dyc import (
+    ACTIVE_SPEED,
+    M_DELIVERED,
+    M_FEASIBLE,
+    M_FORCE,
+    M_MOMENT,
+    M_REAR,
+    M_REFERENCE,
+    M_TORQUES,
+    M_WIDTH,
+    MIN_PLANNING_MU,
+    SETTINGS,
+    YAW_DEADBAND,
+    LQRWeights,
+    LQRYawController,
+    SlidingModeYawController,
+    actuator_lag_terms,
+    allocation_inputs,
+    planning_friction,
+    stability_commands,
+)
 from fourwis.control.reference import understeer_gradient
 from fourwis.core.checks import check_controller, check_step, check_vehicle_params, import_factory, is_number
 from fourwis.core.types import Command
@@ -103,11 +125,14 @@ class StabilityController:
                 raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
         if not (is_number(self.mu_margin) and np.isfinite(self.mu_margin) and self.mu_margin >= 0.0):
             raise ValueError(f"mu_margin must be a finite number >= 0, got {self.mu_margin!r}")
-        if self.reference_understeer is not None and not (is_number(self.reference_understeer)
-                                                          and np.isfinite(self.reference_understeer)
-                                                          and self.reference_understeer >= 0.0):
-            raise ValueError(f"reference_understeer must be a finite gradient >= 0 [rad s^2/m], got "
-                             f"{self.reference_understeer!r}")
+        if self.reference_understeer is not None and not (
+            is_number(self.reference_understeer)
+            and np.isfinite(self.reference_understeer)
+            and self.reference_understeer >= 0.0
+        ):
+            raise ValueError(
+                f"reference_understeer must be a finite gradient >= 0 [rad s^2/m], got {self.reference_understeer!r}"
+            )
         if self.law == "lqr":
             law = LQRYawController(self.params, LQRWeights())
         elif self.law == "smc":
@@ -119,11 +144,23 @@ class StabilityController:
         understeer = self.reference_understeer
         if understeer is None:  # the car's own, floored at neutral
             understeer = max(understeer_gradient(p), 0.0)
-        values = dict(sliding_mode=float(self.law == "smc"), rear_steer=float(self.rear_steer), dt=self.dt,
-                      friction_ellipse=float(self.friction_ellipse), mu_margin=self.mu_margin, understeer=understeer,
-                      wheelbase=p.wheelbase, max_rear_steer=p.max_rear_steer if self.rear_steer else 0.0,
-                      rear_steer_rate=getattr(p, "rear_steer_rate", np.inf), c_f=c_f, c_r=c_r, mass=p.mass,
-                      yaw_inertia=p.yaw_inertia, cg_to_front=p.cg_to_front, cg_to_rear=p.cg_to_rear)
+        values = dict(
+            sliding_mode=float(self.law == "smc"),
+            rear_steer=float(self.rear_steer),
+            dt=self.dt,
+            friction_ellipse=float(self.friction_ellipse),
+            mu_margin=self.mu_margin,
+            understeer=understeer,
+            wheelbase=p.wheelbase,
+            max_rear_steer=p.max_rear_steer if self.rear_steer else 0.0,
+            rear_steer_rate=getattr(p, "rear_steer_rate", np.inf),
+            c_f=c_f,
+            c_r=c_r,
+            mass=p.mass,
+            yaw_inertia=p.yaw_inertia,
+            cg_to_front=p.cg_to_front,
+            cg_to_rear=p.cg_to_rear,
+        )
         values["motor_lag"], values["sigma_kappa"] = actuator_lag_terms(p)
         if self.law == "lqr":
             table, terms = (np.ascontiguousarray(law.speeds, dtype=float), law.gains), (0.0,) * 11
@@ -169,8 +206,9 @@ class StabilityController:
         if self._memory is None or np.isnan(self._memory[:, M_MOMENT]).all():
             return None
         m = self._memory
-        return Allocation(m[:, M_TORQUES:M_TORQUES + 4].copy(), m[:, M_MOMENT].copy(), m[:, M_FORCE].copy(),
-                          m[:, M_FEASIBLE] == 1.0)
+        return Allocation(
+            m[:, M_TORQUES : M_TORQUES + 4].copy(), m[:, M_MOMENT].copy(), m[:, M_FORCE].copy(), m[:, M_FEASIBLE] == 1.0
+        )
 
     def planning_mu(self, estimate) -> np.ndarray:
         """Per-wheel friction (B, 4) the controller plans with (see the class docstring)."""
@@ -178,8 +216,14 @@ class StabilityController:
         mu_std = getattr(estimate, "mu_std", None)
         return mu if mu_std is None else planning_friction(mu, np.asarray(mu_std, dtype=float), self.mu_margin)
 
-    def __call__(self, t: np.ndarray, estimate, front_steer: np.ndarray, base_torques: np.ndarray,
-                 moving: np.ndarray | None = None) -> Command:
+    def __call__(
+        self,
+        t: np.ndarray,
+        estimate,
+        front_steer: np.ndarray,
+        base_torques: np.ndarray,
+        moving: np.ndarray | None = None,
+    ) -> Command:
         """The command (B vehicles) at the estimate, the driver's front road-wheel angles (B,) [rad]
         and base torques (B, 4) [N m]. ``moving`` (B,) bool: only these vehicles' memories step
         (a closed loop's held vehicles keep theirs; their rows of the command are stale); all if
@@ -187,24 +231,38 @@ class StabilityController:
         u = np.ascontiguousarray(estimate.u, dtype=float)
         B = u.shape[0] if u.ndim == 1 else -1
         mu_std = getattr(estimate, "mu_std", None)
-        inputs = {"u": u, **{name: np.ascontiguousarray(value, dtype=float) for name, value in (
-            ("beta", estimate.beta), ("r", estimate.r), ("ay", estimate.ay), ("mu", estimate.mu),
-            ("mu_std", np.zeros((max(B, 0), 4)) if mu_std is None else mu_std), ("fz", estimate.fz),
-            ("front_steer", front_steer), ("base_torques", base_torques))}}
+        inputs = {
+            "u": u,
+            **{
+                name: np.ascontiguousarray(value, dtype=float)
+                for name, value in (
+                    ("beta", estimate.beta),
+                    ("r", estimate.r),
+                    ("ay", estimate.ay),
+                    ("mu", estimate.mu),
+                    ("mu_std", np.zeros((max(B, 0), 4)) if mu_std is None else mu_std),
+                    ("fz", estimate.fz),
+                    ("front_steer", front_steer),
+                    ("base_torques", base_torques),
+                )
+            },
+        }
         moving = np.ones(max(B, 0), dtype=bool) if moving is None else np.asarray(moving)
         shapes = {name: value.shape for name, value in inputs.items()} | {"moving": moving.shape}
         expected = {name: (B, 4) if name in ("mu", "mu_std", "fz", "base_torques") else (B,) for name in shapes}
         if B < 0 or shapes != expected or moving.dtype != np.bool_:
-            raise ValueError(f"the estimate's u, beta, r, ay, front_steer and moving (bool) must have shape (B,), "
-                             f"mu, mu_std, fz and base_torques (B, 4); got {shapes}")
+            raise ValueError(
+                f"the estimate's u, beta, r, ay, front_steer and moving (bool) must have shape (B,), "
+                f"mu, mu_std, fz and base_torques (B, 4); got {shapes}"
+            )
         memory = self._vehicle_memory(B)
         before = memory.copy()
-        bad, vehicle = _stability_commands(*inputs.values(), moving, *self._kernel, memory)
+        bad, vehicle = stability_commands(*inputs.values(), moving, *self._kernel, memory)
         if bad:
             failed = memory[vehicle].copy()
             memory[:] = before
             raise allocation_error(bad, allocation_inputs(failed))
-        return Command(memory[:, M_TORQUES:M_TORQUES + 4].copy(), memory[:, M_REAR].copy())
+        return Command(memory[:, M_TORQUES : M_TORQUES + 4].copy(), memory[:, M_REAR].copy())
 
 
 def _fresh_memory(batch: int) -> np.ndarray:
@@ -215,8 +273,12 @@ def _fresh_memory(batch: int) -> np.ndarray:
 
 
 #: the DYC controllers' (law, rear steer) by name
-_DYC = {"dyc-lqr": ("lqr", False), "dyc-smc": ("smc", False), "dyc-lqr-4ws": ("lqr", True),
-        "dyc-smc-4ws": ("smc", True)}
+_DYC = {
+    "dyc-lqr": ("lqr", False),
+    "dyc-smc": ("smc", False),
+    "dyc-lqr-4ws": ("lqr", True),
+    "dyc-smc-4ws": ("smc", True),
+}
 #: the StabilityController settings make_controller passes on
 DYC_OPTIONS = ("friction_ellipse", "mu_margin", "reference_understeer")
 
@@ -247,5 +309,16 @@ def make_controller(name: str, params, dt: float = 0.002, **options):
     return StabilityController(params, law, rear_steer=rear_steer, dt=dt, **options)
 
 
-__all__ = ["ACTIVE_SPEED", "CONTROLLERS", "MIN_PLANNING_MU", "YAW_DEADBAND", "Allocation", "Command",
-           "StabilityController", "allocate_for_estimate", "allocate_torques", "check_controller", "make_controller"]
+__all__ = [
+    "ACTIVE_SPEED",
+    "CONTROLLERS",
+    "MIN_PLANNING_MU",
+    "YAW_DEADBAND",
+    "Allocation",
+    "Command",
+    "StabilityController",
+    "allocate_for_estimate",
+    "allocate_torques",
+    "check_controller",
+    "make_controller",
+]

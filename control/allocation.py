@@ -39,8 +39,7 @@ import numba
 import numpy as np
 
 from fourwis.control.reference import GRAVITY
-from fourwis.core.kernels import dot
-from fourwis.core.kernels import JIT, scratch
+from fourwis.core.kernels import JIT, dot, scratch
 
 #: the 3^4 = 81 activity patterns (81, 4): each wheel free (0), at its lower (1) or upper (2) bound
 _FACES = np.array([[(face // 3**w) % 3 for w in range(4)] for face in range(81)], dtype=np.int64)
@@ -130,17 +129,42 @@ def _solve_box_qp(capacity_sq, weight, lever, lower, upper, force, moment, faces
     return best_cost < np.inf
 
 
-NEGATIVE_LOAD, NONPOSITIVE_FRICTION = -1, -2  #: statuses of _allocate for out-of-range inputs
+NEGATIVE_LOAD, NONPOSITIVE_FRICTION = -1, -2  #: statuses of allocation_kernel for out-of-range inputs
 
 
 @numba.njit(**JIT)
-def _allocate(base_torques, yaw_moment, fz, mu, lateral, speed, front_steer, rear_steer, positions,
-              motor_peak_torque, motor_peak_power, wheel_radius, torques, delivered_moment, delivered_force,
-              feasible) -> int:
+def allocation_kernel(
+    base_torques,
+    yaw_moment,
+    fz,
+    mu,
+    lateral,
+    speed,
+    front_steer,
+    rear_steer,
+    positions,
+    motor_peak_torque,
+    motor_peak_power,
+    wheel_radius,
+    torques,
+    delivered_moment,
+    delivered_force,
+    feasible,
+) -> int:
     """Fills the outputs; returns 0, 1 + the index of the first non-finite input, or
     NEGATIVE_LOAD / NONPOSITIVE_FRICTION."""
-    for i, value in enumerate((base_torques.sum(), yaw_moment.sum(), fz.sum(), mu.sum(), lateral.sum(),
-                               speed.sum(), front_steer.sum(), rear_steer.sum())):
+    for i, value in enumerate(
+        (
+            base_torques.sum(),
+            yaw_moment.sum(),
+            fz.sum(),
+            mu.sum(),
+            lateral.sum(),
+            speed.sum(),
+            front_steer.sum(),
+            rear_steer.sum(),
+        )
+    ):
         if not np.isfinite(value):
             return 1 + i
     if fz.min() < 0.0:
@@ -217,14 +241,29 @@ def _zeros(batch: int) -> tuple[np.ndarray, np.ndarray]:
     return wheels, cars
 
 
-_INPUTS = ("base torques", "yaw moment", "wheel loads", "friction", "lateral forces", "speed", "front steer",
-           "rear steer")
+_INPUTS = (
+    "base torques",
+    "yaw moment",
+    "wheel loads",
+    "friction",
+    "lateral forces",
+    "speed",
+    "front steer",
+    "rear steer",
+)
 
 
-def allocate_torques(base_torques: np.ndarray, yaw_moment: np.ndarray, fz: np.ndarray, mu: np.ndarray,
-                     params, lateral_forces: np.ndarray | None = None,
-                     speed: np.ndarray | None = None, front_steer: np.ndarray | None = None,
-                     rear_steer: np.ndarray | None = None) -> Allocation:
+def allocate_torques(
+    base_torques: np.ndarray,
+    yaw_moment: np.ndarray,
+    fz: np.ndarray,
+    mu: np.ndarray,
+    params,
+    lateral_forces: np.ndarray | None = None,
+    speed: np.ndarray | None = None,
+    front_steer: np.ndarray | None = None,
+    rear_steer: np.ndarray | None = None,
+) -> Allocation:
     """Minimum-workload wheel torques for the drive force of ``base_torques`` (B, 4) [N m]
     (what they push the body forward with) plus the yaw moment ``yaw_moment`` (B,) [N m].
 
@@ -239,20 +278,25 @@ def allocate_torques(base_torques: np.ndarray, yaw_moment: np.ndarray, fz: np.nd
         raise ValueError(f"base_torques must have shape (B, 4), got {base_torques.shape}")
     B = base_torques.shape[0]
     wheels, cars = _zeros(B)  # read-only defaults, shared: this runs at every 2 ms substep
-    inputs = (base_torques, np.ascontiguousarray(yaw_moment, dtype=np.float64),
-              np.ascontiguousarray(fz, dtype=np.float64), np.ascontiguousarray(mu, dtype=np.float64),
-              wheels if lateral_forces is None else np.ascontiguousarray(lateral_forces, dtype=np.float64),
-              cars if speed is None else np.ascontiguousarray(speed, dtype=np.float64),
-              cars if front_steer is None else np.ascontiguousarray(front_steer, dtype=np.float64),
-              cars if rear_steer is None else np.ascontiguousarray(rear_steer, dtype=np.float64))
+    inputs = (
+        base_torques,
+        np.ascontiguousarray(yaw_moment, dtype=np.float64),
+        np.ascontiguousarray(fz, dtype=np.float64),
+        np.ascontiguousarray(mu, dtype=np.float64),
+        wheels if lateral_forces is None else np.ascontiguousarray(lateral_forces, dtype=np.float64),
+        cars if speed is None else np.ascontiguousarray(speed, dtype=np.float64),
+        cars if front_steer is None else np.ascontiguousarray(front_steer, dtype=np.float64),
+        cars if rear_steer is None else np.ascontiguousarray(rear_steer, dtype=np.float64),
+    )
     shapes = tuple(q.shape for q in inputs[1:])
     if shapes != ((B,), (B, 4), (B, 4), (B, 4), (B,), (B,), (B,)):
-        raise ValueError(f"yaw_moment, speed and the steer angles must have shape ({B},) and fz, mu, "
-                         f"lateral_forces ({B}, 4); got "
-                         + ", ".join(f"{name} {shape}" for name, shape in zip(_INPUTS[1:], shapes)))
+        raise ValueError(
+            f"yaw_moment, speed and the steer angles must have shape ({B},) and fz, mu, "
+            f"lateral_forces ({B}, 4); got " + ", ".join(f"{name} {shape}" for name, shape in zip(_INPUTS[1:], shapes))
+        )
     torques, moment, force = np.empty((B, 4)), np.empty(B), np.empty(B)
     feasible = np.empty(B, dtype=np.bool_)
-    bad = _allocate(*inputs, *allocator_limits(params), torques, moment, force, feasible)
+    bad = allocation_kernel(*inputs, *allocator_limits(params), torques, moment, force, feasible)
     if bad:
         raise allocation_error(bad, inputs)
     return Allocation(torques, moment, force, feasible)
@@ -261,12 +305,16 @@ def allocate_torques(base_torques: np.ndarray, yaw_moment: np.ndarray, fz: np.nd
 def allocator_limits(params) -> tuple[np.ndarray, float, float, float]:
     """The allocator's vehicle arguments of duck-typed ``params``: wheel positions (4, 2) [m],
     motor peak torque [N m] and power [W], wheel radius [m]."""
-    return params.wheel_positions, float(params.motor_peak_torque), float(params.motor_peak_power), \
-        float(params.wheel_radius)
+    return (
+        params.wheel_positions,
+        float(params.motor_peak_torque),
+        float(params.motor_peak_power),
+        float(params.wheel_radius),
+    )
 
 
 def allocation_error(bad: int, inputs: tuple[np.ndarray, ...]) -> ValueError:
-    """The error for :func:`_allocate`'s status ``bad`` (not 0) on its first eight arguments ``inputs``."""
+    """The error for :func:`allocation_kernel`'s status ``bad`` (not 0) on its first eight arguments ``inputs``."""
     if bad == NEGATIVE_LOAD:
         return ValueError(f"wheel loads must be >= 0 N, got {inputs[2][inputs[2] < 0.0][:4]}")
     if bad == NONPOSITIVE_FRICTION:
@@ -275,9 +323,16 @@ def allocation_error(bad: int, inputs: tuple[np.ndarray, ...]) -> ValueError:
     return ValueError(f"{_INPUTS[bad - 1]} must be finite, got {value[~np.isfinite(value)][:4]}")
 
 
-def allocate_for_estimate(base_torques: np.ndarray, yaw_moment: np.ndarray, estimate, params,
-                          friction_ellipse: bool = False, mu: np.ndarray | None = None,
-                          front_steer: np.ndarray | None = None, rear_steer: np.ndarray | None = None) -> Allocation:
+def allocate_for_estimate(
+    base_torques: np.ndarray,
+    yaw_moment: np.ndarray,
+    estimate,
+    params,
+    friction_ellipse: bool = False,
+    mu: np.ndarray | None = None,
+    front_steer: np.ndarray | None = None,
+    rear_steer: np.ndarray | None = None,
+) -> Allocation:
     """:func:`allocate_torques` fed from an Estimate-like object (u, ay, mu, fz); ``mu`` (B, 4)
     replaces the estimate's friction when given; the steer angles [rad] (B,) as there.
 
@@ -294,5 +349,6 @@ def allocate_for_estimate(base_torques: np.ndarray, yaw_moment: np.ndarray, esti
     """
     lateral = estimate.fz * (estimate.ay / GRAVITY)[:, None] if friction_ellipse else None
     mu = estimate.mu if mu is None else mu
-    return allocate_torques(base_torques, yaw_moment, estimate.fz, mu, params, lateral, estimate.u, front_steer,
-                            rear_steer)
+    return allocate_torques(
+        base_torques, yaw_moment, estimate.fz, mu, params, lateral, estimate.u, front_steer, rear_steer
+    )

@@ -17,9 +17,16 @@ import numpy as np
 from numba.extending import register_jitable
 from scipy.linalg import solve_continuous_are
 
-from fourwis.control.allocation import _allocate
-from fourwis.control.reference import (GRAVITY, axle_friction, bicycle_state_matrix, eq20_gain, sideslip_bound_of,
-                               slower_time_constant, steady_yaw_rate)
+from fourwis.control.allocation import allocation_kernel
+from fourwis.control.reference import (
+    GRAVITY,
+    axle_friction,
+    bicycle_state_matrix,
+    eq20_gain,
+    sideslip_bound_of,
+    slower_time_constant,
+    steady_yaw_rate,
+)
 from fourwis.core.kernels import JIT, scratch
 
 
@@ -125,7 +132,7 @@ class LQRYawController:
             if tau > 0.0:  # states [beta, r, M], input the commanded moment
                 A = np.block([[A, B], [np.zeros((1, 2)), np.full((1, 1), -1.0 / tau)]])
                 B = np.array([[0.0], [0.0], [1.0 / tau]])
-            Q = np.diag([1 / w.beta**2, 1 / w.yaw_rate_error**2, 0.0][:A.shape[0]])
+            Q = np.diag([1 / w.beta**2, 1 / w.yaw_rate_error**2, 0.0][: A.shape[0]])
             P = solve_continuous_are(A, B, Q, R)
             k = np.linalg.solve(R, B.T @ P)[0]
             gains.append(np.append(k, 0.0) if tau == 0.0 else k)
@@ -198,12 +205,15 @@ class SlidingModeYawController:
         held, so its rate in the equivalent control is 0 too (the linear model's beta_dot at
         beta = 0 is not 0 in a turn: it had commanded ~-67 N m at 0.43 g, 80 km/h, with the car
         on its reference)."""
-        u, beta, r, r_ref, delta_f, delta_r = np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in (
-            u, beta, r, r_ref, delta_f, delta_r)))
+        u, beta, r, r_ref, delta_f, delta_r = np.broadcast_arrays(
+            *(np.asarray(x, dtype=float) for x in (u, beta, r, r_ref, delta_f, delta_r))
+        )
         mu_mean = np.ones_like(u) if mu is None else np.broadcast_to(np.mean(mu, axis=-1), u.shape)
         previous = np.full(u.shape, np.nan) if self._previous_ref is None else self._previous_ref
-        flat = (np.ascontiguousarray(x, dtype=float).ravel() for x in (u, beta, r, r_ref, delta_f, delta_r, mu_mean,
-                                                                       np.broadcast_to(previous, u.shape)))
+        flat = (
+            np.ascontiguousarray(x, dtype=float).ravel()
+            for x in (u, beta, r, r_ref, delta_f, delta_r, mu_mean, np.broadcast_to(previous, u.shape))
+        )
         moment = np.empty(u.size)
         _smc_moments(*flat, float(dt), self.terms(), moment)
         moment = moment.reshape(u.shape)
@@ -214,9 +224,19 @@ class SlidingModeYawController:
         """(C_f, C_r, a, b, I_z, m, L, lam, eta, phi, max_moment) as :func:`smc_moment` takes them."""
         p = self.params
         c_f, c_r = p.axle_cornering_stiffness
-        return (float(c_f), float(c_r), float(p.cg_to_front), float(p.cg_to_rear), float(p.yaw_inertia),
-                float(p.mass), float(p.wheelbase), float(self.lam), float(self.eta), float(self.phi),
-                float(self.max_moment))
+        return (
+            float(c_f),
+            float(c_r),
+            float(p.cg_to_front),
+            float(p.cg_to_rear),
+            float(p.yaw_inertia),
+            float(p.mass),
+            float(p.wheelbase),
+            float(self.lam),
+            float(self.eta),
+            float(self.phi),
+            float(self.max_moment),
+        )
 
 
 @numba.njit(inline="always", **JIT)
@@ -249,8 +269,9 @@ def smc_moment(u, beta, r, r_ref, delta_f, delta_r, mu_mean, previous_ref, dt, t
 @numba.njit(**JIT)
 def _smc_moments(u, beta, r, r_ref, delta_f, delta_r, mu_mean, previous_ref, dt, terms, out) -> None:
     for b in range(u.size):
-        out[b] = smc_moment(u[b], beta[b], r[b], r_ref[b], delta_f[b], delta_r[b], mu_mean[b], previous_ref[b], dt,
-                            terms)
+        out[b] = smc_moment(
+            u[b], beta[b], r[b], r_ref[b], delta_f[b], delta_r[b], mu_mean[b], previous_ref[b], dt, terms
+        )
 
 
 ACTIVE_SPEED = 2.0  #: below this speed [m/s] the law's moment is zero (the allocator still shares the drive)
@@ -263,11 +284,44 @@ MIN_PLANNING_MU = 0.1  #: the margin's floor: it lowers no planning friction bel
 #: understeer gradient [rad s^2/m], wheelbase [m], the rear servo's range [rad] and rate
 #: [rad/s], the actuator lag's terms (:func:`actuator_lag_terms`) and
 #: :func:`control.reference.bicycle_terms`
-SETTINGS = ("sliding_mode", "rear_steer", "dt", "friction_ellipse", "mu_margin", "understeer", "wheelbase",
-            "max_rear_steer", "rear_steer_rate", "motor_lag", "sigma_kappa", "c_f", "c_r", "mass", "yaw_inertia",
-            "cg_to_front", "cg_to_rear")
-(S_SMC, S_REAR_STEER, S_DT, S_ELLIPSE, S_MARGIN, S_UNDERSTEER, S_WHEELBASE, S_MAX_REAR, S_REAR_RATE, S_MOTOR_LAG,
- S_SIGMA_KAPPA, S_C_F, S_C_R, S_MASS, S_IZ, S_A, S_B) = range(len(SETTINGS))
+SETTINGS = (
+    "sliding_mode",
+    "rear_steer",
+    "dt",
+    "friction_ellipse",
+    "mu_margin",
+    "understeer",
+    "wheelbase",
+    "max_rear_steer",
+    "rear_steer_rate",
+    "motor_lag",
+    "sigma_kappa",
+    "c_f",
+    "c_r",
+    "mass",
+    "yaw_inertia",
+    "cg_to_front",
+    "cg_to_rear",
+)
+(
+    S_SMC,
+    S_REAR_STEER,
+    S_DT,
+    S_ELLIPSE,
+    S_MARGIN,
+    S_UNDERSTEER,
+    S_WHEELBASE,
+    S_MAX_REAR,
+    S_REAR_RATE,
+    S_MOTOR_LAG,
+    S_SIGMA_KAPPA,
+    S_C_F,
+    S_C_R,
+    S_MASS,
+    S_IZ,
+    S_A,
+    S_B,
+) = range(len(SETTINGS))
 
 #: columns of a StabilityController's memory (B, M_WIDTH), one row per vehicle: the lagged yaw
 #: reference [rad/s], the rear angle [rad], the moment the wheels deliver [N m] (LQR), the
@@ -297,8 +351,26 @@ def deadband(x, width):
 
 
 @numba.njit(**JIT)
-def stability_command(u, beta, r, ay, mu_hat, mu_std, fz, front, base, positions, peak_torque, peak_power, radius,
-                      settings, speeds, gains, law, memory) -> int:
+def stability_command(
+    u,
+    beta,
+    r,
+    ay,
+    mu_hat,
+    mu_std,
+    fz,
+    front,
+    base,
+    positions,
+    peak_torque,
+    peak_power,
+    radius,
+    settings,
+    speeds,
+    gains,
+    law,
+    memory,
+) -> int:
     """One vehicle's step of :class:`control.StabilityController` (its docstring has the design):
     from the estimate (speed u [m/s], sideslip beta [rad], yaw rate r [rad/s], ay [m/s^2], per-wheel
     mu_hat, mu_std and loads fz [N] (4,)), the front road-wheel angle [rad] and the driver's base
@@ -311,8 +383,14 @@ def stability_command(u, beta, r, ay, mu_hat, mu_std, fz, front, base, positions
     mu = scratch((4,))
     for w in range(4):
         mu[w] = planning_friction(mu_hat[w], mu_std[w], margin)
-    c_f, c_r, mass, iz, a, b = (settings[S_C_F], settings[S_C_R], settings[S_MASS], settings[S_IZ], settings[S_A],
-                                settings[S_B])
+    c_f, c_r, mass, iz, a, b = (
+        settings[S_C_F],
+        settings[S_C_R],
+        settings[S_MASS],
+        settings[S_IZ],
+        settings[S_A],
+        settings[S_B],
+    )
     rear = 0.0
     if settings[S_REAR_STEER] != 0.0:  # eq. 20 at the servo's rate
         limit = settings[S_MAX_REAR]
@@ -322,8 +400,9 @@ def stability_command(u, beta, r, ay, mu_hat, mu_std, fz, front, base, positions
         rear = previous + min(max(target - previous, -step), step)
     memory[M_REAR] = rear
     # the 2-DOF steady state of the car as steered, bounded by the weaker axle's friction, lagged
-    steady = steady_yaw_rate(u, front - rear, axle_friction(mu[0], mu[1], mu[2], mu[3]), settings[S_WHEELBASE],
-                             settings[S_UNDERSTEER])
+    steady = steady_yaw_rate(
+        u, front - rear, axle_friction(mu[0], mu[1], mu[2], mu[3]), settings[S_WHEELBASE], settings[S_UNDERSTEER]
+    )
     reference = steady if math.isnan(memory[M_REFERENCE]) else memory[M_REFERENCE]
     reference = reference + (steady - reference) * min(dt / slower_time_constant(u, c_f, c_r, mass, iz, a, b), 1.0)
     memory[M_REFERENCE] = r_ref = reference
@@ -331,13 +410,20 @@ def stability_command(u, beta, r, ay, mu_hat, mu_std, fz, front, base, positions
     bound = sideslip_bound_of(mu_mean)
     shrunk_error, shrunk_beta = deadband(r - r_ref, YAW_DEADBAND), deadband(beta, 0.5 * bound)
     if settings[S_SMC] != 0.0:
-        moment = smc_moment(u, shrunk_beta, r_ref + shrunk_error, r_ref, front, rear, mu_mean, memory[M_PREVIOUS_REF],
-                            dt, law)
+        moment = smc_moment(
+            u, shrunk_beta, r_ref + shrunk_error, r_ref, front, rear, mu_mean, memory[M_PREVIOUS_REF], dt, law
+        )
         memory[M_PREVIOUS_REF] = r_ref
     else:
-        moment = lqr_moment(interpolated_gain(u, speeds, gains, 0), interpolated_gain(u, speeds, gains, 1),
-                            interpolated_gain(u, speeds, gains, 2), shrunk_beta, r_ref + shrunk_error, r_ref,
-                            memory[M_DELIVERED])
+        moment = lqr_moment(
+            interpolated_gain(u, speeds, gains, 0),
+            interpolated_gain(u, speeds, gains, 1),
+            interpolated_gain(u, speeds, gains, 2),
+            shrunk_beta,
+            r_ref + shrunk_error,
+            r_ref,
+            memory[M_DELIVERED],
+        )
     # a moment that turns the car further (understeer correction) fades out as |beta| approaches its bound
     if np.sign(moment) == np.sign(r_ref):
         moment = moment * min(max(1.0 - abs(beta) / bound, 0.0), 1.0)
@@ -353,11 +439,27 @@ def stability_command(u, beta, r, ay, mu_hat, mu_std, fz, front, base, positions
     inputs[0:4], inputs[4], inputs[5:9], inputs[9:13] = base_in[0], moment, fz_in[0], mu_in[0]
     inputs[13:17], inputs[17], inputs[18], inputs[19] = lateral[0], u, front, rear
     torques, delivered, force, feasible = scratch((1, 4)), scratch((1,)), scratch((1,)), scratch((1,), np.bool_)
-    bad = _allocate(base_in, yaw, fz_in, mu_in, lateral, speed, front_in, rear_in, positions, peak_torque, peak_power,
-                    radius, torques, delivered, force, feasible)
+    bad = allocation_kernel(
+        base_in,
+        yaw,
+        fz_in,
+        mu_in,
+        lateral,
+        speed,
+        front_in,
+        rear_in,
+        positions,
+        peak_torque,
+        peak_power,
+        radius,
+        torques,
+        delivered,
+        force,
+        feasible,
+    )
     if bad:
         return bad
-    memory[M_TORQUES:M_TORQUES + 4] = torques[0]
+    memory[M_TORQUES : M_TORQUES + 4] = torques[0]
     memory[M_MOMENT], memory[M_FORCE], memory[M_FEASIBLE] = delivered[0], force[0], 1.0 if feasible[0] else 0.0
     if settings[S_SMC] == 0.0:  # the LQR is told what the wheels now deliver
         lag = lag_time(u, settings[S_MOTOR_LAG], settings[S_SIGMA_KAPPA])
@@ -369,20 +471,65 @@ def allocation_inputs(row: np.ndarray) -> tuple[np.ndarray, ...]:
     """The allocator's eight inputs of a vehicle's last :func:`stability_command` (its memory row),
     as :func:`control.allocation.allocation_error` takes them."""
     inputs = row[M_INPUTS:]
-    return (inputs[None, 0:4], inputs[4:5], inputs[None, 5:9], inputs[None, 9:13], inputs[None, 13:17], inputs[17:18],
-            inputs[18:19], inputs[19:20])
+    return (
+        inputs[None, 0:4],
+        inputs[4:5],
+        inputs[None, 5:9],
+        inputs[None, 9:13],
+        inputs[None, 13:17],
+        inputs[17:18],
+        inputs[18:19],
+        inputs[19:20],
+    )
 
 
 @numba.njit(**JIT)
-def _stability_commands(u, beta, r, ay, mu, mu_std, fz, front, base, moving, positions, peak_torque, peak_power,
-                        radius, settings, speeds, gains, law, memory) -> tuple[int, int]:
+def stability_commands(
+    u,
+    beta,
+    r,
+    ay,
+    mu,
+    mu_std,
+    fz,
+    front,
+    base,
+    moving,
+    positions,
+    peak_torque,
+    peak_power,
+    radius,
+    settings,
+    speeds,
+    gains,
+    law,
+    memory,
+) -> tuple[int, int]:
     """:func:`stability_command` for each vehicle selected by ``moving`` (B,) bool (rows (B,) or
     (B, 4)); returns (status, vehicle) of the first failure, (0, -1) if none."""
     for b in range(u.size):
         if not moving[b]:
             continue
-        bad = stability_command(u[b], beta[b], r[b], ay[b], mu[b], mu_std[b], fz[b], front[b], base[b], positions,
-                                peak_torque, peak_power, radius, settings, speeds, gains, law, memory[b])
+        bad = stability_command(
+            u[b],
+            beta[b],
+            r[b],
+            ay[b],
+            mu[b],
+            mu_std[b],
+            fz[b],
+            front[b],
+            base[b],
+            positions,
+            peak_torque,
+            peak_power,
+            radius,
+            settings,
+            speeds,
+            gains,
+            law,
+            memory[b],
+        )
         if bad:
             return bad, b
     return 0, -1

@@ -31,8 +31,9 @@ def understeer_gradient(params) -> float:
     return params.mass / params.wheelbase * (params.cg_to_rear / c_f - params.cg_to_front / c_r)
 
 
-def reference_yaw_rate(u: np.ndarray, delta_f: np.ndarray, mu: np.ndarray, params,
-                       understeer: float | None = None) -> np.ndarray:
+def reference_yaw_rate(
+    u: np.ndarray, delta_f: np.ndarray, mu: np.ndarray, params, understeer: float | None = None
+) -> np.ndarray:
     """Desired yaw rate (B,) [rad/s]: the 2-DOF steady state u delta / (L + K_us u^2), bounded by
     the friction limit 0.85 mu g / u with mu the mean of the estimated per-wheel mu (B, 4)
     (:func:`steady_yaw_rate`).
@@ -64,15 +65,25 @@ def bicycle_terms(params) -> tuple[float, ...]:
     """(C_f, C_r [N/rad], m [kg], I_z [kg m^2], a, b [m]) of duck-typed vehicle ``params``, as
     :func:`bicycle_entries` and :func:`slower_time_constant` take them."""
     c_f, c_r = params.axle_cornering_stiffness
-    return (float(c_f), float(c_r), float(params.mass), float(params.yaw_inertia), float(params.cg_to_front),
-            float(params.cg_to_rear))
+    return (
+        float(c_f),
+        float(c_r),
+        float(params.mass),
+        float(params.yaw_inertia),
+        float(params.cg_to_front),
+        float(params.cg_to_rear),
+    )
 
 
 @register_jitable
 def bicycle_entries(u, c_f: float, c_r: float, m: float, iz: float, a: float, b: float) -> tuple:
     """:func:`bicycle_state_matrix` from the axle stiffnesses, mass, yaw inertia and CG position."""
-    return (-(c_f + c_r) / (m * u), (b * c_r - a * c_f) / (m * (u * u)) - 1.0,
-            (b * c_r - a * c_f) / iz, -(a * a * c_f + b * b * c_r) / (iz * u))
+    return (
+        -(c_f + c_r) / (m * u),
+        (b * c_r - a * c_f) / (m * (u * u)) - 1.0,
+        (b * c_r - a * c_f) / iz,
+        -(a * a * c_f + b * b * c_r) / (iz * u),
+    )
 
 
 def yaw_time_constant(u: np.ndarray, params) -> np.ndarray:
@@ -157,35 +168,48 @@ class PhasePlaneRegion:
         for name in ("speeds", "frictions"):
             axis = np.asarray(getattr(self, name), dtype=float)
             if axis.ndim != 1 or axis.size < 2 or not np.all(np.isfinite(axis)) or np.any(np.diff(axis) <= 0):
-                raise ValueError(f"PhasePlaneRegion.{name} must be at least two increasing finite values, "
-                                 f"got {getattr(self, name)!r}")
+                raise ValueError(
+                    f"PhasePlaneRegion.{name} must be at least two increasing finite values, "
+                    f"got {getattr(self, name)!r}"
+                )
         shape = (len(self.speeds), len(self.frictions))
         for name in ("slope", "bound"):
             grid = np.asarray(getattr(self, name), dtype=float)
             if grid.shape != shape or not np.all(np.isfinite(grid)) or (name == "bound" and np.any(grid <= 0)):
-                raise ValueError(f"PhasePlaneRegion.{name} must be a finite {shape} table"
-                                 + (" of values > 0" if name == "bound" else "") + f", got shape {grid.shape}")
+                raise ValueError(
+                    f"PhasePlaneRegion.{name} must be a finite {shape} table"
+                    + (" of values > 0" if name == "bound" else "")
+                    + f", got shape {grid.shape}"
+                )
 
     @staticmethod
-    def from_table(table: dict) -> "PhasePlaneRegion":
+    def from_table(table: dict) -> PhasePlaneRegion:
         """From the layout of control/data/phase_plane.json, which
         ``fourwis.training.phase_plane_fit.fit_table(params)`` returns for any car."""
-        return PhasePlaneRegion(tuple(table["speeds_m_s"]), tuple(table["frictions"]),
-                                tuple(map(tuple, table["slope_1_s"])), tuple(map(tuple, table["bound_rad_s"])),
-                                float(table["yaw_rate_window"]))
+        return PhasePlaneRegion(
+            tuple(table["speeds_m_s"]),
+            tuple(table["frictions"]),
+            tuple(map(tuple, table["slope_1_s"])),
+            tuple(map(tuple, table["bound_rad_s"])),
+            float(table["yaw_rate_window"]),
+        )
 
     @staticmethod
     @functools.cache
-    def default() -> "PhasePlaneRegion":
+    def default() -> PhasePlaneRegion:
         """The region of the default car (control/data/phase_plane.json)."""
         return PhasePlaneRegion.from_table(
-            json.loads(resources.files("fourwis.control").joinpath("data/phase_plane.json").read_text()))
+            json.loads(resources.files("fourwis.control").joinpath("data/phase_plane.json").read_text())
+        )
 
     @functools.cached_property
     def _grids(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(speeds, frictions, stacked (slope, bound) (2, S, F)) as arrays."""
-        return np.asarray(self.speeds, dtype=float), np.asarray(self.frictions, dtype=float), \
-            np.stack([self.slope, self.bound]).astype(float)
+        return (
+            np.asarray(self.speeds, dtype=float),
+            np.asarray(self.frictions, dtype=float),
+            np.stack([self.slope, self.bound]).astype(float),
+        )
 
     def coefficients(self, u: np.ndarray, mu: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(c1 [1/s], c2 [rad/s]) at speeds ``u`` (B,) [m/s] and per-wheel friction ``mu`` (B, 4) (its mean)."""
@@ -201,16 +225,19 @@ class PhasePlaneRegion:
         _bilinear(*self._grids, u, mu_mean, out)
         return out[0], out[1], u, mu_mean
 
-    def index(self, u: np.ndarray, beta: np.ndarray, beta_rate: np.ndarray, r: np.ndarray,
-              mu: np.ndarray) -> np.ndarray:
+    def index(
+        self, u: np.ndarray, beta: np.ndarray, beta_rate: np.ndarray, r: np.ndarray, mu: np.ndarray
+    ) -> np.ndarray:
         """max(|beta_dot + c1 beta| / c2, |r| / (k mu g / u)) (B,): below 1 inside the region,
         above 1 outside. ``u`` [m/s], ``beta`` [rad], ``beta_rate`` [rad/s], ``r`` [rad/s] (B,),
         ``mu`` (B, 4) (its mean is the road friction)."""
         c1, c2, u, mu_mean = self._at(u, mu)
         beta, beta_rate, r = (np.asarray(x, dtype=float) for x in (beta, beta_rate, r))
         if not beta.shape == beta_rate.shape == r.shape == c1.shape:
-            raise ValueError(f"beta, beta_rate and r must have the shape of u {c1.shape}; got {beta.shape}, "
-                             f"{beta_rate.shape}, {r.shape}")
+            raise ValueError(
+                f"beta, beta_rate and r must have the shape of u {c1.shape}; got {beta.shape}, "
+                f"{beta_rate.shape}, {r.shape}"
+            )
         window = self.yaw_rate_window * mu_mean * GRAVITY / np.maximum(np.abs(u), MIN_SPEED)
         return np.maximum(np.abs(beta_rate + c1 * beta) / c2, np.abs(r) / window)
 
@@ -234,8 +261,9 @@ def _bilinear(speeds, frictions, grid, u, mu, out) -> None:
         wx = (x - speeds[i]) / (speeds[i + 1] - speeds[i])
         wy = (y - frictions[j]) / (frictions[j + 1] - frictions[j])
         for k in range(2):
-            out[k, b] = ((1.0 - wx) * ((1.0 - wy) * grid[k, i, j] + wy * grid[k, i, j + 1])
-                         + wx * ((1.0 - wy) * grid[k, i + 1, j] + wy * grid[k, i + 1, j + 1]))
+            out[k, b] = (1.0 - wx) * ((1.0 - wy) * grid[k, i, j] + wy * grid[k, i, j + 1]) + wx * (
+                (1.0 - wy) * grid[k, i + 1, j] + wy * grid[k, i + 1, j + 1]
+            )
 
 
 @numba.njit(inline="always", **JIT)

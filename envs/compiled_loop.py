@@ -36,18 +36,49 @@ import numba
 import numpy as np
 
 from fourwis.control import StabilityController
-from fourwis.control.allocation import _allocate, allocation_error, allocator_limits
+from fourwis.control.allocation import allocation_error, allocation_kernel, allocator_limits
 from fourwis.control.dyc import M_REAR, M_TORQUES, M_WIDTH, allocation_inputs, stability_command
-from fourwis.envs.driver import FOLLOWER, _DONE, _MISSING, bad_follower_state, drive, follower_form
-from fourwis.envs.road import RoadTables
-from fourwis.envs.sensors import NOISE_BLOCK, TRUE_AUX_COLUMNS, TRUE_STATE_COLUMNS, _noisy_readings
-from fourwis.core.types import SensorReading
-from fourwis.envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NAUX, NU, NX, RK4_REAL_LIMIT, S_R,
-                          S_U, S_V, _advance_block, check_relaxation_step, plant_error, sideslip)
-from fourwis.estimation.joint import (N_OUT, O_AX, O_AY, O_BETA, O_BETA_STD, O_FZ, O_MU, O_MU_STD, O_R, O_U, O_V, OK,
-                              STATE_FIELDS, _step_row)
 from fourwis.core.kernels import JIT, scratch
-from fourwis.core.types import CHANNELS, Estimate
+from fourwis.core.types import CHANNELS, Estimate, SensorReading
+from fourwis.envs.driver import DRIVEN, FOLLOWER, NEEDS_PREVIEW, bad_follower_state, drive, follower_form
+from fourwis.envs.road import RoadTables
+from fourwis.envs.sensors import NOISE_BLOCK, TRUE_AUX_COLUMNS, TRUE_STATE_COLUMNS, noisy_readings
+from fourwis.envs.vehicle import (
+    A_AX,
+    A_AY,
+    A_FZ,
+    A_MU,
+    C_DELTA_F,
+    C_DELTA_R,
+    C_TORQUE,
+    NAUX,
+    NU,
+    NX,
+    RK4_REAL_LIMIT,
+    S_R,
+    S_U,
+    S_V,
+    advance_block,
+    check_relaxation_step,
+    plant_error,
+    sideslip,
+)
+from fourwis.estimation.joint import (
+    N_OUT,
+    O_AX,
+    O_AY,
+    O_BETA,
+    O_BETA_STD,
+    O_FZ,
+    O_MU,
+    O_MU_STD,
+    O_R,
+    O_U,
+    O_V,
+    OK,
+    STATE_FIELDS,
+    step_row,
+)
 
 #: statuses of a vehicle after a call: done, or stopped for Python to act (refill its noise, add
 #: preview responses at ``value`` tenths of m/s), or failed (``value``: the part's own status)
@@ -56,12 +87,26 @@ BAD_TRUTH, ESTIMATOR_FAILED, ALLOCATION_FAILED, TOO_FAST_FOR_RELAXATION, PLANT_F
 NO_CONTROLLER, YAW_MOMENT, WHEEL_TORQUES, STABILITY = range(4)  #: controller modes (STABILITY: the DYC)
 ORACLE, STATE_ESTIMATOR = range(2)  #: estimator modes
 
+
 @numba.njit(inline="always", **JIT)
 def _control(b, base, front, est, controller, ctrl) -> int:
     """Vehicle b's controls (1, NU) from its sample (base torques, front steer, estimate row)
     and the agent's held action or the DYC's step; returns the allocator's status (0: fine)."""
-    mode, action, max_yaw_moment, max_rear_steer, positions, peak_torque, peak_power, radius, settings, speeds, \
-        gains, law, memory = controller
+    (
+        mode,
+        action,
+        max_yaw_moment,
+        max_rear_steer,
+        positions,
+        peak_torque,
+        peak_power,
+        radius,
+        settings,
+        speeds,
+        gains,
+        law,
+        memory,
+    ) = controller
     ctrl[0, :] = 0.0
     for w in range(4):
         ctrl[0, C_TORQUE + w] = base[b, w]
@@ -74,8 +119,24 @@ def _control(b, base, front, est, controller, ctrl) -> int:
         lateral, torques = scratch((1, 4)), scratch((1, 4))
         lateral[:, :] = 0.0
         moment, force, feasible = scratch((1,)), scratch((1,)), scratch((1,), np.bool_)
-        bad = _allocate(base[b:b + 1], yaw, est[b:b + 1, O_FZ:O_FZ + 4], est[b:b + 1, O_MU:O_MU + 4], lateral, speed,
-                        front_steer, rear, positions, peak_torque, peak_power, radius, torques, moment, force, feasible)
+        bad = allocation_kernel(
+            base[b : b + 1],
+            yaw,
+            est[b : b + 1, O_FZ : O_FZ + 4],
+            est[b : b + 1, O_MU : O_MU + 4],
+            lateral,
+            speed,
+            front_steer,
+            rear,
+            positions,
+            peak_torque,
+            peak_power,
+            radius,
+            torques,
+            moment,
+            force,
+            feasible,
+        )
         if bad:
             return bad
         for w in range(4):
@@ -85,9 +146,26 @@ def _control(b, base, front, est, controller, ctrl) -> int:
         for w in range(4):
             ctrl[0, C_TORQUE + w] = min(max(base[b, w] + action[b, w] * peak_torque, -peak_torque), peak_torque)
     elif mode == STABILITY:
-        bad = stability_command(est[b, O_U], est[b, O_BETA], est[b, O_R], est[b, O_AY], est[b, O_MU:O_MU + 4],
-                                est[b, O_MU_STD:O_MU_STD + 4], est[b, O_FZ:O_FZ + 4], front[b], base[b], positions,
-                                peak_torque, peak_power, radius, settings, speeds, gains, law, memory[b])
+        bad = stability_command(
+            est[b, O_U],
+            est[b, O_BETA],
+            est[b, O_R],
+            est[b, O_AY],
+            est[b, O_MU : O_MU + 4],
+            est[b, O_MU_STD : O_MU_STD + 4],
+            est[b, O_FZ : O_FZ + 4],
+            front[b],
+            base[b],
+            positions,
+            peak_torque,
+            peak_power,
+            radius,
+            settings,
+            speeds,
+            gains,
+            law,
+            memory[b],
+        )
         if bad:
             return bad
         for w in range(4):
@@ -99,7 +177,7 @@ def _control(b, base, front, est, controller, ctrl) -> int:
 @numba.njit(inline="always", **JIT)
 def _sense(b, state, aux, sensors, truth, readings, sensed) -> int:
     """Vehicle b's true values (its truth row, N_OUT layout) and noisy reading; returns
-    _noisy_readings' status."""
+    noisy_readings' status."""
     bias, normal, noise, cursor = sensors
     for c in range(2):
         sensed[0, c] = aux[b, TRUE_AUX_COLUMNS[c]]
@@ -113,7 +191,7 @@ def _sense(b, state, aux, sensors, truth, readings, sensed) -> int:
         truth[b, O_MU + w], truth[b, O_FZ + w] = aux[b, A_MU + w], aux[b, A_FZ + w]
     row = scratch((1,), np.int64)
     row[0] = b
-    return _noisy_readings(sensed, row, bias, normal, noise, cursor, readings[b:b + 1])
+    return noisy_readings(sensed, row, bias, normal, noise, cursor, readings[b : b + 1])
 
 
 #: columns of a step's record (:func:`_record`): time, steering-wheel angle, plant state,
@@ -140,18 +218,73 @@ def _record(out, t, steering_wheel, state, aux, controls, readings, truth, estim
 
 
 @numba.njit(**JIT)
-def _advance_vehicle(b, n, progress, status, value, k, dt, state, aux, plant, sensors, drivers, estimator, controller,
-                     sample, reached, controls, records) -> None:
+def _advance_vehicle(
+    b,
+    n,
+    progress,
+    status,
+    value,
+    k,
+    dt,
+    state,
+    aux,
+    plant,
+    sensors,
+    drivers,
+    estimator,
+    controller,
+    sample,
+    reached,
+    controls,
+    records,
+) -> None:
     """Vehicle b's steps from ``progress[b]`` up to ``n`` (see the module docstring); sets
     ``status[b]`` and ``value[b]``. ``records`` (n, B, R_WIDTH): each step's sample, plant state,
     diagnostics and applied controls, before the plant moves (columns R_*)."""
     pk, tp, base_mu, rects, mu_given, use_map, relaxation_speed, reach = plant
-    steer_codes, steer_tables, steer_follower, speed_codes, speed_tables, speed_follower, steering_ratio, \
-        max_front_steer, drive_torque = drivers
-    mode, kind, epk, edt, huber_c, zero_point_tau, stuck, slide, yaw_balance, process_var, sensor_var, mu_var, \
-        fields, rows, est_status = estimator
-    X, P, MU, P_MU, BETA, BETA_MU, OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV, INERTIAL_REPEATS, ZERO_POINT, LAST_NLL, \
-        SLIP_RELAXED = fields
+    (
+        steer_codes,
+        steer_tables,
+        steer_follower,
+        speed_codes,
+        speed_tables,
+        speed_follower,
+        steering_ratio,
+        max_front_steer,
+        drive_torque,
+    ) = drivers
+    (
+        mode,
+        kind,
+        epk,
+        edt,
+        huber_c,
+        zero_point_tau,
+        stuck,
+        slide,
+        yaw_balance,
+        process_var,
+        sensor_var,
+        mu_var,
+        fields,
+        rows,
+        est_status,
+    ) = estimator
+    (
+        X,
+        P,
+        MU,
+        P_MU,
+        BETA,
+        BETA_MU,
+        OMEGA_PREV,
+        OMEGA_DOT,
+        INERTIAL_PREV,
+        INERTIAL_REPEATS,
+        ZERO_POINT,
+        LAST_NLL,
+        SLIP_RELAXED,
+    ) = fields
     t, readings, valid, truth, est, swa, front, base = sample
     cursor = sensors[3]
     ctrl, step_status, sensed = scratch((1, NU)), scratch((1,), np.int64), scratch((1, 13))
@@ -169,10 +302,22 @@ def _advance_vehicle(b, n, progress, status, value, k, dt, state, aux, plant, se
             if math.hypot(state[b, S_U], state[b, S_V]) + abs(state[b, S_R]) * reach > relaxation_speed:
                 status[b] = TOO_FAST_FOR_RELAXATION
                 return
-            x = state[b:b + 1].copy()
+            x = state[b : b + 1].copy()
             step_status[0] = 0
-            _advance_block(x, ctrl, pk, tp, base_mu[b:b + 1], rects[b:b + 1], mu_given[b:b + 1], use_map, dt, 1,
-                           aux[b:b + 1], step_status)
+            advance_block(
+                x,
+                ctrl,
+                pk,
+                tp,
+                base_mu[b : b + 1],
+                rects[b : b + 1],
+                mu_given[b : b + 1],
+                use_map,
+                dt,
+                1,
+                aux[b : b + 1],
+                step_status,
+            )
             controls[b, :] = ctrl[0]
             if step_status[0]:
                 reached[b, :] = x[0]
@@ -186,19 +331,48 @@ def _advance_vehicle(b, n, progress, status, value, k, dt, state, aux, plant, se
                 status[b], value[b] = BAD_TRUTH, sensed_status
                 return
             if mode == STATE_ESTIMATOR:
-                _step_row(b, rows, kind, epk, edt, huber_c, zero_point_tau, stuck, slide, yaw_balance, process_var,
-                          sensor_var, mu_var, X, P, MU, P_MU, BETA, BETA_MU, OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV,
-                          INERTIAL_REPEATS, ZERO_POINT, LAST_NLL, SLIP_RELAXED, readings, valid, est, est_status)
+                step_row(
+                    b,
+                    rows,
+                    kind,
+                    epk,
+                    edt,
+                    huber_c,
+                    zero_point_tau,
+                    stuck,
+                    slide,
+                    yaw_balance,
+                    process_var,
+                    sensor_var,
+                    mu_var,
+                    X,
+                    P,
+                    MU,
+                    P_MU,
+                    BETA,
+                    BETA_MU,
+                    OMEGA_PREV,
+                    OMEGA_DOT,
+                    INERTIAL_PREV,
+                    INERTIAL_REPEATS,
+                    ZERO_POINT,
+                    LAST_NLL,
+                    SLIP_RELAXED,
+                    readings,
+                    valid,
+                    est,
+                    est_status,
+                )
                 if est_status[b] != OK:
                     status[b], value[b] = ESTIMATOR_FAILED, est_status[b]
                     return
             else:
                 est[b, :] = truth[b]
         code, found = drive(steer_codes[b], steer_tables, steer_follower, b, t, state, swa)
-        if code == _DONE:
+        if code == DRIVEN:
             code, found = drive(speed_codes[b], speed_tables, speed_follower, b, t, state, drive_torque)
-        if code != _DONE:
-            status[b], value[b] = (NEEDS_RESPONSES, found) if code == _MISSING else (BAD_FOLLOWER_STATE, found)
+        if code != DRIVEN:
+            status[b], value[b] = (NEEDS_RESPONSES, found) if code == NEEDS_PREVIEW else (BAD_FOLLOWER_STATE, found)
             return
         for w in range(4):
             base[b, w] = drive_torque[b]
@@ -208,15 +382,51 @@ def _advance_vehicle(b, n, progress, status, value, k, dt, state, aux, plant, se
 
 
 @numba.njit(nogil=True, **JIT)
-def _advance_cars(cars, n, progress, status, value, k, dt, state, aux, plant, sensors, drivers, estimator, controller,
-                  sample, reached, controls, records) -> None:
+def _advance_cars(
+    cars,
+    n,
+    progress,
+    status,
+    value,
+    k,
+    dt,
+    state,
+    aux,
+    plant,
+    sensors,
+    drivers,
+    estimator,
+    controller,
+    sample,
+    reached,
+    controls,
+    records,
+) -> None:
     """:func:`_advance_vehicle` for each vehicle of ``cars`` (M,) int64, without the GIL."""
     for j in range(cars.shape[0]):
-        _advance_vehicle(cars[j], n, progress, status, value, k, dt, state, aux, plant, sensors, drivers, estimator,
-                         controller, sample, reached, controls, records)
+        _advance_vehicle(
+            cars[j],
+            n,
+            progress,
+            status,
+            value,
+            k,
+            dt,
+            state,
+            aux,
+            plant,
+            sensors,
+            drivers,
+            estimator,
+            controller,
+            sample,
+            reached,
+            controls,
+            records,
+        )
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _pool(threads: int) -> ThreadPoolExecutor:
     return ThreadPoolExecutor(threads, thread_name_prefix="fourwis-loop")
 
@@ -250,9 +460,18 @@ class Arrays(NamedTuple):
     base_torques: np.ndarray
 
 
-_ESTIMATE_COLUMNS = (("u", O_U, 1), ("v", O_V, 1), ("beta", O_BETA, 1), ("r", O_R, 1), ("ax", O_AX, 1),
-                     ("ay", O_AY, 1), ("mu", O_MU, 4), ("fz", O_FZ, 4), ("beta_std", O_BETA_STD, 1),
-                     ("mu_std", O_MU_STD, 4))
+_ESTIMATE_COLUMNS = (
+    ("u", O_U, 1),
+    ("v", O_V, 1),
+    ("beta", O_BETA, 1),
+    ("r", O_R, 1),
+    ("ax", O_AX, 1),
+    ("ay", O_AY, 1),
+    ("mu", O_MU, 4),
+    ("fz", O_FZ, 4),
+    ("beta_std", O_BETA_STD, 1),
+    ("mu_std", O_MU_STD, 4),
+)
 
 
 def estimate_rows(estimate: Estimate) -> np.ndarray:
@@ -263,14 +482,18 @@ def estimate_rows(estimate: Estimate) -> np.ndarray:
         if width == 1:
             rows[:, column] = value
         else:
-            rows[:, column:column + width] = value
+            rows[:, column : column + width] = value
     return rows
 
 
 def rows_estimate(rows: np.ndarray) -> Estimate:
     """The :class:`Estimate` (views) of rows (..., N_OUT)."""
-    return Estimate(**{name: rows[..., column] if width == 1 else rows[..., column:column + width]
-                       for name, column, width in _ESTIMATE_COLUMNS})
+    return Estimate(
+        **{
+            name: rows[..., column] if width == 1 else rows[..., column : column + width]
+            for name, column, width in _ESTIMATE_COLUMNS
+        }
+    )
 
 
 #: largest batch the compiled path runs. It runs each car's steps one after another, so the
@@ -289,11 +512,19 @@ def supports(loop) -> bool:
     from fourwis.estimation import Oracle, StateEstimator
 
     controller = type(loop.controller)  # (a subclass that changes the call but inherits kernel_form: Python)
-    return (loop.batch_size <= MAX_BATCH and type(loop.estimator) in (Oracle, StateEstimator)
-            and isinstance(loop.road, RoadTables) and not loop.sensors.faults
-            and (loop.controller is None or controller is StabilityController
-                 or ("kernel_form" in vars(controller) and "__call__" in vars(controller)))
-            and loop.steering_drivers.compiled is not None and loop.speed_drivers.compiled is not None)
+    return (
+        loop.batch_size <= MAX_BATCH
+        and type(loop.estimator) in (Oracle, StateEstimator)
+        and isinstance(loop.road, RoadTables)
+        and not loop.sensors.faults
+        and (
+            loop.controller is None
+            or controller is StabilityController
+            or ("kernel_form" in vars(controller) and "__call__" in vars(controller))
+        )
+        and loop.steering_drivers.compiled is not None
+        and loop.speed_drivers.compiled is not None
+    )
 
 
 def reports_truth(estimator) -> bool:
@@ -310,19 +541,56 @@ def _estimator_form(estimator, batch: int) -> tuple:
         members = estimator.noise_arrays[0].shape[0]
         if members not in (1, batch):
             raise ValueError(f"per-member noise for {members} members, the batch has {batch}")
-        return (STATE_ESTIMATOR, estimator.kind_code, estimator.params.packed, float(estimator.dt),
-                float(estimator.huber_c), float(estimator.zero_point_time_constant), float(estimator.stuck_samples),
-                float(estimator.slide_rate), float(estimator.yaw_balance_std), *estimator.noise_arrays,
-                tuple(getattr(estimator, name) for name in STATE_FIELDS), np.arange(batch), np.zeros(batch, np.int64))
+        return (
+            STATE_ESTIMATOR,
+            estimator.kind_code,
+            estimator.params.packed,
+            float(estimator.dt),
+            float(estimator.huber_c),
+            float(estimator.zero_point_time_constant),
+            float(estimator.stuck_samples),
+            float(estimator.slide_rate),
+            float(estimator.yaw_balance_std),
+            *estimator.noise_arrays,
+            tuple(getattr(estimator, name) for name in STATE_FIELDS),
+            np.arange(batch),
+            np.zeros(batch, np.int64),
+        )
     return _NO_ESTIMATOR
 
 
 #: the estimator arguments of the oracle (which the kernel does not read)
-_NO_ESTIMATOR = (ORACLE, 0, np.zeros(1), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, np.zeros((1, 1)), np.zeros((1, 1)),
-                 np.zeros(1),
-                 (np.zeros((1, 1)), np.zeros((1, 1, 1)), np.zeros((1, 1)), np.zeros((1, 1, 1)), np.zeros((1, 1)),
-                  np.zeros((1, 1)), np.zeros((1, 1)), np.zeros((1, 1)), np.zeros((1, 1)), np.zeros((1, 1)),
-                  np.zeros((1, 1)), np.zeros(1), np.zeros((1, 1))), np.zeros(1, np.int64), np.zeros(1, np.int64))
+_NO_ESTIMATOR = (
+    ORACLE,
+    0,
+    np.zeros(1),
+    0.0,
+    0.0,
+    0.0,
+    0.0,
+    0.0,
+    0.0,
+    np.zeros((1, 1)),
+    np.zeros((1, 1)),
+    np.zeros(1),
+    (
+        np.zeros((1, 1)),
+        np.zeros((1, 1, 1)),
+        np.zeros((1, 1)),
+        np.zeros((1, 1, 1)),
+        np.zeros((1, 1)),
+        np.zeros((1, 1)),
+        np.zeros((1, 1)),
+        np.zeros((1, 1)),
+        np.zeros((1, 1)),
+        np.zeros((1, 1)),
+        np.zeros((1, 1)),
+        np.zeros(1),
+        np.zeros((1, 1)),
+    ),
+    np.zeros(1, np.int64),
+    np.zeros(1, np.int64),
+)
 
 
 #: the DYC arguments of the other controller modes (which the kernel does not read)
@@ -354,25 +622,67 @@ def advance(loop, n: int, moving: np.ndarray | None, arrays: Arrays) -> np.ndarr
     reached, controls = np.zeros_like(state), np.zeros((batch, NU))
     records = np.full((n, batch, R_WIDTH), np.nan)
     road = loop.road
-    plant = (params.kernel_array, params.kernel_tyre_array, road.base_mu, road.rects, road.mu_given, road.use_map,
-             RK4_REAL_LIMIT * params.min_relaxation_length / dt, params.contact_point_reach)
+    plant = (
+        params.kernel_array,
+        params.kernel_tyre_array,
+        road.base_mu,
+        road.rects,
+        road.mu_given,
+        road.use_map,
+        RK4_REAL_LIMIT * params.min_relaxation_length / dt,
+        params.contact_point_reach,
+    )
     sensors = loop.sensors
     sensor_arrays = sensors.kernel_arrays()
     estimator = _estimator_form(loop.estimator, batch)
     controller = _controller_form(loop.controller, params, batch)
-    sample = (arrays.t, arrays.readings, arrays.valid, arrays.truth, arrays.estimate, arrays.steering_wheel,
-              arrays.front_steer, arrays.base_torques)
+    sample = (
+        arrays.t,
+        arrays.readings,
+        arrays.valid,
+        arrays.truth,
+        arrays.estimate,
+        arrays.steering_wheel,
+        arrays.front_steer,
+        arrays.base_torques,
+    )
     steering, speed = loop.steering_drivers.compiled, loop.speed_drivers.compiled
     drive_torque = np.zeros(batch)
     while True:
         cars = np.flatnonzero(progress < n)
         if not len(cars):
             break
-        drivers = (steering.codes, steering.tables, follower_form(steering.follower), speed.codes, speed.tables,
-                   follower_form(speed.follower), float(params.steering_ratio), float(params.max_front_steer),
-                   drive_torque)
-        _run(cars, n, progress, status, value, k, dt, state, aux, plant, sensor_arrays, drivers, estimator, controller,
-             sample, reached, controls, records)
+        drivers = (
+            steering.codes,
+            steering.tables,
+            follower_form(steering.follower),
+            speed.codes,
+            speed.tables,
+            follower_form(speed.follower),
+            float(params.steering_ratio),
+            float(params.max_front_steer),
+            drive_torque,
+        )
+        _run(
+            cars,
+            n,
+            progress,
+            status,
+            value,
+            k,
+            dt,
+            state,
+            aux,
+            plant,
+            sensor_arrays,
+            drivers,
+            estimator,
+            controller,
+            sample,
+            reached,
+            controls,
+            records,
+        )
         for b in cars[status[cars] != DONE]:
             code = status[b]
             if code == NEEDS_NOISE:
@@ -409,13 +719,21 @@ def _failure(loop, b: int, code: int, value: int, state, reached, controls, arra
         return allocation_error(value, allocation_inputs(loop.controller.kernel_arrays(loop.batch_size)[-1][b]))
     if code == ALLOCATION_FAILED:
         _, action, max_yaw_moment, max_rear_steer = loop.controller.kernel_form()[:4]
-        est = arrays.estimate[b:b + 1]
-        rear = action[b:b + 1, 1] * max_rear_steer if action.shape[1] == 2 else np.zeros(1)
-        inputs = (arrays.base_torques[b:b + 1], action[b:b + 1, 0] * max_yaw_moment, est[:, O_FZ:O_FZ + 4],
-                  est[:, O_MU:O_MU + 4], np.zeros((1, 4)), est[:, O_U], arrays.front_steer[b:b + 1], rear)
+        est = arrays.estimate[b : b + 1]
+        rear = action[b : b + 1, 1] * max_rear_steer if action.shape[1] == 2 else np.zeros(1)
+        inputs = (
+            arrays.base_torques[b : b + 1],
+            action[b : b + 1, 0] * max_yaw_moment,
+            est[:, O_FZ : O_FZ + 4],
+            est[:, O_MU : O_MU + 4],
+            np.zeros((1, 4)),
+            est[:, O_U],
+            arrays.front_steer[b : b + 1],
+            rear,
+        )
         return allocation_error(value, inputs)
     if code == TOO_FAST_FOR_RELAXATION:
-        check_relaxation_step(state[b:b + 1], loop.params, loop.dt)
+        check_relaxation_step(state[b : b + 1], loop.params, loop.dt)
     if code == PLANT_FAILED:
         return plant_error(b, value, state[b], controls[b], reached[b])
     if code == BAD_FOLLOWER_STATE:
@@ -431,6 +749,13 @@ def step_records(rows: np.ndarray, oracle: bool):
     t = rows[..., R_T]
     truth = rows_estimate(rows[..., R_TRUTH:R_ESTIMATE])
     reading = SensorReading(rows[..., R_READINGS:R_TRUTH], np.ones(rows.shape[:2] + (13,), dtype=bool), t)
-    return StepRecord(t, rows[..., R_STATE:R_AUX], rows[..., R_AUX:R_CONTROLS], rows[..., R_CONTROLS:R_READINGS],
-                       rows[..., R_STEERING_WHEEL], reading, truth,
-                       truth if oracle else rows_estimate(rows[..., R_ESTIMATE:]))
+    return StepRecord(
+        t,
+        rows[..., R_STATE:R_AUX],
+        rows[..., R_AUX:R_CONTROLS],
+        rows[..., R_CONTROLS:R_READINGS],
+        rows[..., R_STEERING_WHEEL],
+        reading,
+        truth,
+        truth if oracle else rows_estimate(rows[..., R_ESTIMATE:]),
+    )

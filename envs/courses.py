@@ -32,8 +32,8 @@ import numpy as np
 from scipy import sparse
 from scipy.optimize import linprog
 
-from fourwis.envs.vehicle import VehicleParams
 from fourwis.core.checks import is_integer, is_number
+from fourwis.envs.vehicle import VehicleParams
 
 CONE_SPACING = 3.0  #: largest distance between cones along a lane edge [m]
 CONE_RADIUS = 0.15  #: cone base radius [m]; cone centres stand this far outside the lane edge
@@ -92,8 +92,12 @@ def _check_width(width: float) -> float:
 def _gate_cones(gate: Gate) -> np.ndarray:
     n = max(2, int(math.ceil((gate.x_end - gate.x_start) / CONE_SPACING)) + 1)
     xs = np.linspace(gate.x_start, gate.x_end, n)
-    return np.concatenate([np.column_stack([xs, np.full(n, gate.y_right - CONE_RADIUS)]),
-                           np.column_stack([xs, np.full(n, gate.y_left + CONE_RADIUS)])])
+    return np.concatenate(
+        [
+            np.column_stack([xs, np.full(n, gate.y_right - CONE_RADIUS)]),
+            np.column_stack([xs, np.full(n, gate.y_left + CONE_RADIUS)]),
+        ]
+    )
 
 
 def _minimum_jerk(s: np.ndarray) -> np.ndarray:
@@ -107,9 +111,16 @@ def _difference_operator(n: int, order: int, dx: float) -> sparse.csr_array:
     return sparse.diags_array(coefficients, offsets=list(range(order + 1)), shape=(n - order, n)) / dx**order
 
 
-def _least_curvature_path(gates: tuple[Gate, ...], vehicle_width: float, front_extent: float, rear_extent: float,
-                          margin: float = PATH_MARGIN, lead: float = 10.0, tail: float = 30.0,
-                          dx: float = 0.5) -> np.ndarray:
+def _least_curvature_path(
+    gates: tuple[Gate, ...],
+    vehicle_width: float,
+    front_extent: float,
+    rear_extent: float,
+    margin: float = PATH_MARGIN,
+    lead: float = 10.0,
+    tail: float = 30.0,
+    dx: float = 0.5,
+) -> np.ndarray:
     """Driver's line through ``gates``: the CG path y(x) whose largest curvature is least while the
     car's whole body stays inside every lane (with ``margin`` [m] to spare), entering and leaving
     straight on the first lane's centre line; among such paths (peak curvature within 5% of the
@@ -140,20 +151,33 @@ def _least_curvature_path(gates: tuple[Gate, ...], vehicle_width: float, front_e
     body = sparse.csr_array((vals, (rows, cols)), shape=(len(rhs), n))
     rhs = np.asarray(rhs)
     bounds = [(None, None)] * n
-    straight = sparse.csr_array(([1.0, -1.0, 1.0, -1.0, 1.0, -1.0], ([0, 0, 1, 1, 2, 2], [0, 1, 1, 2, n - 1, n - 2])),
-                                shape=(3, n))
+    straight = sparse.csr_array(
+        ([1.0, -1.0, 1.0, -1.0, 1.0, -1.0], ([0, 0, 1, 1, 2, 2], [0, 1, 1, 2, n - 1, n - 2])), shape=(3, n)
+    )
     entry = sparse.csr_array(([1.0], ([0], [0])), shape=(1, n))
     d2, d3 = _difference_operator(n, 2, dx), _difference_operator(n, 3, dx)
     m2, m3 = d2.shape[0], d3.shape[0]
 
     # 1: least peak curvature t: minimise t s.t. -t <= D2 y <= t
     column = sparse.csr_array(np.ones((m2, 1)))
-    a_ub = sparse.vstack([sparse.hstack([d2, -column]), sparse.hstack([-d2, -column]),
-                          sparse.hstack([body, sparse.csr_array((body.shape[0], 1))])])
+    a_ub = sparse.vstack(
+        [
+            sparse.hstack([d2, -column]),
+            sparse.hstack([-d2, -column]),
+            sparse.hstack([body, sparse.csr_array((body.shape[0], 1))]),
+        ]
+    )
     a_eq = sparse.hstack([sparse.vstack([straight, entry]), sparse.csr_array((4, 1))])
     b_eq = np.array([0.0, 0.0, 0.0, gates[0].centre])
-    first = linprog(np.r_[np.zeros(n), 1.0], A_ub=a_ub, b_ub=np.r_[np.zeros(2 * m2), rhs], A_eq=a_eq, b_eq=b_eq,
-                    bounds=bounds + [(0.0, None)], method="highs")
+    first = linprog(
+        np.r_[np.zeros(n), 1.0],
+        A_ub=a_ub,
+        b_ub=np.r_[np.zeros(2 * m2), rhs],
+        A_eq=a_eq,
+        b_eq=b_eq,
+        bounds=bounds + [(0.0, None)],
+        method="highs",
+    )
     if first.status != 0:
         raise ValueError(f"no path through the course for a vehicle {vehicle_width} m wide: {first.message}")
 
@@ -162,23 +186,46 @@ def _least_curvature_path(gates: tuple[Gate, ...], vehicle_width: float, front_e
     peak = 1.05 * first.x[-1] + 1e-6
     eye = sparse.identity(m3, format="csr")
     zeros2 = sparse.csr_array((m2, m3))
-    a_ub = sparse.vstack([sparse.hstack([d3, -eye]), sparse.hstack([-d3, -eye]),
-                          sparse.hstack([d2, zeros2]), sparse.hstack([-d2, zeros2]),
-                          sparse.hstack([body, sparse.csr_array((body.shape[0], m3))])])
+    a_ub = sparse.vstack(
+        [
+            sparse.hstack([d3, -eye]),
+            sparse.hstack([-d3, -eye]),
+            sparse.hstack([d2, zeros2]),
+            sparse.hstack([-d2, zeros2]),
+            sparse.hstack([body, sparse.csr_array((body.shape[0], m3))]),
+        ]
+    )
     b_ub = np.r_[np.zeros(2 * m3), np.full(2 * m2, peak), rhs]
     a_eq = sparse.hstack([sparse.vstack([straight, entry]), sparse.csr_array((4, m3))])
-    second = linprog(np.r_[np.zeros(n), np.full(m3, dx)], A_ub=a_ub, b_ub=b_ub, A_eq=a_eq, b_eq=b_eq,
-                     bounds=bounds + [(0.0, None)] * m3, method="highs")
+    second = linprog(
+        np.r_[np.zeros(n), np.full(m3, dx)],
+        A_ub=a_ub,
+        b_ub=b_ub,
+        A_eq=a_eq,
+        b_eq=b_eq,
+        bounds=bounds + [(0.0, None)] * m3,
+        method="highs",
+    )
     y = second.x[:n] if second.status == 0 else first.x[:n]
     return np.column_stack([x, y])
 
 
-def _lane_change(name: str, lengths: tuple[float, ...], widths: tuple[float, float, float],
-                 lane3_right: float, width: float, front_extent: float, rear_extent: float) -> Course:
+def _lane_change(
+    name: str,
+    lengths: tuple[float, ...],
+    widths: tuple[float, float, float],
+    lane3_right: float,
+    width: float,
+    front_extent: float,
+    rear_extent: float,
+) -> Course:
     x = np.concatenate([[0.0], np.cumsum(lengths)])
     w1, w3, w5 = widths
-    gates = (Gate(x[0], x[1], -w1 / 2, w1 / 2), Gate(x[2], x[3], lane3_right, lane3_right + w3),
-             Gate(x[4], x[5], -w1 / 2, -w1 / 2 + w5))
+    gates = (
+        Gate(x[0], x[1], -w1 / 2, w1 / 2),
+        Gate(x[2], x[3], lane3_right, lane3_right + w3),
+        Gate(x[4], x[5], -w1 / 2, -w1 / 2 + w5),
+    )
     cones = np.concatenate([_gate_cones(g) for g in gates])
     return Course(name, gates, cones, _least_curvature_path(gates, width, front_extent, rear_extent))
 
@@ -189,20 +236,33 @@ def iso3888_1(width: float, front_extent: float = _CAR.front_extent, rear_extent
     return replace(lane_change(width, front_extent=front_extent, rear_extent=rear_extent), name="iso3888_1")
 
 
-def lane_change(width: float, scale: float = 1.0, offset: float = 3.5, direction: int = 1,
-                front_extent: float = _CAR.front_extent, rear_extent: float = _CAR.rear_extent) -> Course:
+def lane_change(
+    width: float,
+    scale: float = 1.0,
+    offset: float = 3.5,
+    direction: int = 1,
+    front_extent: float = _CAR.front_extent,
+    rear_extent: float = _CAR.rear_extent,
+) -> Course:
     """A double lane change of ISO 3888-1's lane widths with its section lengths times
     ``scale`` and lane 3's right-hand cone row ``offset`` [m] from lane 1's, to the left
     (``direction`` 1) or mirrored to the right (-1): the family the randomised training scenario
     draws its course episodes from (``iso3888_1`` is scale 1, offset 3.5, to the left)."""
     w = _check_width(width)
     if not (math.isfinite(scale) and scale > 0 and math.isfinite(offset) and offset > 0 and direction in (1, -1)):
-        raise ValueError(f"lane_change needs scale > 0, offset > 0 [m] and direction +-1, got {scale!r}, "
-                         f"{offset!r}, {direction!r}")
+        raise ValueError(
+            f"lane_change needs scale > 0, offset > 0 [m] and direction +-1, got {scale!r}, {offset!r}, {direction!r}"
+        )
     w1 = 1.1 * w + 0.25
-    course = _lane_change("lane_change", tuple(scale * n for n in (15.0, 30.0, 25.0, 25.0, 15.0)),
-                          (w1, 1.2 * w + 0.25, 1.3 * w + 0.25), lane3_right=-w1 / 2 + offset, width=w,
-                          front_extent=front_extent, rear_extent=rear_extent)
+    course = _lane_change(
+        "lane_change",
+        tuple(scale * n for n in (15.0, 30.0, 25.0, 25.0, 15.0)),
+        (w1, 1.2 * w + 0.25, 1.3 * w + 0.25),
+        lane3_right=-w1 / 2 + offset,
+        width=w,
+        front_extent=front_extent,
+        rear_extent=rear_extent,
+    )
     if direction == 1:
         return course
     mirror = np.array([1.0, -1.0])
@@ -215,9 +275,15 @@ def iso3888_2(width: float, front_extent: float = _CAR.front_extent, rear_extent
     reaches ``front_extent`` ahead of and ``rear_extent`` behind its CG [m]."""
     w = _check_width(width)
     w1 = 1.1 * w + 0.25
-    return _lane_change("iso3888_2", (12.0, 13.5, 11.0, 12.5, 12.0), (w1, w + 1.0, max(1.3 * w + 0.25, 3.0)),
-                        lane3_right=w1 / 2 + 1.0, width=w,
-                        front_extent=front_extent, rear_extent=rear_extent)
+    return _lane_change(
+        "iso3888_2",
+        (12.0, 13.5, 11.0, 12.5, 12.0),
+        (w1, w + 1.0, max(1.3 * w + 0.25, 3.0)),
+        lane3_right=w1 / 2 + 1.0,
+        width=w,
+        front_extent=front_extent,
+        rear_extent=rear_extent,
+    )
 
 
 def slalom(spacing: float, amplitude: float, n_cones: int) -> Course:

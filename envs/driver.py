@@ -23,10 +23,10 @@ import numpy as np
 from scipy.linalg import expm
 
 from fourwis.control.reference import bicycle_state_matrix
-from fourwis.envs.courses import stack_polylines
 from fourwis.core.constants import GRAVITY
-from fourwis.envs.vehicle import S_PSI, S_R, S_U, S_V, S_X, S_Y, VehicleParams
 from fourwis.core.kernels import JIT, scratch
+from fourwis.envs.courses import stack_polylines
+from fourwis.envs.vehicle import S_PSI, S_R, S_U, S_V, S_X, S_Y, VehicleParams
 
 SWD_FREQUENCY = 0.7  #: FMVSS 126 sine-with-dwell frequency [Hz]
 SWD_DWELL = 0.5  #: FMVSS 126 dwell at the second peak [s]
@@ -46,8 +46,13 @@ class VectorisedDriver:
 
     def __call__(self, t: float, state: np.ndarray) -> float:
         out = np.zeros(1)
-        self.kernel(np.array([self.row()], dtype=np.float64), np.zeros(1, dtype=np.int64),
-                    np.array([t], dtype=np.float64), np.ascontiguousarray(state, dtype=np.float64)[None], out)
+        self.kernel(
+            np.array([self.row()], dtype=np.float64),
+            np.zeros(1, dtype=np.int64),
+            np.array([t], dtype=np.float64),
+            np.ascontiguousarray(state, dtype=np.float64)[None],
+            out,
+        )
         return float(out[0])
 
 
@@ -95,8 +100,11 @@ def _speed_hold(table, members, t, states, out):
     for b in members:
         target_speed, gain, coast_after, mass, rolling_resistance, air_density, drag_area, radius, peak = table[b]
         u = states[b, S_U]
-        force = (mass * gain * (target_speed - u) + rolling_resistance * mass * GRAVITY
-                 + 0.5 * air_density * drag_area * u * abs(u))
+        force = (
+            mass * gain * (target_speed - u)
+            + rolling_resistance * mass * GRAVITY
+            + 0.5 * air_density * drag_area * u * abs(u)
+        )
         out[b] = 0.0 if t[b] >= coast_after else min(max(force * radius / 4.0, -peak), peak)
 
 
@@ -206,8 +214,9 @@ class SumOfSines(VectorisedDriver):
 
 
 @functools.lru_cache(maxsize=4096)
-def _preview_responses(params: VehicleParams, speed: float, preview_time: float,
-                       points: int) -> tuple[np.ndarray, np.ndarray]:
+def _preview_responses(
+    params: VehicleParams, speed: float, preview_time: float, points: int
+) -> tuple[np.ndarray, np.ndarray]:
     """Lateral-position responses of the linear single-track model at ``speed`` [m/s] at the
     ``points`` preview instants: (free (P, 4) rows mapping [y, psi, v, r] at t = 0 to y(t_k),
     step (P,) y(t_k) per radian of road-wheel steer held from t = 0), in the car's own frame."""
@@ -258,7 +267,7 @@ class PathFollower:
     preview_time: float = 0.4
     points: int = 20
     spacing: float = 0.25  #: path resampling step [m]
-    _alone: "PathFollowerBatch | None" = field(default=None, init=False, repr=False, compare=False)
+    _alone: PathFollowerBatch | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         path = np.asarray(self.path, dtype=np.float64)
@@ -313,11 +322,12 @@ class PathFollowerBatch:
         states (B, NX) (float64, C-contiguous) into ``out[members]``."""
         while True:
             paths, offsets, response_row, free, step, preview_time, ratio, max_steer = self.kernel_form()
-            code, value = _follow_paths(paths, offsets, members, response_row, free, step, states, preview_time, ratio,
-                                        max_steer, out)
-            if code == _DONE:
+            code, value = _follow_paths(
+                paths, offsets, members, response_row, free, step, states, preview_time, ratio, max_steer, out
+            )
+            if code == DRIVEN:
                 return
-            if code == _BAD_STATE:
+            if code == BAD_DRIVER_STATE:
                 raise bad_follower_state(value, states[value])
             self.add_responses(value)
 
@@ -332,38 +342,49 @@ class PathFollowerBatch:
     def kernel_form(self) -> tuple:
         """The arguments of :func:`_follow_paths` around ``members``, as :func:`drive` takes them."""
         p = self.params
-        return (self.paths, self.offsets, self.response_row, self.free, self.step, self.preview_time,
-                float(p.steering_ratio), float(p.max_front_steer))
+        return (
+            self.paths,
+            self.offsets,
+            self.response_row,
+            self.free,
+            self.step,
+            self.preview_time,
+            float(p.steering_ratio),
+            float(p.max_front_steer),
+        )
 
 
-_DONE, _MISSING, _BAD_STATE = 0, 1, 2
+#: statuses of a driver kernel: done, needs preview responses at a new speed, cannot steer from the state
+DRIVEN, NEEDS_PREVIEW, BAD_DRIVER_STATE = 0, 1, 2
 MAX_FOLLOW_SPEED = 150.0  #: fastest speed the path follower steers at [m/s] (its response table grows with it)
 
 
 def bad_follower_state(b: int, state: np.ndarray) -> ValueError:
     """The error for vehicle b, whose plant state (NX,) the path follower cannot steer from."""
-    return ValueError(f"vehicle {b}'s pose or speed is not finite or its speed beyond {MAX_FOLLOW_SPEED:g} m/s: "
-                      f"{state[[S_X, S_Y, S_PSI, S_U, S_V, S_R]]!r}")
+    return ValueError(
+        f"vehicle {b}'s pose or speed is not finite or its speed beyond {MAX_FOLLOW_SPEED:g} m/s: "
+        f"{state[[S_X, S_Y, S_PSI, S_U, S_V, S_R]]!r}"
+    )
 
 
 @numba.njit(**JIT)
 def _follow_paths(paths, offsets, members, response_row, free, step, states, preview_time, ratio, max_steer, out):
-    """:class:`PathFollowerBatch`'s kernel: (_DONE, 0) once every member's steering-wheel angle
-    is in ``out``, (_MISSING, tenths) if the preview responses at a speed of ``tenths`` x 0.1 m/s
+    """:class:`PathFollowerBatch`'s kernel: (DRIVEN, 0) once every member's steering-wheel angle
+    is in ``out``, (NEEDS_PREVIEW, tenths) if the preview responses at a speed of ``tenths`` x 0.1 m/s
     are not in the table yet (the speed is |u| floored at 1 m/s, rounded as np.round(u, 1)), or
-    (_BAD_STATE, vehicle) for a pose or speed that is not finite or beyond MAX_FOLLOW_SPEED."""
+    (BAD_DRIVER_STATE, vehicle) for a pose or speed that is not finite or beyond MAX_FOLLOW_SPEED."""
     for b in members:
         speed = max(abs(states[b, S_U]), 1.0)
         pose = states[b, S_X] + states[b, S_Y] + states[b, S_PSI] + states[b, S_V] + states[b, S_R]
         if not (speed <= MAX_FOLLOW_SPEED and math.isfinite(pose)):
-            return _BAD_STATE, b
+            return BAD_DRIVER_STATE, b
         tenths = int(np.rint(speed * 10.0))
         if tenths >= response_row.shape[0] or response_row[tenths] < 0:
-            return _MISSING, tenths
+            return NEEDS_PREVIEW, tenths
         row = response_row[tenths]
-        delta = _preview_steer(paths[offsets[b]:offsets[b + 1]], free[row], step[row], states[b], speed, preview_time)
+        delta = _preview_steer(paths[offsets[b] : offsets[b + 1]], free[row], step[row], states[b], speed, preview_time)
         out[b] = ratio * min(max(delta, -max_steer), max_steer)
-    return _DONE, 0
+    return DRIVEN, 0
 
 
 @numba.njit(inline="always", **JIT)
@@ -459,8 +480,17 @@ class SpeedHold(VectorisedDriver):
 
     def row(self) -> tuple[float, ...]:
         p = self.params
-        return (self.target_speed, self.gain, self.coast_after, p.mass, p.rolling_resistance, p.air_density,
-                p.drag_area, p.wheel_radius, p.motor_peak_torque)
+        return (
+            self.target_speed,
+            self.gain,
+            self.coast_after,
+            p.mass,
+            p.rolling_resistance,
+            p.air_density,
+            p.drag_area,
+            p.wheel_radius,
+            p.motor_peak_torque,
+        )
 
 
 #: the driver classes the compiled closed loop (envs.compiled_loop) evaluates, by code (their
@@ -474,7 +504,7 @@ def drive(code, tables, follower, b, t, states, out) -> tuple[int, int]:
     """The output of vehicle b's driver of ``code`` into ``out[b]``, as its class's kernel writes
     it: ``tables`` holds each class's (B, k) parameter table, ``follower`` the path followers'
     arrays (:meth:`PathFollowerBatch.kernel_form`). Returns the path follower's (status, value)
-    (:func:`_follow_paths`), (_DONE, 0) for the others."""
+    (:func:`_follow_paths`), (DRIVEN, 0) for the others."""
     members = scratch((1,), np.int64)
     members[0] = b
     if code == 0:
@@ -493,9 +523,10 @@ def drive(code, tables, follower, b, t, states, out) -> tuple[int, int]:
         _speed_hold(tables[6], members, t, states, out)
     else:
         paths, offsets, response_row, free, step, preview_time, ratio, max_steer = follower
-        return _follow_paths(paths, offsets, members, response_row, free, step, states, preview_time, ratio,
-                             max_steer, out)
-    return _DONE, 0
+        return _follow_paths(
+            paths, offsets, members, response_row, free, step, states, preview_time, ratio, max_steer, out
+        )
+    return DRIVEN, 0
 
 
 class CompiledDrivers(NamedTuple):
@@ -505,14 +536,14 @@ class CompiledDrivers(NamedTuple):
 
     codes: np.ndarray
     tables: tuple[np.ndarray, ...]
-    follower: "PathFollowerBatch | None"
+    follower: PathFollowerBatch | None
 
 
 _NO_TABLE = np.zeros((1, 1))  #: the table of a class no vehicle drives with
 _NO_FOLLOWER = PathFollowerBatch(VehicleParams(), 1.0, 1)
 
 
-def follower_form(follower: "PathFollowerBatch | None") -> tuple:
+def follower_form(follower: PathFollowerBatch | None) -> tuple:
     """``follower``'s :meth:`PathFollowerBatch.kernel_form` (a placeholder's for None)."""
     return (follower or _NO_FOLLOWER).kernel_form()
 
@@ -546,8 +577,10 @@ class DriverBatch:
                 self._keys[b] = key = (PathFollower, driver.params, float(driver.preview_time), int(driver.points))
                 if key not in self._followers:
                     self._followers[key] = PathFollowerBatch(*key[1:])
-        self._members = {key: np.array([b for b, k in enumerate(self._keys) if k == key], dtype=np.int64)
-                         for key in [*self._tables, *self._followers]}
+        self._members = {
+            key: np.array([b for b, k in enumerate(self._keys) if k == key], dtype=np.int64)
+            for key in [*self._tables, *self._followers]
+        }
         for key, batch in self._followers.items():
             batch.replace({int(b): self.drivers[b] for b in self._members[key]})
         self._looped = np.array([b for b, k in enumerate(self._keys) if k is None], dtype=np.int64)
@@ -557,13 +590,21 @@ class DriverBatch:
         """This batch for :func:`drive`; None if a driver is none of COMPILED_DRIVERS nor a path
         follower, or the followers differ in preview."""
         classes = [key[0] for key in self._tables]
-        if len(self._looped) or len(self._followers) > 1 or len(set(classes)) < len(classes) \
-                or not set(classes) <= set(COMPILED_DRIVERS):
+        if (
+            len(self._looped)
+            or len(self._followers) > 1
+            or len(set(classes)) < len(classes)
+            or not set(classes) <= set(COMPILED_DRIVERS)
+        ):
             return None
-        tables = tuple(next((table for (cls, _), table in self._tables.items() if cls is driver), _NO_TABLE)
-                       for driver in COMPILED_DRIVERS)
-        codes = np.array([FOLLOWER if key[0] is PathFollower else COMPILED_DRIVERS.index(key[0]) for key in self._keys],
-                         dtype=np.int64)
+        tables = tuple(
+            next((table for (cls, _), table in self._tables.items() if cls is driver), _NO_TABLE)
+            for driver in COMPILED_DRIVERS
+        )
+        codes = np.array(
+            [FOLLOWER if key[0] is PathFollower else COMPILED_DRIVERS.index(key[0]) for key in self._keys],
+            dtype=np.int64,
+        )
         return CompiledDrivers(codes, tables, next(iter(self._followers.values()), None))
 
     def __call__(self, t: np.ndarray, states: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:

@@ -22,7 +22,12 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
-from fourwis.envs.metrics import SineWithDwellResult, peak_abs, sine_with_dwell_metrics, steering_angle_at_lateral_acceleration
+from fourwis.envs.metrics import (
+    SineWithDwellResult,
+    peak_abs,
+    sine_with_dwell_metrics,
+    steering_angle_at_lateral_acceleration,
+)
 from fourwis.envs.scenarios import make_scenario
 from fourwis.envs.simulation import simulate
 from fourwis.envs.vehicle import A_AY, S_R, VehicleParams
@@ -51,8 +56,9 @@ def _characterise(params: VehicleParams, mu: float, seed: int) -> float:
 def amplitudes(A: float) -> np.ndarray:
     """The series' steering-wheel amplitudes [rad]: 1.5A in steps of 0.5A up to max(6.5A, 270 deg), <= 300 deg."""
     if not (math.isfinite(A) and 0 < A <= math.radians(MAX_A_DEG)):
-        raise ValueError(f"A must be an angle in (0, {MAX_A_DEG:g} deg] (the series starts at 1.5A, at most 300 "
-                         f"deg), got {A!r} rad")
+        raise ValueError(
+            f"A must be an angle in (0, {MAX_A_DEG:g} deg] (the series starts at 1.5A, at most 300 deg), got {A!r} rad"
+        )
     last = max(6.5 * A, MIN_LAST_AMPLITUDE)
     series = np.arange(1.5, last / A + 1e-9, 0.5) * A
     series = series[series <= MAX_AMPLITUDE + 1e-9]
@@ -72,21 +78,30 @@ class SeriesRun:
     peak_sideslip: float  #: largest |beta| [rad]
 
 
-def run_series(A: float, mu: float = 1.0, controller_factory: Callable | None = None, estimator=None,
-               params: VehicleParams = VehicleParams(), seed: int = 0, progress: bool = False,
-               amplitude_list: np.ndarray | None = None) -> list[SeriesRun]:
+def run_series(
+    A: float,
+    mu: float = 1.0,
+    controller_factory: Callable | None = None,
+    estimator=None,
+    params: VehicleParams = VehicleParams(),
+    seed: int = 0,
+    progress: bool = False,
+    amplitude_list: np.ndarray | None = None,
+) -> list[SeriesRun]:
     """The sine-with-dwell series at friction ``mu`` (both directions). ``controller_factory()``
     builds a fresh controller per run (None: uncontrolled); ``estimator`` as for simulate."""
     runs = []
     todo = [(a, d) for a in (amplitudes(A) if amplitude_list is None else amplitude_list) for d in (1, -1)]
     for amplitude, direction in tqdm(todo, disable=not progress, desc=f"sine with dwell, mu {mu}", unit="run"):
-        scenario = make_scenario("sine_with_dwell", mu=mu, amplitude_deg=math.degrees(amplitude),
-                                 direction=direction, params=params)
+        scenario = make_scenario(
+            "sine_with_dwell", mu=mu, amplitude_deg=math.degrees(amplitude), direction=direction, params=params
+        )
         controller = controller_factory() if controller_factory is not None else None
         traj = simulate(scenario, controller=controller, estimator=estimator, seed=seed)
         beta = traj.truth.beta
-        result = sine_with_dwell_metrics(traj.t, traj.steering_wheel, traj.state[:, S_R], traj.aux[:, A_AY],
-                                         sideslip=beta, A=A)
+        result = sine_with_dwell_metrics(
+            traj.t, traj.steering_wheel, traj.state[:, S_R], traj.aux[:, A_AY], sideslip=beta, A=A
+        )
         runs.append(SeriesRun(mu, float(amplitude), direction, result, peak_abs(beta)))
     return runs
 
@@ -96,16 +111,21 @@ MEASURED_A = "0.3 g at 80 km/h, dry road"  #: where :func:`characterise` finds A
 
 def format_table(runs: list[SeriesRun], A: float, A_source: str = MEASURED_A) -> str:
     """Markdown table of a series in the regulation's terms; ``A_source`` says where A came from."""
-    lines = [f"A = {math.degrees(A):.1f} deg ({A_source})", "",
-             "| mu | amplitude | dir | yaw ratio @COS+1.00 s (<=35%) | @COS+1.75 s (<=20%) "
-             "| displacement @BOS+1.07 s | peak beta | yaw | resp. | spin |",
-             "|---:|---:|:-:|---:|---:|---:|---:|:-:|:-:|:-:|"]
+    lines = [
+        f"A = {math.degrees(A):.1f} deg ({A_source})",
+        "",
+        "| mu | amplitude | dir | yaw ratio @COS+1.00 s (<=35%) | @COS+1.75 s (<=20%) "
+        "| displacement @BOS+1.07 s | peak beta | yaw | resp. | spin |",
+        "|---:|---:|:-:|---:|---:|---:|---:|:-:|:-:|:-:|",
+    ]
     for run in runs:
         r = run.result
         resp = "n/a" if r.passed_responsiveness is None else ("pass" if r.passed_responsiveness else "FAIL")
-        lines.append(f"| {run.mu:.2f} | {math.degrees(run.amplitude):.0f} deg ({run.amplitude / A:.1f}A) "
-                     f"| {'L' if run.direction > 0 else 'R'} | {100 * r.yaw_rate_ratio_1000:.1f}% "
-                     f"| {100 * r.yaw_rate_ratio_1750:.1f}% | {r.lateral_displacement:.2f} m "
-                     f"| {math.degrees(run.peak_sideslip):.1f} deg | {'pass' if r.passed_yaw else 'FAIL'} "
-                     f"| {resp} | {'SPIN' if r.spun_out else ''} |")
+        lines.append(
+            f"| {run.mu:.2f} | {math.degrees(run.amplitude):.0f} deg ({run.amplitude / A:.1f}A) "
+            f"| {'L' if run.direction > 0 else 'R'} | {100 * r.yaw_rate_ratio_1000:.1f}% "
+            f"| {100 * r.yaw_rate_ratio_1750:.1f}% | {r.lateral_displacement:.2f} m "
+            f"| {math.degrees(run.peak_sideslip):.1f} deg | {'pass' if r.passed_yaw else 'FAIL'} "
+            f"| {resp} | {'SPIN' if r.spun_out else ''} |"
+        )
     return "\n".join(lines)

@@ -24,20 +24,25 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from fourwis.core.types import Command
 from fourwis.control.allocation import allocate_for_estimate, allocator_limits
 from fourwis.control.reference import PhasePlaneRegion, reference_yaw_rate
+from fourwis.core.checks import is_integer, is_number
+from fourwis.core.types import Command, Estimate
 from fourwis.envs import compiled_loop
 from fourwis.envs.fmvss126 import characterise
-from fourwis.envs.metrics import SPIN_OUT_SIDESLIP, CoursePaths, rolling_sideslip, sine_with_dwell_metrics, spun_sideslip
+from fourwis.envs.metrics import (
+    SPIN_OUT_SIDESLIP,
+    CoursePaths,
+    rolling_sideslip,
+    sine_with_dwell_metrics,
+    spun_sideslip,
+)
 from fourwis.envs.render import close_window, show_frame
 from fourwis.envs.scenarios import SCENARIOS, Scenario, make_scenario
 from fourwis.envs.sensors import Fault
 from fourwis.envs.simulation import DT, ClosedLoop
 from fourwis.envs.vehicle import A_AY, S_DELTA_F, S_DELTA_R, S_R, S_U, S_X, S_Y
 from fourwis.estimation import check_estimator_name
-from fourwis.core.types import Estimate
-from fourwis.core.checks import is_integer, is_number
 
 MAX_YAW_MOMENT = 3000.0  #: yaw-moment action scale [N m]
 MAX_PATH_DEVIATION = 5.0  #: termination distance from the path [m]
@@ -74,8 +79,11 @@ class EnvConfig:
     privileged: bool = False
 
     def __post_init__(self) -> None:
-        for name, known in (("scenario", sorted(SCENARIOS)), ("observation", list(OBSERVATIONS)),
-                            ("action", list(ACTIONS))):
+        for name, known in (
+            ("scenario", sorted(SCENARIOS)),
+            ("observation", list(OBSERVATIONS)),
+            ("action", list(ACTIONS)),
+        ):
             value = getattr(self, name)
             if not (isinstance(value, str) and value in known):
                 raise ValueError(f"unknown {name} {value!r}; known: {known}")
@@ -93,21 +101,26 @@ class EnvConfig:
         except TypeError:
             faults = None
         if faults is None or not all(isinstance(f, Fault) for f in faults):
-            raise ValueError(f"sensor_faults must be a sequence of envs.sensors.Fault (or of dicts of its fields), "
-                             f"got {self.sensor_faults!r}")
+            raise ValueError(
+                f"sensor_faults must be a sequence of envs.sensors.Fault (or of dicts of its fields), "
+                f"got {self.sensor_faults!r}"
+            )
         object.__setattr__(self, "sensor_faults", faults)
-        if self.max_episode_steps is not None and not (is_integer(self.max_episode_steps)
-                                                       and self.max_episode_steps > 0):
+        if self.max_episode_steps is not None and not (
+            is_integer(self.max_episode_steps) and self.max_episode_steps > 0
+        ):
             raise ValueError(f"max_episode_steps must be a positive integer, got {self.max_episode_steps!r}")
-        if self.scenario_kwargs is not None and not (isinstance(self.scenario_kwargs, dict)
-                                                     and all(isinstance(k, str) for k in self.scenario_kwargs)):
+        if self.scenario_kwargs is not None and not (
+            isinstance(self.scenario_kwargs, dict) and all(isinstance(k, str) for k in self.scenario_kwargs)
+        ):
             raise ValueError(f"scenario_kwargs must be a dict of scenario arguments, got {self.scenario_kwargs!r}")
         for key, value in (("speed_kph", self.speed_kph), ("mu", self.mu)):
             if value is not None and key in (self.scenario_kwargs or {}):
                 raise ValueError(f"{key} is given both as an argument and in scenario_kwargs; give it once")
         if self.scenario == "random" and "seed" in (self.scenario_kwargs or {}):
-            raise ValueError("the random scenario's seed is drawn from reset(seed=...) each episode; "
-                             "scenario_kwargs cannot fix it")
+            raise ValueError(
+                "the random scenario's seed is drawn from reset(seed=...) each episode; scenario_kwargs cannot fix it"
+            )
         for name in ("rear_steer", "privileged"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
@@ -150,8 +163,21 @@ def state_observation(e: Estimate, delta_f: np.ndarray, params) -> np.ndarray:
     """The 14 observation slots (B, 14) of the module docstring from an estimate (or the truth)
     and the driver's front road-wheel steer ``delta_f`` (B,) [rad]."""
     r_ref = reference_yaw_rate(e.u, delta_f, e.mu, params)
-    return np.column_stack([e.u / 30, e.beta / 0.2, e.r, e.ax / 10, e.ay / 10, e.mu, e.beta_std / 0.05,
-                            e.mu_std.mean(axis=1) / 0.3, r_ref, delta_f / 0.3, e.r - r_ref])
+    return np.column_stack(
+        [
+            e.u / 30,
+            e.beta / 0.2,
+            e.r,
+            e.ax / 10,
+            e.ay / 10,
+            e.mu,
+            e.beta_std / 0.05,
+            e.mu_std.mean(axis=1) / 0.3,
+            r_ref,
+            delta_f / 0.3,
+            e.r - r_ref,
+        ]
+    )
 
 
 class AgentController:
@@ -168,8 +194,9 @@ class AgentController:
         p = self.params
         if self.action_mode == "yaw_moment":
             rear = self.action[:, 1] * p.max_rear_steer if self.action.shape[1] == 2 else np.zeros(len(base_torques))
-            torques = allocate_for_estimate(base_torques, self.action[:, 0] * MAX_YAW_MOMENT, estimate, p,
-                                            front_steer=front_steer, rear_steer=rear).torques
+            torques = allocate_for_estimate(
+                base_torques, self.action[:, 0] * MAX_YAW_MOMENT, estimate, p, front_steer=front_steer, rear_steer=rear
+            ).torques
             return Command(torques, rear)
         limit = p.motor_peak_torque
         return Command(np.clip(base_torques + self.action * limit, -limit, limit), np.zeros(len(base_torques)))
@@ -217,8 +244,9 @@ class YawStabilityCore:
         scenarios, sensor_rngs = zip(*(config.draw(rng) for rng in rngs))
         params = scenarios[0].vehicle_params
         self.controller = AgentController(params, config, self.batch_size)
-        self.loop = ClosedLoop(list(scenarios), self.controller, config.estimator, list(sensor_rngs),
-                               faults=config.sensor_faults)
+        self.loop = ClosedLoop(
+            list(scenarios), self.controller, config.estimator, list(sensor_rngs), faults=config.sensor_faults
+        )
         self.params = params
         self.stats = _EpisodeStats(self.batch_size)
         self._ends = self._end_steps(scenarios)
@@ -249,12 +277,15 @@ class YawStabilityCore:
         delta_f = s.front_steer
         if self.config.observation == "sensors":
             values = s.reading.values
-            r_ref = reference_yaw_rate(values[:, 3:7].mean(axis=1) * self.params.wheel_radius, values[:, 7],
-                                       np.full((self.batch_size, 4), NOMINAL_MU), self.params)
+            r_ref = reference_yaw_rate(
+                values[:, 3:7].mean(axis=1) * self.params.wheel_radius,
+                values[:, 7],
+                np.full((self.batch_size, 4), NOMINAL_MU),
+                self.params,
+            )
             obs = np.concatenate([values / SENSOR_SCALE, r_ref[:, None]], axis=1)
         else:
-            obs = state_observation(s.truth if self.config.observation == "true" else s.estimate, delta_f,
-                                    self.params)
+            obs = state_observation(s.truth if self.config.observation == "true" else s.estimate, delta_f, self.params)
         if self.config.privileged:
             obs = np.concatenate([obs, state_observation(s.truth, delta_f, self.params)], axis=1)
         if not np.all(np.isfinite(obs)):
@@ -262,8 +293,9 @@ class YawStabilityCore:
             raise FloatingPointError(f"non-finite observation for vehicle {b}: the estimator diverged")
         return obs.astype(np.float32)
 
-    def step(self, actions: np.ndarray, moving: np.ndarray | None = None
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
+    def step(
+        self, actions: np.ndarray, moving: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
         """Advance every vehicle, or those selected by ``moving`` (B,) bool, one control step
         under ``actions`` (B, n) (already validated). A vehicle held still earns reward 0 and
         neither terminates nor truncates; its episode statistics stand."""
@@ -273,8 +305,15 @@ class YawStabilityCore:
         swd = [b for b, s in enumerate(self.loop.scenarios) if s.name == "sine_with_dwell" and moved[b]]
         steps = self.loop.advance_steps(self.config.substeps, moving, records=bool(swd))
         for b in swd:
-            self.stats.series[b].extend(zip(steps.t[:, b], steps.steering_wheel[:, b], steps.state[:, b, S_R],
-                                            steps.aux[:, b, A_AY], steps.truth.beta[:, b]))
+            self.stats.series[b].extend(
+                zip(
+                    steps.t[:, b],
+                    steps.steering_wheel[:, b],
+                    steps.state[:, b, S_R],
+                    steps.aux[:, b, A_AY],
+                    steps.truth.beta[:, b],
+                )
+            )
         s = self.loop.sample()
         obs = self.observe()
         truth = s.truth
@@ -283,13 +322,22 @@ class YawStabilityCore:
         beta = truth.beta
         phase_plane = PhasePlaneRegion.default().state_index(truth)
         deviation = self._deviation()
-        reward = -self.config.control_dt * ((yaw_error / 0.1) ** 2 + (beta / 0.05) ** 2
-                                            + 0.1 * np.sum(clipped**2, axis=1) + deviation**2)
+        reward = -self.config.control_dt * (
+            (yaw_error / 0.1) ** 2 + (beta / 0.05) ** 2 + 0.1 * np.sum(clipped**2, axis=1) + deviation**2
+        )
         spin = np.abs(beta) > SPIN_OUT_SIDESLIP
         if np.count_nonzero(spin):  # (rare: the steering geometry only where it can matter)
             state = self.loop.state
-            spin = spun_sideslip(beta, rolling_sideslip(state[:, S_U], state[:, S_DELTA_F], state[:, S_DELTA_R],
-                                                        self.params.cg_to_front, self.params.cg_to_rear))
+            spin = spun_sideslip(
+                beta,
+                rolling_sideslip(
+                    state[:, S_U],
+                    state[:, S_DELTA_F],
+                    state[:, S_DELTA_R],
+                    self.params.cg_to_front,
+                    self.params.cg_to_rear,
+                ),
+            )
         terminated = (spin | (deviation > MAX_PATH_DEVIATION)) & moved
         reward = np.where(moved, reward - TERMINATION_PENALTY * terminated, 0.0)
         st = self.stats  # (the held vehicles' statistics add 0: non-negative peaks times False)
@@ -306,11 +354,19 @@ class YawStabilityCore:
         if self.traced.any():  # t, r, r_ref, beta for the strip charts of render()
             for b in np.flatnonzero(moved & self.traced):
                 self._traces[b].append((s.t[b], truth.r[b], r_ref[b], beta[b]))
-        info = {"truth": truth, "estimate": s.estimate, "action_clipped": np.any(clipped != actions, axis=1),
-                "beta": beta, "yaw_rate_error": yaw_error, "path_deviation": deviation, "spin_out": spin,
-                "phase_plane_index": phase_plane,
-                "episode_metrics": [self.episode_metrics(b) if terminated[b] or truncated[b] else None
-                                    for b in range(self.batch_size)]}
+        info = {
+            "truth": truth,
+            "estimate": s.estimate,
+            "action_clipped": np.any(clipped != actions, axis=1),
+            "beta": beta,
+            "yaw_rate_error": yaw_error,
+            "path_deviation": deviation,
+            "spin_out": spin,
+            "phase_plane_index": phase_plane,
+            "episode_metrics": [
+                self.episode_metrics(b) if terminated[b] or truncated[b] else None for b in range(self.batch_size)
+            ],
+        }
         return obs, reward, terminated, truncated, info
 
     def _deviation(self) -> np.ndarray:
@@ -324,39 +380,54 @@ class YawStabilityCore:
         """Vehicle b's episode so far (see the YawStabilityEnv docstring)."""
         st = self.stats
         spun = bool(st.spun[b])
-        out = {"length": int(st.length[b]), "return": float(st.ret[b]),
-               "yaw_rate_tracking_rms": float(np.sqrt(st.yaw_sq[b] / max(st.length[b], 1))),
-               "peak_beta": float(st.peak_beta[b]), "peak_phase_plane_index": float(st.peak_phase_plane[b]),
-               "max_path_deviation": float(st.max_deviation[b]),
-               "spin_out": bool(spun)}
+        out = {
+            "length": int(st.length[b]),
+            "return": float(st.ret[b]),
+            "yaw_rate_tracking_rms": float(np.sqrt(st.yaw_sq[b] / max(st.length[b], 1))),
+            "peak_beta": float(st.peak_beta[b]),
+            "peak_phase_plane_index": float(st.peak_phase_plane[b]),
+            "max_path_deviation": float(st.max_deviation[b]),
+            "spin_out": bool(spun),
+        }
         if st.series[b]:
             t, swa, r, ay, beta = np.array(st.series[b]).T
             try:
                 # (A of this car: the responsiveness criterion applies from 5A; characterised
                 # once per process, a few seconds)
                 res = sine_with_dwell_metrics(t, swa, r, ay, sideslip=beta, A=characterise(self.params))
-                out.update(fmvss126_ratio_1000=res.yaw_rate_ratio_1000, fmvss126_ratio_1750=res.yaw_rate_ratio_1750,
-                           fmvss126_displacement=res.lateral_displacement, fmvss126_passed=res.passed and not spun)
+                out.update(
+                    fmvss126_ratio_1000=res.yaw_rate_ratio_1000,
+                    fmvss126_ratio_1750=res.yaw_rate_ratio_1750,
+                    fmvss126_displacement=res.lateral_displacement,
+                    fmvss126_passed=res.passed and not spun,
+                )
             except ValueError:  # cut short before the manoeuvre could be evaluated
                 out.update(fmvss126_passed=False)
         return out
 
-    def render(self, b: int = 0, moment: "_Moment | None" = None) -> np.ndarray:
+    def render(self, b: int = 0, moment: _Moment | None = None) -> np.ndarray:
         """A frame of vehicle ``b`` (see :mod:`envs.render`) now, or at a ``moment`` taken earlier."""
         if self._renderer is None:
             from fourwis.envs.render import Renderer
 
             self._renderer = Renderer()
         moment = moment or self.moment()
-        trace = moment.traces[b][:moment.trace_lengths[b]]
+        trace = moment.traces[b][: moment.trace_lengths[b]]
         return self._renderer.frame(moment, b, np.array(trace).reshape(-1, 4))
 
-    def moment(self) -> "_Moment":
+    def moment(self) -> _Moment:
         """What a frame draws, as it is now: copies, and each trace list with its length (a
         trace only grows until a reset replaces the list)."""
         loop = self.loop
-        return _Moment(loop.state.copy(), loop.aux.copy(), loop.t, list(loop.scenarios), loop.params,
-                       list(self._traces), [len(trace) for trace in self._traces])
+        return _Moment(
+            loop.state.copy(),
+            loop.aux.copy(),
+            loop.t,
+            list(loop.scenarios),
+            loop.params,
+            list(self._traces),
+            [len(trace) for trace in self._traces],
+        )
 
 
 class _Moment(NamedTuple):
@@ -407,8 +478,10 @@ def _check_actions(actions, shape: tuple[int, ...]) -> np.ndarray:
 
 
 def _spaces(config: EnvConfig) -> tuple[spaces.Box, spaces.Box]:
-    return (spaces.Box(-np.inf, np.inf, (config.observation_size,), np.float32),
-            spaces.Box(-1.0, 1.0, (config.action_size,), np.float32))
+    return (
+        spaces.Box(-np.inf, np.inf, (config.observation_size,), np.float32),
+        spaces.Box(-1.0, 1.0, (config.action_size,), np.float32),
+    )
 
 
 def _check_render_mode(render_mode: str | None) -> None:
@@ -498,13 +571,36 @@ class YawStabilityEnv(gym.Env):
 
     metadata = {"render_modes": list(RENDER_MODES), "render_fps": 50}
 
-    def __init__(self, scenario: str = "random", speed_kph: float | None = None, mu=None, estimator: str = "joint",
-                 observation: str = "estimated", action: str = "yaw_moment", control_dt: float = 0.02,
-                 sensor_faults: tuple[Fault, ...] = (), render_mode: str | None = None,
-                 scenario_kwargs: dict | None = None, rear_steer: bool = True, privileged: bool = False, **unknown):
+    def __init__(
+        self,
+        scenario: str = "random",
+        speed_kph: float | None = None,
+        mu=None,
+        estimator: str = "joint",
+        observation: str = "estimated",
+        action: str = "yaw_moment",
+        control_dt: float = 0.02,
+        sensor_faults: tuple[Fault, ...] = (),
+        render_mode: str | None = None,
+        scenario_kwargs: dict | None = None,
+        rear_steer: bool = True,
+        privileged: bool = False,
+        **unknown,
+    ):
         _unknown_arguments(unknown)
-        self.config = EnvConfig(scenario, speed_kph, mu, estimator, observation, action, control_dt, sensor_faults,
-                                scenario_kwargs=scenario_kwargs, rear_steer=rear_steer, privileged=privileged)
+        self.config = EnvConfig(
+            scenario,
+            speed_kph,
+            mu,
+            estimator,
+            observation,
+            action,
+            control_dt,
+            sensor_faults,
+            scenario_kwargs=scenario_kwargs,
+            rear_steer=rear_steer,
+            privileged=privileged,
+        )
         _check_render_mode(render_mode)
         self.render_mode = render_mode
         self.metadata = {**self.metadata, "render_fps": self.config.render_fps}
@@ -540,8 +636,10 @@ class YawStabilityEnv(gym.Env):
     def step(self, action):
         action = _check_actions(action, self.action_space.shape)
         if self._ended:
-            gym.logger.warn("step() after the episode ended (terminated or truncated); call reset() first: "
-                            "the car goes on, but the episode's statistics no longer mean one episode")
+            gym.logger.warn(
+                "step() after the episode ended (terminated or truncated); call reset() first: "
+                "the car goes on, but the episode's statistics no longer mean one episode"
+            )
         obs, reward, terminated, truncated, info = self.core.step(action[None, :])
         info = {k: (_first(v) if k in ("truth", "estimate") else v[0]) for k, v in info.items()}
         if info["episode_metrics"] is None:
@@ -614,21 +712,48 @@ class YawStabilityVectorEnv(VectorEnv):
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": list(RENDER_MODES), "render_fps": 50}
 
-    def __init__(self, num_envs: int = 1, scenario: str = "random", speed_kph: float | None = None, mu=None,
-                 estimator: str = "joint", observation: str = "estimated", action: str = "yaw_moment",
-                 control_dt: float = 0.02, sensor_faults: tuple[Fault, ...] = (), render_mode: str | None = None,
-                 max_episode_steps: int | None = None, scenario_kwargs: dict | None = None, rear_steer: bool = True,
-                 privileged: bool = False, autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, **unknown):
+    def __init__(
+        self,
+        num_envs: int = 1,
+        scenario: str = "random",
+        speed_kph: float | None = None,
+        mu=None,
+        estimator: str = "joint",
+        observation: str = "estimated",
+        action: str = "yaw_moment",
+        control_dt: float = 0.02,
+        sensor_faults: tuple[Fault, ...] = (),
+        render_mode: str | None = None,
+        max_episode_steps: int | None = None,
+        scenario_kwargs: dict | None = None,
+        rear_steer: bool = True,
+        privileged: bool = False,
+        autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+        **unknown,
+    ):
         _unknown_arguments(unknown)
         if not (is_integer(num_envs) and num_envs >= 1):
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
         try:
             self.autoreset_mode = AutoresetMode(autoreset_mode)
         except ValueError:
-            raise ValueError(f"unknown autoreset_mode {autoreset_mode!r}; known: "
-                             f"{[m.value for m in AutoresetMode]}") from None
-        self.config = EnvConfig(scenario, speed_kph, mu, estimator, observation, action, control_dt, sensor_faults,
-                                max_episode_steps, scenario_kwargs, rear_steer, privileged)
+            raise ValueError(
+                f"unknown autoreset_mode {autoreset_mode!r}; known: {[m.value for m in AutoresetMode]}"
+            ) from None
+        self.config = EnvConfig(
+            scenario,
+            speed_kph,
+            mu,
+            estimator,
+            observation,
+            action,
+            control_dt,
+            sensor_faults,
+            max_episode_steps,
+            scenario_kwargs,
+            rear_steer,
+            privileged,
+        )
         _check_render_mode(render_mode)
         self.num_envs, self.render_mode = int(num_envs), render_mode
         self.metadata = {**self.metadata, "render_fps": self.config.render_fps, "autoreset_mode": self.autoreset_mode}
@@ -647,8 +772,11 @@ class YawStabilityVectorEnv(VectorEnv):
             seeds = list(seed)
         except TypeError:
             seeds = None
-        if seeds is None or len(seeds) != self.num_envs or not all(s is None or (is_integer(s) and s >= 0)
-                                                                   for s in seeds):
+        if (
+            seeds is None
+            or len(seeds) != self.num_envs
+            or not all(s is None or (is_integer(s) and s >= 0) for s in seeds)
+        ):
             raise ValueError(f"seed must be None, an integer or {self.num_envs} integers >= 0 (or None), got {seed!r}")
         return [None if s is None else int(s) for s in seeds]  # numpy integers too (gymnasium wants int)
 
@@ -666,10 +794,12 @@ class YawStabilityVectorEnv(VectorEnv):
             raise ValueError(f"unknown reset option(s) {sorted(options)}; known: ['reset_mask']")
         if mask is None:
             return np.ones(self.num_envs, dtype=bool)
-        if not (isinstance(mask, np.ndarray) and mask.dtype == np.bool_ and mask.shape == (self.num_envs,)
-                and mask.any()):
-            raise ValueError(f"options['reset_mask'] must be a bool array of shape ({self.num_envs},) with a True, "
-                             f"got {mask!r}")
+        if not (
+            isinstance(mask, np.ndarray) and mask.dtype == np.bool_ and mask.shape == (self.num_envs,) and mask.any()
+        ):
+            raise ValueError(
+                f"options['reset_mask'] must be a bool array of shape ({self.num_envs},) with a True, got {mask!r}"
+            )
         if self._core is None and not mask.all():
             raise ValueError("the first reset must reset every car (no reset_mask)")
         return mask
@@ -690,8 +820,12 @@ class YawStabilityVectorEnv(VectorEnv):
         s = self._core.loop.sample()
         if self.render_mode == "human":
             self.render()
-        return self._core.observe(), {"truth": s.truth, "_truth": mask.copy(), "estimate": s.estimate,
-                                      "_estimate": mask.copy()}
+        return self._core.observe(), {
+            "truth": s.truth,
+            "_truth": mask.copy(),
+            "estimate": s.estimate,
+            "_estimate": mask.copy(),
+        }
 
     def close_extras(self, **kwargs) -> None:
         """Close the human-mode window (gymnasium's VectorEnv.close calls this once)."""
@@ -702,8 +836,9 @@ class YawStabilityVectorEnv(VectorEnv):
             raise RuntimeError("call reset() before step()")
         actions = _check_actions(actions, self.action_space.shape)
         same_step = self.autoreset_mode == AutoresetMode.SAME_STEP
-        obs, reward, terminated, truncated, info = (self._step_same_reset if same_step else
-                                                    self._step_later_reset)(actions)
+        obs, reward, terminated, truncated, info = (self._step_same_reset if same_step else self._step_later_reset)(
+            actions
+        )
         info.update(_truth=np.ones(self.num_envs, dtype=bool), _estimate=np.ones(self.num_envs, dtype=bool))
         if self.render_mode == "human":
             self.render()
@@ -717,16 +852,27 @@ class YawStabilityVectorEnv(VectorEnv):
         per_step = [k for k in info if k not in ("truth", "estimate")]
         if done.any():
             rows = np.flatnonzero(done)
-            final_info = {"truth": info["truth"], "estimate": info["estimate"],
-                          "episode_metrics": _per_car(self.num_envs, rows, metrics.__getitem__),
-                          "_truth": done.copy(), "_estimate": done.copy(), "_episode_metrics": done.copy(),
-                          **_shown(info, per_step, done)}
+            final_info = {
+                "truth": info["truth"],
+                "estimate": info["estimate"],
+                "episode_metrics": _per_car(self.num_envs, rows, metrics.__getitem__),
+                "_truth": done.copy(),
+                "_estimate": done.copy(),
+                "_episode_metrics": done.copy(),
+                **_shown(info, per_step, done),
+            }
             final_obs = _per_car(self.num_envs, rows, lambda b: obs[b].copy())
             self._core.reset_members(done, [self._rngs[b] for b in rows])
             obs = self._core.observe()
             s = self._core.loop.sample()
-            info.update(truth=s.truth, estimate=s.estimate, final_obs=final_obs, _final_obs=done.copy(),
-                        final_info=final_info, _final_info=done.copy())
+            info.update(
+                truth=s.truth,
+                estimate=s.estimate,
+                final_obs=final_obs,
+                _final_obs=done.copy(),
+                final_info=final_info,
+                _final_info=done.copy(),
+            )
         info.update(_shown(info, per_step, ~done))
         return obs, reward, terminated, truncated, info
 
@@ -735,16 +881,20 @@ class YawStabilityVectorEnv(VectorEnv):
         restarting = self._finished.copy()
         if restarting.any():
             if self.autoreset_mode == AutoresetMode.DISABLED:
-                raise RuntimeError(f"cars {np.flatnonzero(restarting).tolist()} ended their episodes: with "
-                                   "autoreset_mode DISABLED, reset them first (reset(options={'reset_mask': mask}))")
+                raise RuntimeError(
+                    f"cars {np.flatnonzero(restarting).tolist()} ended their episodes: with "
+                    "autoreset_mode DISABLED, reset them first (reset(options={'reset_mask': mask}))"
+                )
             self._core.reset_members(restarting, [self._rngs[b] for b in np.flatnonzero(restarting)])
         obs, reward, terminated, truncated, info = self._core.step(actions, ~restarting if restarting.any() else None)
         metrics = info.pop("episode_metrics")
         done = terminated | truncated
         info.update(_shown(info, [k for k in info if k not in ("truth", "estimate")], ~restarting))
         if done.any():
-            info.update(episode_metrics=_per_car(self.num_envs, np.flatnonzero(done), metrics.__getitem__),
-                        _episode_metrics=done.copy())
+            info.update(
+                episode_metrics=_per_car(self.num_envs, np.flatnonzero(done), metrics.__getitem__),
+                _episode_metrics=done.copy(),
+            )
         self._finished = done
         return obs, reward, terminated, truncated, info
 

@@ -19,9 +19,9 @@ import numba
 import numpy as np
 from scipy.signal import butter, find_peaks, sosfiltfilt
 
-from fourwis.envs.courses import CONE_RADIUS, stack_polylines
-from fourwis.core.kernels import JIT
 from fourwis.core.checks import is_number
+from fourwis.core.kernels import JIT
+from fourwis.envs.courses import CONE_RADIUS, stack_polylines
 
 STEERING_CUTOFF = 10.0  #: S7.11.1: steering-wheel angle filter cutoff [Hz]
 RESPONSE_CUTOFF = 6.0  #: S7.11.2-3: yaw rate and lateral acceleration filter cutoff [Hz]
@@ -168,7 +168,7 @@ def _zeroing_end(t: np.ndarray, steer: np.ndarray) -> int:
     initial_motion_end = first + int(flips[0]) if flips.size else len(t)
     hold = int(round(ZEROING_HOLD * fs))
     for onset in onsets[onsets < initial_motion_end]:
-        if onset + hold < len(t) and fast[onset:onset + hold + 1].all():
+        if onset + hold < len(t) and fast[onset : onset + hold + 1].all():
             return int(onset)
     return first
 
@@ -181,9 +181,16 @@ def _crossing_time(t: np.ndarray, x: np.ndarray, level: float, i: int) -> float:
     return float(t[i - 1] + (t[i] - t[i - 1]) * (x0 - level) / (x0 - x1)) if x0 != x1 else float(t[i])
 
 
-def sine_with_dwell_metrics(t, steering_wheel_angle, yaw_rate, lateral_acceleration, A: float | None = None,
-                            direction: int | None = None, sideslip=None,
-                            displacement_limit: float = DISPLACEMENT_LIMIT) -> SineWithDwellResult:
+def sine_with_dwell_metrics(
+    t,
+    steering_wheel_angle,
+    yaw_rate,
+    lateral_acceleration,
+    A: float | None = None,
+    direction: int | None = None,
+    sideslip=None,
+    displacement_limit: float = DISPLACEMENT_LIMIT,
+) -> SineWithDwellResult:
     """Evaluate one sine-with-dwell run by FMVSS 126 S7.11.
 
     ``t`` (n,) uniform times [s]; ``steering_wheel_angle`` [rad], ``yaw_rate`` [rad/s],
@@ -243,8 +250,9 @@ def sine_with_dwell_metrics(t, steering_wheel_angle, yaw_rate, lateral_accelerat
         raise ValueError("the steering never reaches 5 deg: not a sine-with-dwell run")
     i_bos = end + int(np.argmax(excursion))
     if direction is not None and np.sign(steer[i_bos]) != direction:
-        raise ValueError(f"the steering first moves {'left' if steer[i_bos] > 0 else 'right'}: direction={direction} "
-                         "contradicts it")
+        raise ValueError(
+            f"the steering first moves {'left' if steer[i_bos] > 0 else 'right'}: direction={direction} contradicts it"
+        )
     direction = int(np.sign(steer[i_bos]))
     bos = _crossing_time(t, -direction * steer, -BOS_ANGLE, i_bos)
 
@@ -287,12 +295,18 @@ def sine_with_dwell_metrics(t, steering_wheel_angle, yaw_rate, lateral_accelerat
     # (sideslip alone: the regulation's steer, at most ~19 deg at the road wheels, leaves no
     # slow full-lock turn to tell apart, spin_out's ``rolling``)
     spun = None if sideslip is None else spin_out(_series("sideslip", sideslip, n))
-    return SineWithDwellResult(direction, amplitude, bos, cos, peak, ratio_1000, ratio_1750, displacement,
-                               responsive, spun)
+    return SineWithDwellResult(
+        direction, amplitude, bos, cos, peak, ratio_1000, ratio_1750, displacement, responsive, spun
+    )
 
 
-def steering_angle_at_lateral_acceleration(t, steering_wheel_angle, lateral_acceleration, target_g: float = 0.3,
-                                           fit_range_g: tuple[float, float] = (0.1, 0.375)) -> float:
+def steering_angle_at_lateral_acceleration(
+    t,
+    steering_wheel_angle,
+    lateral_acceleration,
+    target_g: float = 0.3,
+    fit_range_g: tuple[float, float] = (0.1, 0.375),
+) -> float:
     """Characterisation angle A [rad] from a slowly increasing steer run (FMVSS 126 S7.6).
 
     ``t`` (n,) [s], ``steering_wheel_angle`` [rad], ``lateral_acceleration`` [m/s^2] (n,).
@@ -309,10 +323,15 @@ def steering_angle_at_lateral_acceleration(t, steering_wheel_angle, lateral_acce
     lo, hi = fit_range_g
     if not 0 <= lo < hi or not target_g > 0:
         raise ValueError(f"need 0 <= fit_range_g[0] < fit_range_g[1] and target_g > 0, got {fit_range_g}, {target_g}")
-    steer = np.abs(phaseless_butterworth(_series("steering_wheel_angle", steering_wheel_angle, len(t)), fs,
-                                         STEERING_CUTOFF))
-    ay_g = np.abs(phaseless_butterworth(_series("lateral_acceleration", lateral_acceleration, len(t)), fs,
-                                        RESPONSE_CUTOFF)) / G_UNIT
+    steer = np.abs(
+        phaseless_butterworth(_series("steering_wheel_angle", steering_wheel_angle, len(t)), fs, STEERING_CUTOFF)
+    )
+    ay_g = (
+        np.abs(
+            phaseless_butterworth(_series("lateral_acceleration", lateral_acceleration, len(t)), fs, RESPONSE_CUTOFF)
+        )
+        / G_UNIT
+    )
     rising = slice(0, int(np.argmax(ay_g)) + 1)
     fit = np.flatnonzero((ay_g[rising] >= lo) & (ay_g[rising] <= hi))
     if fit.size < 10:
@@ -321,8 +340,9 @@ def steering_angle_at_lateral_acceleration(t, steering_wheel_angle, lateral_acce
     return float(slope * target_g + intercept)
 
 
-def cone_hits(x, y, psi, cones, width: float, front_extent: float, rear_extent: float,
-              cone_radius: float = CONE_RADIUS) -> int:
+def cone_hits(
+    x, y, psi, cones, width: float, front_extent: float, rear_extent: float, cone_radius: float = CONE_RADIUS
+) -> int:
     """Number of distinct cones touched by the car's footprint (ISO 3888 counts displaced cones).
 
     ``x, y`` (n,) CG path [m], ``psi`` (n,) heading [rad]; ``cones`` (M, 2) cone centres [m].
@@ -335,8 +355,11 @@ def cone_hits(x, y, psi, cones, width: float, front_extent: float, rear_extent: 
     cones = np.asarray(cones, dtype=float)
     if cones.ndim != 2 or cones.shape[1] != 2 or not np.all(np.isfinite(cones)):
         raise ValueError(f"cones must be a finite (M, 2) array, got shape {cones.shape}")
-    for name, value in (("width", width), ("front_extent + rear_extent", front_extent + rear_extent),
-                        ("cone_radius", cone_radius)):
+    for name, value in (
+        ("width", width),
+        ("front_extent + rear_extent", front_extent + rear_extent),
+        ("cone_radius", cone_radius),
+    ):
         if not (math.isfinite(value) and value > 0):
             raise ValueError(f"{name} must be positive [m], got {value!r}")
     dx, dy = cones[:, None, 0] - x, cones[:, None, 1] - y  # (M, n)
@@ -400,8 +423,14 @@ class CoursePaths:
         out = np.zeros(len(self.paths))
         cars = np.flatnonzero(alongside_path(x, self.ends))
         if len(cars):
-            _batch_distances(np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(y, dtype=float), self.points,
-                             self.offsets, cars, out)
+            _batch_distances(
+                np.ascontiguousarray(x, dtype=float),
+                np.ascontiguousarray(y, dtype=float),
+                self.points,
+                self.offsets,
+                cars,
+                out,
+            )
         return out
 
 
@@ -428,7 +457,7 @@ def _distances_to_polyline(x, y, path, out):
 @numba.njit(**JIT)
 def _batch_distances(x, y, points, offsets, cars, out):
     for b in cars:
-        out[b] = _distance_to_polyline(x[b], y[b], points[offsets[b]:offsets[b + 1]])
+        out[b] = _distance_to_polyline(x[b], y[b], points[offsets[b] : offsets[b + 1]])
 
 
 def kinematic_sideslip(delta_f, delta_r, cg_to_front: float, cg_to_rear: float) -> np.ndarray:
@@ -461,8 +490,7 @@ def spun_sideslip(beta, rolling=None, threshold_beta: float = SPIN_OUT_SIDESLIP)
     return spun if rolling is None else spun & ~(np.abs(beta - rolling) <= ROLLING_SIDESLIP_TOLERANCE)
 
 
-def spin_out(beta, psi=None, course_heading=None, threshold_beta: float = SPIN_OUT_SIDESLIP,
-             rolling=None) -> bool:
+def spin_out(beta, psi=None, course_heading=None, threshold_beta: float = SPIN_OUT_SIDESLIP, rolling=None) -> bool:
     """Whether the car spun out.
 
     ``beta`` (n,) sideslip [rad]: spin-out once |beta| > ``threshold_beta`` (default 20 deg;

@@ -44,8 +44,9 @@ class Renderer:
 
         self.figure = Figure(figsize=(FRAME_WIDTH / 100, FRAME_HEIGHT / 100), dpi=100)
         self.canvas = FigureCanvasAgg(self.figure)
-        grid = self.figure.add_gridspec(2, 2, width_ratios=(3, 2), left=0.02, right=0.98, top=0.95, bottom=0.08,
-                                        wspace=0.25, hspace=0.35)
+        grid = self.figure.add_gridspec(
+            2, 2, width_ratios=(3, 2), left=0.02, right=0.98, top=0.95, bottom=0.08, wspace=0.25, hspace=0.35
+        )
         self.road_axes = self.figure.add_subplot(grid[:, 0])
         self.yaw_axes = self.figure.add_subplot(grid[0, 1])
         self.beta_axes = self.figure.add_subplot(grid[1, 1])
@@ -64,8 +65,15 @@ class Renderer:
         ys = np.linspace(y - VIEW_HALF_Y, y + VIEW_HALF_Y, MU_GRID)
         gx, gy = np.meshgrid(xs, ys)
         mu = scenario.road.mu_at(gx, gy)
-        ax.imshow(mu, origin="lower", extent=(xs[0], xs[-1], ys[0], ys[-1]), cmap="Greys", vmin=0.0, vmax=1.4,
-                  interpolation="nearest")
+        ax.imshow(
+            mu,
+            origin="lower",
+            extent=(xs[0], xs[-1], ys[0], ys[-1]),
+            cmap="Greys",
+            vmin=0.0,
+            vmax=1.4,
+            interpolation="nearest",
+        )
         if scenario.reference_path is not None:
             path = scenario.reference_path
             ax.plot(path[:, 0], path[:, 1], "--", color="tab:blue", lw=0.8)
@@ -74,18 +82,32 @@ class Renderer:
             ax.plot(cones[:, 0], cones[:, 1], "^", color="tab:orange", ms=4)
         body_length = params.front_extent + params.rear_extent
         centre_offset = params.front_extent - body_length / 2
-        ax.add_patch(mpatches.Polygon(_box(x + centre_offset * math.cos(psi), y + centre_offset * math.sin(psi),
-                                           body_length, params.width, psi), closed=True, fc="tab:blue", ec="k",
-                                      alpha=0.35))
+        ax.add_patch(
+            mpatches.Polygon(
+                _box(
+                    x + centre_offset * math.cos(psi), y + centre_offset * math.sin(psi), body_length, params.width, psi
+                ),
+                closed=True,
+                fc="tab:blue",
+                ec="k",
+                alpha=0.35,
+            )
+        )
         wx, wy = contact_points(state[None, :], params)
         steer = (state[S_DELTA_F], state[S_DELTA_F], state[S_DELTA_R], state[S_DELTA_R])
         usage_colours = _colormap("RdYlGn_r")
         mu_colours = _colormap("Blues")
         for i in range(4):
             usage = float(np.clip(aux[A_USAGE + i], 0.0, 1.0))
-            ax.add_patch(mpatches.Polygon(_box(wx[0, i], wy[0, i], WHEEL_LENGTH, WHEEL_WIDTH, psi + steer[i]),
-                                          closed=True, fc=usage_colours(usage),
-                                          ec=mu_colours(min(aux[A_MU + i] / 1.2, 1.0)), lw=2.0))
+            ax.add_patch(
+                mpatches.Polygon(
+                    _box(wx[0, i], wy[0, i], WHEEL_LENGTH, WHEEL_WIDTH, psi + steer[i]),
+                    closed=True,
+                    fc=usage_colours(usage),
+                    ec=mu_colours(min(aux[A_MU + i] / 1.2, 1.0)),
+                    lw=2.0,
+                )
+            )
         ax.set_xlim(x - VIEW_HALF_X, x + VIEW_HALF_X)
         ax.set_ylim(y - VIEW_HALF_Y, y + VIEW_HALF_Y)
         ax.set_aspect("equal")
@@ -93,8 +115,10 @@ class Renderer:
         ax.set_yticks([])
         ax.set_title(f"{scenario.name}  t = {loop.t[b]:.2f} s  u = {state[S_U] * 3.6:.0f} km/h", fontsize=8)
         recent = trace[trace[:, 0] >= trace[-1, 0] - STRIP_SECONDS] if len(trace) else trace
-        for axes, columns, labels, ylabel in ((self.yaw_axes, (1, 2), ("r", "r_ref"), "yaw rate [deg/s]"),
-                                              (self.beta_axes, (3,), ("beta",), "sideslip [deg]")):
+        for axes, columns, labels, ylabel in (
+            (self.yaw_axes, (1, 2), ("r", "r_ref"), "yaw rate [deg/s]"),
+            (self.beta_axes, (3,), ("beta",), "sideslip [deg]"),
+        ):
             axes.clear()
             for column, label in zip(columns, labels):
                 axes.plot(recent[:, 0], np.degrees(recent[:, column]), label=label, lw=1.0)
@@ -125,8 +149,9 @@ def show_frame(frame: np.ndarray, window):
     """Draw ``frame`` in a matplotlib window (human mode); warns once where there is no display."""
     import matplotlib
 
-    if matplotlib.get_backend().lower() == "agg" or (os.name == "posix" and not os.environ.get("DISPLAY")
-                                                     and not os.environ.get("WAYLAND_DISPLAY")):
+    if matplotlib.get_backend().lower() == "agg" or (
+        os.name == "posix" and not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY")
+    ):
         if window != "no-display":
             warnings.warn("render_mode='human' needs a display; none found, frames are not shown", stacklevel=3)
         return "no-display"

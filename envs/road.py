@@ -20,15 +20,19 @@ from typing import NamedTuple
 
 import numpy as np
 
-from fourwis.envs.vehicle import MU_MAX, S_PSI, S_X, S_Y, VehicleParams
 from fourwis.core.checks import is_number
+from fourwis.envs.vehicle import MU_MAX, S_PSI, S_X, S_Y, VehicleParams
 
 
 def check_mu(name: str, value: float) -> float:
     """``value`` as a float if it is a friction coefficient in (0, MU_MAX] (any real number type,
     not a bool); else ValueError naming ``name``."""
-    if not (isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)) and math.isfinite(value)
-            and 0.0 < value <= MU_MAX):
+    if not (
+        isinstance(value, numbers.Real)
+        and not isinstance(value, (bool, np.bool_))
+        and math.isfinite(value)
+        and 0.0 < value <= MU_MAX
+    ):
         raise ValueError(f"{name} must be a friction coefficient in (0, {MU_MAX}], got {value!r}")
     return float(value)
 
@@ -97,18 +101,22 @@ def uniform(mu: float) -> PatchMap:
 
 def split(mu_left: float, mu_right: float, y_split: float = 0.0) -> PatchMap:
     """Left/right split: ``mu_left`` for Y >= ``y_split`` [m], ``mu_right`` below (ISO: +Y is left)."""
-    return PatchMap(check_mu("mu_right", mu_right),
-                    (Patch(-math.inf, math.inf, y_split, math.inf, check_mu("mu_left", mu_left)),))
+    return PatchMap(
+        check_mu("mu_right", mu_right), (Patch(-math.inf, math.inf, y_split, math.inf, check_mu("mu_left", mu_left)),)
+    )
 
 
 def step_change(mu_before: float, mu_after: float, x_step: float) -> PatchMap:
     """Longitudinal step: ``mu_before`` for X < ``x_step`` [m], ``mu_after`` from there on."""
-    return PatchMap(check_mu("mu_before", mu_before),
-                    (Patch(x_step, math.inf, -math.inf, math.inf, check_mu("mu_after", mu_after)),))
+    return PatchMap(
+        check_mu("mu_before", mu_before),
+        (Patch(x_step, math.inf, -math.inf, math.inf, check_mu("mu_after", mu_after)),),
+    )
 
 
-def patch(mu_base: float, mu_patch: float, x0: float, x1: float,
-          y0: float = -math.inf, y1: float = math.inf) -> PatchMap:
+def patch(
+    mu_base: float, mu_patch: float, x0: float, x1: float, y0: float = -math.inf, y1: float = math.inf
+) -> PatchMap:
     """A single patch, e.g. ice ``patch(0.9, 0.1, 50, 80)`` across the whole road for 30 m."""
     return PatchMap(check_mu("mu_base", mu_base), (Patch(x0, x1, y0, y1, mu_patch),))
 
@@ -120,14 +128,15 @@ class CallableMap(FrictionMap):
     fn: Callable[[np.ndarray, np.ndarray], np.ndarray]
 
     def mu_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        mu = np.asarray(self.fn(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)),
-                        dtype=np.float64)
+        mu = np.asarray(self.fn(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)), dtype=np.float64)
         shape = np.broadcast(x, y).shape
         try:
             mu = np.broadcast_to(mu, shape)
         except ValueError:
-            raise ValueError(f"friction map returned shape {mu.shape} for positions of shape {shape}: give one mu "
-                             "per position (or a scalar)") from None
+            raise ValueError(
+                f"friction map returned shape {mu.shape} for positions of shape {shape}: give one mu "
+                "per position (or a scalar)"
+            ) from None
         bad = ~((mu > 0.0) & (mu <= MU_MAX))
         if np.any(bad):
             raise ValueError(f"friction map returned mu {mu[bad].flat[0]!r} outside (0, {MU_MAX}]")
@@ -167,7 +176,7 @@ class RoadTables(NamedTuple):
     use_map: bool
 
     @classmethod
-    def from_roads(cls, road, batch: int) -> "RoadTables":
+    def from_roads(cls, road, batch: int) -> RoadTables:
         """Tables for table maps (one map, or a sequence of ``batch`` maps); ValueError for callables."""
         roads = _per_vehicle(road, batch)
         tables = [r.table() for r in roads]
@@ -176,14 +185,17 @@ class RoadTables(NamedTuple):
         k = max(t[1].shape[0] for t in tables)
         rects = np.zeros((batch, k, 5))
         for b, (_, rows) in enumerate(tables):
-            rects[b, :rows.shape[0]] = rows
+            rects[b, : rows.shape[0]] = rows
         base = np.array([t[0] for t in tables])
         return cls(base, rects, np.ones((batch, 4)), True)
 
 
 def _per_vehicle(road, batch: int) -> list[FrictionMap]:
-    roads = ([as_friction_map(r) for r in road] if isinstance(road, Sequence) and not isinstance(road, str)
-             else [as_friction_map(road)] * batch)
+    roads = (
+        [as_friction_map(r) for r in road]
+        if isinstance(road, Sequence) and not isinstance(road, str)
+        else [as_friction_map(road)] * batch
+    )
     if len(roads) != batch:
         raise ValueError(f"got {len(roads)} roads for a batch of {batch}")
     return roads

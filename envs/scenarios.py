@@ -28,12 +28,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from fourwis.core.checks import is_integer, is_number
+from fourwis.core.constants import GRAVITY
 from fourwis.envs import courses
 from fourwis.envs.driver import Constant, PathFollower, Ramp, Sine, SineWithDwell, SpeedHold, Step, SumOfSines
 from fourwis.envs.road import FrictionMap, PatchMap, as_friction_map, check_mu, patch, split, uniform
-from fourwis.core.constants import GRAVITY
 from fourwis.envs.vehicle import VehicleParams, initial_state
-from fourwis.core.checks import is_integer, is_number
 
 Steering = Callable[[float, np.ndarray], float]
 
@@ -65,8 +65,9 @@ class Scenario:
 
     def __post_init__(self) -> None:
         if not callable(self.steering):
-            raise ValueError(f"steering must be a callable steering(t, plant_state) -> angle [rad], got "
-                             f"{self.steering!r}")
+            raise ValueError(
+                f"steering must be a callable steering(t, plant_state) -> angle [rad], got {self.steering!r}"
+            )
         if not isinstance(self.rear_steer_feedforward, (bool, np.bool_)):
             raise ValueError(f"rear_steer_feedforward must be True or False, got {self.rear_steer_feedforward!r}")
         if not isinstance(self.params, VehicleParams):
@@ -74,9 +75,11 @@ class Scenario:
         if not (is_number(self.speed_kph) and 0.0 < self.speed_kph <= MAX_SPEED_KPH):
             raise ValueError(f"speed_kph must lie in (0, {MAX_SPEED_KPH:g}], got {self.speed_kph!r}")
         if not (is_number(self.duration) and 0.0 < self.duration <= MAX_DURATION):
-            raise ValueError(f"scenario {self.name!r}: duration must lie in (0, {MAX_DURATION:g}] s, got "
-                             f"{self.duration!r} (a builder's own duration grows as the speed, "
-                             f"{self.speed_kph!r} km/h, falls: give a shorter one)")
+            raise ValueError(
+                f"scenario {self.name!r}: duration must lie in (0, {MAX_DURATION:g}] s, got "
+                f"{self.duration!r} (a builder's own duration grows as the speed, "
+                f"{self.speed_kph!r} km/h, falls: give a shorter one)"
+            )
 
     @property
     def speed(self) -> float:
@@ -87,8 +90,9 @@ class Scenario:
     def vehicle_params(self) -> VehicleParams:
         """The plant parameters with this scenario's 4WS feed-forward switch (on if the
         scenario's or the given parameters' switch is)."""
-        return self.params.replace(rear_steer_feedforward=self.rear_steer_feedforward
-                                    or self.params.rear_steer_feedforward)
+        return self.params.replace(
+            rear_steer_feedforward=self.rear_steer_feedforward or self.params.rear_steer_feedforward
+        )
 
     def initial_state(self, batch_size: int = 1) -> np.ndarray:
         """Plant state (batch_size, NX) at the start: straight at ``speed`` from ``start_x``."""
@@ -106,8 +110,9 @@ def _positive(name: str, value) -> float:
 
 def _finite(name: str, value, minimum: float = -math.inf) -> float:
     if not (is_number(value) and math.isfinite(value) and value >= minimum):
-        raise ValueError(f"{name} must be a finite number" + (f" >= {minimum:g}" if minimum > -math.inf else "")
-                         + f", got {value!r}")
+        raise ValueError(
+            f"{name} must be a finite number" + (f" >= {minimum:g}" if minimum > -math.inf else "") + f", got {value!r}"
+        )
     return float(value)
 
 
@@ -138,8 +143,9 @@ def _road(mu) -> FrictionMap:
     try:
         return as_friction_map(mu)
     except ValueError as err:
-        raise ValueError(f"bad mu {mu!r}: {err}; or a (left, right) pair of friction coefficients for a split "
-                         "road") from None
+        raise ValueError(
+            f"bad mu {mu!r}: {err}; or a (left, right) pair of friction coefficients for a split road"
+        ) from None
 
 
 def neutral_steer_angle(lateral_acceleration: float, speed: float, params: VehicleParams) -> float:
@@ -160,24 +166,54 @@ def _path_scenario(name, course, speed_kph, mu, duration, lead_in, steering, par
     start = path[0, 0] - lead_in
     full_path = np.vstack([[start, path[0, 1]], path])
     driver = steering if steering is not None else PathFollower(full_path, params)
-    return Scenario(name, speed_kph, _road(mu), _positive("duration", duration), driver, start_x=start,
-                    course=course, reference_path=full_path, params=params, **kw)
+    return Scenario(
+        name,
+        speed_kph,
+        _road(mu),
+        _positive("duration", duration),
+        driver,
+        start_x=start,
+        course=course,
+        reference_path=full_path,
+        params=params,
+        **kw,
+    )
 
 
-def paper_dlc(speed_kph=35.0, mu=0.5, duration=None, steering=None, rear_steer_feedforward=False,
-              params=VehicleParams()) -> Scenario:
+def paper_dlc(
+    speed_kph=35.0, mu=0.5, duration=None, steering=None, rear_steer_feedforward=False, params=VehicleParams()
+) -> Scenario:
     """Paper 3.3.3 (1): double lane change (ISO 3888-1 course), mu 0.5, 35 km/h."""
     _positive("speed_kph", speed_kph)
-    return _path_scenario("paper_dlc", courses.iso3888_1(*_body(params)), speed_kph, mu, duration, 20.0, steering,
-                          params, rear_steer_feedforward=rear_steer_feedforward)
+    return _path_scenario(
+        "paper_dlc",
+        courses.iso3888_1(*_body(params)),
+        speed_kph,
+        mu,
+        duration,
+        20.0,
+        steering,
+        params,
+        rear_steer_feedforward=rear_steer_feedforward,
+    )
 
 
-def paper_split_dlc(speed_kph=25.0, mu=(0.5, 0.3), duration=None, steering=None, rear_steer_feedforward=False,
-                    params=VehicleParams()) -> Scenario:
+def paper_split_dlc(
+    speed_kph=25.0, mu=(0.5, 0.3), duration=None, steering=None, rear_steer_feedforward=False, params=VehicleParams()
+) -> Scenario:
     """Paper 4.3.1: double lane change on a left/right split road, ``mu = (left, right)`` = (0.5, 0.3), 25 km/h."""
     _positive("speed_kph", speed_kph)
-    return _path_scenario("paper_split_dlc", courses.iso3888_1(*_body(params)), speed_kph, mu, duration, 20.0,
-                          steering, params, rear_steer_feedforward=rear_steer_feedforward)
+    return _path_scenario(
+        "paper_split_dlc",
+        courses.iso3888_1(*_body(params)),
+        speed_kph,
+        mu,
+        duration,
+        20.0,
+        steering,
+        params,
+        rear_steer_feedforward=rear_steer_feedforward,
+    )
 
 
 def _starts_in_time(name: str, parameter: str, start, duration) -> float:
@@ -185,42 +221,104 @@ def _starts_in_time(name: str, parameter: str, start, duration) -> float:
     (a later one would leave the run without its manoeuvre)."""
     start, duration = _finite(parameter, start, 0.0), _positive("duration", duration)
     if start >= duration:
-        raise ValueError(f"{name}: {parameter} = {start!r} s is not before the end of the run (duration = "
-                         f"{duration!r} s): the run would end before its manoeuvre starts; lower {parameter} or "
-                         "raise duration")
+        raise ValueError(
+            f"{name}: {parameter} = {start!r} s is not before the end of the run (duration = "
+            f"{duration!r} s): the run would end before its manoeuvre starts; lower {parameter} or "
+            "raise duration"
+        )
     return start
 
 
-def paper_step(speed_kph=40.0, mu=0.3, duration=10.0, steering=None, step_time=None, angle=1.0,
-               rear_steer_feedforward=False, params=VehicleParams()) -> Scenario:
+def paper_step(
+    speed_kph=40.0,
+    mu=0.3,
+    duration=10.0,
+    steering=None,
+    step_time=None,
+    angle=1.0,
+    rear_steer_feedforward=False,
+    params=VehicleParams(),
+) -> Scenario:
     """Paper 3.3.3 (2): steering-wheel step of ``angle`` [rad] (1 rad) at ``step_time`` [s] (5 s;
     given, it must come before ``duration``), mu 0.3, 40 km/h."""
     if steering is None:
         step_time = 5.0 if step_time is None else _starts_in_time("paper_step", "step_time", step_time, duration)
         steering = Step(_finite("angle", angle), step_time)
-    return Scenario("paper_step", _positive("speed_kph", speed_kph), _road(mu), _positive("duration", duration),
-                    steering, rear_steer_feedforward=rear_steer_feedforward, params=params)
+    return Scenario(
+        "paper_step",
+        _positive("speed_kph", speed_kph),
+        _road(mu),
+        _positive("duration", duration),
+        steering,
+        rear_steer_feedforward=rear_steer_feedforward,
+        params=params,
+    )
 
 
-def paper_sine(speed_kph=40.0, mu=0.8, duration=10.0, steering=None, amplitude_deg=90.0, frequency=0.5,
-               rear_steer_feedforward=False, params=VehicleParams()) -> Scenario:
+def paper_sine(
+    speed_kph=40.0,
+    mu=0.8,
+    duration=10.0,
+    steering=None,
+    amplitude_deg=90.0,
+    frequency=0.5,
+    rear_steer_feedforward=False,
+    params=VehicleParams(),
+) -> Scenario:
     """Paper 3.3.3 (3): sinusoidal steering-wheel input (``amplitude_deg`` at ``frequency`` Hz), mu 0.8, 40 km/h."""
-    steering = steering if steering is not None else Sine(math.radians(_positive("amplitude_deg", amplitude_deg)),
-                                                          _positive("frequency", frequency), start=1.0)
-    return Scenario("paper_sine", _positive("speed_kph", speed_kph), _road(mu), _positive("duration", duration),
-                    steering, rear_steer_feedforward=rear_steer_feedforward, params=params)
+    steering = (
+        steering
+        if steering is not None
+        else Sine(math.radians(_positive("amplitude_deg", amplitude_deg)), _positive("frequency", frequency), start=1.0)
+    )
+    return Scenario(
+        "paper_sine",
+        _positive("speed_kph", speed_kph),
+        _road(mu),
+        _positive("duration", duration),
+        steering,
+        rear_steer_feedforward=rear_steer_feedforward,
+        params=params,
+    )
 
 
-def paper_serpentine(speed_kph=40.0, mu=0.5, duration=None, steering=None, spacing=18.0, amplitude=1.0,
-                     n_cones=8, rear_steer_feedforward=False, params=VehicleParams()) -> Scenario:
+def paper_serpentine(
+    speed_kph=40.0,
+    mu=0.5,
+    duration=None,
+    steering=None,
+    spacing=18.0,
+    amplitude=1.0,
+    n_cones=8,
+    rear_steer_feedforward=False,
+    params=VehicleParams(),
+) -> Scenario:
     """Paper 4.3.2: slalom through ``n_cones`` cones ``spacing`` [m] apart, path amplitude ``amplitude`` [m]."""
     course = courses.slalom(_positive("spacing", spacing), _positive("amplitude", amplitude), n_cones)
-    return _path_scenario("paper_serpentine", course, _positive("speed_kph", speed_kph), mu, duration, 20.0,
-                          steering, params, rear_steer_feedforward=rear_steer_feedforward)
+    return _path_scenario(
+        "paper_serpentine",
+        course,
+        _positive("speed_kph", speed_kph),
+        mu,
+        duration,
+        20.0,
+        steering,
+        params,
+        rear_steer_feedforward=rear_steer_feedforward,
+    )
 
 
-def sine_with_dwell(speed_kph=80.0, mu=1.0, duration=5.0, steering=None, amplitude_deg=180.0, direction=1,
-                    start=None, rear_steer_feedforward=False, params=VehicleParams()) -> Scenario:
+def sine_with_dwell(
+    speed_kph=80.0,
+    mu=1.0,
+    duration=5.0,
+    steering=None,
+    amplitude_deg=180.0,
+    direction=1,
+    start=None,
+    rear_steer_feedforward=False,
+    params=VehicleParams(),
+) -> Scenario:
     """FMVSS 126 sine with dwell at ``amplitude_deg`` of steering wheel, first towards ``direction``
     (+1 left, -1 right); speed held until the steering starts at ``start`` [s] (1 s; given, it
     must come before ``duration``), then coasting. The amplitude series (1.5A ... max(6.5A,
@@ -233,12 +331,28 @@ def sine_with_dwell(speed_kph=80.0, mu=1.0, duration=5.0, steering=None, amplitu
     else:  # (another steering: start only ends the speed holding)
         start = _finite("start", start, 0.0)
     steering = steering if steering is not None else SineWithDwell(amplitude, start)
-    return Scenario("sine_with_dwell", _positive("speed_kph", speed_kph), _road(mu), _positive("duration", duration),
-                    steering, coast_after=start, rear_steer_feedforward=rear_steer_feedforward, params=params)
+    return Scenario(
+        "sine_with_dwell",
+        _positive("speed_kph", speed_kph),
+        _road(mu),
+        _positive("duration", duration),
+        steering,
+        coast_after=start,
+        rear_steer_feedforward=rear_steer_feedforward,
+        params=params,
+    )
 
 
-def slowly_increasing_steer(speed_kph=80.0, mu=1.0, duration=None, steering=None, rate_deg=13.5, direction=1,
-                            rear_steer_feedforward=False, params=VehicleParams()) -> Scenario:
+def slowly_increasing_steer(
+    speed_kph=80.0,
+    mu=1.0,
+    duration=None,
+    steering=None,
+    rate_deg=13.5,
+    direction=1,
+    rear_steer_feedforward=False,
+    params=VehicleParams(),
+) -> Scenario:
     """FMVSS 126 characterisation: steering-wheel ramp at ``rate_deg`` deg/s at constant speed.
 
     Runs until the ramp would reach 0.55 g in the linear bicycle model (past the 0.5 g the
@@ -249,23 +363,49 @@ def slowly_increasing_steer(speed_kph=80.0, mu=1.0, duration=None, steering=None
         swa_end = neutral_steer_angle(0.55 * GRAVITY, speed, params) * params.steering_ratio
         duration = 1.0 + 1.5 * swa_end / abs(rate)
     steering = steering if steering is not None else Ramp(rate, start=1.0)
-    return Scenario("slowly_increasing_steer", speed_kph, _road(mu), _positive("duration", duration), steering,
-                    rear_steer_feedforward=rear_steer_feedforward, params=params)
+    return Scenario(
+        "slowly_increasing_steer",
+        speed_kph,
+        _road(mu),
+        _positive("duration", duration),
+        steering,
+        rear_steer_feedforward=rear_steer_feedforward,
+        params=params,
+    )
 
 
-def iso3888_2(speed_kph=60.0, mu=1.0, duration=None, steering=None, rear_steer_feedforward=False,
-              params=VehicleParams()) -> Scenario:
+def iso3888_2(
+    speed_kph=60.0, mu=1.0, duration=None, steering=None, rear_steer_feedforward=False, params=VehicleParams()
+) -> Scenario:
     """ISO 3888-2 obstacle-avoidance lane change: enter at ``speed_kph``, coast from the course entry
     (the first gate's start; the driver's line begins 10 m before it, after a 30 m lead-in)."""
     _positive("speed_kph", speed_kph)
     course = courses.iso3888_2(*_body(params))
-    scenario = _path_scenario("iso3888_2", course, speed_kph, mu, duration, 30.0, steering, params,
-                              rear_steer_feedforward=rear_steer_feedforward)
+    scenario = _path_scenario(
+        "iso3888_2",
+        course,
+        speed_kph,
+        mu,
+        duration,
+        30.0,
+        steering,
+        params,
+        rear_steer_feedforward=rear_steer_feedforward,
+    )
     return replace(scenario, coast_after=(course.gates[0].x_start - scenario.start_x) / scenario.speed)
 
 
-def mu_jump(speed_kph=60.0, mu=0.9, duration=6.0, steering=None, mu_patch=0.3, lateral_g=0.4, patch_x=25.0,
-            rear_steer_feedforward=False, params=VehicleParams()) -> Scenario:
+def mu_jump(
+    speed_kph=60.0,
+    mu=0.9,
+    duration=6.0,
+    steering=None,
+    mu_patch=0.3,
+    lateral_g=0.4,
+    patch_x=25.0,
+    rear_steer_feedforward=False,
+    params=VehicleParams(),
+) -> Scenario:
     """Steady cornering at ``lateral_g`` (neutral-steer steering-wheel angle) on ``mu``, onto a
     ``mu_patch`` surface covering every X >= ``patch_x`` [m] (about 1.5 s into the turn). ``mu``
     may be a patch map (e.g. a split road): its patches stay, the jump is laid over them."""
@@ -280,24 +420,44 @@ def mu_jump(speed_kph=60.0, mu=0.9, duration=6.0, steering=None, mu_patch=0.3, l
         radius = params.wheelbase / delta
         reach = radius * math.sin(reach / radius) if reach < 0.5 * math.pi * radius else radius
     if not _finite("patch_x", patch_x) > params.cg_to_front:
-        raise ValueError(f"mu_jump: patch_x must lie ahead of the front axle at the start (X > "
-                         f"{params.cg_to_front:g} m), got {patch_x!r}: the car would start on the patch")
+        raise ValueError(
+            f"mu_jump: patch_x must lie ahead of the front axle at the start (X > "
+            f"{params.cg_to_front:g} m), got {patch_x!r}: the car would start on the patch"
+        )
     if reach <= patch_x:
-        raise ValueError(f"mu_jump: at {speed_kph!r} km/h for {duration!r} s the car reaches X = {reach:.1f} m at "
-                         f"most, short of the patch at X = {patch_x!r} m; raise speed_kph or duration (or lower "
-                         "lateral_g)")
+        raise ValueError(
+            f"mu_jump: at {speed_kph!r} km/h for {duration!r} s the car reaches X = {reach:.1f} m at "
+            f"most, short of the patch at X = {patch_x!r} m; raise speed_kph or duration (or lower "
+            "lateral_g)"
+        )
     base = _road(mu)
     if not isinstance(base, PatchMap):
         raise ValueError(f"mu_jump needs a uniform or patch map as mu, got {mu!r}")
     jump = patch(base.base, check_mu("mu_patch", mu_patch), patch_x, math.inf).patches
     road = PatchMap(base.base, base.patches + jump)
-    return Scenario("mu_jump", speed_kph, road, _positive("duration", duration), steering,
-                    rear_steer_feedforward=rear_steer_feedforward, params=params)
+    return Scenario(
+        "mu_jump",
+        speed_kph,
+        road,
+        _positive("duration", duration),
+        steering,
+        rear_steer_feedforward=rear_steer_feedforward,
+        params=params,
+    )
 
 
-def random(speed_kph=None, mu=None, duration=10.0, steering=None, seed=0, rear_steer_feedforward=False,
-           params=VehicleParams(), speed_range_kph=(30.0, 110.0), lateral_demand=(0.3, 1.2),
-           course_share=0.0) -> Scenario:
+def random(
+    speed_kph=None,
+    mu=None,
+    duration=10.0,
+    steering=None,
+    seed=0,
+    rear_steer_feedforward=False,
+    params=VehicleParams(),
+    speed_range_kph=(30.0, 110.0),
+    lateral_demand=(0.3, 1.2),
+    course_share=0.0,
+) -> Scenario:
     """Domain-randomised training scenario drawn from ``seed``: speed uniform in
     ``speed_range_kph`` (30-110 km/h); road uniform, split, or with a patch (mu 0.2-1.0);
     steering a sum of three random sines (0.2-1.2 Hz) with an amplitude that asks for
@@ -315,8 +475,7 @@ def random(speed_kph=None, mu=None, duration=10.0, steering=None, seed=0, rear_s
     demand_low, demand_high = _interval("lateral_demand", lateral_demand)
     if not (is_number(course_share) and 0.0 <= course_share <= 1.0):
         raise ValueError(f"course_share must be a probability in [0, 1], got {course_share!r}")
-    if not (isinstance(seed, (np.random.SeedSequence, np.random.Generator))
-            or (is_integer(seed) and seed >= 0)):
+    if not (isinstance(seed, (np.random.SeedSequence, np.random.Generator)) or (is_integer(seed) and seed >= 0)):
         raise ValueError(f"seed must be an integer >= 0 (or a numpy SeedSequence or Generator), got {seed!r}")
     rng = np.random.default_rng(seed)
     # speed and road are drawn even where given, so that fixing one keeps a seed's other draws
@@ -326,17 +485,29 @@ def random(speed_kph=None, mu=None, duration=10.0, steering=None, seed=0, rear_s
     lo, hi = np.sort(rng.uniform(0.2, 1.0, 2))
     order = rng.permutation([lo, hi]) if kind == 1 else None
     if mu is None:
-        mu = (uniform(hi) if kind == 0 else split(*order) if kind == 1
-              else patch(hi, lo, float(rng.uniform(20.0, 150.0)), float(rng.uniform(170.0, 300.0))))
+        mu = (
+            uniform(hi)
+            if kind == 0
+            else split(*order)
+            if kind == 1
+            else patch(hi, lo, float(rng.uniform(20.0, 150.0)), float(rng.uniform(170.0, 300.0)))
+        )
     elif kind == 2:
         rng.uniform(20.0, 150.0, 2)  # (the patch's extent, as if drawn)
     road = _road(mu)
     if steering is None and course_share > 0.0 and rng.random() < course_share:
         width, front, rear = _body(params)
-        course = courses.lane_change(width, scale=float(rng.uniform(0.8, 2.0)), offset=float(rng.uniform(1.5, 3.5)),
-                                     direction=int(rng.choice([-1, 1])), front_extent=front, rear_extent=rear)
-        return _path_scenario("random", course, speed_kph, road, None, 20.0, None, params,
-                              rear_steer_feedforward=rear_steer_feedforward)
+        course = courses.lane_change(
+            width,
+            scale=float(rng.uniform(0.8, 2.0)),
+            offset=float(rng.uniform(1.5, 3.5)),
+            direction=int(rng.choice([-1, 1])),
+            front_extent=front,
+            rear_extent=rear,
+        )
+        return _path_scenario(
+            "random", course, speed_kph, road, None, 20.0, None, params, rear_steer_feedforward=rear_steer_feedforward
+        )
     if steering is None:
         speed = speed_kph / 3.6
         mu_ref = road.table()[0] if road.table() is not None else 0.5
@@ -345,18 +516,38 @@ def random(speed_kph=None, mu=None, duration=10.0, steering=None, seed=0, rear_s
         swa = min(neutral_steer_angle(demand, speed, params), params.max_front_steer) * params.steering_ratio
         if rng.random() < 0.75:
             weights = rng.dirichlet(np.ones(3))
-            steering = SumOfSines(tuple(float(w * swa) for w in weights),
-                                   tuple(float(f) for f in rng.uniform(0.2, 1.2, 3)),
-                                   tuple(float(p) for p in rng.uniform(0, 2 * np.pi, 3)))
+            steering = SumOfSines(
+                tuple(float(w * swa) for w in weights),
+                tuple(float(f) for f in rng.uniform(0.2, 1.2, 3)),
+                tuple(float(p) for p in rng.uniform(0, 2 * np.pi, 3)),
+            )
         else:
             steering = Step(float(swa * rng.choice([-1.0, 1.0])), float(rng.uniform(1.0, 4.0)))
-    return Scenario("random", speed_kph, road, _positive("duration", duration), steering,
-                    rear_steer_feedforward=rear_steer_feedforward, params=params)
+    return Scenario(
+        "random",
+        speed_kph,
+        road,
+        _positive("duration", duration),
+        steering,
+        rear_steer_feedforward=rear_steer_feedforward,
+        params=params,
+    )
 
 
 _BUILDERS: dict[str, Callable[..., Scenario]] = {
-    f.__name__: f for f in (paper_dlc, paper_step, paper_sine, paper_split_dlc, paper_serpentine, sine_with_dwell,
-                            slowly_increasing_steer, iso3888_2, mu_jump, random)
+    f.__name__: f
+    for f in (
+        paper_dlc,
+        paper_step,
+        paper_sine,
+        paper_split_dlc,
+        paper_serpentine,
+        sine_with_dwell,
+        slowly_increasing_steer,
+        iso3888_2,
+        mu_jump,
+        random,
+    )
 }
 PAPER_SCENARIOS = ("paper_dlc", "paper_step", "paper_sine", "paper_split_dlc", "paper_serpentine")
 SCENARIOS: dict[str, Scenario] = {name: build() for name, build in _BUILDERS.items()}
@@ -367,7 +558,7 @@ def make_scenario(name: str, **overrides) -> Scenario:
     if not isinstance(name, str) or name not in _BUILDERS:
         raise ValueError(f"unknown scenario {name!r}; known: {sorted(_BUILDERS)}")
     build = _BUILDERS[name]
-    allowed = build.__code__.co_varnames[:build.__code__.co_argcount]
+    allowed = build.__code__.co_varnames[: build.__code__.co_argcount]
     unknown = sorted(set(overrides) - set(allowed))
     if unknown:
         raise ValueError(f"unknown argument(s) {unknown} for scenario {name!r}; allowed: {sorted(allowed)}")

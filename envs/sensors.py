@@ -35,10 +35,10 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
-from fourwis.envs.vehicle import A_AX, A_AY, S_DELTA_F, S_DELTA_R, S_OMEGA, S_R, S_TORQUE
+from fourwis.core.checks import member_rows  # (the readings' layout, which the estimators read)
 from fourwis.core.kernels import JIT
 from fourwis.core.types import CHANNELS, SensorReading
-from fourwis.core.checks import member_rows  # (the readings' layout, which the estimators read)
+from fourwis.envs.vehicle import A_AX, A_AY, S_DELTA_F, S_DELTA_R, S_OMEGA, S_R, S_TORQUE
 
 FAULT_KINDS = ("spike", "dropout", "stuck", "bias_step")
 
@@ -52,9 +52,11 @@ class SensorParams:
     """Noise std and turn-on bias std per channel (units of each channel: m/s^2, rad/s, rad, N m)."""
 
     noise_std: tuple[float, ...] = field(
-        default=_per_channel(accel=0.02, gyro=0.004, wheel=0.05, steer_f=1.1e-4, steer_r=1e-4, torque=2.0))
+        default=_per_channel(accel=0.02, gyro=0.004, wheel=0.05, steer_f=1.1e-4, steer_r=1e-4, torque=2.0)
+    )
     bias_std: tuple[float, ...] = field(
-        default=_per_channel(accel=0.03, gyro=0.002, wheel=0.0, steer_f=0.0, steer_r=0.0, torque=2.0))
+        default=_per_channel(accel=0.03, gyro=0.002, wheel=0.0, steer_f=0.0, steer_r=0.0, torque=2.0)
+    )
     sample_time: float = 0.002  #: sampling period [s] (500 Hz)
 
     def __post_init__(self) -> None:
@@ -65,12 +67,13 @@ class SensorParams:
         if not (math.isfinite(self.sample_time) and self.sample_time > 0):
             raise ValueError(f"SensorParams.sample_time must be > 0, got {self.sample_time!r}")
 
-    def scaled(self, factor: float) -> "SensorParams":
+    def scaled(self, factor: float) -> SensorParams:
         """These sensors with noise and bias scaled by ``factor`` (0 gives perfect sensors)."""
         if not (math.isfinite(factor) and factor >= 0):
             raise ValueError(f"noise scale factor must be >= 0, got {factor!r}")
-        return SensorParams(tuple(factor * s for s in self.noise_std), tuple(factor * s for s in self.bias_std),
-                            self.sample_time)
+        return SensorParams(
+            tuple(factor * s for s in self.noise_std), tuple(factor * s for s in self.bias_std), self.sample_time
+        )
 
 
 @dataclass(frozen=True)
@@ -108,16 +111,34 @@ class Fault:
 #: where each channel's true value sits in the plant's diagnostics (channels 0-1: ax, ay) and
 #: state (channels 2-12)
 TRUE_AUX_COLUMNS = (A_AX, A_AY)
-TRUE_STATE_COLUMNS = (S_R, S_OMEGA, S_OMEGA + 1, S_OMEGA + 2, S_OMEGA + 3, S_DELTA_F, S_DELTA_R, S_TORQUE,
-                      S_TORQUE + 1, S_TORQUE + 2, S_TORQUE + 3)
+TRUE_STATE_COLUMNS = (
+    S_R,
+    S_OMEGA,
+    S_OMEGA + 1,
+    S_OMEGA + 2,
+    S_OMEGA + 3,
+    S_DELTA_F,
+    S_DELTA_R,
+    S_TORQUE,
+    S_TORQUE + 1,
+    S_TORQUE + 2,
+    S_TORQUE + 3,
+)
 
 NOISE_BLOCK = 256  #: samples of noise each vehicle draws from its generator at a time
-_DONE, _BLOCK_USED_UP = -1, -2  #: statuses of _noisy_readings (>= 0: a non-finite channel)
+_DONE, _BLOCK_USED_UP = -1, -2  #: statuses of noisy_readings (>= 0: a non-finite channel)
 
 
 @numba.njit(**JIT)
-def _noisy_readings(truth: np.ndarray, rows: np.ndarray, bias: np.ndarray, normal: np.ndarray, noise: np.ndarray,
-                    cursor: np.ndarray, values: np.ndarray) -> int:
+def noisy_readings(
+    truth: np.ndarray,
+    rows: np.ndarray,
+    bias: np.ndarray,
+    normal: np.ndarray,
+    noise: np.ndarray,
+    cursor: np.ndarray,
+    values: np.ndarray,
+) -> int:
     """values[i] = truth[i] + bias[rows[i]] + normal[rows[i], cursor[rows[i]]] * noise, advancing each
     row's noise cursor: truth, values (M, 13); bias (B, 13); normal (B, NOISE_BLOCK, 13); cursor (B,).
     Returns _DONE; or, writing nothing, the first channel of a non-finite truth value, or
@@ -147,8 +168,13 @@ class SensorModel:
     single-car runs bit for bit. :meth:`reset_members` restarts chosen vehicles.
     """
 
-    def __init__(self, params: SensorParams, faults: tuple[Fault, ...], batch_size: int,
-                 rng: np.random.Generator | Sequence[np.random.Generator]):
+    def __init__(
+        self,
+        params: SensorParams,
+        faults: tuple[Fault, ...],
+        batch_size: int,
+        rng: np.random.Generator | Sequence[np.random.Generator],
+    ):
         if batch_size < 1:
             raise ValueError(f"batch_size must be >= 1, got {batch_size!r}")
         self.params = params
@@ -190,7 +216,7 @@ class SensorModel:
 
     def kernel_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(bias (B, 13), noise block (B, NOISE_BLOCK, 13), noise std (13,), cursor (B,)): what
-        :func:`_noisy_readings` reads and advances (the arrays themselves, updated in place)."""
+        :func:`noisy_readings` reads and advances (the arrays themselves, updated in place)."""
         return self.bias, self._normal, self._noise, self._cursor
 
     def refill(self, b: int) -> None:
@@ -212,11 +238,11 @@ class SensorModel:
         if t.shape != (len(rows),):
             raise ValueError(f"time must be a scalar or have shape ({len(rows)},), got {t.shape}")
         values = np.empty(truth.shape)
-        status = _noisy_readings(truth, rows, self.bias, self._normal, self._noise, self._cursor, values)
+        status = noisy_readings(truth, rows, self.bias, self._normal, self._noise, self._cursor, values)
         if status == _BLOCK_USED_UP:
             for b in rows[self._cursor[rows] >= NOISE_BLOCK]:
                 self.refill(b)
-            status = _noisy_readings(truth, rows, self.bias, self._normal, self._noise, self._cursor, values)
+            status = noisy_readings(truth, rows, self.bias, self._normal, self._noise, self._cursor, values)
         if status >= 0:
             raise ValueError(f"non-finite true value on sensor channel {CHANNELS[status]!r}")
         valid = np.ones(truth.shape, dtype=bool)
@@ -224,8 +250,9 @@ class SensorModel:
             self._inject_faults(rows, t, values, valid, self._uniform[rows, self._cursor[rows] - 1])
         return SensorReading(values, valid, t)
 
-    def _inject_faults(self, rows: np.ndarray, t: np.ndarray, values: np.ndarray, valid: np.ndarray,
-                       uniform: np.ndarray) -> None:
+    def _inject_faults(
+        self, rows: np.ndarray, t: np.ndarray, values: np.ndarray, valid: np.ndarray, uniform: np.ndarray
+    ) -> None:
         """Apply the faults active at ``t`` to the readings ``values``/``valid`` of ``rows`` in place;
         ``uniform`` (M, spike faults, 2): this sample's (arrival, sign) draws."""
         held = self._held[rows]

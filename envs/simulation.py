@@ -15,18 +15,32 @@ from typing import NamedTuple
 import numpy as np
 from tqdm import tqdm
 
+from fourwis.control import StabilityController
+from fourwis.core.checks import check_command, check_controller, check_estimate, check_estimator, is_integer
+from fourwis.core.types import Controller, Estimate, Estimator, SensorReading
 from fourwis.envs import compiled_loop
 from fourwis.envs.driver import DriverBatch
 from fourwis.envs.road import RoadTables, contact_points
 from fourwis.envs.scenarios import Scenario, make_scenario
 from fourwis.envs.sensors import TRUE_AUX_COLUMNS, TRUE_STATE_COLUMNS, Fault, SensorModel, SensorParams
-from fourwis.core.types import SensorReading
-from fourwis.envs.vehicle import (A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NU, S_R, S_U, S_V, check_lag_step,
-                          check_plant_step, derivatives, sideslip_angles, step)
-from fourwis.control import StabilityController
-from fourwis.core.checks import check_command, check_controller
-from fourwis.core.types import Controller, Estimate, Estimator
-from fourwis.core.checks import check_estimate, check_estimator, is_integer
+from fourwis.envs.vehicle import (
+    A_AX,
+    A_AY,
+    A_FZ,
+    A_MU,
+    C_DELTA_F,
+    C_DELTA_R,
+    C_TORQUE,
+    NU,
+    S_R,
+    S_U,
+    S_V,
+    check_lag_step,
+    check_plant_step,
+    derivatives,
+    sideslip_angles,
+    step,
+)
 
 DT = 0.002  #: physics, sensor and estimator step [s] (the paper samples at 2 ms)
 SIMULATE_CHUNK = 250  #: steps :func:`simulate` advances per call (its progress bar moves by as many)
@@ -63,8 +77,18 @@ def true_estimate(state: np.ndarray, aux: np.ndarray) -> Estimate:
     body, diag = state[:, _TRUTH_STATE], aux[:, _TRUTH_AUX]
     u, v = body[:, 0], body[:, 1]
     zeros = np.zeros((len(state), 5))
-    return Estimate(u=u, v=v, beta=sideslip_angles(u, v), r=body[:, 2], ax=diag[:, 0], ay=diag[:, 1],
-                    mu=diag[:, 2:6], fz=diag[:, 6:10], beta_std=zeros[:, 0], mu_std=zeros[:, 1:])
+    return Estimate(
+        u=u,
+        v=v,
+        beta=sideslip_angles(u, v),
+        r=body[:, 2],
+        ax=diag[:, 0],
+        ay=diag[:, 1],
+        mu=diag[:, 2:6],
+        fz=diag[:, 6:10],
+        beta_std=zeros[:, 0],
+        mu_std=zeros[:, 1:],
+    )
 
 
 class Trajectory(NamedTuple):
@@ -135,13 +159,20 @@ class StepRecord(NamedTuple):
 
 def _stacked(records: list[StepRecord]) -> StepRecord:
     """One StepRecord of a list of them, stacked (leading axes (n, B))."""
+
     def stack(field: str, group: str | None = None) -> np.ndarray:
         return np.stack([getattr(getattr(r, group) if group else r, field) for r in records])
 
-    return StepRecord(stack("t"), stack("state"), stack("aux"), stack("controls"), stack("steering_wheel"),
-                       SensorReading(*(stack(f, "reading") for f in SensorReading._fields)),
-                       Estimate(*(stack(f, "truth") for f in Estimate._fields)),
-                       Estimate(*(stack(f, "estimate") for f in Estimate._fields)))
+    return StepRecord(
+        stack("t"),
+        stack("state"),
+        stack("aux"),
+        stack("controls"),
+        stack("steering_wheel"),
+        SensorReading(*(stack(f, "reading") for f in SensorReading._fields)),
+        Estimate(*(stack(f, "truth") for f in Estimate._fields)),
+        Estimate(*(stack(f, "estimate") for f in Estimate._fields)),
+    )
 
 
 class ClosedLoop:
@@ -159,9 +190,16 @@ class ClosedLoop:
     :meth:`advance_steps` does both for several steps, compiled where it can.
     """
 
-    def __init__(self, scenarios: Scenario | Sequence[Scenario], controller: Controller | str | None,
-                 estimator: Estimator | str | None, rng: np.random.Generator | Sequence[np.random.Generator],
-                 sensor_params: SensorParams | None = None, faults: Sequence[Fault] = (), dt: float = DT):
+    def __init__(
+        self,
+        scenarios: Scenario | Sequence[Scenario],
+        controller: Controller | str | None,
+        estimator: Estimator | str | None,
+        rng: np.random.Generator | Sequence[np.random.Generator],
+        sensor_params: SensorParams | None = None,
+        faults: Sequence[Fault] = (),
+        dt: float = DT,
+    ):
         try:
             self.scenarios = [scenarios] if isinstance(scenarios, Scenario) else list(scenarios)
         except TypeError:  # not iterable
@@ -173,8 +211,10 @@ class ClosedLoop:
         if not isinstance(sensor_params, SensorParams):
             raise ValueError(f"sensor_params must be an envs.sensors.SensorParams or None, got {sensor_params!r}")
         if not math.isclose(sensor_params.sample_time, dt, rel_tol=1e-6):  # (a float32 dt too)
-            raise ValueError(f"the sensors sample every {sensor_params.sample_time!r} s, the simulation steps at "
-                             f"dt = {dt!r} s: they are sampled once per step (give SensorParams(sample_time=dt))")
+            raise ValueError(
+                f"the sensors sample every {sensor_params.sample_time!r} s, the simulation steps at "
+                f"dt = {dt!r} s: they are sampled once per step (give SensorParams(sample_time=dt))"
+            )
         try:
             fault_list = tuple(faults)
         except TypeError:
@@ -210,13 +250,18 @@ class ClosedLoop:
         for kind, part in (("estimator", estimator), ("controller", controller if ours else None)):
             part_dt = getattr(part, "dt", None)
             if part_dt is not None and not math.isclose(part_dt, dt, rel_tol=1e-12):
-                raise ValueError(f"the {kind} steps at dt = {part_dt!r} s, the simulation at {dt!r} s: build it with "
-                                 "the simulation's dt (it counts its own steps in it: the DYC integrates over them, "
-                                 "a trained policy holds each action for control_dt / dt of them)")
-        if getattr(controller, "rear_steer", False) and any(s.vehicle_params.rear_steer_feedforward
-                                                            for s in self.scenarios):
-            raise ValueError("the controller steers the rear axle (eq. 20) and the scenario's "
-                             "rear_steer_feedforward would add the same law again: use one of them")
+                raise ValueError(
+                    f"the {kind} steps at dt = {part_dt!r} s, the simulation at {dt!r} s: build it with "
+                    "the simulation's dt (it counts its own steps in it: the DYC integrates over them, "
+                    "a trained policy holds each action for control_dt / dt of them)"
+                )
+        if getattr(controller, "rear_steer", False) and any(
+            s.vehicle_params.rear_steer_feedforward for s in self.scenarios
+        ):
+            raise ValueError(
+                "the controller steers the rear axle (eq. 20) and the scenario's "
+                "rear_steer_feedforward would add the same law again: use one of them"
+            )
         self.controller, self.estimator, self.dt = controller, estimator, dt
         self.sensors = SensorModel(sensor_params, fault_list, self.batch_size, rng)
         self.state = np.concatenate([s.initial_state() for s in self.scenarios])
@@ -246,13 +291,16 @@ class ClosedLoop:
     def _check_params(self, scenarios: Sequence[Scenario]) -> None:
         for s in scenarios:
             if s.vehicle_params != self.params:
-                raise ValueError(f"all vehicles of a batch need the same vehicle parameters; scenario {s.name!r} "
-                                 "differs (e.g. its rear-steer feed-forward switch)")
+                raise ValueError(
+                    f"all vehicles of a batch need the same vehicle parameters; scenario {s.name!r} "
+                    "differs (e.g. its rear-steer feed-forward switch)"
+                )
 
     def _update_road(self) -> None:
         roads = [s.road for s in self.scenarios]
-        self.road = RoadTables.from_roads(roads, self.batch_size) if all(r.table() is not None for r in roads) \
-            else roads
+        self.road = (
+            RoadTables.from_roads(roads, self.batch_size) if all(r.table() is not None for r in roads) else roads
+        )
 
     def _diagnostics(self, rows: np.ndarray) -> np.ndarray:
         """Plant diagnostics (len(rows), NAUX) of vehicles ``rows`` at rest controls (the initial sample)."""
@@ -261,8 +309,9 @@ class ClosedLoop:
         mu = np.stack([self.scenarios[b].road.mu_at(gx[i], gy[i]) for i, b in enumerate(rows)])
         return derivatives(state, np.zeros((len(rows), NU)), mu, self.params)[1]
 
-    def reset_members(self, mask: np.ndarray, scenarios: Sequence[Scenario],
-                      rngs: Sequence[np.random.Generator]) -> None:
+    def reset_members(
+        self, mask: np.ndarray, scenarios: Sequence[Scenario], rngs: Sequence[np.random.Generator]
+    ) -> None:
         """Restart the vehicles selected by ``mask`` (B,) bool on new ``scenarios`` with new sensor
         generators (one each, in order): fresh plant state, clock, sensors and estimator (and
         fourwis's DYC's memory of them). The other vehicles' current sample stands (each time
@@ -339,7 +388,7 @@ class ClosedLoop:
         moving = self._checked_moving(moving)
         s = self.sample()
         controls = np.zeros((self.batch_size, NU))
-        controls[:, C_TORQUE:C_TORQUE + 4] = s.base_torques
+        controls[:, C_TORQUE : C_TORQUE + 4] = s.base_torques
         controls[:, C_DELTA_F] = s.front_steer
         if isinstance(self.controller, StabilityController):  # (held vehicles keep its memory, as when compiled)
             command = self.controller(s.t, s.estimate, controls[:, C_DELTA_F].copy(), s.base_torques.copy(), moving)
@@ -348,10 +397,11 @@ class ClosedLoop:
             if self._check_commands:
                 check_command(command, self.batch_size, self._labels[1])
         if self.controller is not None:
-            controls[:, C_TORQUE:C_TORQUE + 4] = command.torques
+            controls[:, C_TORQUE : C_TORQUE + 4] = command.torques
             controls[:, C_DELTA_R] = command.rear_steer
-        record = StepRecord(s.t, self.state.copy(), self.aux.copy(), controls, s.steering_wheel, s.reading, s.truth,
-                            s.estimate)
+        record = StepRecord(
+            s.t, self.state.copy(), self.aux.copy(), controls, s.steering_wheel, s.reading, s.truth, s.estimate
+        )
         if integrate:
             state, aux = step(self.state, controls, self.params, self.road, self.dt)
             if moving is None:
@@ -387,9 +437,16 @@ class ClosedLoop:
             return _stacked(steps) if records else None
         check_lag_step(self.params, self.dt)
         old = self.sample()
-        arrays = compiled_loop.Arrays(old.t.copy(), old.reading.values.copy(), old.reading.valid.copy(),
-                                      compiled_loop.estimate_rows(old.truth), compiled_loop.estimate_rows(old.estimate),
-                                      old.steering_wheel.copy(), old.front_steer.copy(), old.base_torques.copy())
+        arrays = compiled_loop.Arrays(
+            old.t.copy(),
+            old.reading.values.copy(),
+            old.reading.valid.copy(),
+            compiled_loop.estimate_rows(old.truth),
+            compiled_loop.estimate_rows(old.estimate),
+            old.steering_wheel.copy(),
+            old.front_steer.copy(),
+            old.base_torques.copy(),
+        )
         oracle = compiled_loop.reports_truth(self.estimator)
         try:
             rows = compiled_loop.advance(self, n, moving, arrays)
@@ -398,14 +455,28 @@ class ClosedLoop:
             raise
         truth = compiled_loop.rows_estimate(arrays.truth)
         estimate = truth if oracle else compiled_loop.rows_estimate(arrays.estimate)
-        self._sample = Sample(arrays.t, SensorReading(arrays.readings, arrays.valid, arrays.t), truth, estimate,
-                              arrays.steering_wheel, arrays.front_steer, arrays.base_torques)
+        self._sample = Sample(
+            arrays.t,
+            SensorReading(arrays.readings, arrays.valid, arrays.t),
+            truth,
+            estimate,
+            arrays.steering_wheel,
+            arrays.front_steer,
+            arrays.base_torques,
+        )
         return compiled_loop.step_records(rows, oracle) if records else None
 
 
-def simulate(scenario: Scenario | str, controller: Controller | str | None = None,
-             estimator: Estimator | str | None = None, seed: int = 0, sensor_params: SensorParams | None = None,
-             faults: Sequence[Fault] = (), dt: float = DT, progress: bool = False) -> Trajectory:
+def simulate(
+    scenario: Scenario | str,
+    controller: Controller | str | None = None,
+    estimator: Estimator | str | None = None,
+    seed: int = 0,
+    sensor_params: SensorParams | None = None,
+    faults: Sequence[Fault] = (),
+    dt: float = DT,
+    progress: bool = False,
+) -> Trajectory:
     """Run ``scenario`` once; returns the :class:`Trajectory`.
 
     ``controller``: a controller object, a name for :func:`control.make_controller`, or None
@@ -438,9 +509,17 @@ def simulate(scenario: Scenario | str, controller: Controller | str | None = Non
         return np.concatenate([part(chunk)[:, 0] for chunk in chunks])
 
     def estimates(group: str) -> Estimate:
-        return Estimate(*(joined(lambda c: getattr(getattr(c, group), f)) for f in Estimate._fields))
+        return Estimate(*(joined(lambda c, f=f: getattr(getattr(c, group), f)) for f in Estimate._fields))
 
-    return Trajectory(np.arange(n + 1) * dt, joined(lambda c: c.state), joined(lambda c: c.aux),
-                      joined(lambda c: c.controls), joined(lambda c: c.steering_wheel),
-                      joined(lambda c: c.reading.values), joined(lambda c: c.reading.valid), estimates("truth"),
-                      estimates("estimate"), scenario)
+    return Trajectory(
+        np.arange(n + 1) * dt,
+        joined(lambda c: c.state),
+        joined(lambda c: c.aux),
+        joined(lambda c: c.controls),
+        joined(lambda c: c.steering_wheel),
+        joined(lambda c: c.reading.values),
+        joined(lambda c: c.reading.valid),
+        estimates("truth"),
+        estimates("estimate"),
+        scenario,
+    )

@@ -116,7 +116,42 @@ class TyreParams:
 
 N_TYRE_COEFFS = len(fields(TyreParams))
 # Kernel indices into TyreParams.as_array(), in field order.
-(_NOMINAL_LOAD, _UNLOADED_RADIUS, _PCX1, _PDX1, _PDX2, _PEX1, _PEX2, _PEX3, _PEX4, _PKX1, _PKX2, _PKX3, _RBX1, _RBX2, _RCX1, _REX1, _REX2, _PTX1, _PTX2, _PTX3, _PCY1, _PDY1, _PDY2, _PEY1, _PEY2, _PKY1, _PKY2, _RBY1, _RBY2, _RCY1, _REY1, _REY2, _PTY1, _PTY2) = range(N_TYRE_COEFFS)
+(
+    _NOMINAL_LOAD,
+    _UNLOADED_RADIUS,
+    _PCX1,
+    _PDX1,
+    _PDX2,
+    _PEX1,
+    _PEX2,
+    _PEX3,
+    _PEX4,
+    _PKX1,
+    _PKX2,
+    _PKX3,
+    _RBX1,
+    _RBX2,
+    _RCX1,
+    _REX1,
+    _REX2,
+    _PTX1,
+    _PTX2,
+    _PTX3,
+    _PCY1,
+    _PDY1,
+    _PDY2,
+    _PEY1,
+    _PEY2,
+    _PKY1,
+    _PKY2,
+    _RBY1,
+    _RBY2,
+    _RCY1,
+    _REY1,
+    _REY2,
+    _PTY1,
+    _PTY2,
+) = range(N_TYRE_COEFFS)
 
 
 @numba.njit(inline="always", **JIT)
@@ -132,8 +167,16 @@ def _weight(b: float, c: float, e: float, x: float) -> float:
 
 
 @numba.njit(**JIT)
-def combined_forces(tp: np.ndarray, fz: np.ndarray, kappa: np.ndarray, tan_alpha: np.ndarray,
-                    scale_x: np.ndarray, scale_y: np.ndarray, fx: np.ndarray, fy: np.ndarray) -> None:
+def combined_forces(
+    tp: np.ndarray,
+    fz: np.ndarray,
+    kappa: np.ndarray,
+    tan_alpha: np.ndarray,
+    scale_x: np.ndarray,
+    scale_y: np.ndarray,
+    fx: np.ndarray,
+    fy: np.ndarray,
+) -> None:
     """Tyre forces (Fx, Fy) [N] in the wheel frame of ``n`` wheels, written to ``fx``, ``fy`` (n,).
 
     ``tp``: TyreParams.as_array(); ``fz`` > 0 [N]; ``kappa`` longitudinal slip [-];
@@ -192,8 +235,9 @@ def tyre_forces(tyre: TyreParams, fz, kappa, tan_alpha, mu_road=1.0, reference_l
 
     ``mu_road`` scales the peaks relative to ``reference_load`` [N] (default: nominal load).
     """
-    fz, kappa, tan_alpha, mu_road = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64)
-                                                          for a in (fz, kappa, tan_alpha, mu_road)))
+    fz, kappa, tan_alpha, mu_road = np.broadcast_arrays(
+        *(np.asarray(a, dtype=np.float64) for a in (fz, kappa, tan_alpha, mu_road))
+    )
     if not np.all(fz > 0.0):
         raise ValueError(f"tyre load must be > 0 N, got min {fz.min()!r}")
     good = np.isfinite(mu_road) & (mu_road > 0.0)
@@ -203,6 +247,14 @@ def tyre_forces(tyre: TyreParams, fz, kappa, tan_alpha, mu_road=1.0, reference_l
     mux_ref, muy_ref = tyre.peak_friction(ref)
     fx = np.empty(fz.size)
     fy = np.empty(fz.size)
-    combined_forces(tyre.as_array(), fz.ravel(), kappa.ravel(), tan_alpha.ravel(),
-                  (mu_road / mux_ref).ravel(), (mu_road / muy_ref).ravel(), fx, fy)
+    combined_forces(
+        tyre.as_array(),
+        fz.ravel(),
+        kappa.ravel(),
+        tan_alpha.ravel(),
+        (mu_road / mux_ref).ravel(),
+        (mu_road / muy_ref).ravel(),
+        fx,
+        fy,
+    )
     return fx.reshape(fz.shape), fy.reshape(fz.shape)

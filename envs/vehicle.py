@@ -58,13 +58,11 @@ import numpy as np
 
 from fourwis.control.reference import eq20_gain  # the 4WS law, written once (control)
 from fourwis.core import vecmath
-from fourwis.envs.tyre import TyreParams, combined_forces, relaxation_lengths
-from fourwis.core.vecmath import LANE_MULTIPLE
+from fourwis.core.checks import is_integer, is_number
 from fourwis.core.constants import GRAVITY
 from fourwis.core.kernels import JIT
-from fourwis.core.checks import is_integer, is_number
-
-
+from fourwis.core.vecmath import LANE_MULTIPLE
+from fourwis.envs.tyre import TyreParams, combined_forces, relaxation_lengths
 
 #: VehicleParams fields that may be 0 (switching off a resistance or the low-speed damping);
 #: every other number must be > 0
@@ -110,7 +108,8 @@ class VehicleParams:
     drag_area: float = 0.60  #: Cd * A [m^2] (Cd 0.32, A 1.9 m^2: small hatchback)
     air_density: float = 1.206  #: [kg/m^3] (ISO 2533 at 20 deg C)
     load_transfer_time_constant: float = 0.05  #: lag of load transfer behind accelerations [s] (pitch/roll)
-    #: low-speed damping of tyre slip [N s/m] at static load, faded out (cosine) by ``low_speed_fade`` (MF-Tyre VXLOW idea)
+    #: low-speed damping of tyre slip [N s/m] at static load, faded out (cosine) by ``low_speed_fade``
+    #: (MF-Tyre's VXLOW idea)
     low_speed_damping: float = 1000.0
     low_speed_fade: float = 1.0  #: speed at which the low-speed damping vanishes [m/s] (VXLOW of the .tir)
     min_relaxation_length: float = 0.1  #: floor for the load-dependent relaxation lengths [m]
@@ -140,7 +139,7 @@ class VehicleParams:
             if not getattr(self, name) < 0.5 * math.pi:
                 raise ValueError(f"VehicleParams.{name} must be below pi/2 rad (90 deg), got {getattr(self, name)!r}")
 
-    def replace(self, **overrides) -> "VehicleParams":
+    def replace(self, **overrides) -> VehicleParams:
         """Copy with ``overrides``; unknown names raise ValueError."""
         known = {f.name for f in fields(self)}
         unknown = sorted(set(overrides) - known)
@@ -219,47 +218,134 @@ class VehicleParams:
         mux, muy = self.tyre.peak_friction(self.reference_wheel_load)
         c_f, c_r = self.axle_cornering_stiffness
         values = {
-            "mass": self.mass, "yaw_inertia": self.yaw_inertia, "cg_to_front": self.cg_to_front,
-            "cg_to_rear": self.cg_to_rear, "track_front": self.track_front, "track_rear": self.track_rear,
-            "wheel_radius": self.wheel_radius, "cg_height": self.cg_height, "wheel_inertia": self.wheel_inertia,
-            "motor_peak_torque": self.motor_peak_torque, "motor_peak_power": self.motor_peak_power,
-            "motor_time_constant": self.motor_time_constant, "max_front_steer": self.max_front_steer,
-            "front_steer_rate": self.front_steer_rate, "max_rear_steer": self.max_rear_steer,
-            "rear_steer_rate": self.rear_steer_rate, "steer_time_constant": self.steer_time_constant,
-            "rolling_resistance": self.rolling_resistance, "drag_area": self.drag_area,
-            "air_density": self.air_density, "load_transfer_time_constant": self.load_transfer_time_constant,
-            "low_speed_damping": self.low_speed_damping, "low_speed_fade": self.low_speed_fade,
+            "mass": self.mass,
+            "yaw_inertia": self.yaw_inertia,
+            "cg_to_front": self.cg_to_front,
+            "cg_to_rear": self.cg_to_rear,
+            "track_front": self.track_front,
+            "track_rear": self.track_rear,
+            "wheel_radius": self.wheel_radius,
+            "cg_height": self.cg_height,
+            "wheel_inertia": self.wheel_inertia,
+            "motor_peak_torque": self.motor_peak_torque,
+            "motor_peak_power": self.motor_peak_power,
+            "motor_time_constant": self.motor_time_constant,
+            "max_front_steer": self.max_front_steer,
+            "front_steer_rate": self.front_steer_rate,
+            "max_rear_steer": self.max_rear_steer,
+            "rear_steer_rate": self.rear_steer_rate,
+            "steer_time_constant": self.steer_time_constant,
+            "rolling_resistance": self.rolling_resistance,
+            "drag_area": self.drag_area,
+            "air_density": self.air_density,
+            "load_transfer_time_constant": self.load_transfer_time_constant,
+            "low_speed_damping": self.low_speed_damping,
+            "low_speed_fade": self.low_speed_fade,
             "min_relaxation_length": self.min_relaxation_length,
             "rear_steer_feedforward": float(self.rear_steer_feedforward),
-            "inv_mux_ref": 1.0 / float(mux), "inv_muy_ref": 1.0 / float(muy),
-            "axle_stiffness_front": c_f, "axle_stiffness_rear": c_r,
+            "inv_mux_ref": 1.0 / float(mux),
+            "inv_muy_ref": 1.0 / float(muy),
+            "axle_stiffness_front": c_f,
+            "axle_stiffness_rear": c_r,
             "reference_wheel_load": self.reference_wheel_load,
         }
         return np.array([values[name] for name in PARAM_NAMES], dtype=np.float64)
 
 
 PARAM_NAMES = (
-    "mass", "yaw_inertia", "cg_to_front", "cg_to_rear", "track_front", "track_rear", "wheel_radius",
-    "cg_height", "wheel_inertia", "motor_peak_torque", "motor_peak_power", "motor_time_constant",
-    "max_front_steer", "front_steer_rate", "max_rear_steer", "rear_steer_rate", "steer_time_constant",
-    "rolling_resistance", "drag_area", "air_density", "load_transfer_time_constant", "low_speed_damping",
-    "low_speed_fade", "min_relaxation_length", "rear_steer_feedforward", "inv_mux_ref", "inv_muy_ref",
-    "axle_stiffness_front", "axle_stiffness_rear", "reference_wheel_load",
+    "mass",
+    "yaw_inertia",
+    "cg_to_front",
+    "cg_to_rear",
+    "track_front",
+    "track_rear",
+    "wheel_radius",
+    "cg_height",
+    "wheel_inertia",
+    "motor_peak_torque",
+    "motor_peak_power",
+    "motor_time_constant",
+    "max_front_steer",
+    "front_steer_rate",
+    "max_rear_steer",
+    "rear_steer_rate",
+    "steer_time_constant",
+    "rolling_resistance",
+    "drag_area",
+    "air_density",
+    "load_transfer_time_constant",
+    "low_speed_damping",
+    "low_speed_fade",
+    "min_relaxation_length",
+    "rear_steer_feedforward",
+    "inv_mux_ref",
+    "inv_muy_ref",
+    "axle_stiffness_front",
+    "axle_stiffness_rear",
+    "reference_wheel_load",
 )
-(P_M, P_IZ, P_A, P_B, P_TF, P_TR, P_RW, P_H, P_JW, P_TMAX, P_PMAX, P_TAU_M, P_DF_MAX, P_DF_RATE,
- P_DR_MAX, P_DR_RATE, P_TAU_S, P_FRR, P_CDA, P_RHO, P_TAU_LT, P_CLOW, P_VLOW, P_SIGMA_MIN, P_FF4WS,
- P_INV_MUX, P_INV_MUY, P_CF, P_CR, P_FZREF) = range(len(PARAM_NAMES))
+(
+    P_M,
+    P_IZ,
+    P_A,
+    P_B,
+    P_TF,
+    P_TR,
+    P_RW,
+    P_H,
+    P_JW,
+    P_TMAX,
+    P_PMAX,
+    P_TAU_M,
+    P_DF_MAX,
+    P_DF_RATE,
+    P_DR_MAX,
+    P_DR_RATE,
+    P_TAU_S,
+    P_FRR,
+    P_CDA,
+    P_RHO,
+    P_TAU_LT,
+    P_CLOW,
+    P_VLOW,
+    P_SIGMA_MIN,
+    P_FF4WS,
+    P_INV_MUX,
+    P_INV_MUY,
+    P_CF,
+    P_CR,
+    P_FZREF,
+) = range(len(PARAM_NAMES))
 
 #: State layout, shape (..., NX): pose, body velocities, wheel speeds, motor torques,
 #: steer angles, tyre deflections (relaxed slip * relaxation length) and lagged accelerations.
 STATE_NAMES = (
-    "x", "y", "psi", "u", "v", "r",
-    "omega_fl", "omega_fr", "omega_rl", "omega_rr",
-    "torque_fl", "torque_fr", "torque_rl", "torque_rr",
-    "delta_f", "delta_r",
-    "defl_x_fl", "defl_x_fr", "defl_x_rl", "defl_x_rr",
-    "defl_y_fl", "defl_y_fr", "defl_y_rl", "defl_y_rr",
-    "ax_lag", "ay_lag",
+    "x",
+    "y",
+    "psi",
+    "u",
+    "v",
+    "r",
+    "omega_fl",
+    "omega_fr",
+    "omega_rl",
+    "omega_rr",
+    "torque_fl",
+    "torque_fr",
+    "torque_rl",
+    "torque_rr",
+    "delta_f",
+    "delta_r",
+    "defl_x_fl",
+    "defl_x_fr",
+    "defl_x_rl",
+    "defl_x_rr",
+    "defl_y_fl",
+    "defl_y_fr",
+    "defl_y_rl",
+    "defl_y_rr",
+    "ax_lag",
+    "ay_lag",
 )
 NX = len(STATE_NAMES)
 S_X, S_Y, S_PSI, S_U, S_V, S_R = range(6)
@@ -287,14 +373,36 @@ C_TORQUE, C_DELTA_F, C_DELTA_R = 0, 4, 5
 #:           kappa -0.13 and 4.1 deg)
 #: ========  ============================================================================
 AUX_NAMES = (
-    "ax", "ay",
-    "fz_fl", "fz_fr", "fz_rl", "fz_rr",
-    "fx_fl", "fx_fr", "fx_rl", "fx_rr",
-    "fy_fl", "fy_fr", "fy_rl", "fy_rr",
-    "kappa_fl", "kappa_fr", "kappa_rl", "kappa_rr",
-    "alpha_fl", "alpha_fr", "alpha_rl", "alpha_rr",
-    "mu_fl", "mu_fr", "mu_rl", "mu_rr",
-    "usage_fl", "usage_fr", "usage_rl", "usage_rr",
+    "ax",
+    "ay",
+    "fz_fl",
+    "fz_fr",
+    "fz_rl",
+    "fz_rr",
+    "fx_fl",
+    "fx_fr",
+    "fx_rl",
+    "fx_rr",
+    "fy_fl",
+    "fy_fr",
+    "fy_rl",
+    "fy_rr",
+    "kappa_fl",
+    "kappa_fr",
+    "kappa_rl",
+    "kappa_rr",
+    "alpha_fl",
+    "alpha_fr",
+    "alpha_rl",
+    "alpha_rr",
+    "mu_fl",
+    "mu_fr",
+    "mu_rl",
+    "mu_rr",
+    "usage_fl",
+    "usage_fr",
+    "usage_rl",
+    "usage_rr",
 )
 NAUX = len(AUX_NAMES)
 A_AX, A_AY, A_FZ, A_FX, A_FY, A_KAPPA, A_ALPHA, A_MU, A_USAGE = 0, 1, 2, 6, 10, 14, 18, 22, 26
@@ -309,11 +417,50 @@ MU_MAX = 2.0  #: largest accepted road friction coefficient
 # with a compile-time row stride LLVM proves the rows independent and vectorises the loop.
 BLOCK = 16  #: cars per block
 LANES = 4 * BLOCK  #: wheel lanes per block: 64, eight AVX-512 registers' worth
-(L_U, L_V, L_R, L_PSI, L_AX, L_AY, L_DELTA, L_OMEGA, L_DEFL_X, L_DEFL_Y, L_MU, L_TORQUE, L_TCMD,
- L_WX, L_WY, L_FZ_STATIC, L_FZ_PER_AX, L_FZ_PER_AY,
- O_DDEFL_X, O_DDEFL_Y, O_DOMEGA, O_DTORQUE, O_FXB, O_FYB, O_MZ, O_COS_PSI, O_SIN_PSI,
- O_FZ, O_FX, O_FY, O_KAPPA, O_ALPHA, O_USAGE, O_CAR_AX, O_CAR_AY,
- O_COS_DELTA, O_SIN_DELTA, O_VCX, O_VCY, O_TAN_ALPHA, O_SCALE_X, O_SCALE_Y) = (k * LANES for k in range(42))
+(
+    L_U,
+    L_V,
+    L_R,
+    L_PSI,
+    L_AX,
+    L_AY,
+    L_DELTA,
+    L_OMEGA,
+    L_DEFL_X,
+    L_DEFL_Y,
+    L_MU,
+    L_TORQUE,
+    L_TCMD,
+    L_WX,
+    L_WY,
+    L_FZ_STATIC,
+    L_FZ_PER_AX,
+    L_FZ_PER_AY,
+    O_DDEFL_X,
+    O_DDEFL_Y,
+    O_DOMEGA,
+    O_DTORQUE,
+    O_FXB,
+    O_FYB,
+    O_MZ,
+    O_COS_PSI,
+    O_SIN_PSI,
+    O_FZ,
+    O_FX,
+    O_FY,
+    O_KAPPA,
+    O_ALPHA,
+    O_USAGE,
+    O_CAR_AX,
+    O_CAR_AY,
+    O_COS_DELTA,
+    O_SIN_DELTA,
+    O_VCX,
+    O_VCY,
+    O_TAN_ALPHA,
+    O_SCALE_X,
+    O_SCALE_Y,
+) = (k * LANES for k in range(42))
 N_LANE_ROWS = 42  # L_*: inputs gathered per car; O_*: outputs (O_CAR_AX/AY: the car's accelerations, in its first lane)
 
 
@@ -426,16 +573,24 @@ def _tyre_lanes(p, tp, lanes, n_lanes):
     """Wheel kinematics, loads, transient slip, tyre forces and wheel/motor dynamics per lane:
     three loops over lanes, each branch-free and call-free, so LLVM vectorises them."""
     _slip_lanes(p, tp, lanes, n_lanes)
-    combined_forces(tp, lanes[O_FZ:O_FZ + n_lanes], lanes[O_KAPPA:O_KAPPA + n_lanes],
-                    lanes[O_TAN_ALPHA:O_TAN_ALPHA + n_lanes], lanes[O_SCALE_X:O_SCALE_X + n_lanes],
-                    lanes[O_SCALE_Y:O_SCALE_Y + n_lanes], lanes[O_FX:O_FX + n_lanes], lanes[O_FY:O_FY + n_lanes])
+    combined_forces(
+        tp,
+        lanes[O_FZ : O_FZ + n_lanes],
+        lanes[O_KAPPA : O_KAPPA + n_lanes],
+        lanes[O_TAN_ALPHA : O_TAN_ALPHA + n_lanes],
+        lanes[O_SCALE_X : O_SCALE_X + n_lanes],
+        lanes[O_SCALE_Y : O_SCALE_Y + n_lanes],
+        lanes[O_FX : O_FX + n_lanes],
+        lanes[O_FY : O_FY + n_lanes],
+    )
     _wheel_lanes(p, lanes, n_lanes)
 
 
 @numba.njit(**JIT)
 def _derivative_block(x, ctrl, mu, p, tp, dx, lanes):
     """State derivatives ``dx (n, NX)`` of a block of ``n <= BLOCK`` cars ``x (n, NX)``,
-    ``ctrl (n, NU)``, ``mu (n, 4)``. ``lanes`` is the scratch from _wheel_scratch; afterwards its O_* rows hold the per-wheel
+    ``ctrl (n, NU)``, ``mu (n, 4)``. ``lanes`` is the scratch from _wheel_scratch; afterwards its O_* rows hold the
+    per-wheel
     diagnostics."""
     n_cars = x.shape[0]
     n_lanes = _block_lanes(n_cars)
@@ -532,7 +687,7 @@ def _wheel_mu(x, lanes, base_mu, rects, mu):
 
 
 @numba.njit(**JIT)
-def _advance_block(x, ctrl, p, tp, base_mu, rects, mu_given, use_map, dt, n_steps, aux, status):
+def advance_block(x, ctrl, p, tp, base_mu, rects, mu_given, use_map, dt, n_steps, aux, status):
     """RK4 over ``n_steps`` steps of ``dt`` for a block of cars ``x (n, NX)``, in place.
 
     Sets ``status`` (n,) to 1 (non-finite control), 2 (friction outside (0, MU_MAX]) or 3
@@ -589,8 +744,20 @@ def _advance_block(x, ctrl, p, tp, base_mu, rects, mu_given, use_map, dt, n_step
 def _advance_serial(x, ctrl, p, tp, base_mu, rects, mu_given, use_map, dt, n_steps, aux, status):
     for lo in range(0, x.shape[0], BLOCK):
         hi = min(lo + BLOCK, x.shape[0])
-        _advance_block(x[lo:hi], ctrl[lo:hi], p, tp, base_mu[lo:hi], rects[lo:hi], mu_given[lo:hi], use_map,
-                       dt, n_steps, aux[lo:hi], status[lo:hi])
+        advance_block(
+            x[lo:hi],
+            ctrl[lo:hi],
+            p,
+            tp,
+            base_mu[lo:hi],
+            rects[lo:hi],
+            mu_given[lo:hi],
+            use_map,
+            dt,
+            n_steps,
+            aux[lo:hi],
+            status[lo:hi],
+        )
 
 
 @numba.njit(parallel=True, **JIT)
@@ -599,8 +766,20 @@ def _advance_parallel(x, ctrl, p, tp, base_mu, rects, mu_given, use_map, dt, n_s
     for block in numba.prange(n_blocks):
         lo = block * BLOCK
         hi = min(lo + BLOCK, x.shape[0])
-        _advance_block(x[lo:hi], ctrl[lo:hi], p, tp, base_mu[lo:hi], rects[lo:hi], mu_given[lo:hi], use_map,
-                       dt, n_steps, aux[lo:hi], status[lo:hi])
+        advance_block(
+            x[lo:hi],
+            ctrl[lo:hi],
+            p,
+            tp,
+            base_mu[lo:hi],
+            rects[lo:hi],
+            mu_given[lo:hi],
+            use_map,
+            dt,
+            n_steps,
+            aux[lo:hi],
+            status[lo:hi],
+        )
 
 
 @numba.njit(**JIT)
@@ -663,8 +842,10 @@ def check_lag_step(params: VehicleParams, dt: float) -> None:
     for its response (the shipped 10 ms lags at the 10 ms MAX_DT)."""
     name, tau = params.fastest_lag
     if dt > RK4_REAL_LIMIT * tau:
-        raise ValueError(f"dt = {dt!r} s is too long for VehicleParams.{name} = {tau!r} s: RK4 is unstable past "
-                         f"dt = {RK4_REAL_LIMIT} tau = {RK4_REAL_LIMIT * tau:.3g} s; use a shorter dt or a slower lag")
+        raise ValueError(
+            f"dt = {dt!r} s is too long for VehicleParams.{name} = {tau!r} s: RK4 is unstable past "
+            f"dt = {RK4_REAL_LIMIT} tau = {RK4_REAL_LIMIT * tau:.3g} s; use a shorter dt or a slower lag"
+        )
 
 
 def check_relaxation_step(state: np.ndarray, params: VehicleParams, dt: float) -> None:
@@ -687,9 +868,11 @@ def check_relaxation_step(state: np.ndarray, params: VehicleParams, dt: float) -
     limit = RK4_REAL_LIMIT * params.min_relaxation_length / dt
     if fastest > limit:
         safe_dt = RK4_REAL_LIMIT * params.min_relaxation_length / fastest
-        raise ValueError(f"dt = {dt!r} s is too long at {fastest:.1f} m/s: the tyres relax at up to speed / "
-                         f"min_relaxation_length ({params.min_relaxation_length:g} m), outside RK4's stability region "
-                         f"beyond {limit:.1f} m/s; use dt <= {safe_dt:.4g} s")
+        raise ValueError(
+            f"dt = {dt!r} s is too long at {fastest:.1f} m/s: the tyres relax at up to speed / "
+            f"min_relaxation_length ({params.min_relaxation_length:g} m), outside RK4's stability region "
+            f"beyond {limit:.1f} m/s; use dt <= {safe_dt:.4g} s"
+        )
 
 
 def _check_array(name: str, value: np.ndarray, width: int) -> np.ndarray:
@@ -702,8 +885,9 @@ def _check_array(name: str, value: np.ndarray, width: int) -> np.ndarray:
     return value
 
 
-def derivatives(state: np.ndarray, controls: np.ndarray, mu: np.ndarray,
-                params: VehicleParams) -> tuple[np.ndarray, np.ndarray]:
+def derivatives(
+    state: np.ndarray, controls: np.ndarray, mu: np.ndarray, params: VehicleParams
+) -> tuple[np.ndarray, np.ndarray]:
     """Pure batched dynamics: ``state (B, NX), controls (B, NU), mu (B, 4)`` -> ``(state_dot, aux)``.
 
     ``aux (B, NAUX)`` holds the diagnostics named in :data:`AUX_NAMES`.
@@ -733,8 +917,9 @@ class PlantStep(NamedTuple):
     aux: np.ndarray
 
 
-def step(state: np.ndarray, controls: np.ndarray, params: VehicleParams, road, dt: float = 0.002,
-         n_steps: int = 1) -> PlantStep:
+def step(
+    state: np.ndarray, controls: np.ndarray, params: VehicleParams, road, dt: float = 0.002, n_steps: int = 1
+) -> PlantStep:
     """Advance a batch ``n_steps`` RK4 steps of ``dt`` [s] with controls held; returns a new state.
 
     ``road``: a friction map (:mod:`envs.road`: one for the whole batch, or a sequence of B maps)
@@ -770,8 +955,20 @@ def step(state: np.ndarray, controls: np.ndarray, params: VehicleParams, road, d
     aux = np.empty((batch, NAUX))
     status = np.zeros(batch, dtype=np.int64)
     kernel = _advance_parallel if batch >= PARALLEL_MIN_BATCH else _advance_serial
-    kernel(out, controls, params.kernel_array, params.kernel_tyre_array, tables.base_mu, tables.rects,
-           tables.mu_given, tables.use_map, float(dt), int(n_steps), aux, status)
+    kernel(
+        out,
+        controls,
+        params.kernel_array,
+        params.kernel_tyre_array,
+        tables.base_mu,
+        tables.rects,
+        tables.mu_given,
+        tables.use_map,
+        float(dt),
+        int(n_steps),
+        aux,
+        status,
+    )
     if np.count_nonzero(status):
         b = int(np.flatnonzero(status)[0])
         raise plant_error(b, int(status[b]), state[b], controls[b], out[b])
@@ -781,20 +978,28 @@ def step(state: np.ndarray, controls: np.ndarray, params: VehicleParams, road, d
 
 
 def plant_error(b: int, code: int, start: np.ndarray, controls: np.ndarray, reached: np.ndarray) -> Exception:
-    """The error for vehicle b's kernel status ``code`` (1-3, :func:`_advance_block`): its state
+    """The error for vehicle b's kernel status ``code`` (1-3, :func:`advance_block`): its state
     ``start`` (NX,) at the step's start, ``controls`` (NU,) and the state ``reached`` when it stopped."""
     if code == 1:
         return ValueError(f"controls[{b}] has a non-finite value: {controls!r}")
     if code == 2:
-        return ValueError(f"road friction under vehicle {b} is outside (0, {MU_MAX}] at x={reached[S_X]:.3f} m, "
-                          f"y={reached[S_Y]:.3f} m")
+        return ValueError(
+            f"road friction under vehicle {b} is outside (0, {MU_MAX}] at x={reached[S_X]:.3f} m, "
+            f"y={reached[S_Y]:.3f} m"
+        )
     if not np.all(np.isfinite(start)):
         return ValueError(f"state[{b}] has a non-finite value: {start!r}")
     return FloatingPointError(f"plant state of vehicle {b} became non-finite (last finite state {start!r})")
 
 
-def initial_state(params: VehicleParams, speed: float | np.ndarray, batch_size: int = 1,
-                  x: float = 0.0, y: float = 0.0, heading: float = 0.0) -> np.ndarray:
+def initial_state(
+    params: VehicleParams,
+    speed: float | np.ndarray,
+    batch_size: int = 1,
+    x: float = 0.0,
+    y: float = 0.0,
+    heading: float = 0.0,
+) -> np.ndarray:
     """Straight free-rolling state (batch_size, NX) at ``speed`` [m/s] (scalar or (batch_size,))."""
     speed = np.broadcast_to(np.asarray(speed, dtype=np.float64), (batch_size,))
     if not np.all(np.isfinite(speed)) or np.any(speed < 0.0):
@@ -804,5 +1009,5 @@ def initial_state(params: VehicleParams, speed: float | np.ndarray, batch_size: 
     state[:, S_Y] = y
     state[:, S_PSI] = heading
     state[:, S_U] = speed
-    state[:, S_OMEGA:S_OMEGA + 4] = speed[:, None] / params.wheel_radius
+    state[:, S_OMEGA : S_OMEGA + 4] = speed[:, None] / params.wheel_radius
     return state

@@ -5,12 +5,12 @@ from __future__ import annotations
 
 from dataclasses import fields
 
+from fourwis.core.checks import check_estimator, check_step, check_vehicle_params, import_factory
+from fourwis.core.types import Estimate
 from fourwis.estimation.joint import KINDS, NoiseParams, StateEstimator, tuned_noise
 from fourwis.estimation.model import ModelParams
 from fourwis.estimation.online import OnlineTuner
 from fourwis.estimation.oracle import TRUE_SUFFIX, TRUTH_GROUPS, Oracle, PartialOracle, parse_truth_groups
-from fourwis.core.types import Estimate
-from fourwis.core.checks import check_estimator, check_step, check_vehicle_params, import_factory
 
 ESTIMATORS = ("oracle",) + KINDS  #: names accepted by make_estimator; "joint" is the paper's full system
 
@@ -18,14 +18,18 @@ ESTIMATORS = ("oracle",) + KINDS  #: names accepted by make_estimator; "joint" i
 def parse_estimator_name(name: str) -> tuple[str, tuple[str, ...]]:
     """(base estimator, truth groups) of ``name`` (see :func:`check_estimator_name`)."""
     if not isinstance(name, str):
-        raise ValueError(f"an estimator is given by name, got {name!r}: pass your own as 'module:factory' "
-                         "(factory(params, dt) -> estimator), or the object itself to envs.simulate")
+        raise ValueError(
+            f"an estimator is given by name, got {name!r}: pass your own as 'module:factory' "
+            "(factory(params, dt) -> estimator), or the object itself to envs.simulate"
+        )
     base, sep, groups = name.partition(TRUE_SUFFIX)
     if ":" in base:
         import_factory(base, "estimator")
     elif base not in ESTIMATORS:
-        raise ValueError(f"unknown estimator {name!r}; known: {list(ESTIMATORS)} or 'module:factory' for your own, "
-                         f"each optionally with '{TRUE_SUFFIX}<group>[-<group>...]', groups {list(TRUTH_GROUPS)}")
+        raise ValueError(
+            f"unknown estimator {name!r}; known: {list(ESTIMATORS)} or 'module:factory' for your own, "
+            f"each optionally with '{TRUE_SUFFIX}<group>[-<group>...]', groups {list(TRUTH_GROUPS)}"
+        )
     return base, parse_truth_groups(groups) if sep else ()
 
 
@@ -37,8 +41,9 @@ def check_estimator_name(name: str) -> str:
     return name
 
 
-def make_estimator(name: str, params, dt: float = 0.002, noise: NoiseParams | None = None,
-                   tyre_relaxation: bool = False, **kwargs):
+def make_estimator(
+    name: str, params, dt: float = 0.002, noise: NoiseParams | None = None, tyre_relaxation: bool = False, **kwargs
+):
     """Build the estimator ``name`` (see :data:`ESTIMATORS`) for vehicle ``params`` (duck-typed
     VehicleParams) at step ``dt`` [s]. ``alo-fkf`` and ``joint`` (the paper's antlion-tuned
     filters) use the ALO-tuned noise shipped in estimation/data/tuned_noise.json (``fourwis
@@ -64,8 +69,10 @@ def make_estimator(name: str, params, dt: float = 0.002, noise: NoiseParams | No
     extra = sorted(kwargs) + ["tyre_relaxation"] * tyre_relaxation  # (options only the model filters take)
     if ":" in base:
         if noise is not None or extra:
-            raise ValueError(f"estimator {name!r} is built as factory(params, dt): it takes no noise or keyword "
-                             f"arguments, got {extra or ['noise']}")
+            raise ValueError(
+                f"estimator {name!r} is built as factory(params, dt): it takes no noise or keyword "
+                f"arguments, got {extra or ['noise']}"
+            )
         estimator = import_factory(base, "estimator")(params, dt)
         check_estimator(estimator, name)
         return estimator
@@ -76,12 +83,15 @@ def make_estimator(name: str, params, dt: float = 0.002, noise: NoiseParams | No
         return Oracle()
     options = {f.name for f in fields(StateEstimator) if f.init} - {"params", "kind", "dt", "noise", "needs_truth"}
     if set(kwargs) - options:
-        raise ValueError(f"unknown keyword argument(s) {sorted(set(kwargs) - options)} for estimator {name!r}; "
-                         f"known: {sorted(options)}")
+        raise ValueError(
+            f"unknown keyword argument(s) {sorted(set(kwargs) - options)} for estimator {name!r}; "
+            f"known: {sorted(options)}"
+        )
     if noise is None:
         noise = (tuned_noise() if name in ("alo-fkf", "joint") else None) or NoiseParams()
-    return StateEstimator(ModelParams.from_vehicle(params, relaxation=tyre_relaxation), kind=name, dt=dt, noise=noise,
-                          **kwargs)
+    return StateEstimator(
+        ModelParams.from_vehicle(params, relaxation=tyre_relaxation), kind=name, dt=dt, noise=noise, **kwargs
+    )
 
 
 def relaxed_joint(params, dt: float = 0.002):
@@ -92,6 +102,18 @@ def relaxed_joint(params, dt: float = 0.002):
     return make_estimator("joint", params, dt, tyre_relaxation=True)
 
 
-__all__ = ["ESTIMATORS", "TRUTH_GROUPS", "Estimate", "ModelParams", "NoiseParams", "OnlineTuner", "PartialOracle",
-           "StateEstimator", "check_estimator_name", "make_estimator", "parse_estimator_name", "relaxed_joint",
-           "tuned_noise"]
+__all__ = [
+    "ESTIMATORS",
+    "TRUTH_GROUPS",
+    "Estimate",
+    "ModelParams",
+    "NoiseParams",
+    "OnlineTuner",
+    "PartialOracle",
+    "StateEstimator",
+    "check_estimator_name",
+    "make_estimator",
+    "parse_estimator_name",
+    "relaxed_joint",
+    "tuned_noise",
+]

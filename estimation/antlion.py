@@ -57,8 +57,16 @@ def _shrink_ratio(t: int, iterations: int) -> float:
     return max(1.0, 10.0**w * frac)
 
 
-def _walk(rng: np.random.Generator, steps: int, t: int, around: np.ndarray, half_width: np.ndarray,
-          lower: np.ndarray, upper: np.ndarray, ratio: float) -> np.ndarray:
+def _walk(
+    rng: np.random.Generator,
+    steps: int,
+    t: int,
+    around: np.ndarray,
+    half_width: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    ratio: float,
+) -> np.ndarray:
     """Positions at step ``t`` of random walks for each row of ``around`` (n, d): the walk is
     min-max normalised into [around - half_width / I, around + half_width / I] and clipped to
     the bounds (Mirjalili's eq. 2.1-2.3 and 2.10-2.11 with the box centred on the antlion)."""
@@ -76,8 +84,14 @@ def check_budget(n_agents, iterations) -> None:
         raise ValueError(f"need integers n_agents >= 2 and iterations >= 1, got {n_agents!r}, {iterations!r}")
 
 
-def antlion(fun: Callable[[np.ndarray], np.ndarray], bounds, n_agents: int = 20, iterations: int = 50,
-            rng: np.random.Generator | int = 0, progress: bool = False) -> OptimizeResult:
+def antlion(
+    fun: Callable[[np.ndarray], np.ndarray],
+    bounds,
+    n_agents: int = 20,
+    iterations: int = 50,
+    rng: np.random.Generator | int = 0,
+    progress: bool = False,
+) -> OptimizeResult:
     """Minimise ``fun`` (K, d) -> (K,) over the box ``bounds`` (d, 2); one ``fun`` call per iteration."""
     lower, upper = check_bounds(bounds)
     check_budget(n_agents, iterations)
@@ -94,8 +108,9 @@ def antlion(fun: Callable[[np.ndarray], np.ndarray], bounds, n_agents: int = 20,
         chosen = rng.choice(n_agents, size=n_agents, p=weights / weights.sum())
         half_width = (upper - lower) / 2
         walk_chosen = _walk(rng, iterations, t, antlions[chosen], half_width, lower, upper, ratio)
-        walk_elite = _walk(rng, iterations, t, np.repeat(antlions[:1], n_agents, axis=0), half_width, lower, upper,
-                           ratio)
+        walk_elite = _walk(
+            rng, iterations, t, np.repeat(antlions[:1], n_agents, axis=0), half_width, lower, upper, ratio
+        )
         ants = np.clip((walk_chosen + walk_elite) / 2, lower, upper)
         ant_costs = evaluate_population(fun, ants)
         evaluations += n_agents

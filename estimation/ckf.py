@@ -229,8 +229,9 @@ def measurement_update(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nu, 
 
 
 @numba.njit(inline="always", **JIT)
-def innovation(z: np.ndarray, z_pred: np.ndarray, valid: np.ndarray, R: np.ndarray, nu: np.ndarray,
-               Rv: np.ndarray) -> int:
+def innovation(
+    z: np.ndarray, z_pred: np.ndarray, valid: np.ndarray, R: np.ndarray, nu: np.ndarray, Rv: np.ndarray
+) -> int:
     """The innovation nu = z - z_pred (m,) and its noise Rv (m, m) = R, zero and the dropout
     variance (no information) on channels with ``valid`` False; returns the valid count."""
     m = z.shape[0]
@@ -282,8 +283,9 @@ def _moments_batch(moved, Q, x_out, P_out):
 @numba.njit(**JIT)
 def _update_batch(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nu, S, weights, nll):
     for b in range(x.shape[0]):
-        nll[b] = measurement_update(x[b], P[b], points[b], Z[b], z[b], valid[b], R[b], huber_c, x_out[b], P_out[b],
-                                    nu[b], S[b], weights[b])
+        nll[b] = measurement_update(
+            x[b], P[b], points[b], Z[b], z[b], valid[b], R[b], huber_c, x_out[b], P_out[b], nu[b], S[b], weights[b]
+        )
 
 
 def batch_arrays(x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -307,8 +309,10 @@ def noise_matrix(M: np.ndarray, shape: tuple[int, ...], name: str) -> np.ndarray
     if not np.all(np.isfinite(given)):
         raise ValueError(f"{name} must be finite, got {given!r}")
     scale = max(float(np.abs(given).max()), 1e-300)
-    if float(np.abs(given - np.swapaxes(given, -1, -2)).max()) > 1e-12 * scale \
-            or np.linalg.eigvalsh(given).min() < -1e-12 * scale:
+    if (
+        float(np.abs(given - np.swapaxes(given, -1, -2)).max()) > 1e-12 * scale
+        or np.linalg.eigvalsh(given).min() < -1e-12 * scale
+    ):
         raise ValueError(f"{name} must be a symmetric positive semi-definite covariance, got {given!r}")
     return np.ascontiguousarray(np.broadcast_to(given, shape))
 
@@ -350,7 +354,6 @@ def ckf_predict(x: np.ndarray, P: np.ndarray, f, Q: np.ndarray) -> tuple[np.ndar
     return x_out, P_out
 
 
-
 class CKFUpdate(NamedTuple):
     """Measurement update result: state x (B, n) and P (B, n, n), innovation (B, m), its
     covariance S (B, m, m), Huber weights (B, m) and innovation negative log-likelihood (B,)."""
@@ -363,8 +366,15 @@ class CKFUpdate(NamedTuple):
     nll: np.ndarray
 
 
-def ckf_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, h, R: np.ndarray, huber_c: float | None = None,
-               valid: np.ndarray | None = None) -> CKFUpdate:
+def ckf_update(
+    x: np.ndarray,
+    P: np.ndarray,
+    z: np.ndarray,
+    h,
+    R: np.ndarray,
+    huber_c: float | None = None,
+    valid: np.ndarray | None = None,
+) -> CKFUpdate:
     """Measurement update of a batch (see :func:`measurement_update`) with fresh cubature points
     of (x, P): z (B, m), ``h`` maps point sets (B, 2n, n) to (B, 2n, m), R (m, m) or (B, m, m),
     ``huber_c`` None for the plain update, ``valid`` (B, m) bool (default all valid)."""
@@ -382,9 +392,24 @@ def ckf_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, h, R: np.ndarray, hu
     Z = _model_values(h, points, m)
     x_out, P_out = np.empty_like(x), np.empty_like(P)
     nu, S, weights, nll = np.empty((B, m)), np.empty((B, m, m)), np.empty((B, m)), np.empty(B)
-    _update_batch(x, P, points, Z, z, valid, noise_matrix(R, (B, m, m), "R"), check_huber(huber_c), x_out, P_out,
-                  nu, S, weights, nll)
+    _update_batch(
+        x,
+        P,
+        points,
+        Z,
+        z,
+        valid,
+        noise_matrix(R, (B, m, m), "R"),
+        check_huber(huber_c),
+        x_out,
+        P_out,
+        nu,
+        S,
+        weights,
+        nll,
+    )
     if not np.all(np.isfinite(nll)):
-        raise ValueError(f"update of member {int(np.argmin(np.isfinite(nll)))} failed: innovation covariance "
-                         "not positive definite")
+        raise ValueError(
+            f"update of member {int(np.argmin(np.isfinite(nll)))} failed: innovation covariance not positive definite"
+        )
     return CKFUpdate(x_out, P_out, nu, S, weights, nll)

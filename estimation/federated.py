@@ -28,8 +28,8 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from fourwis.estimation.ckf import batch_arrays, ckf_predict, ckf_update, noise_matrix, spd_inverse
 from fourwis.core.kernels import JIT, scratch
+from fourwis.estimation.ckf import batch_arrays, ckf_predict, ckf_update, noise_matrix, spd_inverse
 
 BETA_FLOOR = 0.05
 
@@ -97,8 +97,15 @@ def _fuse_batch(xs, Ps, x_out, P_out, beta_out, ok):
         sharing_coefficients(confidence, beta_out[b])
 
 
-def federated_step(x: np.ndarray, P: np.ndarray, f: Callable[[np.ndarray], np.ndarray], Q: np.ndarray,
-                   subs: Sequence[SubMeasurement], beta: np.ndarray, huber_c: float | None = None) -> FederatedStep:
+def federated_step(
+    x: np.ndarray,
+    P: np.ndarray,
+    f: Callable[[np.ndarray], np.ndarray],
+    Q: np.ndarray,
+    subs: Sequence[SubMeasurement],
+    beta: np.ndarray,
+    huber_c: float | None = None,
+) -> FederatedStep:
     """One federated CKF cycle for a batch: share (reset) with beta (B, N), predict + update each
     sub-filter, fuse. x (B, n), P (B, n, n), f maps point sets (B, K, n) to (B, K, n)."""
     x, P = batch_arrays(x, P)

@@ -71,14 +71,34 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from fourwis.estimation.ckf import NO_HUBER, cholesky, cholesky_solve, cubature_points, innovation, innovation_nll, measurement_update, predicted_moments
-from fourwis.core.kernels import dot, matmul
-from fourwis.estimation.federated import fuse, sharing_coefficients
-from fourwis.core.kernels import JIT, scratch
-from fourwis.estimation.model import (MIN_SPEED, P_IZ, P_RELAX, P_RW, ModelParams, body_forces, dugoff_lambdas,
-                              fill_steer_trig, transition, wheel_kinematics, wheel_loads, wheel_trig)
-from fourwis.core.types import CHANNELS, Estimate
 from fourwis.core.checks import check_step, is_number, member_rows
+from fourwis.core.kernels import JIT, dot, matmul, scratch
+from fourwis.core.types import CHANNELS, Estimate
+from fourwis.estimation.ckf import (
+    NO_HUBER,
+    cholesky,
+    cholesky_solve,
+    cubature_points,
+    innovation,
+    innovation_nll,
+    measurement_update,
+    predicted_moments,
+)
+from fourwis.estimation.federated import fuse, sharing_coefficients
+from fourwis.estimation.model import (
+    MIN_SPEED,
+    P_IZ,
+    P_RELAX,
+    P_RW,
+    ModelParams,
+    body_forces,
+    dugoff_lambdas,
+    fill_steer_trig,
+    transition,
+    wheel_kinematics,
+    wheel_loads,
+    wheel_trig,
+)
 
 N_STATE = 6
 I_U, I_V, I_AX, I_AY, I_R, I_GAMMA = range(N_STATE)
@@ -159,26 +179,36 @@ class NoiseParams:
     def __post_init__(self) -> None:
         process = np.asarray(self.process_std, dtype=float)
         if process.ndim not in (1, 2) or process.shape[-1] != N_STATE:
-            raise ValueError(f"process_std needs {N_STATE} values (u, v, ax, ay, r, Gamma), or (B, {N_STATE}), "
-                             f"got shape {process.shape}: {self.process_std!r}")
+            raise ValueError(
+                f"process_std needs {N_STATE} values (u, v, ax, ay, r, Gamma), or (B, {N_STATE}), "
+                f"got shape {process.shape}: {self.process_std!r}"
+            )
         per_member = ("accel_std", "gyro_std", "wheel_speed_std")  # (B,) allowed: one per batch member
         # field: (may it be 0, largest ndim); process_std's shape is checked above
-        rules = {"process_std": (True, 2), "mu_walk_std": (True, 0), **{name: (False, 1) for name in per_member},
-                 "mu_accel_std": (False, 0), "mu_max_std": (False, 0)}
+        rules = {
+            "process_std": (True, 2),
+            "mu_walk_std": (True, 0),
+            **{name: (False, 1) for name in per_member},
+            "mu_accel_std": (False, 0),
+            "mu_max_std": (False, 0),
+        }
         shapes = {0: " (a scalar)", 1: " (scalar or (B,))", 2: ""}
         with np.errstate(over="ignore"):  # (a standard deviation whose variance overflows is refused)
             for name, (may_be_zero, ndim) in rules.items():
                 value = np.asarray(getattr(self, name), dtype=float)
                 in_range = value >= 0.0 if may_be_zero else value > 0.0
                 if value.ndim > ndim or not np.all(np.isfinite(value**2) & in_range):
-                    raise ValueError(f"{name} must be finite and {'>= 0' if may_be_zero else '> 0'}{shapes[ndim]}, "
-                                     f"got {getattr(self, name)!r}")
-        sizes = {len(process) if process.ndim == 2 else 1} | {np.asarray(getattr(self, name)).size
-                                                              for name in per_member}
+                    raise ValueError(
+                        f"{name} must be finite and {'>= 0' if may_be_zero else '> 0'}{shapes[ndim]}, "
+                        f"got {getattr(self, name)!r}"
+                    )
+        sizes = {len(process) if process.ndim == 2 else 1} | {
+            np.asarray(getattr(self, name)).size for name in per_member
+        }
         if len(sizes - {1}) > 1:
             raise ValueError(f"per-member noise fields disagree on the number of members: {sorted(sizes)}")
 
-    def scaled(self, log10_factors: np.ndarray) -> "NoiseParams":
+    def scaled(self, log10_factors: np.ndarray) -> NoiseParams:
         """Scale (process_std, accel_std, gyro_std, wheel_speed_std) by 10**factors: (4,) for
         one filter, or (B, 4) for a batch whose members each get their own noise (the scaled
         fields become arrays: process_std (B, 6), the others (B,))."""
@@ -186,11 +216,20 @@ class NoiseParams:
         if f.shape[-1:] != (4,) or f.ndim > 2 or not np.all(np.isfinite(f)):
             raise ValueError(f"log10 noise factors must be finite with shape (4,) or (B, 4), got {log10_factors!r}")
         if f.ndim == 1:
-            return replace(self, process_std=tuple(float(s * f[0]) for s in self.process_std),
-                           accel_std=self.accel_std * f[1], gyro_std=self.gyro_std * f[2],
-                           wheel_speed_std=self.wheel_speed_std * f[3])
-        return replace(self, process_std=np.asarray(self.process_std) * f[:, :1], accel_std=self.accel_std * f[:, 1],
-                       gyro_std=self.gyro_std * f[:, 2], wheel_speed_std=self.wheel_speed_std * f[:, 3])
+            return replace(
+                self,
+                process_std=tuple(float(s * f[0]) for s in self.process_std),
+                accel_std=self.accel_std * f[1],
+                gyro_std=self.gyro_std * f[2],
+                wheel_speed_std=self.wheel_speed_std * f[3],
+            )
+        return replace(
+            self,
+            process_std=np.asarray(self.process_std) * f[:, :1],
+            accel_std=self.accel_std * f[:, 1],
+            gyro_std=self.gyro_std * f[:, 2],
+            wheel_speed_std=self.wheel_speed_std * f[:, 3],
+        )
 
 
 TUNED_NOISE_FILE = "data/tuned_noise.json"  #: inside the estimation package; written by ``fourwis tune``
@@ -214,8 +253,21 @@ def tuned_noise(path=None) -> NoiseParams | None:
         raise ValueError(f"corrupted tuning file {path}: {err!r}; rerun `fourwis tune` or delete it") from None
 
 
-STATE_FIELDS = ("x", "P", "mu", "P_mu", "beta", "beta_mu", "omega_prev", "omega_dot", "inertial_prev", "inertial_repeats",
-                "zero_point", "last_nll", "slip_relaxed")
+STATE_FIELDS = (
+    "x",
+    "P",
+    "mu",
+    "P_mu",
+    "beta",
+    "beta_mu",
+    "omega_prev",
+    "omega_dot",
+    "inertial_prev",
+    "inertial_repeats",
+    "zero_point",
+    "last_nll",
+    "slip_relaxed",
+)
 #: batches at least this large step on all cores (one vehicle's step is ~15-30 us, far above the
 #: ~5 us thread start-up: measured faster from B = 2 on the 2-core machine of BENCHMARKS.md)
 PARALLEL_MIN_BATCH = 2
@@ -388,13 +440,34 @@ def _ckf_update(x, P, z, valid, R, huber_c, model, f_args, h_args, m_args, x_out
     if not cubature_points(x, P, points):
         return math.nan
     _evaluate(model, points, Z, f_args, h_args, m_args)
-    return measurement_update(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, scratch((m,)), scratch((m, m)),
-                              scratch((m,)))
+    return measurement_update(
+        x, P, points, Z, z, valid, R, huber_c, x_out, P_out, scratch((m,)), scratch((m, m)), scratch((m,))
+    )
 
 
 @numba.njit(**JIT)
-def _federated(x, P, Q, beta, f_model, z1, valid1, R1, h1_model, z2, valid2, R2, h2_model, huber_c,
-               f_args, h_args, m_args, x_out, P_out, beta_out) -> float:
+def _federated(
+    x,
+    P,
+    Q,
+    beta,
+    f_model,
+    z1,
+    valid1,
+    R1,
+    h1_model,
+    z2,
+    valid2,
+    R2,
+    h2_model,
+    huber_c,
+    f_args,
+    h_args,
+    m_args,
+    x_out,
+    P_out,
+    beta_out,
+) -> float:
     """One federated cycle (estimation/federated.py) with two sub-filters; returns the summed
     innovation NLL (NaN on failure)."""
     n = x.shape[0]
@@ -546,15 +619,43 @@ def _relax_slip(x, steer, slip_relaxed, pk, dt, relaxed_new) -> None:
         return
     for w in range(4):
         tan_kin, along = wheel_kinematics(x[I_U], x[I_V], x[I_R], wheel_trig(steer, w), pk, w)
-        relaxed_new[w] = _low_pass(slip_relaxed[w], tan_kin, dt, pk[P_RELAX] / max(abs(along), MIN_SPEED)) \
-            if math.isfinite(slip_relaxed[w]) else tan_kin
+        relaxed_new[w] = (
+            _low_pass(slip_relaxed[w], tan_kin, dt, pk[P_RELAX] / max(abs(along), MIN_SPEED))
+            if math.isfinite(slip_relaxed[w])
+            else tan_kin
+        )
         steer[3, w] = tan_kin - relaxed_new[w]
 
 
 @numba.njit(**JIT)
-def _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rate, yaw_balance_std, process_var,
-                 sensor_var, mu_var, x, P, mu, P_mu, beta, beta_mu, omega_prev, omega_dot, inertial_prev,
-                 inertial_repeats, zero_point, slip_relaxed, reading, valid_in, out) -> tuple[int, float]:
+def _step_member(
+    kind,
+    pk,
+    dt,
+    huber_c,
+    zero_point_tau,
+    stuck_samples,
+    slide_rate,
+    yaw_balance_std,
+    process_var,
+    sensor_var,
+    mu_var,
+    x,
+    P,
+    mu,
+    P_mu,
+    beta,
+    beta_mu,
+    omega_prev,
+    omega_dot,
+    inertial_prev,
+    inertial_repeats,
+    zero_point,
+    slip_relaxed,
+    reading,
+    valid_in,
+    out,
+) -> tuple[int, float]:
     """One step of one vehicle's estimator of ``kind`` (index into KINDS) on the raw sensor
     ``reading`` (13,); state rows are updated in place only on success. Returns (status,
     innovation NLL) and fills ``out``."""
@@ -616,8 +717,28 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rat
     beta_new[:] = beta
     m_args = (x, steer, omega, torque, od, pk, dt)  # the mu measurements, unused by the state filter
     if federated:
-        nll = _federated(x, P, Q, beta, TRANSITION, z1, valid1, R1, STATE_1, z2_state, valid2_state, R2_state,
-                         STATE_2, huber_c if robust else NO_HUBER, f_args, h_args, m_args, x_new, P_new, beta_new)
+        nll = _federated(
+            x,
+            P,
+            Q,
+            beta,
+            TRANSITION,
+            z1,
+            valid1,
+            R1,
+            STATE_1,
+            z2_state,
+            valid2_state,
+            R2_state,
+            STATE_2,
+            huber_c if robust else NO_HUBER,
+            f_args,
+            h_args,
+            m_args,
+            x_new,
+            P_new,
+            beta_new,
+        )
     elif kind == 1:
         x_pred, P_pred = scratch((6,)), scratch((6, 6))
         if not _ckf_predict(x, P, Q, TRANSITION, f_args, h_args, m_args, x_pred, P_pred):
@@ -639,8 +760,28 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rat
         P_mu_in[:, :] = P_mu
         if unseen_slide:  # restart from the prior covariance (mu_max_std)
             _fill_correlated(mu_var[2], P_mu_in)
-        nll_mu = _federated(mu, P_mu_in, walk, beta_mu, RANDOM_WALK, values[:3], valid[:3], R1_mu, MU_1, z2, valid2,
-                            R2_mu, MU_2, huber_c, f_args, h_args, m_args, mu_fused, P_fused, beta_mu_new)
+        nll_mu = _federated(
+            mu,
+            P_mu_in,
+            walk,
+            beta_mu,
+            RANDOM_WALK,
+            values[:3],
+            valid[:3],
+            R1_mu,
+            MU_1,
+            z2,
+            valid2,
+            R2_mu,
+            MU_2,
+            huber_c,
+            f_args,
+            h_args,
+            m_args,
+            mu_fused,
+            P_fused,
+            beta_mu_new,
+        )
         if not math.isfinite(nll_mu):
             return FILTER_FAILED, math.nan
         # hold mu where the lateral demand is far from saturation (lambda >= EXCITATION_LAMBDA);
@@ -679,7 +820,7 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rat
     grad_v = speed / denom
     beta_var = grad_u**2 * P[I_U, I_U] + 2 * grad_u * grad_v * P[I_U, I_V] + grad_v**2 * P[I_V, I_V]
     out[O_BETA_STD] = math.sqrt(max(beta_var, 0.0))
-    wheel_loads(x[I_AX], x[I_AY], pk, out[O_FZ:O_FZ + 4])
+    wheel_loads(x[I_AX], x[I_AY], pk, out[O_FZ : O_FZ + 4])
     for w in range(4):
         out[O_MU + w] = mu[w]
         out[O_MU_STD + w] = math.sqrt(P_mu[w, w]) if joint else 0.0
@@ -687,36 +828,203 @@ def _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rat
 
 
 @numba.njit(inline="always", **JIT)
-def _step_row(j, rows, kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rate, yaw_balance_std,
-              process_var, sensor_var, mu_var, X, P, MU, P_MU, BETA, BETA_MU, OMEGA_PREV, OMEGA_DOT, INERTIAL_PREV,
-              INERTIAL_REPEATS, ZERO_POINT, LAST_NLL, SLIP_RELAXED, values, valid, out, status):
+def step_row(
+    j,
+    rows,
+    kind,
+    pk,
+    dt,
+    huber_c,
+    zero_point_tau,
+    stuck_samples,
+    slide_rate,
+    yaw_balance_std,
+    process_var,
+    sensor_var,
+    mu_var,
+    X,
+    P,
+    MU,
+    P_MU,
+    BETA,
+    BETA_MU,
+    OMEGA_PREV,
+    OMEGA_DOT,
+    INERTIAL_PREV,
+    INERTIAL_REPEATS,
+    ZERO_POINT,
+    LAST_NLL,
+    SLIP_RELAXED,
+    values,
+    valid,
+    out,
+    status,
+):
     i = rows[j]
     q = i if process_var.shape[0] > 1 else 0
-    status[j], nll = _step_member(kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rate, yaw_balance_std,
-                                  process_var[q], sensor_var[q], mu_var, X[i], P[i], MU[i], P_MU[i], BETA[i],
-                                  BETA_MU[i], OMEGA_PREV[i], OMEGA_DOT[i], INERTIAL_PREV[i], INERTIAL_REPEATS[i],
-                                  ZERO_POINT[i], SLIP_RELAXED[i], values[i], valid[i], out[j])
+    status[j], nll = _step_member(
+        kind,
+        pk,
+        dt,
+        huber_c,
+        zero_point_tau,
+        stuck_samples,
+        slide_rate,
+        yaw_balance_std,
+        process_var[q],
+        sensor_var[q],
+        mu_var,
+        X[i],
+        P[i],
+        MU[i],
+        P_MU[i],
+        BETA[i],
+        BETA_MU[i],
+        OMEGA_PREV[i],
+        OMEGA_DOT[i],
+        INERTIAL_PREV[i],
+        INERTIAL_REPEATS[i],
+        ZERO_POINT[i],
+        SLIP_RELAXED[i],
+        values[i],
+        valid[i],
+        out[j],
+    )
     LAST_NLL[i] = nll if status[j] == OK else math.nan  # (NaN: this row's step failed)
 
 
 @numba.njit(**JIT)
-def _step_serial(rows, kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rate, yaw_balance_std,
-                 process_var, sensor_var, mu_var, X, P, MU, P_MU, BETA, BETA_MU, OMEGA_PREV, OMEGA_DOT,
-                 INERTIAL_PREV, INERTIAL_REPEATS, ZERO_POINT, LAST_NLL, SLIP_RELAXED, values, valid, out, status):
+def _step_serial(
+    rows,
+    kind,
+    pk,
+    dt,
+    huber_c,
+    zero_point_tau,
+    stuck_samples,
+    slide_rate,
+    yaw_balance_std,
+    process_var,
+    sensor_var,
+    mu_var,
+    X,
+    P,
+    MU,
+    P_MU,
+    BETA,
+    BETA_MU,
+    OMEGA_PREV,
+    OMEGA_DOT,
+    INERTIAL_PREV,
+    INERTIAL_REPEATS,
+    ZERO_POINT,
+    LAST_NLL,
+    SLIP_RELAXED,
+    values,
+    valid,
+    out,
+    status,
+):
     for j in range(rows.shape[0]):
-        _step_row(j, rows, kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rate, yaw_balance_std,
-                  process_var, sensor_var, mu_var, X, P, MU, P_MU, BETA, BETA_MU, OMEGA_PREV, OMEGA_DOT,
-                  INERTIAL_PREV, INERTIAL_REPEATS, ZERO_POINT, LAST_NLL, SLIP_RELAXED, values, valid, out, status)
+        step_row(
+            j,
+            rows,
+            kind,
+            pk,
+            dt,
+            huber_c,
+            zero_point_tau,
+            stuck_samples,
+            slide_rate,
+            yaw_balance_std,
+            process_var,
+            sensor_var,
+            mu_var,
+            X,
+            P,
+            MU,
+            P_MU,
+            BETA,
+            BETA_MU,
+            OMEGA_PREV,
+            OMEGA_DOT,
+            INERTIAL_PREV,
+            INERTIAL_REPEATS,
+            ZERO_POINT,
+            LAST_NLL,
+            SLIP_RELAXED,
+            values,
+            valid,
+            out,
+            status,
+        )
 
 
 @numba.njit(parallel=True, **JIT)
-def _step_parallel(rows, kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rate, yaw_balance_std,
-                   process_var, sensor_var, mu_var, X, P, MU, P_MU, BETA, BETA_MU, OMEGA_PREV, OMEGA_DOT,
-                   INERTIAL_PREV, INERTIAL_REPEATS, ZERO_POINT, LAST_NLL, SLIP_RELAXED, values, valid, out, status):
+def _step_parallel(
+    rows,
+    kind,
+    pk,
+    dt,
+    huber_c,
+    zero_point_tau,
+    stuck_samples,
+    slide_rate,
+    yaw_balance_std,
+    process_var,
+    sensor_var,
+    mu_var,
+    X,
+    P,
+    MU,
+    P_MU,
+    BETA,
+    BETA_MU,
+    OMEGA_PREV,
+    OMEGA_DOT,
+    INERTIAL_PREV,
+    INERTIAL_REPEATS,
+    ZERO_POINT,
+    LAST_NLL,
+    SLIP_RELAXED,
+    values,
+    valid,
+    out,
+    status,
+):
     for j in numba.prange(rows.shape[0]):
-        _step_row(j, rows, kind, pk, dt, huber_c, zero_point_tau, stuck_samples, slide_rate, yaw_balance_std,
-                  process_var, sensor_var, mu_var, X, P, MU, P_MU, BETA, BETA_MU, OMEGA_PREV, OMEGA_DOT,
-                  INERTIAL_PREV, INERTIAL_REPEATS, ZERO_POINT, LAST_NLL, SLIP_RELAXED, values, valid, out, status)
+        step_row(
+            j,
+            rows,
+            kind,
+            pk,
+            dt,
+            huber_c,
+            zero_point_tau,
+            stuck_samples,
+            slide_rate,
+            yaw_balance_std,
+            process_var,
+            sensor_var,
+            mu_var,
+            X,
+            P,
+            MU,
+            P_MU,
+            BETA,
+            BETA_MU,
+            OMEGA_PREV,
+            OMEGA_DOT,
+            INERTIAL_PREV,
+            INERTIAL_REPEATS,
+            ZERO_POINT,
+            LAST_NLL,
+            SLIP_RELAXED,
+            values,
+            valid,
+            out,
+            status,
+        )
 
 
 @dataclass
@@ -760,8 +1068,10 @@ class StateEstimator:
         if not (is_number(self.huber_c) and self.huber_c > 0):
             raise ValueError(f"huber_c must be > 0, got {self.huber_c!r}")
         if self.huber_c != HUBER_C and self.kind not in ROBUST_KINDS:
-            raise ValueError(f"huber_c applies to the robust estimators {list(ROBUST_KINDS)}; {self.kind!r} updates "
-                             f"without Huber weighting, got huber_c={self.huber_c!r}")
+            raise ValueError(
+                f"huber_c applies to the robust estimators {list(ROBUST_KINDS)}; {self.kind!r} updates "
+                f"without Huber weighting, got huber_c={self.huber_c!r}"
+            )
         if not (is_number(self.stuck_samples) and self.stuck_samples >= 1):
             raise ValueError(f"stuck_samples must be >= 1 (math.inf: off), got {self.stuck_samples!r}")
         if not (is_number(self.slide_rate) and self.slide_rate > 0):
@@ -769,8 +1079,10 @@ class StateEstimator:
         if not (is_number(self.yaw_balance_std) and self.yaw_balance_std > 0):
             raise ValueError(f"yaw_balance_std must be > 0 [N m] (math.inf: off), got {self.yaw_balance_std!r}")
         if self.yaw_balance_std != YAW_BALANCE_STD and self.kind != "joint":
-            raise ValueError(f"yaw_balance_std applies to the joint estimator; {self.kind!r} has no friction "
-                             f"filter to balance, got yaw_balance_std={self.yaw_balance_std!r}")
+            raise ValueError(
+                f"yaw_balance_std applies to the joint estimator; {self.kind!r} has no friction "
+                f"filter to balance, got yaw_balance_std={self.yaw_balance_std!r}"
+            )
         if not (is_number(self.zero_point_time_constant) and self.zero_point_time_constant > 0):
             raise ValueError(f"zero_point_time_constant must be > 0 [s], got {self.zero_point_time_constant!r}")
         self._kind_code = KINDS.index(self.kind)
@@ -784,8 +1096,12 @@ class StateEstimator:
         self.noise = noise
         per_step = self.dt / NOISE_STEP
         process_var = np.atleast_2d(np.square(np.asarray(noise.process_std, float)) * per_step)
-        sensor_std = np.broadcast_arrays(*(np.atleast_1d(np.asarray(s, dtype=float))
-                                           for s in (noise.accel_std, noise.gyro_std, noise.wheel_speed_std)))
+        sensor_std = np.broadcast_arrays(
+            *(
+                np.atleast_1d(np.asarray(s, dtype=float))
+                for s in (noise.accel_std, noise.gyro_std, noise.wheel_speed_std)
+            )
+        )
         sensor_var = np.square(np.stack(sensor_std, axis=1))
         members = max(len(process_var), len(sensor_var))  # the kernel reads both at one member's row
         self._process_var = np.array(np.broadcast_to(process_var, (members, N_STATE)))  # (writable: one kernel type)
@@ -822,15 +1138,18 @@ class StateEstimator:
         try:
             initial_speed = np.broadcast_to(np.asarray(initial_speed, dtype=float), (B,))
         except ValueError:
-            raise ValueError(f"initial_speed must be a speed [m/s] or one per vehicle ({B},), got "
-                             f"{initial_speed!r}") from None
+            raise ValueError(
+                f"initial_speed must be a speed [m/s] or one per vehicle ({B},), got {initial_speed!r}"
+            ) from None
         # (a first reset starts every row, so all of them are checked)
         rows = slice(None) if mask is None or not hasattr(self, "x") else mask
         if not np.all(np.isfinite(initial_speed[rows])):
             raise ValueError(f"initial_speed must be finite [m/s], got {initial_speed!r}")
         if not np.all(np.isfinite(values[rows])):
-            raise ValueError("the first reading must be finite in every channel (it sets the inertial states, the "
-                             f"wheel speeds and the steering): got {values[rows]!r}")
+            raise ValueError(
+                "the first reading must be finite in every channel (it sets the inertial states, the "
+                f"wheel speeds and the steering): got {values[rows]!r}"
+            )
         x0 = np.zeros((B, N_STATE))
         x0[:, I_U] = initial_speed
         x0[:, I_AX], x0[:, I_AY], x0[:, I_R] = values[:, 0], values[:, 1], values[:, 2]
@@ -868,13 +1187,16 @@ class StateEstimator:
     def step_error(self, i: int, status: int, values: np.ndarray) -> ValueError:
         """The error of vehicle i's failed step (compiled status ``status``) on the reading ``values`` (13,)."""
         if status == FILTER_FAILED:
-            return ValueError(f"the {self.kind} filter of vehicle {i} failed: a covariance is not finite or not "
-                              "positive definite")
+            return ValueError(
+                f"the {self.kind} filter of vehicle {i} failed: a covariance is not finite or not positive definite"
+            )
         bad_inputs = [CHANNELS[c] for c in range(N_MEASURED, 13) if not np.isfinite(values[c])]
         if bad_inputs:  # the model needs its inputs every step, valid or not
-            return ValueError(f"inputs {bad_inputs} of vehicle {i} are NaN or inf: wheel speeds, steer angles and "
-                              "torques drive the model every step; hold the last value while a sensor is out (as "
-                              "envs.sensors does) and flag it invalid")
+            return ValueError(
+                f"inputs {bad_inputs} of vehicle {i} are NaN or inf: wheel speeds, steer angles and "
+                "torques drive the model every step; hold the last value while a sensor is out (as "
+                "envs.sensors does) and flag it invalid"
+            )
         return ValueError(f"a valid measurement of vehicle {i} is NaN or inf: {values!r}")
 
     def step(self, reading, truth: Estimate | None = None, members: np.ndarray | None = None) -> Estimate:
@@ -896,13 +1218,37 @@ class StateEstimator:
         state = [getattr(self, name) for name in STATE_FIELDS]
         out, status = np.empty((len(rows), N_OUT)), np.zeros(len(rows), dtype=np.int64)
         kernel = _step_parallel if len(rows) >= PARALLEL_MIN_BATCH else _step_serial
-        kernel(rows, self._kind_code, self.params.packed, float(self.dt), float(self.huber_c),
-               float(self.zero_point_time_constant), float(self.stuck_samples), float(self.slide_rate),
-               float(self.yaw_balance_std),
-               self._process_var, self._sensor_var, self._mu_var, *state, values, valid, out, status)
+        kernel(
+            rows,
+            self._kind_code,
+            self.params.packed,
+            float(self.dt),
+            float(self.huber_c),
+            float(self.zero_point_time_constant),
+            float(self.stuck_samples),
+            float(self.slide_rate),
+            float(self.yaw_balance_std),
+            self._process_var,
+            self._sensor_var,
+            self._mu_var,
+            *state,
+            values,
+            valid,
+            out,
+            status,
+        )
         if np.count_nonzero(status):
             j = int(np.flatnonzero(status)[0])
             raise self.step_error(int(rows[j]), int(status[j]), values[rows[j]])
-        return Estimate(u=out[:, O_U], v=out[:, O_V], beta=out[:, O_BETA], r=out[:, O_R], ax=out[:, O_AX],
-                        ay=out[:, O_AY], mu=out[:, O_MU:O_MU + 4], fz=out[:, O_FZ:O_FZ + 4],
-                        beta_std=out[:, O_BETA_STD], mu_std=out[:, O_MU_STD:O_MU_STD + 4])
+        return Estimate(
+            u=out[:, O_U],
+            v=out[:, O_V],
+            beta=out[:, O_BETA],
+            r=out[:, O_R],
+            ax=out[:, O_AX],
+            ay=out[:, O_AY],
+            mu=out[:, O_MU : O_MU + 4],
+            fz=out[:, O_FZ : O_FZ + 4],
+            beta_std=out[:, O_BETA_STD],
+            mu_std=out[:, O_MU_STD : O_MU_STD + 4],
+        )

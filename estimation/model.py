@@ -93,8 +93,9 @@ class ModelParams:
     relaxation_length: float = 0.0
 
     @classmethod
-    def from_vehicle(cls, vehicle, fit: dict | None = None, resistances: bool = False,
-                     relaxation: bool = False) -> "ModelParams":
+    def from_vehicle(
+        cls, vehicle, fit: dict | None = None, resistances: bool = False, relaxation: bool = False
+    ) -> ModelParams:
         """From a duck-typed VehicleParams and the eq. 17 fit (estimation/data/dugoff_fit.json).
         ``resistances``: also the car's rolling resistance and drag, which the paper's model
         (and the shipped estimators) leave out: with them u and beta are more accurate, but the
@@ -103,12 +104,25 @@ class ModelParams:
         static wheel load m g / 4 (``vehicle.static_relaxation_lengths``, 0.36 m for the paper's
         car; the plant's grows with load, 0.48 m at 3 kN, which this constant leaves out)."""
         fit = fit or _load_fit()
-        return cls(vehicle.mass, vehicle.yaw_inertia, vehicle.cg_to_front, vehicle.cg_to_rear, vehicle.track_front,
-                   vehicle.track_rear, vehicle.wheel_radius, vehicle.cg_height, vehicle.wheel_inertia,
-                   fit["m1"], fit["n1"], fit["m2"], fit["n2"], mu_scale=fit["mu_scale"],
-                   rolling_resistance=vehicle.rolling_resistance if resistances else 0.0,
-                   drag_factor=0.5 * vehicle.air_density * vehicle.drag_area if resistances else 0.0,
-                   relaxation_length=float(vehicle.static_relaxation_lengths[1]) if relaxation else 0.0)
+        return cls(
+            vehicle.mass,
+            vehicle.yaw_inertia,
+            vehicle.cg_to_front,
+            vehicle.cg_to_rear,
+            vehicle.track_front,
+            vehicle.track_rear,
+            vehicle.wheel_radius,
+            vehicle.cg_height,
+            vehicle.wheel_inertia,
+            fit["m1"],
+            fit["n1"],
+            fit["m2"],
+            fit["n2"],
+            mu_scale=fit["mu_scale"],
+            rolling_resistance=vehicle.rolling_resistance if resistances else 0.0,
+            drag_factor=0.5 * vehicle.air_density * vehicle.drag_area if resistances else 0.0,
+            relaxation_length=float(vehicle.static_relaxation_lengths[1]) if relaxation else 0.0,
+        )
 
     @property
     def wheelbase(self) -> float:
@@ -120,11 +134,46 @@ class ModelParams:
         return np.array([getattr(self, name) for name in PACKED_FIELDS], dtype=np.float64)
 
 
-PACKED_FIELDS = ("mass", "yaw_inertia", "cg_to_front", "cg_to_rear", "track_front", "track_rear", "wheel_radius",
-                 "cg_height", "wheel_inertia", "m1", "n1", "m2", "n2", "eps", "mu_scale", "rolling_resistance",
-                 "drag_factor", "relaxation_length")
-(P_MASS, P_IZ, P_A, P_B, P_TF, P_TR, P_RW, P_H, P_IW, P_M1, P_N1, P_M2, P_N2, P_EPS,
- P_MU_SCALE, P_FRR, P_DRAG, P_RELAX) = range(len(PACKED_FIELDS))
+PACKED_FIELDS = (
+    "mass",
+    "yaw_inertia",
+    "cg_to_front",
+    "cg_to_rear",
+    "track_front",
+    "track_rear",
+    "wheel_radius",
+    "cg_height",
+    "wheel_inertia",
+    "m1",
+    "n1",
+    "m2",
+    "n2",
+    "eps",
+    "mu_scale",
+    "rolling_resistance",
+    "drag_factor",
+    "relaxation_length",
+)
+(
+    P_MASS,
+    P_IZ,
+    P_A,
+    P_B,
+    P_TF,
+    P_TR,
+    P_RW,
+    P_H,
+    P_IW,
+    P_M1,
+    P_N1,
+    P_M2,
+    P_N2,
+    P_EPS,
+    P_MU_SCALE,
+    P_FRR,
+    P_DRAG,
+    P_RELAX,
+) = range(len(PACKED_FIELDS))
 N_PARAMS = len(PACKED_FIELDS)
 
 
@@ -220,18 +269,25 @@ def wheel_kinematics(u: float, v: float, r: float, trig: tuple, pk, w: int) -> t
 
 
 @numba.njit(inline="always", **JIT)
-def dugoff(fz: float, slip: float, tan_alpha: float, mu: float, cx: float, cy: float, speed: float,
-           eps: float) -> tuple[float, float, float]:
+def dugoff(
+    fz: float, slip: float, tan_alpha: float, mu: float, cx: float, cy: float, speed: float, eps: float
+) -> tuple[float, float, float]:
     """Dugoff combined-slip forces Fx, Fy [N] and Dugoff's lambda (Dugoff, Fancher & Segel 1970;
     Rajamani 2012 sec. 13.9), with ``slip`` positive when driving (the SAE sign of this package)
     and the speed reduction of friction on the sliding speed u sqrt(s^2 + tan^2 a):
     lambda = mu Fz (1 - eps u sqrt(s^2 + tan^2 a)) (1 + s) / (2 sqrt(Cx^2 s^2 + Cy^2 tan^2 a)),
     f = (2 - lambda) lambda if lambda < 1 else 1; Fx = Cx s/(1+s) f, Fy = Cy tan(a)/(1+s) f.
-    (Dugoff's paper writes 1 - s for braking slip, positive when braking: the same law.) Below lambda = 1 the force depends on mu (the tyre is saturating)."""
+    (Dugoff's paper writes 1 - s for braking slip, positive when braking: the same law.) Below lambda = 1 the force
+    depends on mu (the tyre is saturating)."""
     one_plus_s = max(1.0 + slip, 0.05)
     demand = math.sqrt((cx * slip) ** 2 + (cy * tan_alpha) ** 2)
-    lam = mu * fz * (1.0 - eps * speed * math.sqrt(slip * slip + tan_alpha * tan_alpha)) * one_plus_s / (
-        2.0 * max(demand, 1e-9))
+    lam = (
+        mu
+        * fz
+        * (1.0 - eps * speed * math.sqrt(slip * slip + tan_alpha * tan_alpha))
+        * one_plus_s
+        / (2.0 * max(demand, 1e-9))
+    )
     f = (2.0 - lam) * lam if lam < 1.0 else 1.0
     return cx * slip / one_plus_s * f, cy * tan_alpha / one_plus_s * f, lam
 
@@ -255,8 +311,16 @@ def tyre_operating_point(u, v, r, fz, trig, omega, pk, w) -> tuple[float, float,
 
 
 @numba.njit(inline="always", **JIT)
-def body_forces(state: np.ndarray, mu: np.ndarray, steer: np.ndarray, omega: np.ndarray, torque: np.ndarray,
-                omega_dot: np.ndarray, pk: np.ndarray, out: np.ndarray) -> None:
+def body_forces(
+    state: np.ndarray,
+    mu: np.ndarray,
+    steer: np.ndarray,
+    omega: np.ndarray,
+    torque: np.ndarray,
+    omega_dot: np.ndarray,
+    pk: np.ndarray,
+    out: np.ndarray,
+) -> None:
     """Body accelerations ax, ay [m/s^2] and yaw moment Gamma [N m] from the tyre forces (eq. 4-6,
     corrected) for K model evaluations at once: ``state`` (5, K) rows u, v, r, ax, ay and
     ``mu`` (4, K) per wheel; writes the rows of out (3, K). Fx from the wheel's torque balance
@@ -342,8 +406,7 @@ def normal_loads(ax, ay, p: ModelParams) -> np.ndarray:
     """Wheel loads (..., 4) [N] (see :func:`wheel_loads`) for arrays ax, ay (...) [m/s^2]."""
     ax, ay = np.broadcast_arrays(np.asarray(ax, dtype=np.float64), np.asarray(ay, dtype=np.float64))
     out = np.empty(ax.shape + (4,))
-    _wheel_loads_flat(np.ascontiguousarray(ax).ravel(), np.ascontiguousarray(ay).ravel(), p.packed,
-                      out.reshape(-1, 4))
+    _wheel_loads_flat(np.ascontiguousarray(ax).ravel(), np.ascontiguousarray(ay).ravel(), p.packed, out.reshape(-1, 4))
     return out
 
 
@@ -354,10 +417,12 @@ def state_transition(x: np.ndarray, mu: np.ndarray, inputs: Inputs, p: ModelPara
     out = np.empty((1, 6))
     x = np.ascontiguousarray(x, dtype=np.float64)
     mu, delta, omega, torque, omega_dot = (np.ascontiguousarray(q, dtype=np.float64) for q in (mu, *inputs))
-    for name, value, shape in (("x", x, (6,)), ("mu", mu, (4,)), *zip(Inputs._fields, (delta, omega, torque, omega_dot),
-                                                                       [(4,)] * 4)):
+    for name, value, shape in (
+        ("x", x, (6,)),
+        ("mu", mu, (4,)),
+        *zip(Inputs._fields, (delta, omega, torque, omega_dot), [(4,)] * 4),
+    ):
         if value.shape != shape:  # (the kernel indexes without bounds checks)
             raise ValueError(f"{name} must have shape {shape}, got {value.shape}: {value!r}")
-    transition(x.reshape(1, 6), out,
-               (mu, steer_trig(delta), omega, torque, omega_dot, p.packed, float(dt)))
+    transition(x.reshape(1, 6), out, (mu, steer_trig(delta), omega, torque, omega_dot, p.packed, float(dt)))
     return out[0]

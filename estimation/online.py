@@ -2,7 +2,8 @@
 
 The paper's real-time rule (section 3.3): the antlion optimizer (or CMA-ES / random search,
 ``method``) re-tunes Q and R while the filter runs, and a result takes effect only when an
-optimizer run finishes; until then the filter keeps the noise it has. Here every ``window`` steps the readings of the last window
+optimizer run finishes; until then the filter keeps the noise it has. Here every ``window`` steps the readings of
+the last window
 and the filter's state at its start are handed to an optimizer run. Each candidate (log10
 factors on the base noise, as in the offline tuning) is scored by replaying the window from
 that state, all candidates of a population at once (one batched filter with per-member
@@ -30,10 +31,10 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from fourwis.estimation.optimizers import METHODS, minimize
-from fourwis.estimation.joint import STATE_FIELDS, StateEstimator
-from fourwis.core.types import Estimate
 from fourwis.core.checks import is_integer
+from fourwis.core.types import Estimate
+from fourwis.estimation.joint import STATE_FIELDS, StateEstimator
+from fourwis.estimation.optimizers import METHODS, minimize
 
 BOUNDS = [(-1.0, 1.0)] * 4  #: log10 factors on (process, accelerometer, gyro, wheel-speed) noise
 
@@ -49,8 +50,15 @@ class WindowReplay:
     each member's innovation NLL (inf for a member whose filter failed; the others replay on).
     :meth:`advance` runs a bounded number of steps, so the work can be spread over filter steps."""
 
-    def __init__(self, template: StateEstimator, base_noise, snapshot: dict, values: np.ndarray,
-                 valid: np.ndarray, factors: np.ndarray):
+    def __init__(
+        self,
+        template: StateEstimator,
+        base_noise,
+        snapshot: dict,
+        values: np.ndarray,
+        valid: np.ndarray,
+        factors: np.ndarray,
+    ):
         n = len(factors)
         self.filter = replace(template, noise=base_noise.scaled(factors))  # its settings, fresh state
         for name, value in snapshot.items():
@@ -67,8 +75,9 @@ class WindowReplay:
         ran = 0
         n = len(self.cost)
         while ran < steps and not self.done:
-            reading = SimpleNamespace(values=np.repeat(self.values[self.k][None], n, 0),
-                                      valid=np.repeat(self.valid[self.k][None], n, 0))
+            reading = SimpleNamespace(
+                values=np.repeat(self.values[self.k][None], n, 0), valid=np.repeat(self.valid[self.k][None], n, 0)
+            )
             alive = np.flatnonzero(np.isfinite(self.cost))
             try:
                 self.filter.step(reading, members=alive)
@@ -90,17 +99,31 @@ class OnlineTuner:
 
     needs_truth = False
 
-    def __init__(self, estimator: StateEstimator, window: int = 250, n_agents: int = 6, iterations: int = 4,
-                 replay_per_step: int = 1, seed: int = 0, bounds=BOUNDS, method: str = "alo"):
-        for name, value in (("window", window), ("n_agents", n_agents), ("iterations", iterations),
-                            ("replay_per_step", replay_per_step)):
+    def __init__(
+        self,
+        estimator: StateEstimator,
+        window: int = 250,
+        n_agents: int = 6,
+        iterations: int = 4,
+        replay_per_step: int = 1,
+        seed: int = 0,
+        bounds=BOUNDS,
+        method: str = "alo",
+    ):
+        for name, value in (
+            ("window", window),
+            ("n_agents", n_agents),
+            ("iterations", iterations),
+            ("replay_per_step", replay_per_step),
+        ):
             if not (is_integer(value) and value >= 1):
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
         if method not in METHODS:
             raise ValueError(f"unknown optimizer {method!r}; known: {list(METHODS)}")
         if not isinstance(estimator, StateEstimator):
-            raise ValueError(f"OnlineTuner wraps a StateEstimator (make_estimator('joint', params, dt)), got "
-                             f"{estimator!r}")
+            raise ValueError(
+                f"OnlineTuner wraps a StateEstimator (make_estimator('joint', params, dt)), got {estimator!r}"
+            )
         self.estimator, self.base_noise, self.method = estimator, estimator.noise, method
         self.window, self.n_agents, self.iterations = window, n_agents, iterations
         self.replay_per_step, self.seed, self.bounds = replay_per_step, seed, bounds

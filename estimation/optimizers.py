@@ -20,16 +20,23 @@ from collections.abc import Callable
 import numpy as np
 from tqdm import tqdm
 
-from fourwis.estimation.antlion import OptimizeResult, antlion, check_bounds, check_budget, evaluate_population
 from fourwis.core.checks import is_integer
+from fourwis.estimation.antlion import OptimizeResult, antlion, check_bounds, check_budget, evaluate_population
 
 METHODS = ("alo", "cmaes", "random")
 CMA_SIGMA_FRACTION = 0.25  #: CMA-ES initial step size as a fraction of the mean box width
 NON_FINITE_COST = 1e30  #: stands in for inf/NaN costs in CMA-ES's ranking
 
 
-def minimize(fun: Callable[[np.ndarray], np.ndarray], bounds, method: str = "alo", n_agents: int = 20,
-             iterations: int = 50, seed: int = 0, progress: bool = False) -> OptimizeResult:
+def minimize(
+    fun: Callable[[np.ndarray], np.ndarray],
+    bounds,
+    method: str = "alo",
+    n_agents: int = 20,
+    iterations: int = 50,
+    seed: int = 0,
+    progress: bool = False,
+) -> OptimizeResult:
     """Minimise ``fun`` over the box ``bounds`` (d, 2) with ``method`` (see module docstring)."""
     if method not in METHODS:
         raise ValueError(f"unknown optimizer {method!r}; known: {list(METHODS)}")
@@ -39,11 +46,12 @@ def minimize(fun: Callable[[np.ndarray], np.ndarray], bounds, method: str = "alo
         return antlion(fun, bounds, n_agents=n_agents, iterations=iterations, rng=seed, progress=progress)
     lower, upper = check_bounds(bounds)
     check_budget(n_agents, iterations)
-    global_state = np.random.get_state()  # cma reseeds numpy's global generator: give it back after
+    # cma reseeds numpy's global generator: give it back after
+    global_state = np.random.get_state()  # noqa: NPY002
     try:
         return _search(fun, lower, upper, method, n_agents, iterations, seed, progress)
     finally:
-        np.random.set_state(global_state)
+        np.random.set_state(global_state)  # noqa: NPY002
 
 
 def _search(fun, lower, upper, method, n_agents, iterations, seed, progress) -> OptimizeResult:
@@ -52,9 +60,11 @@ def _search(fun, lower, upper, method, n_agents, iterations, seed, progress) -> 
     if method == "cmaes":
         import cma
 
-        es = cma.CMAEvolutionStrategy((lower + upper) / 2, CMA_SIGMA_FRACTION * float(np.mean(upper - lower)),
-                                      {"bounds": [list(lower), list(upper)], "popsize": n_agents, "seed": seed + 1,
-                                       "verbose": -9})
+        es = cma.CMAEvolutionStrategy(
+            (lower + upper) / 2,
+            CMA_SIGMA_FRACTION * float(np.mean(upper - lower)),
+            {"bounds": [list(lower), list(upper)], "popsize": n_agents, "seed": seed + 1, "verbose": -9},
+        )
 
         def population() -> np.ndarray:
             return np.array(es.ask())

@@ -46,8 +46,10 @@ def parse_truth_groups(text: str) -> tuple[str, ...]:
     unknown = [g for g in groups if g not in TRUTH_GROUPS]
     repeated = sorted({g for g in groups if groups.count(g) > 1})
     if unknown or repeated:
-        raise ValueError(f"'+true-{text}': {'unknown' if unknown else 'repeated'} truth group(s) {unknown or repeated}; "
-                         f"known: {list(TRUTH_GROUPS)}, each at most once")
+        raise ValueError(
+            f"'+true-{text}': {'unknown' if unknown else 'repeated'} truth group(s) {unknown or repeated}; "
+            f"known: {list(TRUTH_GROUPS)}, each at most once"
+        )
     return groups
 
 
@@ -74,7 +76,12 @@ class PartialOracle:
     def step(self, reading, truth: Estimate | None = None, members=None) -> Estimate:
         if truth is None:
             raise ValueError("a partial oracle needs the truth; run it through envs.simulate")
-        estimate = self.estimator.step(reading, truth if getattr(self.estimator, "needs_truth", False) else None,
-                                       members)
-        return estimate._replace(**{f: np.zeros_like(getattr(estimate, f)) if f.endswith("_std") else getattr(truth, f)
-                                    for f in self._fields})
+        estimate = self.estimator.step(
+            reading, truth if getattr(self.estimator, "needs_truth", False) else None, members
+        )
+        return estimate._replace(
+            **{
+                f: np.zeros_like(getattr(estimate, f)) if f.endswith("_std") else getattr(truth, f)
+                for f in self._fields
+            }
+        )

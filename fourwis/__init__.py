@@ -49,9 +49,12 @@ def _register() -> None:
     from fourwis.envs import MAX_EPISODE_STEPS
 
     if ENV_ID not in gymnasium.registry:
-        gymnasium.register(id=ENV_ID, entry_point="fourwis.envs.gym_env:YawStabilityEnv",
-                           vector_entry_point="fourwis.envs.gym_env:YawStabilityVectorEnv",
-                           max_episode_steps=MAX_EPISODE_STEPS)
+        gymnasium.register(
+            id=ENV_ID,
+            entry_point="fourwis.envs.gym_env:YawStabilityEnv",
+            vector_entry_point="fourwis.envs.gym_env:YawStabilityVectorEnv",
+            max_episode_steps=MAX_EPISODE_STEPS,
+        )
 
 
 _register()

@@ -74,8 +74,18 @@ class ReusesArrays:
     def reset(self, reading, initial_speed, mask=None):
         B = len(reading.values)
         zeros, wheels = np.zeros(B), np.zeros((B, 4))
-        self.estimate = Estimate(zeros.copy(), zeros.copy(), zeros.copy(), zeros.copy(), zeros.copy(), zeros.copy(),
-                                 wheels + 0.8, wheels + self.params.mass * 9.81 / 4, zeros.copy(), wheels.copy())
+        self.estimate = Estimate(
+            zeros.copy(),
+            zeros.copy(),
+            zeros.copy(),
+            zeros.copy(),
+            zeros.copy(),
+            zeros.copy(),
+            wheels + 0.8,
+            wheels + self.params.mass * 9.81 / 4,
+            zeros.copy(),
+            wheels.copy(),
+        )
 
     def step(self, reading, truth=None, members=None):
         e, values = self.estimate, reading.values

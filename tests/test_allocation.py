@@ -11,8 +11,14 @@ from fourwis.envs.vehicle import VehicleParams
 
 P = VehicleParams()
 LEVER = np.array([-1.0, 1.0, -1.0, 1.0]) * P.track_front / 2  # dMz / dFx_i of straight wheels, ISO axes
-WHEELS = np.array([[P.cg_to_front, P.track_front / 2], [P.cg_to_front, -P.track_front / 2],
-                   [-P.cg_to_rear, P.track_rear / 2], [-P.cg_to_rear, -P.track_rear / 2]])  # (x, y) [m]
+WHEELS = np.array(
+    [
+        [P.cg_to_front, P.track_front / 2],
+        [P.cg_to_front, -P.track_front / 2],
+        [-P.cg_to_rear, P.track_rear / 2],
+        [-P.cg_to_rear, -P.track_rear / 2],
+    ]
+)  # (x, y) [m]
 
 
 def _body_effect(front_steer: float, rear_steer: float) -> tuple[np.ndarray, np.ndarray]:
@@ -62,11 +68,17 @@ def test_feasible_demands_are_met_exactly_at_the_least_workload_scipy_finds(stee
         # (scipy 1.17's SLSQP needs more than its default 100 iterations on some of these, and the
         # constraints' exact Jacobian: with finite differences its line search failed on one)
         rows = np.array([along * cap, lever * cap]) / 1e3
-        reference = minimize(lambda y: y @ y, np.zeros(4), jac=lambda y: 2 * y, method="SLSQP",
-                             bounds=list(zip(-limits[b] / cap, limits[b] / cap)),
-                             options={"ftol": 1e-13, "maxiter": 1000},
-                             constraints=[{"type": "eq", "fun": lambda y: rows @ y - np.array([drive, moment[b]]) / 1e3,
-                                           "jac": lambda y: rows}])
+        reference = minimize(
+            lambda y: y @ y,
+            np.zeros(4),
+            jac=lambda y: 2 * y,
+            method="SLSQP",
+            bounds=list(zip(-limits[b] / cap, limits[b] / cap)),
+            options={"ftol": 1e-13, "maxiter": 1000},
+            constraints=[
+                {"type": "eq", "fun": lambda y: rows @ y - np.array([drive, moment[b]]) / 1e3, "jac": lambda y: rows}
+            ],
+        )
         assert reference.success, reference.message
         workload = np.sum((forces[b] / cap) ** 2)
         assert workload <= reference.fun * (1 + 1e-7) + 1e-12
@@ -98,8 +110,9 @@ def test_infeasible_moment_degrades_to_the_largest_feasible_one_and_is_flagged(s
     for b in range(len(base)):
         along, lever = _body_effect(front[b], rear[b])
         drive = np.clip(along @ base[b] / P.wheel_radius, -along @ limits[b], along @ limits[b])
-        best = linprog(-np.sign(moment[b]) * lever, A_eq=along[None], b_eq=[drive],
-                       bounds=list(zip(-limits[b], limits[b])))
+        best = linprog(
+            -np.sign(moment[b]) * lever, A_eq=along[None], b_eq=[drive], bounds=list(zip(-limits[b], limits[b]))
+        )
         assert out.drive_force[b] == pytest.approx(drive, abs=1e-6)
         assert out.yaw_moment[b] == pytest.approx(lever @ best.x, abs=1e-6)
         np.testing.assert_allclose(along @ out.torques[b] / P.wheel_radius, out.drive_force[b], atol=1e-6)
@@ -139,15 +152,24 @@ def test_motor_power_limits_the_torque_at_speed():
     assert not fast.feasible[0]
 
 
-@pytest.mark.parametrize("bad, match", [({"yaw_moment": np.array([np.nan])}, "yaw moment"),
-                                        ({"mu": np.full((1, 4), np.inf)}, "friction"),
-                                        ({"fz": np.ones((1, 3))}, "shape"),
-                                        ({"front_steer": np.array([np.nan])}, "front steer"),
-                                        ({"mu": np.array([[1.0, 0.0, 1.0, 1.0]])}, "friction must be > 0"),
-                                        ({"fz": np.array([[1.0, -5.0, 1.0, 1.0]])}, "loads must be >= 0")])
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        ({"yaw_moment": np.array([np.nan])}, "yaw moment"),
+        ({"mu": np.full((1, 4), np.inf)}, "friction"),
+        ({"fz": np.ones((1, 3))}, "shape"),
+        ({"front_steer": np.array([np.nan])}, "front steer"),
+        ({"mu": np.array([[1.0, 0.0, 1.0, 1.0]])}, "friction must be > 0"),
+        ({"fz": np.array([[1.0, -5.0, 1.0, 1.0]])}, "loads must be >= 0"),
+    ],
+)
 def test_bad_input_names_the_bad_value(bad, match):
-    args = {"base_torques": np.zeros((1, 4)), "yaw_moment": np.zeros(1), "fz": np.ones((1, 4)),
-            "mu": np.ones((1, 4))} | bad
+    args = {
+        "base_torques": np.zeros((1, 4)),
+        "yaw_moment": np.zeros(1),
+        "fz": np.ones((1, 4)),
+        "mu": np.ones((1, 4)),
+    } | bad
     with pytest.raises(ValueError, match=match):
         allocate_torques(params=P, **args)
 
@@ -162,6 +184,7 @@ def test_allocation_allocates_nothing_per_vehicle(heap_allocations):
         if batch > 1:
             feasible = allocate_torques(base, moment, fz, mu, P, lateral_forces=lateral, speed=speed).feasible
             assert 0.2 < 1.0 - feasible.mean() < 0.8
-        counts.append(heap_allocations(lambda: allocate_torques(base, moment, fz, mu, P, lateral_forces=lateral,
-                                                                speed=speed)))
+        counts.append(
+            heap_allocations(lambda: allocate_torques(base, moment, fz, mu, P, lateral_forces=lateral, speed=speed))
+        )
     assert counts[0] == counts[1]

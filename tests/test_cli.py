@@ -12,8 +12,17 @@ import pytest
 from fourwis.training.cli import build_parser, main
 
 #: a PPO run of 4 cars: whole rollouts of 256 x 4 = 1024 env steps, so 1500 requested -> 2048 trained
-TRAIN = ["train", "--n-envs", "4", "--env-kwargs", '{"estimator": "oracle"}', "--eval-every", "100000",
-         "--checkpoint-every", "1024"]
+TRAIN = [
+    "train",
+    "--n-envs",
+    "4",
+    "--env-kwargs",
+    '{"estimator": "oracle"}',
+    "--eval-every",
+    "100000",
+    "--checkpoint-every",
+    "1024",
+]
 
 
 @pytest.fixture(scope="module")
@@ -137,15 +146,18 @@ def test_tune_checks_its_output_file_before_any_work(tmp_path, monkeypatch):
     assert json.loads(nested.read_text())["optimizer"] == "random"
 
 
-@pytest.mark.parametrize("command", [["compare"], ["estimate"], ["simulate", "paper_step"], ["swd", "--A", "20"],
-                                     ["train"]])
+@pytest.mark.parametrize(
+    "command", [["compare"], ["estimate"], ["simulate", "paper_step"], ["swd", "--A", "20"], ["train"]]
+)
 def test_every_command_checks_its_output_folder_before_any_work(command, tmp_path, monkeypatch):
     from fourwis.envs import simulation as envs_simulation
 
     monkeypatch.setattr(envs_simulation.ClosedLoop, "__init__", lambda *a, **k: pytest.fail("a run started"))
     (tmp_path / "notes.txt").write_text("a file")
-    for out, named in ((tmp_path / "notes.txt", "must be a directory, but .*notes.txt is a file"),
-                       (tmp_path / "notes.txt" / "sub", "notes.txt is not a writable directory")):
+    for out, named in (
+        (tmp_path / "notes.txt", "must be a directory, but .*notes.txt is a file"),
+        (tmp_path / "notes.txt" / "sub", "notes.txt is not a writable directory"),
+    ):
         with pytest.raises(SystemExit, match=f"fourwis {command[0]}: --out .*{named}"):
             main([*command, "--out", str(out)])
 
@@ -191,14 +203,17 @@ def test_parallel_map_refuses_fewer_than_one_job_before_iterating(jobs, tmp_path
     assert list(parallel_map(abs, [-1, -2], 1, "test", progress=False)) == [1, 2]
 
 
-@pytest.mark.parametrize("given, header, other", [(True, "A = 10.0 deg (given)", "0.3 g at 80 km/h"),
-                                                  (False, "A = 16.6 deg (0.3 g at 80 km/h, dry road)", "given")])
+@pytest.mark.parametrize(
+    "given, header, other",
+    [(True, "A = 10.0 deg (given)", "0.3 g at 80 km/h"), (False, "A = 16.6 deg (0.3 g at 80 km/h, dry road)", "given")],
+)
 def test_swd_header_says_whether_a_was_given_or_measured(given, header, other, monkeypatch, capsys):
     from fourwis.envs import fmvss126 as envs_fmvss126
 
     monkeypatch.setattr(envs_fmvss126, "run_series", lambda *args, **kwargs: [])
-    monkeypatch.setattr(envs_fmvss126, "characterise",
-                        lambda: pytest.fail("measured a given A") if given else math.radians(16.6))
+    monkeypatch.setattr(
+        envs_fmvss126, "characterise", lambda: pytest.fail("measured a given A") if given else math.radians(16.6)
+    )
     main(["swd", "--mu", "1.0", "0.5", *(["--A", "10"] if given else [])])
     text = capsys.readouterr().out
     assert text.count(header) == 2 and other not in text  # one table per mu

@@ -16,11 +16,18 @@ def test_scenario_entries_parse_into_name_and_overrides():
     # a split road as a JSON list; swd_wet takes overrides on top of its own
     assert parse_scenario("iso3888_2:mu=[0.5, 0.3],speed_kph=40") == ("iso3888_2", {"mu": [0.5, 0.3], "speed_kph": 40})
     assert parse_scenario("swd_wet:mu=0.3+faults") == ("sine_with_dwell", {"mu": 0.3, "amplitude_A": SWD_MULTIPLE})
-    for bad, word in (("iso9999", "iso9999"), ("iso3888_2:mu=wet", "mu=wet"), ("paper_dlc:amplitude_A=3", "only"),
-                      ("paper_dlc:warp=3", "warp"), ("paper_dlc:mu=-1", "mu"), ("iso3888_2:mu=[0.5,true]", "true"),
-                      ("iso3888_2:mu=[0.5,0.3,0.2]", r"0\.2"), ("swd_wet:warp=1", "warp"),
-                      ("sine_with_dwell:amplitude_A=6.5,amplitude_deg=50", "not both"),
-                      ("sine_with_dwell:amplitude_A=-1", "amplitude_A must be")):
+    for bad, word in (
+        ("iso9999", "iso9999"),
+        ("iso3888_2:mu=wet", "mu=wet"),
+        ("paper_dlc:amplitude_A=3", "only"),
+        ("paper_dlc:warp=3", "warp"),
+        ("paper_dlc:mu=-1", "mu"),
+        ("iso3888_2:mu=[0.5,true]", "true"),
+        ("iso3888_2:mu=[0.5,0.3,0.2]", r"0\.2"),
+        ("swd_wet:warp=1", "warp"),
+        ("sine_with_dwell:amplitude_A=6.5,amplitude_deg=50", "not both"),
+        ("sine_with_dwell:amplitude_A=-1", "amplitude_A must be"),
+    ):
         with pytest.raises(ValueError, match=word):
             parse_scenario(bad)
 
@@ -39,9 +46,11 @@ def test_sine_with_dwell_steers_multiples_of_the_driven_cars_A():
 
 
 def test_a_matrix_axis_with_a_repeated_entry_is_refused():
-    for axes, word in ((["paper_step", "paper_step"], ["oracle"], ["none"]), "scenarios"), \
-                      ((["paper_step"], ["oracle", "oracle"], ["none"]), "estimators"), \
-                      ((["paper_step"], ["oracle"], ["none", "none"]), "controllers"):
+    for axes, word in (
+        ((["paper_step", "paper_step"], ["oracle"], ["none"]), "scenarios"),
+        ((["paper_step"], ["oracle", "oracle"], ["none"]), "estimators"),
+        ((["paper_step"], ["oracle"], ["none", "none"]), "controllers"),
+    ):
         with pytest.raises(ValueError, match=f"{word} must be distinct"):
             run_matrix(*axes, seeds=1, jobs=1, progress=False)
 
@@ -49,9 +58,10 @@ def test_a_matrix_axis_with_a_repeated_entry_is_refused():
 def test_overrides_reach_the_runs():
     """A slower, shorter paper_sine on a lower mu: metrics finite and the open-loop truth
     carries the overridden friction."""
-    results, trajectories = run_matrix(["paper_sine:mu=0.4,duration=1.0"], ["oracle"], ["none"], seeds=1, jobs=1,
-                                       progress=False)
-    (spec, metrics), = results
+    results, trajectories = run_matrix(
+        ["paper_sine:mu=0.4,duration=1.0"], ["oracle"], ["none"], seeds=1, jobs=1, progress=False
+    )
+    ((spec, metrics),) = results
     traj = trajectories[(spec.scenario, "oracle", "none")]
     assert traj.t[-1] == pytest.approx(1.0)
     assert traj.truth.mu[0] == pytest.approx([0.4] * 4)
@@ -67,9 +77,12 @@ def test_cli_names_bad_scenarios_and_controllers():
         main(["swd", "--mu", "1.0", "--A", "16.6", "--controller", "rl:nowhere"])
     with pytest.raises(SystemExit, match="warp"):
         main(["swd", "--mu", "1.0", "--A", "16.6", "--controller", "warp"])
-    for args, match in ((["--mu", "0"], r"--mu must be a friction coefficient in \(0, 2.0\], got 0.0"),
-                        (["--estimator", "nope"], "nope"),
-                        (["--A", "-5"], "-5.0"), (["--seed", "-2"], "-2")):
+    for args, match in (
+        (["--mu", "0"], r"--mu must be a friction coefficient in \(0, 2.0\], got 0.0"),
+        (["--estimator", "nope"], "nope"),
+        (["--A", "-5"], "-5.0"),
+        (["--seed", "-2"], "-2"),
+    ):
         with pytest.raises(SystemExit, match=match):  # before the characterisation runs
             main(["swd", *args])
     with pytest.raises(SystemExit, match="kalman"):
@@ -92,8 +105,10 @@ def test_report_is_reproducible_byte_for_byte_in_one_or_two_processes_and_the_fa
     from fourwis.training.compare import compare
 
     scenarios = ["paper_sine:duration=1.0", "paper_sine:duration=1.0+faults"]
-    reports = [compare(tmp_path / name, scenarios, ["ckf"], ["none", "dyc-lqr"], seeds=2, jobs=jobs)
-               for name, jobs in (("a", 1), ("b", 2))]
+    reports = [
+        compare(tmp_path / name, scenarios, ["ckf"], ["none", "dyc-lqr"], seeds=2, jobs=jobs)
+        for name, jobs in (("a", 1), ("b", 2))
+    ]
     csv_a = (tmp_path / "a" / "runs.csv").read_bytes()
     assert csv_a == (tmp_path / "b" / "runs.csv").read_bytes()
     for name in ("report.md", "runs.csv", "peak_sideslip.png", "pass_rate.png"):
@@ -115,8 +130,9 @@ def test_report_is_reproducible_byte_for_byte_in_one_or_two_processes_and_the_fa
 def test_control_effort_is_zero_without_control_and_reflects_the_dyc_moment_and_rear_steer():
     """The step on mu 0.3 at 40 km/h: the uncontrolled car's equal drive torques make no yaw
     moment; DYC-LQR's differential torques do, and only the 4WS variant steers the rear."""
-    results, _ = run_matrix(["paper_step:duration=7.0"], ["oracle"], ["none", "dyc-lqr", "dyc-lqr-4ws"], seeds=1,
-                            jobs=1, progress=False)
+    results, _ = run_matrix(
+        ["paper_step:duration=7.0"], ["oracle"], ["none", "dyc-lqr", "dyc-lqr-4ws"], seeds=1, jobs=1, progress=False
+    )
     effort = {spec.controller: (m["yaw_moment_rms"], m["rear_steer_rms"]) for spec, m in results}
     assert effort["none"][0] < 1.0 and effort["none"][1] == 0.0
     assert effort["dyc-lqr"][0] > 50.0 and effort["dyc-lqr"][1] == 0.0
@@ -128,8 +144,14 @@ def test_partial_oracles_attribute_the_joint_estimators_closed_loop_loss_to_its_
     oracle's (measured 0.479 against 0.408 deg); the road's true friction with everything else
     estimated closes at least three quarters of that gap (measured all of it: 0.404), the true
     sideslip none of it (0.479)."""
-    results, _ = run_matrix(["paper_step"], ["oracle", "joint", "joint+true-mu", "joint+true-beta"], ["dyc-lqr"],
-                            seeds=1, jobs=1, progress=False)
+    results, _ = run_matrix(
+        ["paper_step"],
+        ["oracle", "joint", "joint+true-mu", "joint+true-beta"],
+        ["dyc-lqr"],
+        seeds=1,
+        jobs=1,
+        progress=False,
+    )
     peak = {spec.estimator: m["peak_beta"] for spec, m in results}
     gap = peak["joint"] - peak["oracle"]
     assert gap > 0.05 * peak["oracle"]  # a loss to attribute
@@ -155,19 +177,36 @@ def test_a_car_that_stops_short_of_the_course_end_has_not_passed_it():
     stand at X = 61 m, with no cone touched; at 60 km/h it drives through, and it has also
     when the run ends 7 s in, past the last cones (X ~ 72 m) but short of the end of the
     driver's line, which runs on to X = 91 m (a car slowed by its controller ends there)."""
-    results, _ = run_matrix(["iso3888_2:speed_kph=10", "iso3888_2", "iso3888_2:duration=7"], ["oracle"], ["none"],
-                            seeds=1, jobs=2, progress=False)
+    results, _ = run_matrix(
+        ["iso3888_2:speed_kph=10", "iso3888_2", "iso3888_2:duration=7"],
+        ["oracle"],
+        ["none"],
+        seeds=1,
+        jobs=2,
+        progress=False,
+    )
     verdict = {spec.scenario: (m["course_completed"], m["passed"], m["cone_hits"]) for spec, m in results}
-    assert verdict == {"iso3888_2:speed_kph=10": (0.0, 0.0, 0.0), "iso3888_2": (1.0, 1.0, 0.0),
-                       "iso3888_2:duration=7": (1.0, 1.0, 0.0)}
+    assert verdict == {
+        "iso3888_2:speed_kph=10": (0.0, 0.0, 0.0),
+        "iso3888_2": (1.0, 1.0, 0.0),
+        "iso3888_2:duration=7": (1.0, 1.0, 0.0),
+    }
 
 
 def test_spellings_of_one_scenario_and_a_key_given_twice_are_refused():
     with pytest.raises(ValueError, match=r"\['paper_step: duration=0.2', 'paper_step:duration=0.20'\] run the same"):
-        run_matrix(["paper_step: duration=0.2", "paper_step:duration=0.20"], ["oracle"], ["none"], seeds=1, jobs=1,
-                   progress=False)
-    for pair in (["paper_step:mu=0.3,duration=0.2", "paper_step:duration=0.2,mu=0.3"],  # (these two ran twice)
-                 ["paper_step:duration=1", "paper_step:duration=1.0"]):
+        run_matrix(
+            ["paper_step: duration=0.2", "paper_step:duration=0.20"],
+            ["oracle"],
+            ["none"],
+            seeds=1,
+            jobs=1,
+            progress=False,
+        )
+    for pair in (
+        ["paper_step:mu=0.3,duration=0.2", "paper_step:duration=0.2,mu=0.3"],  # (these two ran twice)
+        ["paper_step:duration=1", "paper_step:duration=1.0"],
+    ):
         with pytest.raises(ValueError, match="run the same"):
             run_matrix(pair, ["oracle"], ["none"], seeds=1, jobs=1, progress=False)
     for jobs in (2.5, "2", True):  # refused before any run, not as a TypeError at the first result
@@ -209,15 +248,29 @@ def test_the_report_shows_each_estimator_against_the_oracle():
     where the oracle's value is at the noise floor; no section without the oracle or a controller."""
     from fourwis.training.compare import markdown_report
 
-    metrics = ("peak_beta", "phase_plane_peak", "yaw_tracking_rms", "spin_out", "yaw_moment_rms", "rmse_u", "rmse_v",
-               "rmse_beta", "mae_beta", "rmse_r", "rmse_mu", "final_mu_error")
+    metrics = (
+        "peak_beta",
+        "phase_plane_peak",
+        "yaw_tracking_rms",
+        "spin_out",
+        "yaw_moment_rms",
+        "rmse_u",
+        "rmse_v",
+        "rmse_beta",
+        "mae_beta",
+        "rmse_r",
+        "rmse_mu",
+        "final_mu_error",
+    )
 
     def run(peak_beta: float, yaw: float) -> dict:
         return {m: 0.0 for m in metrics} | {"peak_beta": peak_beta, "yaw_tracking_rms": yaw}
 
-    table = {("paper_step", "oracle", "dyc-lqr"): run(0.010, 0.020),
-             ("paper_step", "joint", "dyc-lqr"): run(0.0122, 0.021),
-             ("paper_step", "ckf", "dyc-lqr"): run(0.031, 0.0219)}
+    table = {
+        ("paper_step", "oracle", "dyc-lqr"): run(0.010, 0.020),
+        ("paper_step", "joint", "dyc-lqr"): run(0.0122, 0.021),
+        ("paper_step", "ckf", "dyc-lqr"): run(0.031, 0.0219),
+    }
     table |= {("paper_dlc", e, "dyc-lqr"): run(0.0004, 0.020) for e in ("oracle", "joint", "ckf")}
     table |= {(s, e, "none"): run(0.02, 0.03) for s in ("paper_step", "paper_dlc") for e in ("oracle", "joint", "ckf")}
     text = markdown_report(table, ["paper_step", "paper_dlc"], ["oracle", "joint", "ckf"], ["none", "dyc-lqr"], 2)

@@ -24,8 +24,9 @@ def _episode_record(make, steps: int) -> list:
     rng = np.random.default_rng(0)
     seen = [obs]
     for _ in range(steps):
-        obs, reward, terminated, truncated, info = env.step(rng.uniform(-1, 1, env.action_space.shape)
-                                                            .astype(np.float32))
+        obs, reward, terminated, truncated, info = env.step(
+            rng.uniform(-1, 1, env.action_space.shape).astype(np.float32)
+        )
         seen += [obs, np.array([reward, terminated, truncated], dtype=float), *info["truth"], *info["estimate"]]
         metrics = info.get("episode_metrics")
         if metrics is not None:
@@ -41,12 +42,15 @@ def _assert_same(first: list, second: list) -> None:
         np.testing.assert_array_equal(a, b)
 
 
-@pytest.mark.parametrize("kwargs", [
-    {},  # the default: joint estimator, yaw-moment actions, random roads and steering
-    {"estimator": "oracle", "action": "wheel_torques", "speed_kph": 70.0},
-    {"estimator": "ckf", "scenario_kwargs": {"course_share": 1.0}},  # path-following driver on lane changes
-    {"scenario": "sine_with_dwell", "observation": "true"},  # the FMVSS 126 verdict from the steps' series
-])
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {},  # the default: joint estimator, yaw-moment actions, random roads and steering
+        {"estimator": "oracle", "action": "wheel_torques", "speed_kph": 70.0},
+        {"estimator": "ckf", "scenario_kwargs": {"course_share": 1.0}},  # path-following driver on lane changes
+        {"scenario": "sine_with_dwell", "observation": "true"},  # the FMVSS 126 verdict from the steps' series
+    ],
+)
 def test_single_env_steps_equal_the_python_loop(kwargs, monkeypatch):
     def make():
         return gym.make("fourwis:FourWIS/YawStability-v0", max_episode_steps=120, **kwargs)
@@ -97,15 +101,18 @@ def test_loops_the_compiled_path_cannot_run_take_the_python_loop():
 def test_a_controller_or_estimator_that_only_looks_like_the_compiled_ones_takes_the_python_loop(monkeypatch):
     from dataclasses import replace
 
-    from fourwis.envs.gym_env import AgentController
-
     from fourwis.control import StabilityController
+    from fourwis.envs.gym_env import AgentController
 
     class Gentler(StabilityController):  # a user's change to the DYC: the Python loop runs it
         pass
 
-    dyc = ClosedLoop(make_scenario("paper_sine"), Gentler(make_scenario("paper_sine").vehicle_params), "joint",
-                     np.random.default_rng(0))
+    dyc = ClosedLoop(
+        make_scenario("paper_sine"),
+        Gentler(make_scenario("paper_sine").vehicle_params),
+        "joint",
+        np.random.default_rng(0),
+    )
     assert not compiled_loop.supports(dyc)
 
     class Braking(AgentController):  # (inherits kernel_form, but commands something else)
@@ -132,10 +139,13 @@ def test_a_controller_or_estimator_that_only_looks_like_the_compiled_ones_takes_
     _assert_same(compiled, run())
 
 
-@pytest.mark.parametrize("break_it, error, match", [
-    (lambda loop: loop.estimator.P.fill(np.nan), ValueError, "the joint filter of vehicle 0 failed"),
-    (lambda loop: loop.state.__setitem__((0, S_R), np.nan), ValueError, r"state\[0\] has a non-finite value"),
-])
+@pytest.mark.parametrize(
+    "break_it, error, match",
+    [
+        (lambda loop: loop.estimator.P.fill(np.nan), ValueError, "the joint filter of vehicle 0 failed"),
+        (lambda loop: loop.state.__setitem__((0, S_R), np.nan), ValueError, r"state\[0\] has a non-finite value"),
+    ],
+)
 def test_failures_raise_the_python_loops_errors(break_it, error, match, monkeypatch):
     def failure() -> tuple[str, bool]:
         loop = ClosedLoop(make_scenario("paper_sine"), None, "joint", np.random.default_rng(0))
@@ -151,10 +161,16 @@ def test_failures_raise_the_python_loops_errors(break_it, error, match, monkeypa
     assert failure()[0] == compiled
 
 
-@pytest.mark.parametrize("scenario, controller, estimator", [
-    ("paper_sine", None, "joint"), ("iso3888_2", None, "oracle"),
-    ("mu_jump", "dyc-lqr", "joint"), ("iso3888_2", "dyc-smc-4ws", "oracle"), ("paper_step", "dyc-lqr-4ws", "ckf"),
-])
+@pytest.mark.parametrize(
+    "scenario, controller, estimator",
+    [
+        ("paper_sine", None, "joint"),
+        ("iso3888_2", None, "oracle"),
+        ("mu_jump", "dyc-lqr", "joint"),
+        ("iso3888_2", "dyc-smc-4ws", "oracle"),
+        ("paper_step", "dyc-lqr-4ws", "ckf"),
+    ],
+)
 def test_simulate_equals_the_python_loop(scenario, controller, estimator, monkeypatch):
     compiled = simulate(scenario, controller, estimator, seed=2)
     _python_loop(monkeypatch)

@@ -7,13 +7,19 @@ import pytest
 
 from fourwis.control import CONTROLLERS, MIN_PLANNING_MU, StabilityController, make_controller
 from fourwis.control.dyc import LQRWeights, LQRYawController, SlidingModeYawController, bicycle_matrices
-from fourwis.control.reference import (GRAVITY, rear_steer_gain, reference_yaw_rate, sideslip_bound, understeer_gradient,
-                               weaker_axle_friction)
+from fourwis.control.reference import (
+    GRAVITY,
+    rear_steer_gain,
+    reference_yaw_rate,
+    sideslip_bound,
+    understeer_gradient,
+    weaker_axle_friction,
+)
+from fourwis.core.types import Estimate
 from fourwis.envs.fmvss126 import amplitudes, characterise, run_series
 from fourwis.envs.scenarios import make_scenario
 from fourwis.envs.simulation import simulate
 from fourwis.envs.vehicle import VehicleParams
-from fourwis.core.types import Estimate
 
 P = VehicleParams()
 
@@ -98,14 +104,16 @@ def test_the_dyc_holds_a_gentle_low_speed_turn_without_spinning_its_wheels(name)
     With a fixed 0.15 s reference lag and the lag-free LQR the wheels spun up to slip 1.2-1.6
     with the motors at +/- 550-590 N m and the yaw rate swinging +/- 0.13 rad/s; dyc-smc-4ws
     spun the car (90 deg)."""
+    from fourwis.envs.scenarios import make_scenario
     from fourwis.envs.vehicle import A_KAPPA
 
-    from fourwis.envs.scenarios import make_scenario
-
-    traj = simulate(make_scenario("paper_step", speed_kph=20.0, mu=0.8, angle=2.0),
-                    controller=make_controller(name, P), estimator="oracle")
+    traj = simulate(
+        make_scenario("paper_step", speed_kph=20.0, mu=0.8, angle=2.0),
+        controller=make_controller(name, P),
+        estimator="oracle",
+    )
     late = traj.t > 7.0
-    assert np.max(np.abs(traj.aux[late, A_KAPPA:A_KAPPA + 4])) < 0.05
+    assert np.max(np.abs(traj.aux[late, A_KAPPA : A_KAPPA + 4])) < 0.05
     assert np.std(traj.truth.r[late]) < 0.005
 
 
@@ -127,7 +135,11 @@ def test_lqr_reduces_yaw_error_on_an_oversteering_plant():
         x = np.zeros(2)
         err = []
         for _ in range(1500):
-            mz = lqr(np.array([u]), np.array([x[0]]), np.array([x[1]]), np.array([r_ref]), delta, 0.0, dt)[0] if control else 0
+            mz = (
+                lqr(np.array([u]), np.array([x[0]]), np.array([x[1]]), np.array([r_ref]), delta, 0.0, dt)[0]
+                if control
+                else 0
+            )
             x = x + dt * (A @ x + B[:, 0] * mz + E * delta)
             err.append(x[1] - r_ref)
         errors[control] = np.sqrt(np.mean(np.square(err)))
@@ -138,8 +150,18 @@ def test_bad_input_raises():
     with pytest.raises(ValueError, match="pid"):
         make_controller("pid", P)
     controller = StabilityController(P)
-    two = Estimate(u=np.full(2, 20.0), v=np.zeros(2), beta=np.zeros(2), r=np.zeros(2), ax=np.zeros(2), ay=np.zeros(2),
-                   mu=np.ones((2, 4)), fz=np.full((2, 4), 3000.0), beta_std=np.zeros(2), mu_std=np.zeros((2, 4)))
+    two = Estimate(
+        u=np.full(2, 20.0),
+        v=np.zeros(2),
+        beta=np.zeros(2),
+        r=np.zeros(2),
+        ax=np.zeros(2),
+        ay=np.zeros(2),
+        mu=np.ones((2, 4)),
+        fz=np.full((2, 4), 3000.0),
+        beta_std=np.zeros(2),
+        mu_std=np.zeros((2, 4)),
+    )
     controller(np.zeros(2), two, np.zeros(2), np.zeros((2, 4)))
     three = Estimate(*(np.concatenate([field, field[:1]]) for field in two))
     with pytest.raises(ValueError, match="steers 2 vehicles, not 3: reset"):
@@ -159,9 +181,18 @@ def test_a_failed_dyc_call_changes_nothing():
     """A bad estimate (a negative wheel load on the second of three cars) raises the allocator's
     ValueError naming it and leaves the controller as it was: the same next command."""
     controller = StabilityController(P)
-    est = Estimate(u=np.full(3, 20.0), v=np.zeros(3), beta=np.zeros(3), r=np.array([0.1, 0.2, 0.3]), ax=np.zeros(3),
-                   ay=np.zeros(3), mu=np.ones((3, 4)), fz=np.full((3, 4), 3000.0), beta_std=np.zeros(3),
-                   mu_std=np.zeros((3, 4)))
+    est = Estimate(
+        u=np.full(3, 20.0),
+        v=np.zeros(3),
+        beta=np.zeros(3),
+        r=np.array([0.1, 0.2, 0.3]),
+        ax=np.zeros(3),
+        ay=np.zeros(3),
+        mu=np.ones((3, 4)),
+        fz=np.full((3, 4), 3000.0),
+        beta_std=np.zeros(3),
+        mu_std=np.zeros((3, 4)),
+    )
     front = np.full(3, 0.02)
     controller(np.zeros(3), est, front, np.zeros((3, 4)))
     before = controller.last_allocation
@@ -172,24 +203,35 @@ def test_a_failed_dyc_call_changes_nothing():
         np.testing.assert_array_equal(a, b)
     again = StabilityController(P)
     again(np.zeros(3), est, front, np.zeros((3, 4)))
-    np.testing.assert_array_equal(controller(np.zeros(3), est, front, np.zeros((3, 4))).torques,
-                                  again(np.zeros(3), est, front, np.zeros((3, 4))).torques)
+    np.testing.assert_array_equal(
+        controller(np.zeros(3), est, front, np.zeros((3, 4))).torques,
+        again(np.zeros(3), est, front, np.zeros((3, 4))).torques,
+    )
     assert set(CONTROLLERS) >= {"none", "dyc-lqr", "dyc-smc"}
     with pytest.raises(ValueError, match="-0.01"):
         StabilityController(P, reference_understeer=-0.01)
-    for bad, named in (({"dt": 0.0}, "dt must be .*, got 0.0"), ({"dt": "x"}, "got 'x'"),
-                       ({"friction_ellipse": "yes"}, "friction_ellipse must be True or False, got 'yes'"),
-                       ({"params": None}, "params must be vehicle parameters")):
+    for bad, named in (
+        ({"dt": 0.0}, "dt must be .*, got 0.0"),
+        ({"dt": "x"}, "got 'x'"),
+        ({"friction_ellipse": "yes"}, "friction_ellipse must be True or False, got 'yes'"),
+        ({"params": None}, "params must be vehicle parameters"),
+    ):
         with pytest.raises(ValueError, match=named):
             StabilityController(**({"params": P} | bad))
     with pytest.raises(ValueError, match="controller must be a name .*, got None"):
         make_controller(None, P)
     # the DYC's settings through make_controller, named when wrong
     controller = make_controller("dyc-smc-4ws", P, mu_margin=0.0, friction_ellipse=True)
-    assert (controller.law, controller.rear_steer, controller.mu_margin, controller.friction_ellipse) == \
-        ("smc", True, 0.0, True)
-    for kwargs, named in (({"mu_margin": "1"}, "mu_margin must be a finite number >= 0, got '1'"),
-                          ({"gain": 2.0}, r"unknown controller option\(s\) \['gain'\]")):
+    assert (controller.law, controller.rear_steer, controller.mu_margin, controller.friction_ellipse) == (
+        "smc",
+        True,
+        0.0,
+        True,
+    )
+    for kwargs, named in (
+        ({"mu_margin": "1"}, "mu_margin must be a finite number >= 0, got '1'"),
+        ({"gain": 2.0}, r"unknown controller option\(s\) \['gain'\]"),
+    ):
         with pytest.raises(ValueError, match=named):
             make_controller("dyc-lqr", P, **kwargs)
     with pytest.raises(ValueError, match="are the DYC controllers'"):
@@ -201,8 +243,18 @@ def test_a_reference_understeer_gradient_lowers_the_yaw_reference_the_controller
     2 deg/g at 25 m/s it asks for L / (L + K u^2) of the neutral car's yaw rate."""
     k = math.radians(2.0) / GRAVITY
     u, delta = np.array([25.0]), np.array([0.01])
-    est = Estimate(u=u, v=np.zeros(1), beta=np.zeros(1), r=np.zeros(1), ax=np.zeros(1), ay=np.zeros(1),
-                   mu=np.ones((1, 4)), fz=np.full((1, 4), 3000.0), beta_std=np.zeros(1), mu_std=np.zeros((1, 4)))
+    est = Estimate(
+        u=u,
+        v=np.zeros(1),
+        beta=np.zeros(1),
+        r=np.zeros(1),
+        ax=np.zeros(1),
+        ay=np.zeros(1),
+        mu=np.ones((1, 4)),
+        fz=np.full((1, 4), 3000.0),
+        beta_std=np.zeros(1),
+        mu_std=np.zeros((1, 4)),
+    )
     ratio = P.wheelbase / (P.wheelbase + k * 25.0**2)
     neutral, under = StabilityController(P), StabilityController(P, reference_understeer=k)
     for c in (neutral, under):
@@ -237,13 +289,25 @@ def test_4ws_variants_add_the_eq20_rear_steer_and_the_plain_ones_do_not(law):
 def test_the_yaw_reference_is_bounded_by_the_weaker_axle_s_friction():
     """A steady turn needs both axles: the controller's reference is bounded by 0.85 mu g / u with
     mu the lower axle mean, not the four wheels' mean (equal on a road split left / right)."""
-    np.testing.assert_allclose(weaker_axle_friction(np.array([[0.1, 0.1, 0.9, 0.9], [0.3, 0.9, 0.3, 0.9],
-                                                              [0.8, 0.8, 0.2, 0.4]])), [0.1, 0.6, 0.3])
+    np.testing.assert_allclose(
+        weaker_axle_friction(np.array([[0.1, 0.1, 0.9, 0.9], [0.3, 0.9, 0.3, 0.9], [0.8, 0.8, 0.2, 0.4]])),
+        [0.1, 0.6, 0.3],
+    )
     u, delta = np.array([20.0]), np.array([0.05])  # the steady state asks for ~0.37 rad/s: friction-bounded
 
     def reference(mu):
-        est = Estimate(u=u, v=np.zeros(1), beta=np.zeros(1), r=np.zeros(1), ax=np.zeros(1), ay=np.zeros(1),
-                       mu=np.array([mu]), fz=np.full((1, 4), 3000.0), beta_std=np.zeros(1), mu_std=np.zeros((1, 4)))
+        est = Estimate(
+            u=u,
+            v=np.zeros(1),
+            beta=np.zeros(1),
+            r=np.zeros(1),
+            ax=np.zeros(1),
+            ay=np.zeros(1),
+            mu=np.array([mu]),
+            fz=np.full((1, 4), 3000.0),
+            beta_std=np.zeros(1),
+            mu_std=np.zeros((1, 4)),
+        )
         controller = StabilityController(P)
         controller(np.zeros(1), est, delta, np.zeros((1, 4)))
         return controller._reference[0]
@@ -309,9 +373,18 @@ def test_dyc_with_the_oracle_passes_sine_with_dwell_across_the_series(name):
 
 def test_the_controller_plans_with_the_lower_confidence_bound_of_the_friction():
     one = np.ones(1)
-    estimate = Estimate(u=20 * one, v=0 * one, beta=0 * one, r=0 * one, ax=0 * one, ay=0 * one,
-                        mu=np.array([[0.8, 0.8, 0.3, 0.3]]), fz=np.full((1, 4), 2000.0), beta_std=0 * one,
-                        mu_std=np.array([[0.1, 0.0, 0.25, 0.0]]))
+    estimate = Estimate(
+        u=20 * one,
+        v=0 * one,
+        beta=0 * one,
+        r=0 * one,
+        ax=0 * one,
+        ay=0 * one,
+        mu=np.array([[0.8, 0.8, 0.3, 0.3]]),
+        fz=np.full((1, 4), 2000.0),
+        beta_std=0 * one,
+        mu_std=np.array([[0.1, 0.0, 0.25, 0.0]]),
+    )
     np.testing.assert_allclose(StabilityController(P, mu_margin=1.0).planning_mu(estimate), [[0.7, 0.8, 0.1, 0.3]])
     assert MIN_PLANNING_MU == 0.1
     # the margin stops at the floor but does not lift a friction already below it (an oracle on ice)
@@ -343,8 +416,10 @@ def test_sliding_mode_meets_sideslip_with_the_lqr_gains_sign():
     front, rear = np.array([0.02]), np.zeros(1)
     smc(u, np.zeros(1), r, r, front, rear, 0.002, np.ones((1, 4)))  # the reference's previous value
     assert lqr(u, beta, r, r, front, rear, 0.002)[0] < 0.0
-    assert smc(u, beta, r, r, front, rear, 0.002, np.ones((1, 4)))[0] < \
-        smc(u, np.zeros(1), r, r, front, rear, 0.002, np.ones((1, 4)))[0]
+    assert (
+        smc(u, beta, r, r, front, rear, 0.002, np.ones((1, 4)))[0]
+        < smc(u, np.zeros(1), r, r, front, rear, 0.002, np.ones((1, 4)))[0]
+    )
 
 
 def test_sliding_mode_sees_the_rear_steer_angle():
@@ -359,8 +434,12 @@ def test_sliding_mode_sees_the_rear_steer_angle():
     rear = rear_steer_feedforward(u, front, P)
     A, _ = bicycle_matrices(float(u[0]), P)
     c_f, c_r = P.axle_cornering_stiffness
-    E = np.array([[c_f / (P.mass * u[0]), c_r / (P.mass * u[0])],
-                  [P.cg_to_front * c_f / P.yaw_inertia, -P.cg_to_rear * c_r / P.yaw_inertia]])
+    E = np.array(
+        [
+            [c_f / (P.mass * u[0]), c_r / (P.mass * u[0])],
+            [P.cg_to_front * c_f / P.yaw_inertia, -P.cg_to_rear * c_r / P.yaw_inertia],
+        ]
+    )
     beta, r = -np.linalg.solve(A, E @ np.array([front[0], rear[0]]))  # the 4WS car's steady state
     smc = SlidingModeYawController(P, lam=0.0)
     mu = np.full((1, 4), 1.0)
@@ -474,8 +553,18 @@ def test_only_a_moment_that_turns_the_car_further_fades_near_the_sideslip_bound(
     error = np.tile([0.03, 0.03, -0.03, -0.03], 2) * np.sign(r_ref)
     share = np.tile([0.0, 0.9, 0.0, 0.9], 2)
     beta = -np.sign(r_ref) * share * bound
-    est = Estimate(u=u, v=u * np.tan(beta), beta=beta, r=r_ref + error, ax=np.zeros(8), ay=np.zeros(8), mu=mu,
-                   fz=np.full((8, 4), P.mass * GRAVITY / 4), beta_std=np.zeros(8), mu_std=np.zeros((8, 4)))
+    est = Estimate(
+        u=u,
+        v=u * np.tan(beta),
+        beta=beta,
+        r=r_ref + error,
+        ax=np.zeros(8),
+        ay=np.zeros(8),
+        mu=mu,
+        fz=np.full((8, 4), P.mass * GRAVITY / 4),
+        beta_std=np.zeros(8),
+        mu_std=np.zeros((8, 4)),
+    )
     # what the law asks for: LQR on the state shrunk by the deadbands (0.02 rad/s, half the bound)
     from fourwis.control import YAW_DEADBAND
 
@@ -501,8 +590,18 @@ def test_with_rear_steer_the_reference_is_the_four_wheel_steered_car_s():
 
     controller = make_controller("dyc-lqr-4ws", P)
     u, delta = np.array([22.0]), np.array([0.02])
-    est = Estimate(u=u, v=np.zeros(1), beta=np.zeros(1), r=np.zeros(1), ax=np.zeros(1), ay=np.zeros(1),
-                   mu=np.ones((1, 4)), fz=np.full((1, 4), 3000.0), beta_std=np.zeros(1), mu_std=np.zeros((1, 4)))
+    est = Estimate(
+        u=u,
+        v=np.zeros(1),
+        beta=np.zeros(1),
+        r=np.zeros(1),
+        ax=np.zeros(1),
+        ay=np.zeros(1),
+        mu=np.ones((1, 4)),
+        fz=np.full((1, 4), 3000.0),
+        beta_std=np.zeros(1),
+        mu_std=np.zeros((1, 4)),
+    )
     rear = rear_steer_feedforward(u, delta, P)
     steady = reference_yaw_rate(u, delta - rear, np.ones((1, 4)), P)
     controller(np.zeros(1), est._replace(r=steady), delta, np.zeros((1, 4)))
@@ -616,8 +715,9 @@ def test_the_phase_plane_region_refuses_bad_tables_and_mismatched_shapes():
     with pytest.raises(ValueError, match="shape"):
         PhasePlaneRegion.default().index(np.full(3, 20.0), np.zeros(3), np.zeros(3), np.zeros(3), np.full((2, 4), 0.5))
     with pytest.raises(ValueError, match="shape"):
-        PhasePlaneRegion.default().index(np.full(3, 20.0), np.zeros((3, 1)), np.zeros(3), np.zeros(3),
-                                         np.full((3, 4), 0.5))
+        PhasePlaneRegion.default().index(
+            np.full(3, 20.0), np.zeros((3, 1)), np.zeros(3), np.zeros(3), np.full((3, 4), 0.5)
+        )
 
 
 def test_the_reference_lag_is_the_2dof_models_slower_mode_capped_for_an_oversteering_car():
@@ -651,8 +751,18 @@ def test_simulate_takes_a_controller_by_name_as_it_takes_an_estimator():
 def _turning(u: np.ndarray, r: float, ay: float = 0.0) -> Estimate:
     """Estimates of B cars at speeds u (B,) yawing at r [rad/s] straight ahead, on a dry road."""
     B = u.shape[0]
-    return Estimate(u=u, v=np.zeros(B), beta=np.zeros(B), r=np.full(B, r), ax=np.zeros(B), ay=np.full(B, ay),
-                    mu=np.ones((B, 4)), fz=np.full((B, 4), 2000.0), beta_std=np.zeros(B), mu_std=np.zeros((B, 4)))
+    return Estimate(
+        u=u,
+        v=np.zeros(B),
+        beta=np.zeros(B),
+        r=np.full(B, r),
+        ax=np.zeros(B),
+        ay=np.full(B, ay),
+        mu=np.ones((B, 4)),
+        fz=np.full((B, 4), 2000.0),
+        beta_std=np.zeros(B),
+        mu_std=np.zeros((B, 4)),
+    )
 
 
 @pytest.mark.parametrize("law", ["lqr", "smc"])

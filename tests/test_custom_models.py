@@ -27,15 +27,17 @@ def test_a_named_factory_runs_as_its_object_does_and_changes_what_the_controller
 
 def test_the_comparison_runs_them_in_its_worker_processes():
     scenario = "paper_step:duration=2.0,step_time=0.5"
-    results, trajectories = run_matrix([scenario], ["ckf", BIASED], ["dyc-lqr", DAMPER], seeds=1, jobs=2,
-                                       progress=False)
+    results, trajectories = run_matrix(
+        [scenario], ["ckf", BIASED], ["dyc-lqr", DAMPER], seeds=1, jobs=2, progress=False
+    )
     rows = {(spec.estimator, spec.controller): metrics for spec, metrics in results}
     assert set(rows) == {(e, c) for e in ("ckf", BIASED) for c in ("dyc-lqr", DAMPER)}
     # ckf holds its nominal 0.8; the user's estimator reports it 0.1 higher, and the DYC sees that
     np.testing.assert_allclose(trajectories[(scenario, "ckf", "dyc-lqr")].estimate.mu, 0.8)
     np.testing.assert_allclose(trajectories[(scenario, BIASED, "dyc-lqr")].estimate.mu, 0.9)
-    assert not np.array_equal(trajectories[(scenario, BIASED, "dyc-lqr")].controls,
-                              trajectories[(scenario, "ckf", "dyc-lqr")].controls)
+    assert not np.array_equal(
+        trajectories[(scenario, BIASED, "dyc-lqr")].controls, trajectories[(scenario, "ckf", "dyc-lqr")].controls
+    )
     assert rows[("ckf", DAMPER)]["yaw_tracking_rms"] != rows[("ckf", "dyc-lqr")]["yaw_tracking_rms"]
 
 
@@ -55,8 +57,11 @@ def test_bad_names_objects_and_outputs_are_named():
     from fourwis.estimation import make_estimator
 
     scenario = make_scenario("paper_step", duration=0.1)
-    for name, match in (("custom_models:nothing", "cannot import 'nothing'"), ("no_such_module:f", "no_such_module"),
-                        ("custom_models:BIASED_", "cannot import")):
+    for name, match in (
+        ("custom_models:nothing", "cannot import 'nothing'"),
+        ("no_such_module:f", "no_such_module"),
+        ("custom_models:BIASED_", "cannot import"),
+    ):
         with pytest.raises(ValueError, match=match):
             make_estimator(name, scenario.vehicle_params)
     with pytest.raises(ValueError, match="given by name"):
@@ -73,10 +78,19 @@ def test_bad_names_objects_and_outputs_are_named():
         simulate(scenario, None, make_estimator)  # a factory, not an estimator
     with pytest.raises(ValueError, match="NegativeLoads.*returned fz -.*: it must be >= 0 N"):
         simulate(scenario, "dyc-lqr", "custom_models:NegativeLoads")
-    with pytest.raises(ValueError, match=r"run paper_step:duration=0.1 x custom_models:NegativeLoads x dyc-lqr, seed 0: "
-                                         "estimator .* returned fz"):  # the comparison names the failing run
-        run_matrix(["paper_step:duration=0.1"], ["oracle", "custom_models:NegativeLoads"], ["dyc-lqr"], seeds=1,
-                   jobs=1, progress=False)
+    with pytest.raises(
+        ValueError,
+        match=r"run paper_step:duration=0.1 x custom_models:NegativeLoads x dyc-lqr, seed 0: "
+        "estimator .* returned fz",
+    ):  # the comparison names the failing run
+        run_matrix(
+            ["paper_step:duration=0.1"],
+            ["oracle", "custom_models:NegativeLoads"],
+            ["dyc-lqr"],
+            seeds=1,
+            jobs=1,
+            progress=False,
+        )
 
 
 def test_the_command_line_finds_a_module_in_the_working_directory(tmp_path, monkeypatch):
@@ -90,8 +104,23 @@ def test_the_command_line_finds_a_module_in_the_working_directory(tmp_path, monk
     shutil.copy(Path(__file__).with_name("custom_models.py"), tmp_path / "my_filters.py")
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(sys, "path", [p for p in sys.path if p not in ("", str(tmp_path))])
-    main(["compare", "--scenarios", "paper_step:duration=0.5", "--estimators", "my_filters:biased_friction",
-          "--controllers", "none", "--seeds", "1", "--jobs", "1", "--out", str(tmp_path / "out")])
+    main(
+        [
+            "compare",
+            "--scenarios",
+            "paper_step:duration=0.5",
+            "--estimators",
+            "my_filters:biased_friction",
+            "--controllers",
+            "none",
+            "--seeds",
+            "1",
+            "--jobs",
+            "1",
+            "--out",
+            str(tmp_path / "out"),
+        ]
+    )
     assert "my_filters:biased_friction" in (tmp_path / "out" / "runs.csv").read_text()
 
 
@@ -137,5 +166,7 @@ def test_an_estimator_reusing_its_arrays_keeps_its_history_and_can_be_partly_ora
 def test_a_factory_that_cannot_take_params_and_dt_is_named():
     from fourwis.estimation import make_estimator
 
-    with pytest.raises(ValueError, match=r"'custom_models:takes_params_only' cannot be called as factory\(params, dt\)"):
+    with pytest.raises(
+        ValueError, match=r"'custom_models:takes_params_only' cannot be called as factory\(params, dt\)"
+    ):
         make_estimator("custom_models:takes_params_only", make_scenario("paper_step").vehicle_params, 0.002)

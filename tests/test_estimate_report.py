@@ -34,7 +34,7 @@ def _metrics_of(traj):
         estimate, true = getattr(est, q), getattr(truth, q)
         out[f"mae_{q}"], out[f"rmse_{q}"] = mae(estimate, true), rmse(estimate, true)
     mu_error = np.abs(est.mu - truth.mu).mean(axis=1)
-    out["mu_error_last_half"] = mu_error[len(mu_error) // 2:].mean()
+    out["mu_error_last_half"] = mu_error[len(mu_error) // 2 :].mean()
     estimated = bool(np.any(est.mu_std > 0) or np.any(est.mu != est.mu[0]))
     out["mu_convergence_time"] = convergence_time(traj.t, mu_error) if estimated else math.nan
     out["mu_estimated"] = float(estimated)
@@ -56,8 +56,10 @@ def test_report_writes_csv_markdown_and_plot(report):
     assert "tyre_curves.png" in report.read_text()
     with open(out / "estimate.csv", newline="") as f:
         rows = list(csv.DictReader(f))
-    assert [(r["scenario"], r["estimator"], r["seed"]) for r in rows] == [("paper_sine", "ckf", "0"),
-                                                                        ("paper_sine", "joint", "0")]
+    assert [(r["scenario"], r["estimator"], r["seed"]) for r in rows] == [
+        ("paper_sine", "ckf", "0"),
+        ("paper_sine", "joint", "0"),
+    ]
     assert list(rows[0]) == ["scenario", "estimator", "seed", *METRICS]
     for r in rows:  # the CSV holds the metrics of that run, recomputed here from a fresh simulation
         expected = _metrics_of(simulate(make_scenario("paper_sine", duration=1.5), estimator=r["estimator"], seed=0))
@@ -72,18 +74,36 @@ def test_report_writes_csv_markdown_and_plot(report):
 def test_markdown_has_our_table_and_the_papers_numbers(report):
     text = report.read_text()
     assert "## paper_sine" in text and "| ckf |" in text and "| joint |" in text
-    for number in ("0.0050", "0.0274", "0.0025", "0.0008", "0.0024", "0.0002", "0.0063", "0.0572", "0.0052",
-                   "0.0010", "0.0040", "0.0003"):
+    for number in (
+        "0.0050",
+        "0.0274",
+        "0.0025",
+        "0.0008",
+        "0.0024",
+        "0.0002",
+        "0.0063",
+        "0.0572",
+        "0.0052",
+        "0.0010",
+        "0.0040",
+        "0.0003",
+    ):
         assert number in text
     assert "not run" in text  # paper_dlc was not in this run
     assert "no sensor noise" in text
 
 
-@pytest.mark.parametrize("kwargs, named", [({"scenarios": ["no_such_road"]}, "no_such_road"),
-                                           ({"scenarios": ["paper_step:mu=-1"]}, "-1"),
-                                           ({"scenarios": ["paper_step+faults"]}, r"\+faults"),
-                                           ({"estimators": ["kalman9"]}, "kalman9"),
-                                           ({"seeds": 0}, "seeds must be .*, got 0"), ({"jobs": 0}, "jobs must be >= 1, got 0")])
+@pytest.mark.parametrize(
+    "kwargs, named",
+    [
+        ({"scenarios": ["no_such_road"]}, "no_such_road"),
+        ({"scenarios": ["paper_step:mu=-1"]}, "-1"),
+        ({"scenarios": ["paper_step+faults"]}, r"\+faults"),
+        ({"estimators": ["kalman9"]}, "kalman9"),
+        ({"seeds": 0}, "seeds must be .*, got 0"),
+        ({"jobs": 0}, "jobs must be >= 1, got 0"),
+    ],
+)
 def test_bad_arguments_raise_value_error_naming_the_value(tmp_path, kwargs, named):
     with pytest.raises(ValueError, match=named):
         estimate_report(tmp_path, **kwargs)
@@ -122,8 +142,7 @@ def test_the_convergence_column_tells_a_true_mu_from_a_nominal_one():
 def test_a_true_mu_is_not_counted_as_estimated_where_the_road_changes(tmp_path):
     from fourwis.training.estimate import run_all
 
-    results, _ = run_all([make_scenario("mu_jump", duration=2.5)], ["oracle", "ckf+true-mu"], 1, jobs=1,
-                         progress=False)
+    results, _ = run_all([make_scenario("mu_jump", duration=2.5)], ["oracle", "ckf+true-mu"], 1, jobs=1, progress=False)
     for spec, metrics in results:
         assert metrics["mu_estimated"] == 0.0 and math.isnan(metrics["mu_convergence_time"]), spec.estimator
 

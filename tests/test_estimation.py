@@ -6,17 +6,17 @@ import math
 import numpy as np
 import pytest
 
-from fourwis.envs.simulation import simulate
-from fourwis.envs.scenarios import PAPER_SCENARIOS, make_scenario
 from fourwis.core.types import CHANNELS
+from fourwis.envs.metrics import rmse
+from fourwis.envs.scenarios import PAPER_SCENARIOS, make_scenario
 from fourwis.envs.sensors import Fault, SensorParams
+from fourwis.envs.simulation import simulate
 from fourwis.envs.vehicle import A_USAGE, VehicleParams
 from fourwis.estimation import ESTIMATORS, make_estimator
-from fourwis.estimation.joint import SLIDE_RATE, YAW_BALANCE_STD, ZERO_POINT_TIME_CONSTANT, ZP_OFFSET, StateEstimator
 from fourwis.estimation.ckf import ckf_predict, ckf_update
 from fourwis.estimation.federated import BETA_FLOOR, SubMeasurement, federated_step, fuse, sharing_coefficients
-from fourwis.estimation.model import GRAVITY, ModelParams, dugoff, normal_loads, state_transition, Inputs
-from fourwis.envs.metrics import rmse
+from fourwis.estimation.joint import SLIDE_RATE, YAW_BALANCE_STD, ZERO_POINT_TIME_CONSTANT, ZP_OFFSET, StateEstimator
+from fourwis.estimation.model import GRAVITY, Inputs, ModelParams, dugoff, normal_loads, state_transition
 
 RNG = np.random.default_rng(0)
 F_LIN = np.array([[1.0, 0.1], [0.0, 0.95]])
@@ -45,8 +45,10 @@ def test_ckf_equals_the_kalman_filter_on_a_linear_system():
 
 def _turn(x, dt=0.1):
     px, py, speed, heading, turn = np.moveaxis(np.asarray(x), -1, 0)
-    return np.stack([px + speed * np.cos(heading) * dt, py + speed * np.sin(heading) * dt, speed,
-                     heading + turn * dt, turn], axis=-1)
+    return np.stack(
+        [px + speed * np.cos(heading) * dt, py + speed * np.sin(heading) * dt, speed, heading + turn * dt, turn],
+        axis=-1,
+    )
 
 
 def _range_bearing(x):
@@ -119,8 +121,8 @@ def test_batched_ckf_equals_one_member_at_a_time():
     xb, Pb = ckf_predict(x, P, _turn, Q)
     batch = ckf_update(xb, Pb, z, _range_bearing, R, huber_c=1.5)
     for i in range(3):
-        xs, Ps = ckf_predict(x[i:i + 1], P[i:i + 1], _turn, Q)
-        single = ckf_update(xs, Ps, z[i:i + 1], _range_bearing, R, huber_c=1.5)
+        xs, Ps = ckf_predict(x[i : i + 1], P[i : i + 1], _turn, Q)
+        single = ckf_update(xs, Ps, z[i : i + 1], _range_bearing, R, huber_c=1.5)
         np.testing.assert_allclose(batch.x[i], single.x[0], rtol=0, atol=1e-12)
         np.testing.assert_allclose(batch.P[i], single.P[0], rtol=0, atol=1e-12)
 
@@ -175,8 +177,7 @@ def test_huber_update_limits_an_outlier():
 
 def test_dropout_channels_carry_no_information():
     x, P = np.zeros((1, 2)), np.eye(2)[None]
-    upd = ckf_update(x, P, np.array([[7.0]]), lambda pts: pts @ H_LIN.T, np.array([[0.1]]),
-                     valid=np.array([[False]]))
+    upd = ckf_update(x, P, np.array([[7.0]]), lambda pts: pts @ H_LIN.T, np.array([[0.1]]), valid=np.array([[False]]))
     np.testing.assert_allclose(upd.x, x, atol=1e-9)
     np.testing.assert_allclose(upd.P, P, atol=1e-9)
 
@@ -189,12 +190,15 @@ def test_fusion_is_the_information_weighted_average():
     np.testing.assert_allclose(confidence, [1.0, 1.0 / 3.0])
 
 
-@pytest.mark.parametrize("confidence, expected", [
-    ([1.0, 3.0], [0.25, 0.75]),  # proportional to the confidences
-    ([2.0, 1.0, 1.0], [0.5, 0.25, 0.25]),
-    ([1.0, 99.0], [BETA_FLOOR / (BETA_FLOOR + 0.99), 0.99 / (BETA_FLOOR + 0.99)]),  # 1% floored at 5%, renormalised
-    ([1.0, 1.0, 98.0], np.array([BETA_FLOOR, BETA_FLOOR, 0.98]) / (2 * BETA_FLOOR + 0.98)),
-])
+@pytest.mark.parametrize(
+    "confidence, expected",
+    [
+        ([1.0, 3.0], [0.25, 0.75]),  # proportional to the confidences
+        ([2.0, 1.0, 1.0], [0.5, 0.25, 0.25]),
+        ([1.0, 99.0], [BETA_FLOOR / (BETA_FLOOR + 0.99), 0.99 / (BETA_FLOOR + 0.99)]),  # 1% floored at 5%, renormalised
+        ([1.0, 1.0, 98.0], np.array([BETA_FLOOR, BETA_FLOOR, 0.98]) / (2 * BETA_FLOOR + 0.98)),
+    ],
+)
 def test_sharing_coefficients_follow_the_confidences_with_a_floor_and_sum_to_one(confidence, expected):
     """beta_i = max(c_i / sum c, BETA_FLOOR), normalised to sum 1 (federated module docstring:
     a confident sub-filter gets the larger share; none falls below ~4.8%)."""
@@ -211,9 +215,17 @@ def test_federated_filter_with_reset_equals_the_centralised_filter_on_a_linear_s
     x, P, beta = np.zeros((1, 2)), np.eye(2)[None], np.full((1, 2), 0.5)
     xc, Pc = x.copy(), P.copy()
     for z1, z2 in RNG.normal(size=(40, 2)):
-        out = federated_step(x, P, lambda pts: pts @ F_LIN.T, Q,
-                             [SubMeasurement(np.array([[z1]]), lambda pts: pts @ H_LIN.T, R1, None),
-                              SubMeasurement(np.array([[z2]]), lambda pts: pts @ H2.T, R2, None)], beta)
+        out = federated_step(
+            x,
+            P,
+            lambda pts: pts @ F_LIN.T,
+            Q,
+            [
+                SubMeasurement(np.array([[z1]]), lambda pts: pts @ H_LIN.T, R1, None),
+                SubMeasurement(np.array([[z2]]), lambda pts: pts @ H2.T, R2, None),
+            ],
+            beta,
+        )
         x, P, beta = out.x, out.P, out.beta
         xc, Pc = ckf_predict(xc, Pc, lambda pts: pts @ F_LIN.T, Q)
         both = np.vstack([H_LIN, H2])
@@ -263,14 +275,44 @@ def test_the_compiled_federated_cycle_equals_federated_step_on_the_vehicle_model
             out = np.empty((1, points.shape[1], {TRANSITION: 6, RANDOM_WALK: 4, STATE_1: 7, MU_1: 3}.get(code, 2)))
             _evaluate(code, np.ascontiguousarray(points[0]), out[0], f_args, h_args, m_args)
             return out
+
         return evaluate
 
-    reference = federated_step(x[None], P[None], model(models[0]), Q,
-                               [SubMeasurement(z1[None], model(models[1]), R1, valid1[None]),
-                                SubMeasurement(z2[None], model(models[2]), R2, valid2[None])], beta[None], huber_c)
+    reference = federated_step(
+        x[None],
+        P[None],
+        model(models[0]),
+        Q,
+        [
+            SubMeasurement(z1[None], model(models[1]), R1, valid1[None]),
+            SubMeasurement(z2[None], model(models[2]), R2, valid2[None]),
+        ],
+        beta[None],
+        huber_c,
+    )
     x_out, P_out, beta_out = np.empty_like(x), np.empty_like(P), np.empty(2)
-    nll = _federated(x, P, Q, beta, models[0], z1, valid1, R1, models[1], z2, valid2, R2, models[2],
-                     math.inf if huber_c is None else huber_c, f_args, h_args, m_args, x_out, P_out, beta_out)
+    nll = _federated(
+        x,
+        P,
+        Q,
+        beta,
+        models[0],
+        z1,
+        valid1,
+        R1,
+        models[1],
+        z2,
+        valid2,
+        R2,
+        models[2],
+        math.inf if huber_c is None else huber_c,
+        f_args,
+        h_args,
+        m_args,
+        x_out,
+        P_out,
+        beta_out,
+    )
     np.testing.assert_allclose(x_out, reference.x[0], rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(P_out, reference.P[0], rtol=1e-10, atol=1e-15)
     np.testing.assert_allclose(beta_out, reference.beta[0], rtol=1e-12)
@@ -306,9 +348,15 @@ def test_dugoff_is_linear_at_small_slip_and_follows_its_closed_form_in_saturatio
     assert reduced == pytest.approx(plain * (1 - eps * u * math.hypot(slip, math.tan(alpha))), rel=1e-12)
 
 
-@pytest.mark.parametrize("params", [PARAMS, ModelParams.from_vehicle(VehicleParams(cg_to_front=0.95, cg_to_rear=1.39)),
-                                    ModelParams.from_vehicle(VehicleParams(cg_to_front=1.39, cg_to_rear=0.95))],
-                         ids=["paper", "front_cg", "rear_cg"])
+@pytest.mark.parametrize(
+    "params",
+    [
+        PARAMS,
+        ModelParams.from_vehicle(VehicleParams(cg_to_front=0.95, cg_to_rear=1.39)),
+        ModelParams.from_vehicle(VehicleParams(cg_to_front=1.39, cg_to_rear=0.95)),
+    ],
+    ids=["paper", "front_cg", "rear_cg"],
+)
 def test_normal_loads_follow_the_quasi_static_closed_form(params):
     """estimation.model.wheel_load: static share m g b/L (front) and m g a/L (rear), a pitch
     shift m ax h / L from the front axle to the rear, and a roll moment m ay h shared by the
@@ -335,17 +383,18 @@ def test_normal_loads_follow_the_quasi_static_closed_form(params):
 def test_one_state_transition_names_a_wrong_shape():
     inputs = Inputs(np.zeros(4), np.full(4, 30.0), np.zeros(4), np.zeros(4))
     x = np.array([10.0, 0.0, 0.0, 0.0, 0.0, 0.0])
-    for kwargs, named in (({"mu": 0.8}, r"mu must have shape \(4,\), got \(1,\)"),
-                          ({"inputs": inputs._replace(delta=np.zeros(2))}, r"delta must have shape \(4,\)"),
-                          ({"x": x[:5]}, r"x must have shape \(6,\)")):
+    for kwargs, named in (
+        ({"mu": 0.8}, r"mu must have shape \(4,\), got \(1,\)"),
+        ({"inputs": inputs._replace(delta=np.zeros(2))}, r"delta must have shape \(4,\)"),
+        ({"x": x[:5]}, r"x must have shape \(6,\)"),
+    ):
         with pytest.raises(ValueError, match=named):
             state_transition(**({"x": x, "mu": np.full(4, 0.8), "inputs": inputs, "p": PARAMS, "dt": 0.002} | kwargs))
 
 
 def test_model_yaw_rate_is_kinematic_at_low_speed():
     delta = 0.05
-    inputs = Inputs(np.array([delta, delta, 0.0, 0.0]), np.full(4, 3.0 / PARAMS.wheel_radius), np.zeros(4),
-                    np.zeros(4))
+    inputs = Inputs(np.array([delta, delta, 0.0, 0.0]), np.full(4, 3.0 / PARAMS.wheel_radius), np.zeros(4), np.zeros(4))
     x = np.array([3.0, 0.0, 0.0, 0.0, 0.0, 0.0])
     for _ in range(3000):
         x = state_transition(x, np.full(4, 0.8), inputs, PARAMS, 0.002)
@@ -393,8 +442,10 @@ def test_robust_filter_shrugs_off_gyro_spikes():
     robust = simulate("paper_sine", estimator="alo-fkf", seed=2, faults=faults)
     error = rmse(robust.estimate.r, robust.truth.r)
     unweighted = make_estimator("alo-fkf", VehicleParams(), huber_c=math.inf)
-    for plain in (simulate("paper_sine", estimator=unweighted, seed=2, faults=faults),
-                  simulate("paper_sine", estimator="fkf", seed=2, faults=faults)):
+    for plain in (
+        simulate("paper_sine", estimator=unweighted, seed=2, faults=faults),
+        simulate("paper_sine", estimator="fkf", seed=2, faults=faults),
+    ):
         assert error < 0.4 * rmse(plain.estimate.r, plain.truth.r)
 
 
@@ -405,10 +456,12 @@ def test_estimator_is_deterministic_under_a_seed_and_names_are_checked():
     assert "joint" in ESTIMATORS
     with pytest.raises(ValueError, match="kalman9000"):
         make_estimator("kalman9000", VehicleParams())
-    for args, kwargs, named in (((None,), {}, "params must be vehicle parameters"),
-                                ((VehicleParams(),), {"noise": "x"}, "noise must be an estimation.NoiseParams"),
-                                ((VehicleParams(),), {"foo": 1}, r"unknown keyword argument\(s\) \['foo'\]"),
-                                ((VehicleParams(), "0.002"), {}, "dt must be .*, got '0.002'")):
+    for args, kwargs, named in (
+        ((None,), {}, "params must be vehicle parameters"),
+        ((VehicleParams(),), {"noise": "x"}, "noise must be an estimation.NoiseParams"),
+        ((VehicleParams(),), {"foo": 1}, r"unknown keyword argument\(s\) \['foo'\]"),
+        ((VehicleParams(), "0.002"), {}, "dt must be .*, got '0.002'"),
+    ):
         for name in ("joint", "joint+true-mu"):
             with pytest.raises(ValueError, match=named):
                 make_estimator(name, *args, **kwargs)
@@ -457,9 +510,10 @@ def test_dugoff_at_the_true_state_matches_the_plant_force_near_saturation(scenar
             fz = np.empty(4)
             wheel_loads(A[k, A_AX], A[k, A_AY], pk, fz)
             steer = steer_trig(np.array([S[k, S_DELTA_F]] * 2 + [S[k, S_DELTA_R]] * 2))
-            for w in np.flatnonzero(A[k, A_USAGE:A_USAGE + 4] > 0.5):
-                tan_alpha, slip, cx, cy = tyre_operating_point(S[k, S_U], S[k, S_V], S[k, S_R], fz[w],
-                                                               tuple(steer[:, w]), S[k, S_OMEGA + w], pk, w)
+            for w in np.flatnonzero(A[k, A_USAGE : A_USAGE + 4] > 0.5):
+                tan_alpha, slip, cx, cy = tyre_operating_point(
+                    S[k, S_U], S[k, S_V], S[k, S_R], fz[w], tuple(steer[:, w]), S[k, S_OMEGA + w], pk, w
+                )
                 fy = dugoff(fz[w], slip, tan_alpha, params.mu_scale * A[k, A_MU + w], cx, cy, S[k, S_U], 0.0)[1]
                 plant = A[k, A_FY + w]
                 out.append(math.copysign(1.0, plant) * (fy - plant) / (A[k, A_MU + w] * A[k, A_FZ + w]))
@@ -486,13 +540,14 @@ def test_the_model_loses_speed_to_drag_and_rolling_resistance_as_the_plant_does(
 
     vehicle = VehicleParams()
     controls = np.zeros((1, NU))
-    controls[0, C_TORQUE:C_TORQUE + 4] = torque
+    controls[0, C_TORQUE : C_TORQUE + 4] = torque
     state = step(initial_state(vehicle, speed), controls, vehicle, uniform(1.0), n_steps=500).state
     dx, aux = derivatives(state, controls, np.ones((1, 4)), vehicle)
     plant_ax = aux[0, A_AX]
     assert (plant_ax > 0.1) if torque else (plant_ax < -0.1)
-    inputs = Inputs(np.zeros(4), state[0, S_OMEGA:S_OMEGA + 4], state[0, S_TORQUE:S_TORQUE + 4],
-                    dx[0, S_OMEGA:S_OMEGA + 4])
+    inputs = Inputs(
+        np.zeros(4), state[0, S_OMEGA : S_OMEGA + 4], state[0, S_TORQUE : S_TORQUE + 4], dx[0, S_OMEGA : S_OMEGA + 4]
+    )
     x = np.array([state[0, S_U], 0.0, plant_ax, 0.0, 0.0, 0.0])
 
     def model_ax(params: ModelParams) -> float:
@@ -518,7 +573,7 @@ def test_tyre_relaxation_follows_the_plants_lateral_force_build_up():
     T, S = traj.truth, traj.state
     onset = int(np.argmax(np.abs(S[:, S_DELTA_F]) > 1e-4))
     window, steady = range(onset, onset + 125), range(onset + 1000, onset + 1010)
-    omega_dot = np.gradient(S[:, S_OMEGA:S_OMEGA + 4], dt, axis=0)
+    omega_dot = np.gradient(S[:, S_OMEGA : S_OMEGA + 4], dt, axis=0)
 
     def model_ay(params: ModelParams, steps) -> np.ndarray:
         relaxed, out = np.full(4, np.nan), []
@@ -529,9 +584,16 @@ def test_tyre_relaxation_follows_the_plants_lateral_force_build_up():
             relaxed = relaxed_new
             if k in steps:
                 forces = np.empty((3, 1))
-                body_forces(np.array([[S[k, S_U]], [S[k, S_V]], [S[k, S_R]], [T.ax[k]], [T.ay[k]]]),
-                            T.mu[k][:, None].copy(), table, S[k, S_OMEGA:S_OMEGA + 4].copy(),
-                            S[k, S_TORQUE:S_TORQUE + 4].copy(), omega_dot[k].copy(), params.packed, forces)
+                body_forces(
+                    np.array([[S[k, S_U]], [S[k, S_V]], [S[k, S_R]], [T.ax[k]], [T.ay[k]]]),
+                    T.mu[k][:, None].copy(),
+                    table,
+                    S[k, S_OMEGA : S_OMEGA + 4].copy(),
+                    S[k, S_TORQUE : S_TORQUE + 4].copy(),
+                    omega_dot[k].copy(),
+                    params.packed,
+                    forces,
+                )
                 out.append(forces[1, 0])
         return np.array(out)
 
@@ -551,8 +613,10 @@ def test_tyre_relaxation_cuts_the_joint_estimators_sideslip_error_in_the_sine():
     lateral force leads the plant's at every steering reversal. The option is off by default,
     and refused by estimators without the model."""
     scenario = make_scenario("paper_sine")
-    errors = [rmse(traj.estimate.beta, traj.truth.beta)
-              for traj in (simulate(scenario, estimator=name) for name in ("joint", "fourwis.estimation:relaxed_joint"))]
+    errors = [
+        rmse(traj.estimate.beta, traj.truth.beta)
+        for traj in (simulate(scenario, estimator=name) for name in ("joint", "fourwis.estimation:relaxed_joint"))
+    ]
     assert errors[1] < 0.6 * errors[0]
     assert make_estimator("fourwis.estimation:relaxed_joint", scenario.params).params.relaxation_length > 0.3
     assert make_estimator("joint", scenario.params).params.relaxation_length == 0.0
@@ -574,8 +638,9 @@ def test_a_masked_reset_restarts_the_relaxed_slip_with_the_row():
     params, restart = traj.scenario.params, 1400
 
     def reading(k: int, n: int) -> SensorReading:
-        return SensorReading(np.repeat(traj.sensors[k][None], n, 0), np.repeat(traj.sensor_valid[k][None], n, 0),
-                             np.full(n, traj.t[k]))
+        return SensorReading(
+            np.repeat(traj.sensors[k][None], n, 0), np.repeat(traj.sensor_valid[k][None], n, 0), np.full(n, traj.t[k])
+        )
 
     batch, fresh, alone = (make_estimator("joint", params, tyre_relaxation=True) for _ in range(3))
     batch.reset(reading(0, 3), traj.scenario.speed)
@@ -606,8 +671,10 @@ def test_the_dugoff_fit_reproduces_the_plant_tyre():
 
     fit = fit_dugoff()
     tyre = VehicleParams().tyre
-    for (m, n), exact in (((fit["m1"], fit["n1"]), tyre.slip_stiffness(LOADS)),
-                          ((fit["m2"], fit["n2"]), tyre.cornering_stiffness(LOADS))):
+    for (m, n), exact in (
+        ((fit["m1"], fit["n1"]), tyre.slip_stiffness(LOADS)),
+        ((fit["m2"], fit["n2"]), tyre.cornering_stiffness(LOADS)),
+    ):
         np.testing.assert_allclose(m * LOADS - n * LOADS**2, exact, rtol=0.05)
     assert 1.0 < fit["mu_scale"] < 1.2
     assert fit["lateral_rms_error_mu_fz"] < 0.8 * fit["lateral_rms_error_mu_fz_unscaled"]
@@ -639,9 +706,12 @@ def test_tyre_curves_of_the_papers_figures_2_and_3(load, tmp_path):
     assert c.fy_dugoff[small_y] == pytest.approx(c.fy_plant[small_y], rel=0.10)
     vehicle = VehicleParams()
     peak_scale = np.array(vehicle.tyre.peak_friction(load)) / np.array(
-        vehicle.tyre.peak_friction(vehicle.reference_wheel_load))
-    for dugoff_force, plant_force, scale in ((c.fx_dugoff, c.fx_plant, peak_scale[0]),
-                                             (c.fy_dugoff, c.fy_plant, peak_scale[1])):
+        vehicle.tyre.peak_friction(vehicle.reference_wheel_load)
+    )
+    for dugoff_force, plant_force, scale in (
+        (c.fx_dugoff, c.fx_plant, peak_scale[0]),
+        (c.fy_dugoff, c.fy_plant, peak_scale[1]),
+    ):
         assert np.all(np.diff(dugoff_force) >= -1e-9) and dugoff_force[-1] < k * mu * load
         assert dugoff_force[-1] > 0.9 * k * mu * load
         assert plant_force.max() == pytest.approx(scale * mu * load, rel=0.01)
@@ -668,8 +738,10 @@ def test_joint_estimator_follows_a_friction_drop_and_the_dyc_stays_stable():
     14.6 deg; the oracle 1.2)."""
     from fourwis.control import make_controller
 
-    runs = {name: simulate("mu_jump", controller=make_controller("dyc-lqr", VehicleParams()), estimator=name, seed=0)
-            for name in ("joint", "ckf")}
+    runs = {
+        name: simulate("mu_jump", controller=make_controller("dyc-lqr", VehicleParams()), estimator=name, seed=0)
+        for name in ("joint", "ckf")
+    }
     peak = {name: np.degrees(np.abs(run.truth.beta).max()) for name, run in runs.items()}
     assert peak["joint"] < 0.5 * peak["ckf"]
     joint = runs["joint"]
@@ -712,16 +784,26 @@ def test_slide_detection_stays_silent_while_the_car_turns_and_on_an_acceleromete
     from fourwis.envs.sensors import Fault
 
     dyc = make_controller("dyc-lqr", VehicleParams())
-    on, off = (simulate("paper_sine", controller=dyc, seed=0,
-                        estimator=make_estimator("joint", VehicleParams(), slide_rate=rate))
-               for rate in (SLIDE_RATE, math.inf))
+    on, off = (
+        simulate(
+            "paper_sine", controller=dyc, seed=0, estimator=make_estimator("joint", VehicleParams(), slide_rate=rate)
+        )
+        for rate in (SLIDE_RATE, math.inf)
+    )
     np.testing.assert_array_equal(on.estimate.mu, off.estimate.mu)
     np.testing.assert_array_equal(on.estimate.beta, off.estimate.beta)
     gripping = make_scenario("mu_jump", mu_patch=0.9)
     fault = (Fault("ay", "bias_step", 2.5, math.inf, 1.0),)
-    on, off = (simulate(gripping, controller=dyc, seed=0, faults=fault,
-                        estimator=make_estimator("joint", VehicleParams(), nominal_mu=0.9, slide_rate=rate))
-               for rate in (SLIDE_RATE, math.inf))
+    on, off = (
+        simulate(
+            gripping,
+            controller=dyc,
+            seed=0,
+            faults=fault,
+            estimator=make_estimator("joint", VehicleParams(), nominal_mu=0.9, slide_rate=rate),
+        )
+        for rate in (SLIDE_RATE, math.inf)
+    )
     np.testing.assert_array_equal(on.estimate.mu, off.estimate.mu)
     assert np.all(on.estimate.mu == 0.9)
 
@@ -731,8 +813,13 @@ def test_slide_detection_stays_silent_while_the_car_turns_and_on_an_acceleromete
 #: slalom 0.123); on the two lane changes, where every filter sits at the sensor-noise floor
 #: (Table 2: 0.0085 / 0.0050 deg), about 2x that floor, rounded up (0.2 would pass beta_hat = 0 on the lane
 #: change, RMS sideslip 0.141 deg).
-JOINT_BETA_RMSE_DEG = {"paper_dlc": 0.02, "paper_step": 0.2, "paper_sine": 0.2, "paper_split_dlc": 0.012,
-                       "paper_serpentine": 0.2}
+JOINT_BETA_RMSE_DEG = {
+    "paper_dlc": 0.02,
+    "paper_step": 0.2,
+    "paper_sine": 0.2,
+    "paper_split_dlc": 0.012,
+    "paper_serpentine": 0.2,
+}
 
 
 @pytest.mark.parametrize("scenario", PAPER_SCENARIOS)
@@ -741,7 +828,8 @@ def test_joint_meets_the_papers_accuracy_targets_on_its_scenarios(scenario):
     RMSE within JOINT_BETA_RMSE_DEG, below BETA_RELATIVE of the truth's RMS sideslip and below
     ekf's and ckf's (measured 0.008 / 0.123 / 0.177 / 0.005 / 0.121 deg, relative 0.06 / 0.25 /
     0.36 / 0.02 / 0.40, in PAPER_SCENARIOS order; the step's bound is the issue's 0.2, which
-    every sensor seed 0-4 meets, the worst at 0.174: README Table 2). mu: from 1 s after the first instant a tyre of the truth
+    every sensor seed 0-4 meets, the worst at 0.174: README Table 2). mu: from 1 s after the first instant a tyre
+    of the truth
     uses more than half its grip (Dugoff's mu-sensitive regime), the per-wheel error averages
     <= 0.05 (measured step 0.024, sine 0.023, slalom 0.036; single samples reach 0.08-0.10 on
     the sine and the slalom, so a per-sample bound of 0.05 does not hold); where no tyre ever
@@ -752,7 +840,7 @@ def test_joint_meets_the_papers_accuracy_targets_on_its_scenarios(scenario):
     assert _beta_errors(runs["joint"])[1] < BETA_RELATIVE  # the truth's RMS is only 0.14-0.50 deg
     assert beta["joint"] < min(beta["ekf"], beta["ckf"])
     joint = runs["joint"]
-    observable = np.flatnonzero(joint.aux[:, A_USAGE:A_USAGE + 4].max(axis=1) > 0.5)
+    observable = np.flatnonzero(joint.aux[:, A_USAGE : A_USAGE + 4].max(axis=1) > 0.5)
     assert (len(observable) == 0) == (scenario in ("paper_dlc", "paper_split_dlc"))
     if len(observable) == 0:
         assert np.all(joint.estimate.mu == 0.8)  # the prior (make_estimator's nominal mu), held
@@ -887,14 +975,20 @@ def test_zero_point_learning_finds_an_accelerometer_offset_in_steady_driving_onl
     sensors = SensorParams(bias_std=(0.0,) * len(CHANNELS))
     offset = (Fault("ay", "bias_step", magnitude=0.2),)
     straight = make_estimator("joint", VehicleParams())
-    simulate(make_scenario("paper_step", duration=9.99, angle=0.0), estimator=straight, seed=0,
-             sensor_params=sensors, faults=offset)
+    simulate(
+        make_scenario("paper_step", duration=9.99, angle=0.0),
+        estimator=straight,
+        seed=0,
+        sensor_params=sensors,
+        faults=offset,
+    )
     assert straight.zero_point[0, ZP_OFFSET] == pytest.approx(0.2, abs=0.01)
     errors = {}
     for tau in (ZERO_POINT_TIME_CONSTANT, math.inf):
         estimator = make_estimator("joint", VehicleParams(), zero_point_time_constant=tau)
-        traj = simulate(make_scenario("paper_step", duration=7.0), estimator=estimator, seed=0,
-                        sensor_params=sensors, faults=offset)
+        traj = simulate(
+            make_scenario("paper_step", duration=7.0), estimator=estimator, seed=0, sensor_params=sensors, faults=offset
+        )
         errors[tau] = rmse(traj.estimate.beta, traj.truth.beta)
     assert errors[ZERO_POINT_TIME_CONSTANT] < 0.5 * errors[math.inf]
     sine = make_estimator("joint", VehicleParams())
@@ -990,7 +1084,7 @@ def test_a_sustained_differential_torque_on_a_straight_does_not_move_mu():
 
     traj = simulate(make_scenario("paper_dlc", duration=3.0), controller=Differential(), estimator="joint", seed=0)
     late = traj.t > 1.0
-    assert traj.aux[late][:, A_USAGE:A_USAGE + 4].mean() > 0.6  # real excitation, not a coasting car
+    assert traj.aux[late][:, A_USAGE : A_USAGE + 4].mean() > 0.6  # real excitation, not a coasting car
     np.testing.assert_allclose(traj.estimate.mu[late], 0.8, atol=1e-3)
 
 
@@ -1020,8 +1114,13 @@ def test_estimator_input_errors_name_the_bad_value():
     three.values[2, 0] = np.nan
     with pytest.raises(ValueError, match="first reading must be finite"):
         first.reset(three, 20.0, mask=np.array([True, False, False]))
-    for name, value in (("huber_c", "3"), ("nominal_mu", "0.8"), ("stuck_samples", None), ("slide_rate", 0.0),
-                        ("slide_rate", math.nan)):
+    for name, value in (
+        ("huber_c", "3"),
+        ("nominal_mu", "0.8"),
+        ("stuck_samples", None),
+        ("slide_rate", 0.0),
+        ("slide_rate", math.nan),
+    ):
         with pytest.raises(ValueError, match=f"{name} must"):
             make_estimator("joint", params, **{name: value})
     with pytest.raises(ValueError, match="dt must be .*, got inf"):
@@ -1070,7 +1169,7 @@ def test_the_low_passes_stay_stable_on_a_log_sampled_slower_than_their_time_cons
     est.reset(first, np.array([run.scenario.speed]))
     errors = []
     for k in range(0, len(run.t), every):
-        out = est.step(SensorReading(run.sensors[k][None], run.sensor_valid[k][None], run.t[k:k + 1]))
+        out = est.step(SensorReading(run.sensors[k][None], run.sensor_valid[k][None], run.t[k : k + 1]))
         assert np.all(np.abs(est.omega_dot) < 50.0)
         if run.t[k] >= 6.0:
             errors.append(np.abs(out.mu[0] - run.truth.mu[k]).mean())
@@ -1098,24 +1197,34 @@ def test_the_reusable_filters_refuse_bad_noise_and_sharing_coefficients():
     def f(points):
         return points
 
-    np.testing.assert_allclose(ckf_predict(np.zeros((2, 2)), np.stack([np.eye(2)] * 2), f, np.eye(2)[None])[1][1],
-                               2.0 * np.eye(2))  # a (1, n, n) Q serves the batch
-    for Q, match in ((np.full((2, 2), np.nan), "finite"), (-np.eye(2), "positive semi-definite"),
-                     (np.array([[1.0, 0.5], [0.0, 1.0]]), "symmetric"), (np.eye(3), "shape")):
+    np.testing.assert_allclose(
+        ckf_predict(np.zeros((2, 2)), np.stack([np.eye(2)] * 2), f, np.eye(2)[None])[1][1], 2.0 * np.eye(2)
+    )  # a (1, n, n) Q serves the batch
+    for Q, match in (
+        (np.full((2, 2), np.nan), "finite"),
+        (-np.eye(2), "positive semi-definite"),
+        (np.array([[1.0, 0.5], [0.0, 1.0]]), "symmetric"),
+        (np.eye(3), "shape"),
+    ):
         with pytest.raises(ValueError, match=match):
             ckf_predict(x, P, f, Q)
     # the state's covariance too: the compiled steps' jitter repairs rounding, not a wrong P
     z = np.zeros((1, 2))
-    for bad_P, match in ((np.diag([1.0, -0.01])[None], "covariance P must be a symmetric positive semi"),
-                         (np.array([[[1.0, 0.5], [0.0, 1.0]]]), "covariance P must be a symmetric")):
+    for bad_P, match in (
+        (np.diag([1.0, -0.01])[None], "covariance P must be a symmetric positive semi"),
+        (np.array([[[1.0, 0.5], [0.0, 1.0]]]), "covariance P must be a symmetric"),
+    ):
         for call in (lambda: ckf_predict(x, bad_P, f, np.eye(2)), lambda: ckf_update(x, bad_P, z, f, np.eye(2))):
             with pytest.raises(ValueError, match=match):
                 call()
     with pytest.raises(ValueError, match="state must be finite"):
         ckf_predict(np.full((1, 2), np.inf), P, f, np.eye(2))
     z = np.zeros((1, 2))
-    for kwargs, match in (({"huber_c": -1.0}, "huber_c"), ({"huber_c": math.nan}, "huber_c"),
-                          ({"valid": np.ones((1, 3), bool)}, "valid")):
+    for kwargs, match in (
+        ({"huber_c": -1.0}, "huber_c"),
+        ({"huber_c": math.nan}, "huber_c"),
+        ({"valid": np.ones((1, 3), bool)}, "valid"),
+    ):
         with pytest.raises(ValueError, match=match):
             ckf_update(x, P, z, f, np.eye(2), **kwargs)
     subs = [SubMeasurement(z, f, np.eye(2), None), SubMeasurement(z, f, np.eye(2), None)]
@@ -1134,11 +1243,12 @@ def test_the_yaw_balance_keeps_a_long_turn_at_the_limit_from_drifting():
     for std in (YAW_BALANCE_STD, math.inf):
         traj = simulate(scenario, estimator=make_estimator("joint", VehicleParams(), yaw_balance_std=std), seed=0)
         after = traj.t > 10.0
-        late[std] = (traj.estimate.mu[-1].mean(),
-                     math.degrees(rmse(traj.estimate.beta[after], traj.truth.beta[after])))
+        late[std] = (traj.estimate.mu[-1].mean(), math.degrees(rmse(traj.estimate.beta[after], traj.truth.beta[after])))
     assert abs(late[YAW_BALANCE_STD][0] - 0.3) < 0.05 and late[YAW_BALANCE_STD][1] < 0.25
     assert late[math.inf][0] > 0.4 and late[math.inf][1] > 0.5
-    for kwargs, named in (({"yaw_balance_std": 0.0}, "yaw_balance_std must be > 0"),
-                          ({"yaw_balance_std": math.inf, "kind": "fkf"}, "applies to the joint estimator")):
+    for kwargs, named in (
+        ({"yaw_balance_std": 0.0}, "yaw_balance_std must be > 0"),
+        ({"yaw_balance_std": math.inf, "kind": "fkf"}, "applies to the joint estimator"),
+    ):
         with pytest.raises(ValueError, match=named):
             StateEstimator(PARAMS, **kwargs)

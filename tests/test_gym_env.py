@@ -12,11 +12,11 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 from gymnasium.vector import AutoresetMode
 
-from fourwis.control.reference import reference_yaw_rate
 import fourwis  # noqa: F401  (registers the environment)
+from fourwis.control.reference import reference_yaw_rate
 from fourwis.envs.gym_env import YawStabilityEnv, YawStabilityVectorEnv
-from fourwis.envs.sensors import Fault
 from fourwis.envs.render import FRAME_HEIGHT, FRAME_WIDTH
+from fourwis.envs.sensors import Fault
 from fourwis.envs.vehicle import S_DELTA_R
 
 
@@ -27,8 +27,9 @@ def test_gymnasium_and_sb3_checkers_pass(observation, action):
 
     env = YawStabilityEnv(scenario="paper_sine", estimator="ckf", observation=observation, action=action)
     check_env(env, skip_render_check=True)
-    sb3_check(YawStabilityEnv(scenario="paper_sine", estimator="ckf", observation=observation, action=action),
-              warn=True)
+    sb3_check(
+        YawStabilityEnv(scenario="paper_sine", estimator="ckf", observation=observation, action=action), warn=True
+    )
 
 
 def test_make_and_determinism_under_seed():
@@ -70,8 +71,14 @@ def test_true_observation_fills_every_slot_as_the_docstring_table_scales_it():
     truth over its scale (u/30, beta/0.2, r, ax/10, ay/10, mu x4, zero sigmas, r_ref, delta_f/0.3,
     r - r_ref), r_ref the 2-DOF reference at the driver's front road-wheel steer: the
     steering wheel's sine (720 deg, 0.5 Hz from 1 s) over the steering ratio, held at the lock."""
-    env = YawStabilityEnv(scenario="paper_sine", speed_kph=20.0, mu=1.0, estimator="oracle", observation="true",
-                          scenario_kwargs={"amplitude_deg": 720.0})
+    env = YawStabilityEnv(
+        scenario="paper_sine",
+        speed_kph=20.0,
+        mu=1.0,
+        estimator="oracle",
+        observation="true",
+        scenario_kwargs={"amplitude_deg": 720.0},
+    )
     env.reset(seed=0)
     params = env.unwrapped.core.params
     ays, steers = [], []
@@ -82,8 +89,19 @@ def test_true_observation_fills_every_slot_as_the_docstring_table_scales_it():
         wheel = math.radians(720.0) * math.sin(2 * math.pi * 0.5 * (t - 1.0)) if t >= 1.0 else 0.0
         delta_f = float(np.clip(wheel / params.steering_ratio, -params.max_front_steer, params.max_front_steer))
         r_ref = float(reference_yaw_rate(np.array([e.u]), np.array([delta_f]), e.mu[None, :], params)[0])
-        expected = [e.u / 30, e.beta / 0.2, e.r, e.ax / 10, e.ay / 10, *e.mu, 0.0, 0.0, r_ref, delta_f / 0.3,
-                    e.r - r_ref]
+        expected = [
+            e.u / 30,
+            e.beta / 0.2,
+            e.r,
+            e.ax / 10,
+            e.ay / 10,
+            *e.mu,
+            0.0,
+            0.0,
+            r_ref,
+            delta_f / 0.3,
+            e.r - r_ref,
+        ]
         np.testing.assert_allclose(obs, expected, rtol=1e-6, atol=1e-6, err_msg=f"step {k}")  # float32
         ays.append(e.ay)
         steers.append(delta_f)
@@ -109,8 +127,19 @@ def test_estimated_and_sensor_observations_fill_their_slots_as_documented():
             if mode == "estimated":
                 e, delta_f = info["estimate"], float(sample.front_steer[0])
                 r_ref = float(reference_yaw_rate(np.array([e.u]), np.array([delta_f]), e.mu[None, :], params)[0])
-                expected = [e.u / 30, e.beta / 0.2, e.r, e.ax / 10, e.ay / 10, *e.mu, e.beta_std / 0.05,
-                            np.mean(e.mu_std) / 0.3, r_ref, delta_f / 0.3, e.r - r_ref]
+                expected = [
+                    e.u / 30,
+                    e.beta / 0.2,
+                    e.r,
+                    e.ax / 10,
+                    e.ay / 10,
+                    *e.mu,
+                    e.beta_std / 0.05,
+                    np.mean(e.mu_std) / 0.3,
+                    r_ref,
+                    delta_f / 0.3,
+                    e.r - r_ref,
+                ]
                 assert e.beta_std > 0 and np.all(e.mu_std > 0)
             else:
                 raw = sample.reading.values[0]
@@ -159,10 +188,16 @@ def test_random_actions_across_scenarios_never_produce_nan():
 
 
 def _vector_pair(n, mode=AutoresetMode.SAME_STEP, **kwargs):
-    native = gym.make_vec("FourWIS/YawStability-v0", num_envs=n, vectorization_mode="vector_entry_point",
-                          autoreset_mode=mode, **kwargs)
-    sync = gym.make_vec("FourWIS/YawStability-v0", num_envs=n, vectorization_mode="sync",
-                        vector_kwargs={"autoreset_mode": mode}, **kwargs)
+    native = gym.make_vec(
+        "FourWIS/YawStability-v0", num_envs=n, vectorization_mode="vector_entry_point", autoreset_mode=mode, **kwargs
+    )
+    sync = gym.make_vec(
+        "FourWIS/YawStability-v0",
+        num_envs=n,
+        vectorization_mode="sync",
+        vector_kwargs={"autoreset_mode": mode},
+        **kwargs,
+    )
     return native, sync
 
 
@@ -209,8 +244,7 @@ def test_native_vector_env_resetting_in_the_next_step_matches_sync_vector_env():
     """NEXT_STEP (gymnasium's default): a finished car shows its last observation, and the next
     step restarts it instead of moving it, while the other cars move on; identical to a
     SyncVectorEnv of single envs through several autoresets, with the joint estimator."""
-    native, sync = _vector_pair(3, AutoresetMode.NEXT_STEP, scenario="random", estimator="joint",
-                                max_episode_steps=20)
+    native, sync = _vector_pair(3, AutoresetMode.NEXT_STEP, scenario="random", estimator="joint", max_episode_steps=20)
     assert native.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP
     np.testing.assert_array_equal(native.reset(seed=3)[0], sync.reset(seed=3)[0])
     assert native.unwrapped.np_random_seed == sync.np_random_seed == (3, 4, 5)
@@ -223,8 +257,9 @@ def test_native_vector_env_resetting_in_the_next_step_matches_sync_vector_env():
     for k in range(52):
         if k == 30:  # one car's episode cut short by a masked reset, in step with the sync env
             mask = np.array([False, True, False])
-            np.testing.assert_array_equal(native.reset(options={"reset_mask": mask})[0],
-                                          sync.reset(options={"reset_mask": mask})[0])
+            np.testing.assert_array_equal(
+                native.reset(options={"reset_mask": mask})[0], sync.reset(options={"reset_mask": mask})[0]
+            )
             finished &= ~mask
         action = rng.uniform(-1, 1, (3, 2)).astype(np.float32)
         out_n, out_s = native.step(action), sync.step(action)
@@ -236,8 +271,7 @@ def test_native_vector_env_resetting_in_the_next_step_matches_sync_vector_env():
             np.testing.assert_array_equal(info_n[f"_{key}"], ~finished)  # a restarting car has no step info
             if not finished.all():
                 np.testing.assert_array_equal(info_s[f"_{key}"], ~finished)
-                np.testing.assert_array_equal(info_n[key][~finished],
-                                              info_s[key][~finished].astype(info_n[key].dtype))
+                np.testing.assert_array_equal(info_n[key][~finished], info_s[key][~finished].astype(info_n[key].dtype))
         np.testing.assert_array_equal(info_n["truth"].beta, [e.beta for e in info_s["truth"]])
         restarts += finished.sum()
         finished = out_n[2] | out_n[3]
@@ -249,8 +283,9 @@ def test_native_vector_env_resetting_in_the_next_step_matches_sync_vector_env():
 
 def test_vector_env_without_autoreset_waits_for_a_masked_reset():
     """DISABLED: a finished car is an error to step until reset(options={"reset_mask": ...})."""
-    env = YawStabilityVectorEnv(num_envs=2, scenario="paper_sine", estimator="oracle", max_episode_steps=3,
-                                autoreset_mode="Disabled")
+    env = YawStabilityVectorEnv(
+        num_envs=2, scenario="paper_sine", estimator="oracle", max_episode_steps=3, autoreset_mode="Disabled"
+    )
     env.reset(seed=0)
     for _ in range(3):
         *_, truncated, _ = env.step(np.zeros((2, 2), dtype=np.float32))
@@ -270,9 +305,11 @@ def test_gymnasium_stateful_vector_wrappers_take_the_next_step_native_env():
 
     with pytest.raises(ValueError, match="NEXT_STEP"):
         NormalizeObservation(YawStabilityVectorEnv(num_envs=2, estimator="oracle", autoreset_mode="SameStep"))
+
     def make():
-        return YawStabilityVectorEnv(num_envs=2, scenario="paper_sine", estimator="oracle", max_episode_steps=5,
-                                     autoreset_mode="NextStep")
+        return YawStabilityVectorEnv(
+            num_envs=2, scenario="paper_sine", estimator="oracle", max_episode_steps=5, autoreset_mode="NextStep"
+        )
 
     normalised, raw_env = NormalizeObservation(make()), make()
     env = RecordEpisodeStatistics(normalised)
@@ -285,16 +322,26 @@ def test_gymnasium_stateful_vector_wrappers_take_the_next_step_native_env():
     seen = np.concatenate(raw).astype(float)
     # (gymnasium's RunningMeanStd starts from a count of 1e-4: relative 1e-5 off the plain mean)
     np.testing.assert_allclose(normalised.obs_rms.mean, seen.mean(axis=0), rtol=1e-4, atol=1e-9)
-    np.testing.assert_allclose(observations[-1], (raw[-1] - normalised.obs_rms.mean)
-                               / np.sqrt(normalised.obs_rms.var + normalised.epsilon), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(
+        observations[-1],
+        (raw[-1] - normalised.obs_rms.mean) / np.sqrt(normalised.obs_rms.var + normalised.epsilon),
+        rtol=1e-5,
+        atol=1e-6,
+    )
     assert np.abs(np.concatenate(observations[-3:])).max() > 0.5  # (not all squashed to 0)
     assert len(env.return_queue) == 4  # two cars x two whole 5-step episodes (the 11th step restarts them)
 
 
 def test_async_vector_env_with_spawned_workers():
     """Registration is idempotent: spawned workers re-import envs and build their env."""
-    env = gym.make_vec("FourWIS/YawStability-v0", num_envs=2, vectorization_mode="async",
-                       vector_kwargs={"context": "spawn"}, scenario="paper_sine", estimator="oracle")
+    env = gym.make_vec(
+        "FourWIS/YawStability-v0",
+        num_envs=2,
+        vectorization_mode="async",
+        vector_kwargs={"context": "spawn"},
+        scenario="paper_sine",
+        estimator="oracle",
+    )
     try:
         obs, _ = env.reset(seed=0)
         obs2, reward, *_ = env.step(np.zeros((2, 2), dtype=np.float32))
@@ -304,10 +351,17 @@ def test_async_vector_env_with_spawned_workers():
 
 
 def test_make_works_in_a_fresh_interpreter_without_prior_import():
-    code = ("import gymnasium as gym, numpy as np; env = gym.make('fourwis:FourWIS/YawStability-v0', "
-            "estimator='oracle'); obs, _ = env.reset(seed=0); print(obs.shape)")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
-                         cwd=Path(__file__).resolve().parent.parent)
+    code = (
+        "import gymnasium as gym, numpy as np; env = gym.make('fourwis:FourWIS/YawStability-v0', "
+        "estimator='oracle'); obs, _ = env.reset(seed=0); print(obs.shape)"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=Path(__file__).resolve().parent.parent,
+    )
     assert out.stdout.strip() == "(14,)"
 
 
@@ -320,11 +374,23 @@ def test_vector_env_rejects_bad_actions_and_arguments():
         env.step(np.zeros((3, 2)))
     *_, info = env.step(np.array([[2.0, 0.0], [0.5, 0.0]]))
     np.testing.assert_array_equal(info["action_clipped"], [True, False])
-    for bad, word in (({"num_envs": 0}, "num_envs must be a positive integer, got 0"), ({"max_episode_steps": -3}, "-3"), ({"render_mode": "ascii"}, "ascii"),
-                      ({"estimator": "psychic"}, "psychic"), ({"warp": 9}, "warp"), ({"control_dt": 1e-12}, "1e-12"),
-                      ({"control_dt": True}, "True"), ({"control_dt": 2.0}, "up to 1.0 s, got 2.0"), ({"control_dt": "0.02"}, "'0.02'"), ({"control_dt": math.inf}, "inf"),
-                      ({"scenario": ["random"]}, "random"), ({"sensor_faults": 3}, "sensor_faults .*, got 3"),
-                      ({"scenario_kwargs": [1]}, r"scenario_kwargs .*, got \[1\]"), ({"rear_steer": "no"}, "no"), ({"speed_kph": "fast"}, "fast")):
+    for bad, word in (
+        ({"num_envs": 0}, "num_envs must be a positive integer, got 0"),
+        ({"max_episode_steps": -3}, "-3"),
+        ({"render_mode": "ascii"}, "ascii"),
+        ({"estimator": "psychic"}, "psychic"),
+        ({"warp": 9}, "warp"),
+        ({"control_dt": 1e-12}, "1e-12"),
+        ({"control_dt": True}, "True"),
+        ({"control_dt": 2.0}, "up to 1.0 s, got 2.0"),
+        ({"control_dt": "0.02"}, "'0.02'"),
+        ({"control_dt": math.inf}, "inf"),
+        ({"scenario": ["random"]}, "random"),
+        ({"sensor_faults": 3}, "sensor_faults .*, got 3"),
+        ({"scenario_kwargs": [1]}, r"scenario_kwargs .*, got \[1\]"),
+        ({"rear_steer": "no"}, "no"),
+        ({"speed_kph": "fast"}, "fast"),
+    ):
         with pytest.raises(ValueError, match=word):
             YawStabilityVectorEnv(**({"num_envs": 1} | bad))
     for bad_seed, shown in (((0,), r"\(0,\)"), ("abc", "'abc'"), ([0, 1.5], r"\[0, 1.5\]")):
@@ -339,8 +405,13 @@ def test_vector_env_rejects_bad_actions_and_arguments():
 
 
 def test_numpy_scalars_sequences_of_seeds_and_masked_resets_are_accepted():
-    env = YawStabilityVectorEnv(num_envs=np.int64(3), scenario="random", speed_kph=np.float32(30.0),
-                                estimator="ckf", max_episode_steps=np.int64(50))
+    env = YawStabilityVectorEnv(
+        num_envs=np.int64(3),
+        scenario="random",
+        speed_kph=np.float32(30.0),
+        estimator="ckf",
+        max_episode_steps=np.int64(50),
+    )
     obs, _ = env.reset(seed=(4, 5, 6))
     for seeds, same in ((4, [True] * 3), ((4, 5, 7), [True, True, False])):
         other = YawStabilityVectorEnv(num_envs=3, scenario="random", speed_kph=30.0, estimator="ckf")
@@ -356,8 +427,13 @@ def test_numpy_scalars_sequences_of_seeds_and_masked_resets_are_accepted():
     assert not np.array_equal(again[1], after[1])
     np.testing.assert_array_equal(info["_truth"], [False, True, False])
     # numpy integers in a sequence, through gym.make_vec (gymnasium itself wants Python ints)
-    vec = gym.make_vec("fourwis:FourWIS/YawStability-v0", num_envs=3, vectorization_mode="vector_entry_point",
-                       scenario="random", estimator="ckf")
+    vec = gym.make_vec(
+        "fourwis:FourWIS/YawStability-v0",
+        num_envs=3,
+        vectorization_mode="vector_entry_point",
+        scenario="random",
+        estimator="ckf",
+    )
     by_numpy, _ = vec.reset(seed=np.array([4, 5, 6]))
     np.testing.assert_array_equal(by_numpy, vec.reset(seed=[4, 5, 6])[0])
     vec.close()
@@ -392,8 +468,12 @@ def test_reward_and_termination_follow_the_documented_formula():
     for _ in range(1500):
         obs, reward, terminated, truncated, info = env.step(action)
         rewards.append(reward)
-        expected = -0.02 * ((info["yaw_rate_error"] / 0.1) ** 2 + (info["beta"] / 0.05) ** 2
-                            + 0.1 * np.sum(action.astype(float) ** 2) + info["path_deviation"] ** 2)
+        expected = -0.02 * (
+            (info["yaw_rate_error"] / 0.1) ** 2
+            + (info["beta"] / 0.05) ** 2
+            + 0.1 * np.sum(action.astype(float) ** 2)
+            + info["path_deviation"] ** 2
+        )
         assert reward == pytest.approx(expected - 100.0 * terminated, rel=1e-9)
         if terminated or truncated:
             break
@@ -421,8 +501,12 @@ def test_a_longer_control_step_runs_the_same_substeps_and_scales_the_reward():
         for name in ("truth", "estimate"):
             for a, b in zip(info[name], fine_info[name]):
                 np.testing.assert_array_equal(a, b)
-        expected = -0.05 * ((info["yaw_rate_error"] / 0.1) ** 2 + (info["beta"] / 0.05) ** 2
-                            + 0.1 * np.sum(action.astype(float) ** 2) + info["path_deviation"] ** 2)
+        expected = -0.05 * (
+            (info["yaw_rate_error"] / 0.1) ** 2
+            + (info["beta"] / 0.05) ** 2
+            + 0.1 * np.sum(action.astype(float) ** 2)
+            + info["path_deviation"] ** 2
+        )
         assert reward == pytest.approx(expected, rel=1e-9) and not (terminated or truncated)
     assert max(np.abs(ays)) > 1.0  # (the car turned)
 
@@ -444,8 +528,9 @@ def test_a_car_that_leaves_a_course_cleanly_is_truncated_not_terminated(scenario
 
 
 def test_rear_steer_is_optional_and_the_single_env_reports_one_car():
-    env = YawStabilityEnv(scenario="paper_sine", estimator="oracle", rear_steer=False,
-                          scenario_kwargs={"duration": 0.2})  # ten 20 ms steps
+    env = YawStabilityEnv(
+        scenario="paper_sine", estimator="oracle", rear_steer=False, scenario_kwargs={"duration": 0.2}
+    )  # ten 20 ms steps
     assert env.action_space.shape == (1,)
     env.reset(seed=0)
     for _ in range(10):
@@ -475,15 +560,18 @@ def test_the_rear_steer_action_commands_its_share_of_the_rear_steer_limit():
     assert env.unwrapped.core.loop.state[0, S_DELTA_R] == pytest.approx(0.5 * params.max_rear_steer, rel=1e-3)
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    ({"scenario": "paper_step", "speed_kph": 50.0, "scenario_kwargs": {"speed_kph": 60.0}}, "both"),
-    ({"scenario_kwargs": {"seed": 3}}, "reset\\(seed"),
-    ({"scenario": "paper_step", "scenario_kwargs": {"steering": "x"}}, "steering"),
-    ({"scenario": "paper_step", "scenario_kwargs": {"rear_steer_feedforward": "yes"}}, "rear_steer_feedforward"),
-    ({"scenario": "paper_step", "speed_kph": 1e6}, "speed_kph"),
-    ({"sensor_faults": Fault("yaw_rate", "stuck", start=1.0, end=2.0)}, "sequence"),
-    ({"privileged": 1}, "privileged"),
-])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"scenario": "paper_step", "speed_kph": 50.0, "scenario_kwargs": {"speed_kph": 60.0}}, "both"),
+        ({"scenario_kwargs": {"seed": 3}}, "reset\\(seed"),
+        ({"scenario": "paper_step", "scenario_kwargs": {"steering": "x"}}, "steering"),
+        ({"scenario": "paper_step", "scenario_kwargs": {"rear_steer_feedforward": "yes"}}, "rear_steer_feedforward"),
+        ({"scenario": "paper_step", "speed_kph": 1e6}, "speed_kph"),
+        ({"sensor_faults": Fault("yaw_rate", "stuck", start=1.0, end=2.0)}, "sequence"),
+        ({"privileged": 1}, "privileged"),
+    ],
+)
 def test_arguments_that_would_be_ignored_or_fail_later_are_refused_at_make(kwargs, match):
     with pytest.raises(ValueError, match=match):
         YawStabilityEnv(estimator="oracle", **kwargs)
@@ -521,8 +609,11 @@ def test_rgb_array_frames_show_the_car_and_work_with_record_video(tmp_path):
     for _ in range(25):
         env.step(np.array([1.0, 0.0], dtype=np.float32))
     assert not np.array_equal(env.render(), frame)  # the car moved, the charts grew
-    video = gym.wrappers.RecordVideo(YawStabilityEnv(scenario="paper_sine", estimator="oracle",
-                                                     render_mode="rgb_array"), str(tmp_path), disable_logger=True)
+    video = gym.wrappers.RecordVideo(
+        YawStabilityEnv(scenario="paper_sine", estimator="oracle", render_mode="rgb_array"),
+        str(tmp_path),
+        disable_logger=True,
+    )
     video.reset(seed=0)
     for _ in range(30):
         video.step(np.zeros(2, dtype=np.float32))
@@ -555,11 +646,16 @@ def test_the_vector_env_draws_each_cars_frame_when_read_and_records_with_gymnasi
     assert not np.array_equal(env.render()[1], first)
     drawn = []
     original = YawStabilityCore.render
-    monkeypatch.setattr(YawStabilityCore, "render", lambda self, b=0, moment=None: drawn.append(b) or
-                        original(self, b, moment))
-    video = RecordVideo(YawStabilityVectorEnv(num_envs=3, scenario="paper_sine", estimator="oracle",
-                                              render_mode="rgb_array"), str(tmp_path),
-                        episode_trigger=lambda episode: episode == 0, video_length=15, record_first_only=True)
+    monkeypatch.setattr(
+        YawStabilityCore, "render", lambda self, b=0, moment=None: drawn.append(b) or original(self, b, moment)
+    )
+    video = RecordVideo(
+        YawStabilityVectorEnv(num_envs=3, scenario="paper_sine", estimator="oracle", render_mode="rgb_array"),
+        str(tmp_path),
+        episode_trigger=lambda episode: episode == 0,
+        video_length=15,
+        record_first_only=True,
+    )
     video.reset(seed=0)
     for _ in range(20):
         video.step(np.zeros((3, 2), dtype=np.float32))
@@ -572,10 +668,16 @@ def test_the_vector_env_draws_each_cars_frame_when_read_and_records_with_gymnasi
 def test_human_mode_without_a_display_warns(monkeypatch):
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
-    for env, action in ((YawStabilityEnv(scenario="paper_sine", estimator="oracle", render_mode="human"),
-                         np.zeros(2, dtype=np.float32)),
-                        (YawStabilityVectorEnv(num_envs=2, scenario="paper_sine", estimator="oracle",
-                                               render_mode="human"), np.zeros((2, 2), dtype=np.float32))):
+    for env, action in (
+        (
+            YawStabilityEnv(scenario="paper_sine", estimator="oracle", render_mode="human"),
+            np.zeros(2, dtype=np.float32),
+        ),
+        (
+            YawStabilityVectorEnv(num_envs=2, scenario="paper_sine", estimator="oracle", render_mode="human"),
+            np.zeros((2, 2), dtype=np.float32),
+        ),
+    ):
         with pytest.warns(UserWarning, match="display"):
             env.reset(seed=0)  # (the reset shows the first frame)
         with warnings.catch_warnings():
@@ -595,8 +697,9 @@ def test_episode_metrics_on_sine_with_dwell_give_the_fmvss126_verdict(amplitude_
     from fourwis.envs.simulation import simulate
     from fourwis.envs.vehicle import A_AY, S_R
 
-    env = YawStabilityEnv(scenario="sine_with_dwell", estimator="oracle",
-                          scenario_kwargs={"amplitude_deg": amplitude_deg})
+    env = YawStabilityEnv(
+        scenario="sine_with_dwell", estimator="oracle", scenario_kwargs={"amplitude_deg": amplitude_deg}
+    )
     env.reset(seed=0)
     while True:
         *_, terminated, truncated, info = env.step(np.zeros(2, dtype=np.float32))
@@ -604,8 +707,7 @@ def test_episode_metrics_on_sine_with_dwell_give_the_fmvss126_verdict(amplitude_
             break
     metrics = info["episode_metrics"]
     traj = simulate(make_scenario("sine_with_dwell", amplitude_deg=amplitude_deg))
-    ref = sine_with_dwell_metrics(traj.t, traj.steering_wheel, traj.state[:, S_R], traj.aux[:, A_AY],
-                                  A=characterise())
+    ref = sine_with_dwell_metrics(traj.t, traj.steering_wheel, traj.state[:, S_R], traj.aux[:, A_AY], A=characterise())
     assert metrics["fmvss126_passed"] == ref.passed == (amplitude_deg < 100)
     assert metrics["spin_out"] == terminated == (amplitude_deg > 100)
     assert (metrics["peak_phase_plane_index"] > 1.0) == (amplitude_deg > 100)  # left the region it recovers from
@@ -621,8 +723,13 @@ def test_the_fmvss126_verdict_includes_responsiveness_from_5A():
     from fourwis.envs.fmvss126 import characterise
 
     amplitude_deg = 5.5 * math.degrees(characterise())
-    env = YawStabilityEnv(scenario="sine_with_dwell", mu=0.3, estimator="oracle", observation="true",
-                          scenario_kwargs={"amplitude_deg": amplitude_deg})
+    env = YawStabilityEnv(
+        scenario="sine_with_dwell",
+        mu=0.3,
+        estimator="oracle",
+        observation="true",
+        scenario_kwargs={"amplitude_deg": amplitude_deg},
+    )
     obs, _ = env.reset(seed=0)
     while True:
         action = np.clip([-3.0 * obs[13], 0.5 * obs[13]], -1, 1).astype(np.float32)
@@ -637,8 +744,13 @@ def test_the_fmvss126_verdict_includes_responsiveness_from_5A():
 def test_a_walking_pace_full_lock_turn_does_not_end_the_episode():
     """At 10 km/h with the front wheels at the lock and the rear steered in phase the sideslip
     is the steering geometry's, ~20 deg: no spin-out, the episode runs to its end."""
-    env = YawStabilityEnv(scenario="paper_step", speed_kph=10.0, mu=1.0, estimator="oracle",
-                          scenario_kwargs={"angle": 9.6, "step_time": 0.5})
+    env = YawStabilityEnv(
+        scenario="paper_step",
+        speed_kph=10.0,
+        mu=1.0,
+        estimator="oracle",
+        scenario_kwargs={"angle": 9.6, "step_time": 0.5},
+    )
     env.reset(seed=0)
     peak = 0.0
     while True:
@@ -657,8 +769,11 @@ def test_privileged_observation_appends_the_truth(observation):
     from stable_baselines3.common.env_checker import check_env as sb3_check
 
     kwargs = {"scenario": "paper_sine", "estimator": "ckf"}
-    envs = [YawStabilityEnv(**kwargs, observation=observation, privileged=True),
-            YawStabilityEnv(**kwargs, observation=observation), YawStabilityEnv(**kwargs, observation="true")]
+    envs = [
+        YawStabilityEnv(**kwargs, observation=observation, privileged=True),
+        YawStabilityEnv(**kwargs, observation=observation),
+        YawStabilityEnv(**kwargs, observation="true"),
+    ]
     assert envs[0].observation_space.shape == (28,)
     observations = [env.reset(seed=4)[0] for env in envs]
     for _ in range(20):
@@ -685,8 +800,15 @@ def test_friction_speed_and_sensor_fault_arguments_reach_the_episode():
     """mu and speed_kph set the scenario's road and speed; a stuck gyro (from 0.5 s) freezes the
     yaw-rate channel of the sensors observation while the car turns."""
 
-    env = gym.make("fourwis:FourWIS/YawStability-v0", scenario="paper_sine", mu=0.4, speed_kph=30.0, estimator="oracle",
-                   observation="sensors", sensor_faults=(Fault("yaw_rate", "stuck", start=0.5),))
+    env = gym.make(
+        "fourwis:FourWIS/YawStability-v0",
+        scenario="paper_sine",
+        mu=0.4,
+        speed_kph=30.0,
+        estimator="oracle",
+        observation="sensors",
+        sensor_faults=(Fault("yaw_rate", "stuck", start=0.5),),
+    )
     obs, info = env.reset(seed=0)
     assert np.all(info["truth"].mu == 0.4) and info["truth"].u == pytest.approx(30.0 / 3.6, rel=1e-3)
     gyro = []

@@ -7,9 +7,19 @@ import pytest
 from scipy.signal import find_peaks, lfilter
 
 from fourwis.envs.fmvss126 import amplitudes, characterise, run_series
-from fourwis.envs.metrics import (cone_hits, mae, path_deviation, peak_abs, phaseless_butterworth, rms, rmse,
-                          sine_with_dwell_metrics, spin_out, steering_angle_at_lateral_acceleration,
-                          yaw_rate_tracking_rms)
+from fourwis.envs.metrics import (
+    cone_hits,
+    mae,
+    path_deviation,
+    peak_abs,
+    phaseless_butterworth,
+    rms,
+    rmse,
+    sine_with_dwell_metrics,
+    spin_out,
+    steering_angle_at_lateral_acceleration,
+    yaw_rate_tracking_rms,
+)
 
 FS = 500.0
 T = np.arange(0.0, 6.0, 1 / FS)
@@ -74,7 +84,7 @@ def test_yaw_ratios_of_a_lagged_yaw_rate(tau):
     steer = swd(math.radians(180.0))
     r = lagged(steer, 0.16, tau)  # yaw rate follows the steering through a lag, decays after COS
     res = sine_with_dwell_metrics(T, steer, r, np.zeros_like(T))
-    after_reversal = -r[np.argmax((T > START) & (steer < 0)):]
+    after_reversal = -r[np.argmax((T > START) & (steer < 0)) :]
     peak = after_reversal[find_peaks(after_reversal)[0][0]]
     assert res.first_peak_yaw_rate == pytest.approx(peak, rel=1e-3)
     # after COS the lag decays freely: r(COS + s) = r(COS) exp(-s / tau)
@@ -127,11 +137,13 @@ def test_lateral_displacement_is_the_double_integral_from_bos():
     assert res.passed_responsiveness is None  # without A
     A = math.radians(150.0) / 5.0
     assert sine_with_dwell_metrics(T, steer, 1e-3 * steer, smooth, A=A).passed_responsiveness == (
-        res.lateral_displacement >= 1.83)
+        res.lateral_displacement >= 1.83
+    )
     assert sine_with_dwell_metrics(T, steer, 1e-3 * steer, smooth, A=1.2 * A).passed_responsiveness is None
     for limit in (0.9, 1.1):  # a heavy vehicle's lower limit (S5.2.3) around the displacement reached
-        assert sine_with_dwell_metrics(T, steer, 1e-3 * steer, smooth, A=A, displacement_limit=limit * (
-            res.lateral_displacement)).passed_responsiveness == (limit < 1)
+        assert sine_with_dwell_metrics(
+            T, steer, 1e-3 * steer, smooth, A=A, displacement_limit=limit * (res.lateral_displacement)
+        ).passed_responsiveness == (limit < 1)
     with pytest.raises(ValueError, match="displacement_limit must be a distance > 0 .*, got -1.52"):
         sine_with_dwell_metrics(T, steer, 1e-3 * steer, smooth, A=A, displacement_limit=-1.52)
 
@@ -143,8 +155,14 @@ def test_mirror_symmetry():
     a = sine_with_dwell_metrics(T, steer, r, ay)
     b = sine_with_dwell_metrics(T, -steer, -r, -ay)
     assert (a.direction, b.direction) == (1, -1)
-    for name in ("bos_time", "cos_time", "first_peak_yaw_rate", "yaw_rate_ratio_1000", "yaw_rate_ratio_1750",
-                 "lateral_displacement"):
+    for name in (
+        "bos_time",
+        "cos_time",
+        "first_peak_yaw_rate",
+        "yaw_rate_ratio_1000",
+        "yaw_rate_ratio_1750",
+        "lateral_displacement",
+    ):
         assert getattr(a, name) == pytest.approx(getattr(b, name), abs=1e-12), name
     assert a.lateral_displacement > 0  # towards the initial steer
     d = a.as_dict()
@@ -295,6 +313,6 @@ def test_course_paths_measure_each_car_from_its_own_path_while_alongside_it():
     assert deviation.tolist() == pytest.approx([2.0, 0.0, 3.0, 0.0])
     assert alongside_path(x[[0, 3]], corner).tolist() == [True, False]
     for b in (0, 2):
-        assert deviation[b] == path_deviation(x[b:b + 1], y[b:b + 1], paths.paths[b])[1]
+        assert deviation[b] == path_deviation(x[b : b + 1], y[b : b + 1], paths.paths[b])[1]
     paths.replace([1, 3], [straight, None])  # new episodes: car 1 on the straight, car 3 off course
     assert paths.deviation(x, y).tolist() == pytest.approx([2.0, 1.0, 3.0, 0.0])

@@ -4,8 +4,8 @@ determinism, a non-degenerate criterion, bad input."""
 import numpy as np
 import pytest
 
-from fourwis.envs.scenarios import make_scenario
 from fourwis.core.types import SensorReading
+from fourwis.envs.scenarios import make_scenario
 from fourwis.envs.simulation import simulate
 from fourwis.envs.vehicle import VehicleParams
 from fourwis.estimation import make_estimator
@@ -32,8 +32,13 @@ def test_work_per_step_is_bounded_and_results_arrive_when_runs_finish(replay_per
     only then does the live filter's noise change: to the base noise scaled by the run's result
     (the paper's rule: until a run finishes the filter keeps the noise it has)."""
     window, iterations = 100, 2
-    tuner = OnlineTuner(make_estimator("alo-fkf", VehicleParams()), window=window, n_agents=4,
-                        iterations=iterations, replay_per_step=replay_per_step)
+    tuner = OnlineTuner(
+        make_estimator("alo-fkf", VehicleParams()),
+        window=window,
+        n_agents=4,
+        iterations=iterations,
+        replay_per_step=replay_per_step,
+    )
     eigen_min, completed, factors, stds = [], [], [], []
 
     def live_stds():
@@ -49,8 +54,10 @@ def test_work_per_step_is_bounded_and_results_arrive_when_runs_finish(replay_per
         completed.append(tuner.runs_completed)
         factors.append(None if tuner.factors is None else np.array(tuner.factors))
         stds.append(live_stds())
-        np.testing.assert_array_equal(noise_stds(tuner.estimator.noise), noise_stds(
-            tuner.base_noise if tuner.factors is None else tuner.base_noise.scaled(tuner.factors)))
+        np.testing.assert_array_equal(
+            noise_stds(tuner.estimator.noise),
+            noise_stds(tuner.base_noise if tuner.factors is None else tuner.base_noise.scaled(tuner.factors)),
+        )
 
     _feed(tuner, check)
     assert tuner.max_replay_steps_in_a_step == replay_per_step
@@ -70,7 +77,7 @@ def test_work_per_step_is_bounded_and_results_arrive_when_runs_finish(replay_per
     changed = [k for k in range(1, len(RUN.t)) if not np.array_equal(stds[k], stds[k - 1])]
     assert changed == ends  # the noise changes exactly when a run completes, at every completion
     np.testing.assert_allclose(stds[0], noise_stds(tuner.base_noise), rtol=1e-12)  # base noise until then
-    assert all(f is None for f in factors[:ends[0]])
+    assert all(f is None for f in factors[: ends[0]])
     for e in ends:  # ... and then the base noise scaled by that run's factors
         np.testing.assert_allclose(stds[e], noise_stds(tuner.base_noise.scaled(factors[e])), rtol=1e-12)
     assert min(eigen_min) > 0  # the live covariance stayed positive definite throughout
@@ -78,8 +85,9 @@ def test_work_per_step_is_bounded_and_results_arrive_when_runs_finish(replay_per
 
 def test_online_tuning_is_deterministic():
     def factors():
-        tuner = OnlineTuner(make_estimator("joint", VehicleParams()), window=100, n_agents=4, iterations=2,
-                            replay_per_step=3)
+        tuner = OnlineTuner(
+            make_estimator("joint", VehicleParams()), window=100, n_agents=4, iterations=2, replay_per_step=3
+        )
         _feed(tuner)
         assert tuner.runs_completed >= 1 and tuner.factors is not None  # something was tuned
         return tuner.factors

@@ -81,8 +81,13 @@ def test_tune_keeps_the_hand_set_noise_when_the_optimizer_finds_nothing_better(t
     from fourwis.estimation.optimizers import OptimizeResult
 
     worse = np.array([1.0, 1.0, 1.0, 1.0])  # every noise 10x: far above the default's cost
-    monkeypatch.setattr(tune_module, "minimize", lambda objective, *args, **kwargs: OptimizeResult(
-        worse, float(objective(worse[None])[0]), [float(objective(worse[None])[0])], 1))
+    monkeypatch.setattr(
+        tune_module,
+        "minimize",
+        lambda objective, *args, **kwargs: OptimizeResult(
+            worse, float(objective(worse[None])[0]), [float(objective(worse[None])[0])], 1
+        ),
+    )
     data = tune_module.tune(2, 1, out=tmp_path / "tuned.json", duration=0.6, progress=False)
     assert not data["improved"] and data["log10_factors"] == [0.0] * 4
     assert data["cost"] == data["default_cost"] < data["optimizer_best"]["cost"]
@@ -189,8 +194,11 @@ def test_tuning_criteria_likelihood_and_truth_and_a_bad_name():
     assert nll[1] > nll[0] and nll[2] > nll[0]
     truth = replay_cost(X[:1], traj, criterion="truth")
     run = replay(X[:1], traj)
-    by_hand = (rmse(run.beta[:, 0], traj.truth.beta) / math.radians(0.1) + rmse(run.r[:, 0], traj.truth.r) / 0.01
-               + rmse(run.u[:, 0], traj.truth.u) / 0.05)
+    by_hand = (
+        rmse(run.beta[:, 0], traj.truth.beta) / math.radians(0.1)
+        + rmse(run.r[:, 0], traj.truth.r) / 0.01
+        + rmse(run.u[:, 0], traj.truth.u) / 0.05
+    )
     assert truth[0] == pytest.approx(by_hand, rel=1e-12) and by_hand > 0
     with pytest.raises(ValueError, match="likelihood9"):
         replay_cost(X[:1], traj, criterion="likelihood9")

@@ -34,12 +34,19 @@ np.savez(sys.argv[1], state=traj.state, controls=traj.controls, mu=traj.estimate
 @pytest.mark.skipif(numba.config.DISABLE_JIT, reason="the reference run must be the compiled one")
 def test_with_numba_disabled_the_closed_loop_runs_as_python_and_matches_the_compiled_one(tmp_path):
     out = tmp_path / "python.npz"
-    subprocess.run([sys.executable, "-c", RUN, str(out)], check=True, capture_output=True, text=True,
-                   cwd=Path(__file__).resolve().parent.parent, env={**os.environ, "NUMBA_DISABLE_JIT": "1"})
+    subprocess.run(
+        [sys.executable, "-c", RUN, str(out)],
+        check=True,
+        capture_output=True,
+        text=True,
+        cwd=Path(__file__).resolve().parent.parent,
+        env={**os.environ, "NUMBA_DISABLE_JIT": "1"},
+    )
     python = np.load(out)
-    compiled = simulate(make_scenario("mu_jump", duration=2.5), make_controller("dyc-lqr", VehicleParams()), "joint",
-                        seed=3)
-    assert compiled.aux[:, A_USAGE:A_USAGE + 4].max() > 0.9  # the friction is being learnt
+    compiled = simulate(
+        make_scenario("mu_jump", duration=2.5), make_controller("dyc-lqr", VehicleParams()), "joint", seed=3
+    )
+    assert compiled.aux[:, A_USAGE : A_USAGE + 4].max() > 0.9  # the friction is being learnt
     assert compiled.estimate.mu[-1].mean() < 0.5  # ... and has dropped towards the patch's 0.3
     # the same arithmetic up to the compiler's operation order (measured: 3e-12 in the states)
     np.testing.assert_allclose(python["state"], compiled.state, rtol=1e-9, atol=1e-9)
@@ -67,6 +74,12 @@ def test_with_numba_disabled_the_compiled_env_loop_runs_as_python(tmp_path):
     runs = {}
     for name, disable in (("python", "1"), ("compiled", "0")):
         runs[name] = tmp_path / f"{name}.npy"
-        subprocess.run([sys.executable, "-c", ENV_RUN, str(runs[name])], check=True, capture_output=True, text=True,
-                       cwd=Path(__file__).resolve().parent.parent, env={**os.environ, "NUMBA_DISABLE_JIT": disable})
+        subprocess.run(
+            [sys.executable, "-c", ENV_RUN, str(runs[name])],
+            check=True,
+            capture_output=True,
+            text=True,
+            cwd=Path(__file__).resolve().parent.parent,
+            env={**os.environ, "NUMBA_DISABLE_JIT": disable},
+        )
     np.testing.assert_allclose(np.load(runs["python"]), np.load(runs["compiled"]), rtol=1e-5, atol=1e-6)

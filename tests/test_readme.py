@@ -15,7 +15,7 @@ def test_the_readme_names_each_scenario_that_refuses_a_callable_mu():
     one (ValueError) is named there as an exception."""
     text = " ".join(README.read_text().split())
     start = text.index("`mu` takes a friction coefficient")
-    sentence = text[start:text.index("every builder also takes", start)]
+    sentence = text[start : text.index("every builder also takes", start)]
     refused = []
     for name in SCENARIOS:
         try:

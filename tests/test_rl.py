@@ -14,9 +14,20 @@ FAST = {"ppo": {"n_steps": 128, "batch_size": 256}, "sac": {"learning_starts": 2
 
 
 def _train(algo, out, timesteps=1024, resume=None, **env_kwargs):
-    return train(algo, out, timesteps, seed=0, env_kwargs={"estimator": "oracle", **env_kwargs}, n_envs=4,
-                 eval_every=512, eval_episodes=2, checkpoint_every=512, progress=False, algo_overrides=FAST[algo],
-                 resume=resume)
+    return train(
+        algo,
+        out,
+        timesteps,
+        seed=0,
+        env_kwargs={"estimator": "oracle", **env_kwargs},
+        n_envs=4,
+        eval_every=512,
+        eval_episodes=2,
+        checkpoint_every=512,
+        progress=False,
+        algo_overrides=FAST[algo],
+        resume=resume,
+    )
 
 
 @pytest.mark.parametrize("algo", ALGOS)
@@ -27,8 +38,7 @@ def test_train_save_reload_and_evaluate_with_identical_deterministic_actions(alg
     model_path = _train(algo, out)
     for name in ("model.zip", "vecnormalize.pkl", "config.json", "learning_curve.png", "evaluations.npz"):
         assert (out / name).exists(), name
-    assert sorted(p.name for p in (out / "checkpoints").glob("*.zip")) == ["step_000000512.zip",
-                                                                            "step_000001024.zip"]
+    assert sorted(p.name for p in (out / "checkpoints").glob("*.zip")) == ["step_000000512.zip", "step_000001024.zip"]
     controller = PolicyController(out, make_scenario("paper_sine").vehicle_params)
     env = YawStabilityEnv(scenario="paper_sine", estimator="oracle")
     obs, _ = env.reset(seed=0)
@@ -89,8 +99,9 @@ def test_asymmetric_policies_refuse_an_observation_without_the_truth_or_a_shared
     for algo in ALGOS:
         with pytest.raises(ValueError, match="privileged"):
             _algo_class(algo)(POLICIES[algo], plain, device="cpu")
-    privileged = SB3VecEnv(YawStabilityVectorEnv(num_envs=2, estimator="oracle", privileged=True,
-                                                autoreset_mode="SameStep"))
+    privileged = SB3VecEnv(
+        YawStabilityVectorEnv(num_envs=2, estimator="oracle", privileged=True, autoreset_mode="SameStep")
+    )
     with pytest.raises(ValueError, match="share_features_extractor"):
         _algo_class("sac")(POLICIES["sac"], privileged, device="cpu", policy_kwargs={"share_features_extractor": True})
 
@@ -141,8 +152,15 @@ def test_an_off_policy_resume_keeps_its_replay_buffer_and_an_earlier_checkpoint_
         _train("sac", out, 2048, resume=out / "checkpoints" / "step_000000512.zip")
     for name, value in (("seed", 1), ("n_envs", 2)):
         with pytest.raises(ValueError, match=f"trained with {name} "):
-            train("sac", tmp_path / "other", 2048, resume=out, progress=False, env_kwargs={"estimator": "oracle"},
-                  **{name: value})
+            train(
+                "sac",
+                tmp_path / "other",
+                2048,
+                resume=out,
+                progress=False,
+                env_kwargs={"estimator": "oracle"},
+                **{name: value},
+            )
     latest = tmp_path / "latest"
     _train("sac", latest, 1536, resume=out / "checkpoints" / "step_000001024.zip")
     assert SAC.load(latest / "model.zip").learning_starts == 256  # trained on the checkpoint's buffer
@@ -229,8 +247,15 @@ def test_env_kwargs_that_config_json_cannot_give_back_are_refused_before_trainin
 def test_reward_normalisation_discounts_as_the_algorithm_does(tmp_path):
     import pickle
 
-    train("ppo", tmp_path / "run", 512, env_kwargs={"estimator": "oracle"}, n_envs=4, progress=False,
-          algo_overrides={**FAST["ppo"], "gamma": 0.95})
+    train(
+        "ppo",
+        tmp_path / "run",
+        512,
+        env_kwargs={"estimator": "oracle"},
+        n_envs=4,
+        progress=False,
+        algo_overrides={**FAST["ppo"], "gamma": 0.95},
+    )
     with open(tmp_path / "run" / "vecnormalize.pkl", "rb") as handle:
         assert pickle.load(handle).gamma == 0.95
 
@@ -279,11 +304,14 @@ def test_a_missing_extra_is_named_before_the_run_writes_anything(missing, progre
 
 
 def test_sb3_adapter_reports_terminal_observations_and_time_limits():
-    env = SB3VecEnv(YawStabilityVectorEnv(num_envs=2, scenario="paper_sine", estimator="oracle", max_episode_steps=5,
-                                          autoreset_mode="SameStep"))
+    env = SB3VecEnv(
+        YawStabilityVectorEnv(
+            num_envs=2, scenario="paper_sine", estimator="oracle", max_episode_steps=5, autoreset_mode="SameStep"
+        )
+    )
     env.seed(3)
     obs = env.reset()
-    for k in range(5):
+    for _ in range(5):
         env.step_async(np.zeros((2, 2), dtype=np.float32))
         new_obs, reward, done, infos = env.step_wait()
         assert new_obs.shape == (2, 14) and reward.dtype == np.float32
@@ -297,14 +325,17 @@ def test_sb3_adapter_reports_terminal_observations_and_time_limits():
 def test_sb3_adapter_gives_each_car_the_single_envs_per_step_info():
     """As a DummyVecEnv of single envs does: action_clipped and the other per-step keys for every
     car, a finished car's from its last step."""
-    env = SB3VecEnv(YawStabilityVectorEnv(num_envs=2, scenario="paper_sine", estimator="oracle", max_episode_steps=3,
-                                          autoreset_mode="SameStep"))
+    env = SB3VecEnv(
+        YawStabilityVectorEnv(
+            num_envs=2, scenario="paper_sine", estimator="oracle", max_episode_steps=3, autoreset_mode="SameStep"
+        )
+    )
     single = YawStabilityEnv(scenario="paper_sine", estimator="oracle")
     env.seed(0)
     env.reset()
     single.reset(seed=0)
     actions = np.array([[2.0, 0.0], [0.5, 0.0]], dtype=np.float32)
-    for k in range(3):
+    for _ in range(3):
         _, _, done, infos = env.step(actions)
         *_, info = single.step(actions[0])
         assert [i["action_clipped"] for i in infos] == [True, False]
@@ -316,11 +347,13 @@ def test_sb3_adapter_gives_each_car_the_single_envs_per_step_info():
 def test_sb3_video_recorder_records_car_0_and_the_adapter_refuses_a_later_reset(tmp_path):
     from stable_baselines3.common.vec_env import VecVideoRecorder
 
-    native = YawStabilityVectorEnv(num_envs=2, scenario="paper_sine", estimator="oracle", render_mode="rgb_array",
-                                   autoreset_mode="SameStep")
+    native = YawStabilityVectorEnv(
+        num_envs=2, scenario="paper_sine", estimator="oracle", render_mode="rgb_array", autoreset_mode="SameStep"
+    )
     assert SB3VecEnv(native).get_images() == [None]  # nothing to show before a reset
-    env = VecVideoRecorder(SB3VecEnv(native), str(tmp_path), record_video_trigger=lambda step: step == 0,
-                           video_length=20)
+    env = VecVideoRecorder(
+        SB3VecEnv(native), str(tmp_path), record_video_trigger=lambda step: step == 0, video_length=20
+    )
     env.reset()
     for _ in range(25):
         env.step(np.zeros((2, 2), dtype=np.float32))
@@ -373,8 +406,9 @@ def test_an_interrupted_run_saves_its_model_and_resumes(tmp_path, monkeypatch):
 
 
 def test_sb3_adapter_takes_one_options_dict_and_acts_on_all_cars_only():
-    env = SB3VecEnv(YawStabilityVectorEnv(num_envs=2, scenario="paper_sine", estimator="oracle",
-                                          autoreset_mode="SameStep"))
+    env = SB3VecEnv(
+        YawStabilityVectorEnv(num_envs=2, scenario="paper_sine", estimator="oracle", autoreset_mode="SameStep")
+    )
     env.set_options({"reset_mask": np.array([True, True])})
     env.reset()
     env.set_options([{"reset_mask": np.array([True, False])}, {}])
@@ -396,8 +430,19 @@ def test_training_is_deterministic_for_a_seed(tmp_path):
 
     def run(name, seed):
         out = tmp_path / name
-        train("ppo", out, 1024, seed=seed, env_kwargs={"estimator": "oracle"}, n_envs=4, eval_every=512,
-              eval_episodes=2, checkpoint_every=512, progress=False, algo_overrides=FAST["ppo"])
+        train(
+            "ppo",
+            out,
+            1024,
+            seed=seed,
+            env_kwargs={"estimator": "oracle"},
+            n_envs=4,
+            eval_every=512,
+            eval_episodes=2,
+            checkpoint_every=512,
+            progress=False,
+            algo_overrides=FAST["ppo"],
+        )
         weights = {k: v.numpy() for k, v in PPO.load(out / "model.zip", device="cpu").policy.state_dict().items()}
         normaliser = pickle.loads((out / "vecnormalize.pkl").read_bytes())
         return out, weights, normaliser

@@ -5,19 +5,35 @@ import math
 import numpy as np
 import pytest
 
-from fourwis.envs.simulation import simulate
-from fourwis.envs.driver import SWD_DWELL, SWD_FREQUENCY, Constant, DriverBatch, Ramp, Sine, SineWithDwell, SpeedHold, Step
+from fourwis.core.constants import GRAVITY
+from fourwis.envs.driver import (
+    SWD_DWELL,
+    SWD_FREQUENCY,
+    Constant,
+    DriverBatch,
+    Ramp,
+    Sine,
+    SineWithDwell,
+    SpeedHold,
+    Step,
+)
 from fourwis.envs.road import patch
 from fourwis.envs.scenarios import PAPER_SCENARIOS, SCENARIOS, make_scenario
+from fourwis.envs.simulation import simulate
 from fourwis.envs.vehicle import S_DELTA_R, S_U, VehicleParams
-from fourwis.core.constants import GRAVITY
 
 STATE = np.zeros(26)
 
 
-@pytest.mark.parametrize("name, speed_kph, mu", [
-    ("paper_dlc", 35.0, 0.5), ("paper_step", 40.0, 0.3), ("paper_sine", 40.0, 0.8), ("paper_serpentine", 40.0, 0.5),
-])
+@pytest.mark.parametrize(
+    "name, speed_kph, mu",
+    [
+        ("paper_dlc", 35.0, 0.5),
+        ("paper_step", 40.0, 0.3),
+        ("paper_sine", 40.0, 0.8),
+        ("paper_serpentine", 40.0, 0.5),
+    ],
+)
 def test_paper_scenarios_have_the_papers_speed_and_friction(name, speed_kph, mu):
     scenario = SCENARIOS[name]
     assert scenario.speed_kph == speed_kph
@@ -72,9 +88,17 @@ def test_a_driver_batch_gives_each_vehicle_its_own_drivers_output():
     each vehicle at its own time and state, before and after members are replaced, for all
     vehicles and for a subset."""
     rng = np.random.default_rng(3)
-    drivers = [Step(0.5, 1.0), SineWithDwell(-1.2, 0.5), Sine(0.3, 0.7, start=0.2), Step(-0.2, 0.3, rise_time=0.5),
-               make_scenario("random", seed=4).steering, make_scenario("paper_dlc").steering,
-               lambda t, state: 0.1 * t + state[S_U], Ramp(0.2, limit=0.3), Constant(0.4, start=2.0)]
+    drivers = [
+        Step(0.5, 1.0),
+        SineWithDwell(-1.2, 0.5),
+        Sine(0.3, 0.7, start=0.2),
+        Step(-0.2, 0.3, rise_time=0.5),
+        make_scenario("random", seed=4).steering,
+        make_scenario("paper_dlc").steering,
+        lambda t, state: 0.1 * t + state[S_U],
+        Ramp(0.2, limit=0.3),
+        Constant(0.4, start=2.0),
+    ]
     batch = DriverBatch(drivers)
     t, states = rng.uniform(0.0, 4.0, len(drivers)), rng.normal(0.0, 3.0, (len(drivers), 26))
     states[:, S_U] += 15.0
@@ -98,36 +122,39 @@ def test_speed_hold_feeds_forward_the_resistance_and_coasts():
     assert hold(np.array([0.0, 0.0]), states)[0] == p.motor_peak_torque
 
 
-@pytest.mark.parametrize("name, kwargs, bad", [
-    ("no_such_scenario", {}, "no_such_scenario"),
-    ("paper_dlc", {"speed_kph": -10.0}, "-10.0"),
-    ("paper_dlc", {"mu": 0.0}, "0.0"),
-    ("paper_step", {"mu": 2.5}, "2.5"),
-    ("paper_sine", {"duration": float("nan")}, "nan"),
-    ("paper_sine", {"colour": "red"}, "colour"),
-    ("sine_with_dwell", {"direction": 2}, "direction must be .*, got 2"),
-    ("sine_with_dwell", {"start": -1.0}, "start"),
-    ("paper_step", {"angle": float("nan")}, "angle"),
-    ("slowly_increasing_steer", {"direction": 0}, "direction"),
-    ("mu_jump", {"mu_patch": 0.0}, "mu_patch"),
-    ("random", {"speed_range_kph": (50.0, 40.0)}, "speed_range_kph"),
-    ("random", {"lateral_demand": 0.3}, "lateral_demand"),
-    ("random", {"lateral_demand": (0.0, 1.0)}, "lateral_demand"),
-    ("random", {"course_share": 1.5}, "course_share"),
-    ("random", {"speed_range_kph": (30.0, 400.0)}, "speed_range_kph"),  # the draw would exceed 300 km/h
-    ("paper_serpentine", {"n_cones": 2.5}, "n_cones"),
-    ("paper_serpentine", {"n_cones": "8"}, "n_cones"),
-    ("mu_jump", {"speed_kph": 2.0}, "short of the patch"),  # 1.4 m in 6 s
-    ("mu_jump", {"speed_kph": 30.0}, "short of the patch"),  # circles 17.7 m across at 0.4 g
-    ("mu_jump", {"duration": 1.2}, "short of the patch"),
-    ("mu_jump", {"patch_x": 0.5}, "start on the patch"),  # under the front wheels at the start
-    # a manoeuvre that starts at or after the end (it had given a run without steering)
-    ("paper_step", {"step_time": 20}, r"step_time = 20\.0 s .*duration = 10\.0 s"),
-    ("paper_step", {"step_time": 3.0, "duration": 3.0}, r"step_time = 3\.0 s .*duration = 3\.0 s"),
-    ("sine_with_dwell", {"start": 6}, r"start = 6\.0 s .*duration = 5\.0 s"),
-    ("random", {"seed": -1}, r"seed must be an integer >= 0 \(or a numpy SeedSequence or Generator\), got -1"),
-    ("random", {"seed": 1.5}, r"seed must be an integer >= 0 .*, got 1.5"),
-])
+@pytest.mark.parametrize(
+    "name, kwargs, bad",
+    [
+        ("no_such_scenario", {}, "no_such_scenario"),
+        ("paper_dlc", {"speed_kph": -10.0}, "-10.0"),
+        ("paper_dlc", {"mu": 0.0}, "0.0"),
+        ("paper_step", {"mu": 2.5}, "2.5"),
+        ("paper_sine", {"duration": float("nan")}, "nan"),
+        ("paper_sine", {"colour": "red"}, "colour"),
+        ("sine_with_dwell", {"direction": 2}, "direction must be .*, got 2"),
+        ("sine_with_dwell", {"start": -1.0}, "start"),
+        ("paper_step", {"angle": float("nan")}, "angle"),
+        ("slowly_increasing_steer", {"direction": 0}, "direction"),
+        ("mu_jump", {"mu_patch": 0.0}, "mu_patch"),
+        ("random", {"speed_range_kph": (50.0, 40.0)}, "speed_range_kph"),
+        ("random", {"lateral_demand": 0.3}, "lateral_demand"),
+        ("random", {"lateral_demand": (0.0, 1.0)}, "lateral_demand"),
+        ("random", {"course_share": 1.5}, "course_share"),
+        ("random", {"speed_range_kph": (30.0, 400.0)}, "speed_range_kph"),  # the draw would exceed 300 km/h
+        ("paper_serpentine", {"n_cones": 2.5}, "n_cones"),
+        ("paper_serpentine", {"n_cones": "8"}, "n_cones"),
+        ("mu_jump", {"speed_kph": 2.0}, "short of the patch"),  # 1.4 m in 6 s
+        ("mu_jump", {"speed_kph": 30.0}, "short of the patch"),  # circles 17.7 m across at 0.4 g
+        ("mu_jump", {"duration": 1.2}, "short of the patch"),
+        ("mu_jump", {"patch_x": 0.5}, "start on the patch"),  # under the front wheels at the start
+        # a manoeuvre that starts at or after the end (it had given a run without steering)
+        ("paper_step", {"step_time": 20}, r"step_time = 20\.0 s .*duration = 10\.0 s"),
+        ("paper_step", {"step_time": 3.0, "duration": 3.0}, r"step_time = 3\.0 s .*duration = 3\.0 s"),
+        ("sine_with_dwell", {"start": 6}, r"start = 6\.0 s .*duration = 5\.0 s"),
+        ("random", {"seed": -1}, r"seed must be an integer >= 0 \(or a numpy SeedSequence or Generator\), got -1"),
+        ("random", {"seed": 1.5}, r"seed must be an integer >= 0 .*, got 1.5"),
+    ],
+)
 def test_bad_scenario_arguments_raise_value_error_naming_the_value(name, kwargs, bad):
     with pytest.raises(ValueError, match=bad):
         make_scenario(name, **kwargs)
@@ -148,15 +175,18 @@ def test_bad_simulation_arguments_are_named():
 
     scenario = make_scenario("paper_step", duration=0.1)
     params = scenario.vehicle_params
-    for kwargs, named in (({"dt": 0.05}, r"dt must be a step in \(0, 0.01\] s .*, got 0.05"),
-                          ({"dt": "0.002"}, "dt must be .*, got '0.002'"),
-                          ({"dt": 0.001}, "the sensors sample every 0.002 s, the simulation steps at dt = 0.001 s"),
-                          ({"controller": StabilityController(params, dt=0.004)}, "the controller steps at dt = 0.004"),
-                          ({"seed": -1}, "seed must be an integer >= 0, got -1"), ({"seed": None}, "got None"),
-                          ({"faults": None}, "faults must be a sequence of envs.sensors.Fault"),
-                          ({"faults": Fault("yaw_rate", "stuck")}, "faults must be a sequence"),
-                          ({"sensor_params": "x"}, "sensor_params must be an envs.sensors.SensorParams"),
-                          ({"scenario": None}, "scenarios must be a Scenario")):
+    for kwargs, named in (
+        ({"dt": 0.05}, r"dt must be a step in \(0, 0.01\] s .*, got 0.05"),
+        ({"dt": "0.002"}, "dt must be .*, got '0.002'"),
+        ({"dt": 0.001}, "the sensors sample every 0.002 s, the simulation steps at dt = 0.001 s"),
+        ({"controller": StabilityController(params, dt=0.004)}, "the controller steps at dt = 0.004"),
+        ({"seed": -1}, "seed must be an integer >= 0, got -1"),
+        ({"seed": None}, "got None"),
+        ({"faults": None}, "faults must be a sequence of envs.sensors.Fault"),
+        ({"faults": Fault("yaw_rate", "stuck")}, "faults must be a sequence"),
+        ({"sensor_params": "x"}, "sensor_params must be an envs.sensors.SensorParams"),
+        ({"scenario": None}, "scenarios must be a Scenario"),
+    ):
         with pytest.raises(ValueError, match=named):
             simulate(**({"scenario": scenario} | kwargs))
     with pytest.raises(ValueError, match=r"friction map returned shape \(7,\) for positions of shape \(4,\)"):
@@ -289,7 +319,7 @@ def test_iso3888_2_enters_the_course_at_the_test_speed_and_coasts_from_there():
     from fourwis.envs.vehicle import C_TORQUE, S_U, S_X
 
     run = simulate(make_scenario("iso3888_2", speed_kph=60.0, duration=2.5))
-    x, torque = run.state[:, S_X], run.controls[:, C_TORQUE:C_TORQUE + 4]
+    x, torque = run.state[:, S_X], run.controls[:, C_TORQUE : C_TORQUE + 4]
     entry = np.argmax(x >= 0.0)
     assert run.state[entry, S_U] * 3.6 == pytest.approx(60.0, abs=0.02)
     assert np.all(torque[(x > -10.0) & (x < -0.1)] > 0.0)  # holding speed against the resistances
@@ -300,7 +330,7 @@ def test_driver_settles_on_a_circle_at_the_neutral_steer_angle():
     from dataclasses import replace
 
     from fourwis.envs.driver import PathFollower
-    from fourwis.envs.vehicle import VehicleParams, S_X, S_Y
+    from fourwis.envs.vehicle import S_X, S_Y, VehicleParams
 
     params, radius, speed, offset = VehicleParams(), 40.0, 8.0, 0.3
     angle = np.linspace(0.0, 1.5 * math.pi, 600)
@@ -316,11 +346,16 @@ def test_driver_settles_on_a_circle_at_the_neutral_steer_angle():
     assert np.mean(road_wheel) == pytest.approx(params.wheelbase / radius, rel=0.02)
 
 
-@pytest.mark.parametrize("kwargs, match", [({"path": np.zeros((3, 2))}, "repeated"),
-                                           ({"path": np.ones((1, 2))}, "shape"),
-                                           ({"preview_time": 0.0}, "preview_time"),
-                                           ({"preview_time": math.inf}, "preview_time .*, got inf"),
-                                           ({"points": 0.5}, "points must be a whole number, got 0.5")])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"path": np.zeros((3, 2))}, "repeated"),
+        ({"path": np.ones((1, 2))}, "shape"),
+        ({"preview_time": 0.0}, "preview_time"),
+        ({"preview_time": math.inf}, "preview_time .*, got inf"),
+        ({"points": 0.5}, "points must be a whole number, got 0.5"),
+    ],
+)
 def test_path_follower_rejects_bad_arguments(kwargs, match):
     from fourwis.envs.driver import PathFollower
 
@@ -336,14 +371,22 @@ def test_path_follower_scan_steers_as_the_whole_path_seen_from_the_car():
     from fourwis.envs.driver import PathFollower, _preview_responses
     from fourwis.envs.vehicle import NX, S_PSI, S_R, S_U, S_V, S_X, S_Y
 
-    follower, rng = PathFollower(lane_change(2.0, scale=1.4, offset=2.5, direction=-1).centreline), np.random.default_rng(5)
+    follower, rng = (
+        PathFollower(lane_change(2.0, scale=1.4, offset=2.5, direction=-1).centreline),
+        np.random.default_rng(5),
+    )
     path, p = follower.path, follower.params
     steers, kinds = [], set()
     for _ in range(600):
         state = np.zeros(NX)
-        state[[S_U, S_X, S_Y, S_PSI, S_V, S_R]] = (rng.uniform(-5.0, 40.0), rng.uniform(-30.0, 200.0),
-                                                    rng.normal(0.0, 3.0), rng.choice([rng.normal(0.0, 0.3), rng.uniform(-4.0, 4.0)]),
-                                                    rng.normal(0.0, 1.0), rng.normal(0.0, 0.3))
+        state[[S_U, S_X, S_Y, S_PSI, S_V, S_R]] = (
+            rng.uniform(-5.0, 40.0),
+            rng.uniform(-30.0, 200.0),
+            rng.normal(0.0, 3.0),
+            rng.choice([rng.normal(0.0, 0.3), rng.uniform(-4.0, 4.0)]),
+            rng.normal(0.0, 1.0),
+            rng.normal(0.0, 0.3),
+        )
         speed = max(abs(state[S_U]), 1.0)
         free, step = _preview_responses(p, round(speed, 1), follower.preview_time, follower.points)
         c, s = math.cos(state[S_PSI]), math.sin(state[S_PSI])
@@ -354,8 +397,9 @@ def test_path_follower_scan_steers_as_the_whole_path_seen_from_the_car():
         stop = first + int(np.argmax(ahead[first:] > horizon)) + 1
         start = max(first - 1, 0)
         if ahead[first] > 0.0 and np.all(np.diff(ahead[start:stop]) > 0):
-            target = np.interp(horizon * np.arange(1, follower.points + 1) / follower.points, ahead[start:stop],
-                               left[start:stop])
+            target = np.interp(
+                horizon * np.arange(1, follower.points + 1) / follower.points, ahead[start:stop], left[start:stop]
+            )
             kinds.add("before the course" if state[S_X] < path[0, 0] else "on or past it")
         else:
             target = np.full(follower.points, left[np.argmin(dx * dx + dy * dy)])
@@ -397,16 +441,22 @@ def test_steering_past_the_lock_steers_as_the_lock():
     np.testing.assert_array_equal(at_lock.controls, past.controls)
 
 
-@pytest.mark.parametrize("build, bad", [
-    (lambda: VehicleParams(rear_steer_feedforward="no"), "rear_steer_feedforward must be True or False, got 'no'"),
-    (lambda: VehicleParams(tyre=None), "tyre must be an envs.tyre.TyreParams, got None"),
-    (lambda: VehicleParams(max_front_steer=3.0), r"max_front_steer must be below pi/2 rad \(90 deg\), got 3.0"),
-    (lambda: make_scenario(["paper_step"]), r"unknown scenario \['paper_step'\]"),
-    (lambda: make_scenario("paper_step", duration=1e9), "'paper_step': duration must lie in .*, got 1000000000.0"),
-    (lambda: make_scenario("slowly_increasing_steer", speed_kph=5.0), r"duration must lie in \(0, 600\] s, got 6.*5.0 km/h, falls"),
-    (lambda: patch(0.9, 0.3, "a", 5.0), "Patch.x0 must be a number .*, got 'a'"),
-    (lambda: simulate("paper_step", progress="no"), "progress must be True or False, got 'no'"),
-])
+@pytest.mark.parametrize(
+    "build, bad",
+    [
+        (lambda: VehicleParams(rear_steer_feedforward="no"), "rear_steer_feedforward must be True or False, got 'no'"),
+        (lambda: VehicleParams(tyre=None), "tyre must be an envs.tyre.TyreParams, got None"),
+        (lambda: VehicleParams(max_front_steer=3.0), r"max_front_steer must be below pi/2 rad \(90 deg\), got 3.0"),
+        (lambda: make_scenario(["paper_step"]), r"unknown scenario \['paper_step'\]"),
+        (lambda: make_scenario("paper_step", duration=1e9), "'paper_step': duration must lie in .*, got 1000000000.0"),
+        (
+            lambda: make_scenario("slowly_increasing_steer", speed_kph=5.0),
+            r"duration must lie in \(0, 600\] s, got 6.*5.0 km/h, falls",
+        ),
+        (lambda: patch(0.9, 0.3, "a", 5.0), "Patch.x0 must be a number .*, got 'a'"),
+        (lambda: simulate("paper_step", progress="no"), "progress must be True or False, got 'no'"),
+    ],
+)
 def test_bad_parameters_scenarios_and_switches_are_named(build, bad):
     with pytest.raises(ValueError, match=bad):
         build()

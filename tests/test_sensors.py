@@ -11,7 +11,6 @@ from fourwis.envs.sensors import Fault, SensorModel, SensorParams
 from fourwis.envs.simulation import DT
 
 
-
 def run(faults=(), seed=0, n=2000, batch=2, params=SensorParams()):
     model = SensorModel(params, tuple(faults), batch, np.random.default_rng(seed))
     truth = np.tile(np.linspace(1.0, 13.0, len(CHANNELS)), (batch, 1))
@@ -74,10 +73,12 @@ def test_perfect_sensors_read_the_truth():
 
 
 def test_faults_appear_exactly_where_configured():
-    faults = (Fault("yaw_rate", "spike", start=1.0, end=2.0, magnitude=1.0, rate=50.0),
-              Fault("ay", "dropout", start=0.5, end=0.8),
-              Fault("omega_fl", "stuck", start=3.0),
-              Fault("ax", "bias_step", start=2.0, end=2.5, magnitude=0.7))
+    faults = (
+        Fault("yaw_rate", "spike", start=1.0, end=2.0, magnitude=1.0, rate=50.0),
+        Fault("ay", "dropout", start=0.5, end=0.8),
+        Fault("omega_fl", "stuck", start=3.0),
+        Fault("ax", "bias_step", start=2.0, end=2.5, magnitude=0.7),
+    )
     values, valid, truth, _ = run(faults, params=SensorParams().scaled(0.0), n=2000)
     t = np.arange(2000) * DT
     r = values[:, :, CHANNELS.index("yaw_rate")] - truth[0, CHANNELS.index("yaw_rate")]
@@ -118,8 +119,7 @@ def test_a_dropout_holds_the_last_valid_reading_and_ends_with_a_fresh_one():
 
 
 def test_stuck_sensor_freezes_while_the_truth_moves():
-    model = SensorModel(SensorParams(), (Fault("omega_fl", "stuck", start=0.1, end=0.2),), 1,
-                        np.random.default_rng(0))
+    model = SensorModel(SensorParams(), (Fault("omega_fl", "stuck", start=0.1, end=0.2),), 1, np.random.default_rng(0))
     i = CHANNELS.index("omega_fl")
     out = []
     for k in range(150):
@@ -132,12 +132,15 @@ def test_stuck_sensor_freezes_while_the_truth_moves():
     assert abs(out[120] - 120.0) < 1.0
 
 
-@pytest.mark.parametrize("kwargs, bad", [
-    ({"channel": "speedometer", "kind": "spike"}, "speedometer"),
-    ({"channel": "ax", "kind": "melt"}, "melt"),
-    ({"channel": "ax", "kind": "bias_step", "start": 2.0, "end": 1.0}, "1.0"),
-    ({"channel": "ax", "kind": "spike", "rate": 0.0, "magnitude": 1.0}, "rate"),
-])
+@pytest.mark.parametrize(
+    "kwargs, bad",
+    [
+        ({"channel": "speedometer", "kind": "spike"}, "speedometer"),
+        ({"channel": "ax", "kind": "melt"}, "melt"),
+        ({"channel": "ax", "kind": "bias_step", "start": 2.0, "end": 1.0}, "1.0"),
+        ({"channel": "ax", "kind": "spike", "rate": 0.0, "magnitude": 1.0}, "rate"),
+    ],
+)
 def test_bad_faults_raise(kwargs, bad):
     with pytest.raises(ValueError, match=bad):
         Fault(**kwargs)

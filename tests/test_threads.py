@@ -36,7 +36,7 @@ def test_parallel_plant_and_estimator_on_two_threads_equal_the_serial_kernels(tw
     roads = [uniform(m) for m in rng.uniform(0.3, 1.0, n)]
     batch = step(state, controls, P, roads, 0.002, 100)
     for b in (0, 17, 63):
-        single = step(state[b:b + 1], controls[b:b + 1], P, roads[b], 0.002, 100)
+        single = step(state[b : b + 1], controls[b : b + 1], P, roads[b], 0.002, 100)
         np.testing.assert_array_equal(batch.state[b], single.state[0])
 
     # the joint estimator on 8 cars (parallel kernel) against each car alone (serial kernel)
@@ -50,7 +50,7 @@ def test_parallel_plant_and_estimator_on_two_threads_equal_the_serial_kernels(tw
     batched.reset(readings[0], x[:, 3])
     singles = [make_estimator("joint", P) for _ in cars]
     for i, est in enumerate(singles):
-        est.reset(_row(readings[0], i), x[i:i + 1, 3])
+        est.reset(_row(readings[0], i), x[i : i + 1, 3])
     for reading in readings:
         together = batched.step(reading)
         for i, est in enumerate(singles):
@@ -60,7 +60,7 @@ def test_parallel_plant_and_estimator_on_two_threads_equal_the_serial_kernels(tw
 
 
 def _row(reading, i):
-    return type(reading)(*(np.ascontiguousarray(f[i:i + 1]) for f in reading))
+    return type(reading)(*(np.ascontiguousarray(f[i : i + 1]) for f in reading))
 
 
 def test_compiled_closed_loop_on_two_threads_equals_one_thread(two_threads):

@@ -5,11 +5,36 @@ import math
 import numpy as np
 import pytest
 
+from fourwis.core.constants import GRAVITY
 from fourwis.envs.road import RoadTables, split, uniform
 from fourwis.envs.simulation import DT
 from fourwis.envs.tyre import TyreParams, tyre_forces
-from fourwis.envs.vehicle import A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NU, NX, S_AX, S_AY, S_DELTA_F, S_DELTA_R, S_OMEGA, S_PSI, S_R, S_TORQUE, S_U, S_V, S_Y, VehicleParams, derivatives, initial_state, step
-from fourwis.core.constants import GRAVITY
+from fourwis.envs.vehicle import (
+    A_AX,
+    A_AY,
+    A_FZ,
+    A_MU,
+    C_DELTA_F,
+    C_DELTA_R,
+    C_TORQUE,
+    NU,
+    NX,
+    S_AX,
+    S_AY,
+    S_DELTA_F,
+    S_DELTA_R,
+    S_OMEGA,
+    S_PSI,
+    S_R,
+    S_TORQUE,
+    S_U,
+    S_V,
+    S_Y,
+    VehicleParams,
+    derivatives,
+    initial_state,
+    step,
+)
 
 P = VehicleParams()
 
@@ -29,9 +54,9 @@ def run(state, steer, seconds, road=1.0, target=None, dt=DT, torque=None, params
     for k in range(n):
         controls[:, C_DELTA_F] = steer(k * dt)
         if torque is not None:
-            controls[:, C_TORQUE:C_TORQUE + 4] = torque
+            controls[:, C_TORQUE : C_TORQUE + 4] = torque
         elif target is not None:
-            controls[:, C_TORQUE:C_TORQUE + 4] = speed_hold(state, target, params=params)
+            controls[:, C_TORQUE : C_TORQUE + 4] = speed_hold(state, target, params=params)
         state, aux = step(state, controls, params, tables, dt)
         states.append(state)
         auxs.append(aux)
@@ -58,17 +83,17 @@ def test_a_walking_pace_full_lock_turn_has_the_geometrys_sideslip_and_is_no_spin
     controls[:, C_DELTA_F], controls[:, C_DELTA_R] = P.max_front_steer, P.max_rear_steer
     betas, kinematic, rolling = [], [], []
     for _ in range(int(round(6.0 / DT))):
-        controls[:, C_TORQUE:C_TORQUE + 4] = speed_hold(state, 2.0)
+        controls[:, C_TORQUE : C_TORQUE + 4] = speed_hold(state, 2.0)
         state, _ = step(state, controls, P, tables, DT)
         betas.append(math.atan2(state[0, S_V], state[0, S_U]))
         kinematic.append(kinematic_sideslip(state[0, S_DELTA_F], state[0, S_DELTA_R], P.cg_to_front, P.cg_to_rear))
-        rolling.append(rolling_sideslip(state[0, S_U], state[0, S_DELTA_F], state[0, S_DELTA_R], P.cg_to_front,
-                                        P.cg_to_rear))
+        rolling.append(
+            rolling_sideslip(state[0, S_U], state[0, S_DELTA_F], state[0, S_DELTA_R], P.cg_to_front, P.cg_to_rear)
+        )
     assert math.degrees(kinematic[-1]) == pytest.approx(21.1, abs=0.1)
     assert betas[-1] == pytest.approx(kinematic[-1], abs=math.radians(1.5))
     threshold = math.radians(15.0)
-    assert spin_out(betas, threshold_beta=threshold) and not spin_out(betas, threshold_beta=threshold,
-                                                                      rolling=rolling)
+    assert spin_out(betas, threshold_beta=threshold) and not spin_out(betas, threshold_beta=threshold, rolling=rolling)
 
 
 def test_steady_state_yaw_gain_matches_linear_bicycle_model():
@@ -117,7 +142,7 @@ def test_wheel_loads_in_a_steady_turn_sum_to_the_weight_and_follow_the_load_tran
     speed = 15.0
     params = P.replace(cg_to_front=cg_to_front, cg_to_rear=P.wheelbase - cg_to_front)
     _, states, aux = run(initial_state(params, speed), lambda t: 0.03, 6.0, target=speed, params=params)
-    fz = aux[:, 0, A_FZ:A_FZ + 4]
+    fz = aux[:, 0, A_FZ : A_FZ + 4]
     np.testing.assert_allclose(fz.sum(axis=1), P.mass * GRAVITY, rtol=1e-12)
     m, a, b, h, L = P.mass, params.cg_to_front, params.cg_to_rear, P.cg_height, P.wheelbase
     ax, ay = aux[-1, 0, A_AX], aux[-1, 0, A_AY]
@@ -132,13 +157,16 @@ def test_wheel_loads_in_a_steady_turn_sum_to_the_weight_and_follow_the_load_tran
     ax_lag, ay_lag = states[-1, 0, S_AX], states[-1, 0, S_AY]
     front, rear = m * GRAVITY * b / L - m * ax_lag * h / L, m * GRAVITY * a / L + m * ax_lag * h / L
     shift_f, shift_r = m * ay_lag * h * (b / L) / P.track_front, m * ay_lag * h * (a / L) / P.track_rear
-    np.testing.assert_allclose(fz[-1], [front / 2 - shift_f, front / 2 + shift_f, rear / 2 - shift_r,
-                                        rear / 2 + shift_r], rtol=1e-12)
+    np.testing.assert_allclose(
+        fz[-1], [front / 2 - shift_f, front / 2 + shift_f, rear / 2 - shift_r, rear / 2 + shift_r], rtol=1e-12
+    )
 
 
-@pytest.mark.parametrize("control, angle, limit, command", [(C_DELTA_F, S_DELTA_F, "front_steer_rate", 0.3),
-                                                            (C_DELTA_R, S_DELTA_R, "rear_steer_rate", 0.05)],
-                         ids=["front", "rear"])
+@pytest.mark.parametrize(
+    "control, angle, limit, command",
+    [(C_DELTA_F, S_DELTA_F, "front_steer_rate", 0.3), (C_DELTA_R, S_DELTA_R, "rear_steer_rate", 0.05)],
+    ids=["front", "rear"],
+)
 def test_a_step_steer_command_is_rate_limited_and_reached(control, angle, limit, command):
     """Steps of the road-wheel command 0 -> +command (0.1 s) -> -command (0.6 s): the servo
     (time constant 10 ms, so up to command / 0.01 s = 5-30 rad/s unlimited) runs at its rate
@@ -175,7 +203,9 @@ def mirror(x: np.ndarray) -> np.ndarray:
 
 
 def test_mirrored_steering_gives_mirrored_response():
-    steer = lambda t: 0.08 * math.sin(2.0 * math.pi * 0.7 * t)
+    def steer(t):
+        return 0.08 * math.sin(2.0 * math.pi * 0.7 * t)
+
     _, left, _ = run(initial_state(P, 20.0), steer, 3.0, target=20.0)
     _, right, _ = run(initial_state(P, 20.0), lambda t: -steer(t), 3.0, target=20.0)
     np.testing.assert_allclose(mirror(right), left, rtol=1e-9, atol=1e-12)
@@ -196,7 +226,9 @@ def test_split_mu_yaws_towards_high_mu_when_braking_and_away_when_driving():
 
 
 def test_halving_the_step_changes_a_transient_by_less_than_one_percent():
-    steer = lambda t: 0.06 if t >= 0.5 else 0.0
+    def steer(t):
+        return 0.06 if t >= 0.5 else 0.0
+
     _, coarse, _ = run(initial_state(P, 20.0), steer, 5.0, road=0.6, torque=60.0, dt=DT)
     _, fine, _ = run(initial_state(P, 20.0), steer, 5.0, road=0.6, torque=60.0, dt=DT / 2)
     fine = fine[1::2]
@@ -214,9 +246,9 @@ def test_rk4_converges_at_fourth_order_for_constant_inputs():
 
     state = initial_state(P, 20.0)
     state[0, S_DELTA_F] = 0.05
-    state[0, S_TORQUE:S_TORQUE + 4] = 60.0
+    state[0, S_TORQUE : S_TORQUE + 4] = 60.0
     controls = np.zeros((1, NU))
-    controls[0, C_TORQUE:C_TORQUE + 4], controls[0, C_DELTA_F] = 60.0, 0.05
+    controls[0, C_TORQUE : C_TORQUE + 4], controls[0, C_DELTA_F] = 60.0, 0.05
 
     def end(dt):
         return step(state, controls, P, uniform(0.6), dt, int(round(0.4 / dt))).state[0]
@@ -238,7 +270,7 @@ def test_batch_equals_single_runs(n):
     roads = [uniform(m) for m in rng.uniform(0.2, 1.0, n)]
     batch = step(state, controls, P, roads, DT, 200)
     for b in range(0, n, max(1, n // 10)):
-        single = step(state[b:b + 1], controls[b:b + 1], P, roads[b], DT, 200)
+        single = step(state[b : b + 1], controls[b : b + 1], P, roads[b], DT, 200)
         np.testing.assert_allclose(batch.state[b], single.state[0], rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(batch.aux[b], single.aux[0], rtol=1e-12, atol=1e-12)
 
@@ -261,7 +293,9 @@ def test_linearised_plant_is_inside_rk4_stability_region(speed):
         xp, xm = x0.copy(), x0.copy()
         xp[j] += h
         xm[j] -= h
-        jac[:, j] = (derivatives(xp[None], u0[None], mu, P)[0][0] - derivatives(xm[None], u0[None], mu, P)[0][0]) / (2 * h)
+        jac[:, j] = (derivatives(xp[None], u0[None], mu, P)[0][0] - derivatives(xm[None], u0[None], mu, P)[0][0]) / (
+            2 * h
+        )
     eig = np.linalg.eigvals(jac)
     assert rk4_amplification(eig * DT).max() <= 1.0 + 1e-9
 
@@ -274,9 +308,9 @@ def test_full_torque_and_full_steer_stay_finite_and_bounded(speed, sign):
     assert np.all(np.isfinite(states)) and np.all(np.isfinite(aux))
     # wheel speeds bounded by the motors' power limit against tyre drag; the body cannot gain
     # speed faster than friction allows (mu = 1 road, small margin for the tyres' peak > mu)
-    assert np.abs(states[:, 0, S_OMEGA:S_OMEGA + 4]).max() * P.wheel_radius < 80.0
+    assert np.abs(states[:, 0, S_OMEGA : S_OMEGA + 4]).max() * P.wheel_radius < 80.0
     assert np.hypot(states[:, 0, S_U], states[:, 0, S_V]).max() < speed + 1.1 * GRAVITY * 4.0
-    assert np.all(aux[:, 0, A_FZ:A_FZ + 4] >= 1.0)
+    assert np.all(aux[:, 0, A_FZ : A_FZ + 4] >= 1.0)
 
 
 def test_motor_lag_and_torque_limit():
@@ -362,8 +396,10 @@ def test_bad_input_raises_value_error_naming_the_value():
         VehicleParams(mass=-830.0)
     with pytest.raises(ValueError, match="dt must be .*, got nan"):
         step(state, controls, P, uniform(1.0), dt=float("nan"))
-    with pytest.raises(ValueError,  # RK4 goes unstable
-                       match=r"dt must be a step in \(0, 0.01\] s \(the plant's largest RK4 step\), got 0.05"):
+    with pytest.raises(
+        ValueError,  # RK4 goes unstable
+        match=r"dt must be a step in \(0, 0.01\] s \(the plant's largest RK4 step\), got 0.05",
+    ):
         step(state, controls, P, uniform(1.0), dt=0.05)
     with pytest.raises(ValueError, match="n_steps must be a positive integer, got True"):
         step(state, controls, P, uniform(1.0), n_steps=True)
@@ -445,7 +481,7 @@ def test_step_refuses_a_step_too_long_for_a_first_order_lag():
     the lag. At 2 ms the same car steps, and its motor torque approaches the command monotonically."""
     fast = P.replace(motor_time_constant=0.003)
     controls = np.zeros((1, NU))
-    controls[0, C_TORQUE:C_TORQUE + 4] = 50.0
+    controls[0, C_TORQUE : C_TORQUE + 4] = 50.0
     with pytest.raises(ValueError, match=r"dt = 0.01 s is too long for VehicleParams.motor_time_constant = 0.003"):
         step(initial_state(fast, 20.0), controls, fast, uniform(1.0), 0.01)
     with pytest.raises(ValueError, match="load_transfer_time_constant"):
@@ -463,7 +499,7 @@ def test_an_inner_wheel_lifts_at_1_n_and_its_axle_keeps_its_load():
     (before, the clipped load was counted twice and the loads summed to 1.35 m g)."""
     speed = 25.0
     _, states, aux = run(initial_state(P, speed), lambda t: 0.01 * t, 12.0, road=2.0, target=speed)
-    fz = aux[:, 0, A_FZ:A_FZ + 4]
+    fz = aux[:, 0, A_FZ : A_FZ + 4]
     assert fz.min() == 1.0  # a wheel lifted
     np.testing.assert_allclose(fz.sum(axis=1), P.mass * GRAVITY, rtol=1e-12)
     assert np.abs(aux[:, 0, A_AY]).max() <= 1.05 * 2.0 * GRAVITY

@@ -27,8 +27,10 @@ class AgentObservation(BaseFeaturesExtractor):
 
     def __init__(self, observation_space: spaces.Box):
         if observation_space.shape != (2 * N_OBS,):
-            raise ValueError(f"an asymmetric policy needs the privileged observation of shape ({2 * N_OBS},) "
-                             f"(env_kwargs privileged=True), got {observation_space.shape}")
+            raise ValueError(
+                f"an asymmetric policy needs the privileged observation of shape ({2 * N_OBS},) "
+                f"(env_kwargs privileged=True), got {observation_space.shape}"
+            )
         super().__init__(observation_space, N_OBS)
 
     def forward(self, observations: th.Tensor) -> th.Tensor:
@@ -42,8 +44,10 @@ class AsymmetricMlpExtractor(nn.Module):
     def __init__(self, feature_dim: int, net_arch, activation_fn: type[nn.Module], device: th.device | str):
         super().__init__()
         if feature_dim != 2 * N_OBS:
-            raise ValueError(f"an asymmetric policy needs the privileged observation of {2 * N_OBS} features "
-                             f"(env_kwargs privileged=True), got {feature_dim}")
+            raise ValueError(
+                f"an asymmetric policy needs the privileged observation of {2 * N_OBS} features "
+                f"(env_kwargs privileged=True), got {feature_dim}"
+            )
         actor = MlpExtractor(N_OBS, net_arch, activation_fn, device)
         critic = MlpExtractor(feature_dim, net_arch, activation_fn, device)
         self.policy_net, self.value_net = actor.policy_net, critic.value_net
@@ -63,8 +67,7 @@ class AsymmetricActorCriticPolicy(ActorCriticPolicy):
     """PPO's policy: actor on the agent's slots, value function on the whole observation."""
 
     def _build_mlp_extractor(self) -> None:
-        self.mlp_extractor = AsymmetricMlpExtractor(self.features_dim, self.net_arch, self.activation_fn,
-                                                    self.device)
+        self.mlp_extractor = AsymmetricMlpExtractor(self.features_dim, self.net_arch, self.activation_fn, self.device)
 
 
 class AsymmetricSACPolicy(SACPolicy):
@@ -86,8 +89,10 @@ def _actor_features(policy: SACPolicy | TD3Policy) -> AgentObservation:
     """A fresh agent-slot extractor for an off-policy actor (whose critic, with a shared
     extractor, would see the agent's slots only: refused)."""
     if policy.share_features_extractor:
-        raise ValueError("an asymmetric policy cannot share the actor's features extractor with the critic "
-                         "(policy_kwargs share_features_extractor=False)")
+        raise ValueError(
+            "an asymmetric policy cannot share the actor's features extractor with the critic "
+            "(policy_kwargs share_features_extractor=False)"
+        )
     return AgentObservation(policy.observation_space)
 
 

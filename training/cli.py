@@ -26,8 +26,10 @@ def _bench(args: argparse.Namespace) -> int:
     for name in names:
         path = BENCHMARKS / f"bench_{name}.py"
         if not path.exists():
-            raise SystemExit(f"unknown benchmark {name!r}; available: "
-                             f"{sorted(p.stem.removeprefix('bench_') for p in BENCHMARKS.glob('bench_*.py'))}")
+            raise SystemExit(
+                f"unknown benchmark {name!r}; available: "
+                f"{sorted(p.stem.removeprefix('bench_') for p in BENCHMARKS.glob('bench_*.py'))}"
+            )
         print(f"== {name}")
         runpy.run_path(str(path), run_name="__main__")
     return 0
@@ -65,7 +67,14 @@ def _simulate(args: argparse.Namespace) -> int:
 
     from fourwis.envs.scenarios import make_scenario
     from fourwis.envs.simulation import simulate
-    from fourwis.training.compare import FAULT_SUFFIX, build_controller, build_scenario, entry_A, file_stem, parse_scenario
+    from fourwis.training.compare import (
+        FAULT_SUFFIX,
+        build_controller,
+        build_scenario,
+        entry_A,
+        file_stem,
+        parse_scenario,
+    )
     from fourwis.training.io import check_writable, pyplot
     from fourwis.training.trajectory_io import plot_trajectory, write_trajectory_csv
 
@@ -96,16 +105,17 @@ def _sine_with_dwell(args: argparse.Namespace) -> int:
     import math
 
     from fourwis.envs.fmvss126 import MAX_A_DEG, MEASURED_A, characterise, format_table, run_series
-    from fourwis.training.io import atomic_write_text, check_writable
-
     from fourwis.envs.road import check_mu
     from fourwis.envs.vehicle import VehicleParams
     from fourwis.training.compare import build_controller
+    from fourwis.training.io import atomic_write_text, check_writable
 
     try:  # fail early, before the characterisation, on every argument
         if args.A is not None and not (math.isfinite(args.A) and 0 < args.A <= MAX_A_DEG):
-            raise ValueError(f"--A must be a steering-wheel angle in (0, {MAX_A_DEG:g}] deg (the series starts at "
-                             f"1.5A, at most 300 deg), got {args.A!r}")
+            raise ValueError(
+                f"--A must be a steering-wheel angle in (0, {MAX_A_DEG:g}] deg (the series starts at "
+                f"1.5A, at most 300 deg), got {args.A!r}"
+            )
         if args.out:
             check_writable(args.out)
         for mu in args.mu:
@@ -122,13 +132,16 @@ def _sine_with_dwell(args: argparse.Namespace) -> int:
     tables = []
     for mu in args.mu:
         try:
-            runs = run_series(A, mu=mu, controller_factory=factory, estimator=args.estimator, seed=args.seed,
-                              progress=True)
+            runs = run_series(
+                A, mu=mu, controller_factory=factory, estimator=args.estimator, seed=args.seed, progress=True
+            )
         except ValueError as err:  # a user's estimator or controller returning garbage
             raise SystemExit(f"fourwis swd: {err}") from None
         passed = sum(run.result.passed for run in runs)
-        tables.append(f"controller {args.controller}, estimator {args.estimator}: {passed} of {len(runs)} runs "
-                      f"pass\n\n" + format_table(runs, A, MEASURED_A if args.A is None else "given"))
+        tables.append(
+            f"controller {args.controller}, estimator {args.estimator}: {passed} of {len(runs)} runs "
+            f"pass\n\n" + format_table(runs, A, MEASURED_A if args.A is None else "given")
+        )
     text = "\n\n".join(tables)
     print(text)
     if args.out:
@@ -136,8 +149,9 @@ def _sine_with_dwell(args: argparse.Namespace) -> int:
     return 0
 
 
-def _report(command: str, make_report: Callable[[], Path], table: str,
-            errors: tuple[type[Exception], ...] = (ValueError,)) -> int:
+def _report(
+    command: str, make_report: Callable[[], Path], table: str, errors: tuple[type[Exception], ...] = (ValueError,)
+) -> int:
     """Run a report job, print the report; bad input exits with the command's name."""
     try:
         report = make_report()
@@ -151,15 +165,21 @@ def _report(command: str, make_report: Callable[[], Path], table: str,
 def _compare(args: argparse.Namespace) -> int:
     from fourwis.training.compare import compare
 
-    return _report("compare", lambda: compare(args.out, args.scenarios, args.estimators, args.controllers, args.seeds,
-                                              args.jobs), "runs.csv")
+    return _report(
+        "compare",
+        lambda: compare(args.out, args.scenarios, args.estimators, args.controllers, args.seeds, args.jobs),
+        "runs.csv",
+    )
 
 
 def _estimate(args: argparse.Namespace) -> int:
     from fourwis.training.estimate import estimate_report
 
-    return _report("estimate", lambda: estimate_report(args.out, args.scenarios, args.estimators, args.seeds,
-                                                       args.jobs, road_mu=args.road_mu), "estimate.csv")
+    return _report(
+        "estimate",
+        lambda: estimate_report(args.out, args.scenarios, args.estimators, args.seeds, args.jobs, road_mu=args.road_mu),
+        "estimate.csv",
+    )
 
 
 def _tune(args: argparse.Namespace) -> int:
@@ -177,18 +197,23 @@ def _tune(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else OUTPUT
     try:
         _check_seed(args)
-        data = tune(args.agents, args.iterations, args.seed, out, args.optimizer, args.duration,
-                    criterion=args.criterion)
+        data = tune(
+            args.agents, args.iterations, args.seed, out, args.optimizer, args.duration, criterion=args.criterion
+        )
     except ValueError as err:
         raise SystemExit(f"fourwis tune: {err}") from None
     shipped = " (the shipped noise file: alo-fkf and joint use it from now on)" if out == OUTPUT else ""
     print(f"wrote {out}{shipped}")
     if data["improved"]:
-        print(f"{args.optimizer} tuning: cost {data['default_cost']:.3f} (default noise) -> {data['cost']:.3f}, "
-              f"log10 factors {data['log10_factors']}")
+        print(
+            f"{args.optimizer} tuning: cost {data['default_cost']:.3f} (default noise) -> {data['cost']:.3f}, "
+            f"log10 factors {data['log10_factors']}"
+        )
     else:
-        print(f"{args.optimizer} tuning found no noise better than the hand-set one (cost {data['default_cost']:.3f}; "
-              f"its best {data['optimizer_best']['cost']:.3f}): kept the hand-set noise (log10 factors 0)")
+        print(
+            f"{args.optimizer} tuning found no noise better than the hand-set one (cost {data['default_cost']:.3f}; "
+            f"its best {data['optimizer_best']['cost']:.3f}): kept the hand-set noise (log10 factors 0)"
+        )
     return 0
 
 
@@ -208,17 +233,29 @@ def _train(args: argparse.Namespace) -> int:
     try:
         if args.seed is not None:
             _check_seed(args)
-        path = train(args.algo, args.out, args.timesteps, args.seed, args.env_kwargs, args.n_envs,
-                     eval_every=args.eval_every, checkpoint_every=args.checkpoint_every, resume=args.resume,
-                     overwrite=args.overwrite)
+        path = train(
+            args.algo,
+            args.out,
+            args.timesteps,
+            args.seed,
+            args.env_kwargs,
+            args.n_envs,
+            eval_every=args.eval_every,
+            checkpoint_every=args.checkpoint_every,
+            resume=args.resume,
+            overwrite=args.overwrite,
+        )
     except (ValueError, FileNotFoundError) as err:
         raise SystemExit(f"fourwis train: {err}") from None
     except KeyboardInterrupt as err:  # train saved the model first (if it had started training)
         print(f"\nfourwis train: {str(err) or 'interrupted'}", file=sys.stderr)  # (an exception is always truthy)
         return 130
     trained = json.loads((path.parent / "config.json").read_text())["timesteps"]
-    others = [p.name + "/" * p.is_dir() for p in sorted(path.parent.iterdir())  # the run's, not the folder's others
-              if p != path and p.name in RUN_FILES and not p.name.startswith(".")]
+    others = [
+        p.name + "/" * p.is_dir()
+        for p in sorted(path.parent.iterdir())  # the run's, not the folder's others
+        if p != path and p.name in RUN_FILES and not p.name.startswith(".")
+    ]
     print(f"wrote {path}, trained {trained:,} env steps (+ {', '.join(others)} in {path.parent})")
     return 0
 
@@ -226,8 +263,12 @@ def _train(args: argparse.Namespace) -> int:
 def _evaluate(args: argparse.Namespace) -> int:
     from fourwis.training.rl import evaluate
 
-    return _report("evaluate", lambda: evaluate(args.model, args.out, args.scenarios, args.estimator, args.seeds,
-                                                args.jobs), "runs.csv", (ValueError, FileNotFoundError))
+    return _report(
+        "evaluate",
+        lambda: evaluate(args.model, args.out, args.scenarios, args.estimator, args.seeds, args.jobs),
+        "runs.csv",
+        (ValueError, FileNotFoundError),
+    )
 
 
 def _positive_int(text: str) -> int:
@@ -255,22 +296,31 @@ class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
 
 def _add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speed-kph", type=float, help="initial / target speed [km/h] (default: the scenario's)")
-    parser.add_argument("--mu", type=float, nargs="+",
-                        help="road friction: one value (uniform) or two (left, right split) (default: the scenario's)")
+    parser.add_argument(
+        "--mu",
+        type=float,
+        nargs="+",
+        help="road friction: one value (uniform) or two (left, right split) (default: the scenario's)",
+    )
     parser.add_argument("--duration", type=float, help="simulated time [s] (default: the scenario's)")
     parser.add_argument("--rear-steer", action="store_true", help="switch on the paper's 4WS law (eq. 20)")
 
 
-def _add_matrix_arguments(parser: argparse.ArgumentParser, scenarios, estimators, seeds: int, out: str,
-                          scenarios_help: str) -> None:
+def _add_matrix_arguments(
+    parser: argparse.ArgumentParser, scenarios, estimators, seeds: int, out: str, scenarios_help: str
+) -> None:
     """The scenario x estimator x seed matrix arguments that compare and estimate share."""
     from fourwis.estimation import ESTIMATORS, TRUTH_GROUPS
 
     parser.add_argument("--scenarios", nargs="+", default=list(scenarios), help=scenarios_help)
-    parser.add_argument("--estimators", nargs="+", default=list(estimators),
-                        help=f"estimator names ({', '.join(ESTIMATORS)}, or module:factory for your own); "
-                             f"NAME+true-mu (groups {', '.join(TRUTH_GROUPS)}, joined by '-') reports those quantities "
-                             f"from the truth")
+    parser.add_argument(
+        "--estimators",
+        nargs="+",
+        default=list(estimators),
+        help=f"estimator names ({', '.join(ESTIMATORS)}, or module:factory for your own); "
+        f"NAME+true-mu (groups {', '.join(TRUTH_GROUPS)}, joined by '-') reports those quantities "
+        f"from the truth",
+    )
     _add_run_arguments(parser, seeds, out)
 
 
@@ -289,102 +339,176 @@ def build_parser() -> argparse.ArgumentParser:
         return sub.add_parser(name, help=summary, description=summary, formatter_class=_HelpFormatter)
 
     sim = command("simulate", "run one scenario (open loop, or with --controller); writes OUT/<scenario>.csv and .png")
-    sim.add_argument("scenario", help="scenario name (see envs.SCENARIOS), optionally with overrides as in compare "
-                                      "(iso3888_2:mu=0.6,speed_kph=50; the options below apply on top)")
+    sim.add_argument(
+        "scenario",
+        help="scenario name (see envs.SCENARIOS), optionally with overrides as in compare "
+        "(iso3888_2:mu=0.6,speed_kph=50; the options below apply on top)",
+    )
     _add_scenario_arguments(sim)
     sim.add_argument("--estimator", default="oracle", help="estimator run alongside (a name or module:factory)")
     from fourwis.control import CONTROLLERS
 
-    sim.add_argument("--controller", default="none",
-                     help=f"stability controller ({', '.join(CONTROLLERS)}, or module:factory) or rl:<run dir>, fed "
-                          f"by the estimator")
+    sim.add_argument(
+        "--controller",
+        default="none",
+        help=f"stability controller ({', '.join(CONTROLLERS)}, or module:factory) or rl:<run dir>, fed "
+        f"by the estimator",
+    )
     sim.add_argument("--seed", type=int, default=0, help="sensor noise seed (>= 0)")
     sim.add_argument("--out", default="results/simulate", help="output directory")
     sim.set_defaults(func=_simulate)
     from fourwis.training.compare import DEFAULT_CONTROLLERS, DEFAULT_ESTIMATORS, HEADLINE
 
-    cmp_ = command("compare", "closed-loop matrix estimator x controller x scenario; writes OUT/report.md, "
-                              "runs.csv and PNG plots")
-    _add_matrix_arguments(cmp_, HEADLINE, DEFAULT_ESTIMATORS, 2, "results/compare",
-                          "scenario names, optionally with overrides: iso3888_2:mu=0.5,speed_kph=50; "
-                          "sine_with_dwell:amplitude_A=6.5 ('swd_wet': SWD 5.5A, mu 0.5)")
-    cmp_.add_argument("--controllers", nargs="+", default=list(DEFAULT_CONTROLLERS),
-                      help=f"stability controllers ({', '.join(CONTROLLERS)}, or module:factory for your own) or "
-                           "rl:<run dir> (or rl:<run dir>/checkpoints/step_N.zip) for a policy trained by fourwis "
-                           "train")
+    cmp_ = command(
+        "compare", "closed-loop matrix estimator x controller x scenario; writes OUT/report.md, runs.csv and PNG plots"
+    )
+    _add_matrix_arguments(
+        cmp_,
+        HEADLINE,
+        DEFAULT_ESTIMATORS,
+        2,
+        "results/compare",
+        "scenario names, optionally with overrides: iso3888_2:mu=0.5,speed_kph=50; "
+        "sine_with_dwell:amplitude_A=6.5 ('swd_wet': SWD 5.5A, mu 0.5)",
+    )
+    cmp_.add_argument(
+        "--controllers",
+        nargs="+",
+        default=list(DEFAULT_CONTROLLERS),
+        help=f"stability controllers ({', '.join(CONTROLLERS)}, or module:factory for your own) or "
+        "rl:<run dir> (or rl:<run dir>/checkpoints/step_N.zip) for a policy trained by fourwis "
+        "train",
+    )
     cmp_.set_defaults(func=_compare)
     from fourwis.envs.scenarios import PAPER_SCENARIOS
     from fourwis.training.estimate import DEFAULT_ESTIMATORS as ESTIMATE_ESTIMATORS
 
-    est = command("estimate", "open-loop estimator accuracy (paper Table 2 form); writes OUT/estimate.md, "
-                              "estimate.csv, a PNG per scenario and tyre_curves.png (paper Figs. 2-3)")
-    _add_matrix_arguments(est, PAPER_SCENARIOS, ESTIMATE_ESTIMATORS, 1, "results/estimate",
-                          "scenario names, optionally with overrides as in compare (no +faults)")
-    est.add_argument("--road-mu", action="store_true",
-                     help="the fixed-mu filters (ekf, ckf, fkf, alo-fkf) assume the road's friction at the start "
-                          "instead of 0.8 (the paper's section-3 reading)")
+    est = command(
+        "estimate",
+        "open-loop estimator accuracy (paper Table 2 form); writes OUT/estimate.md, "
+        "estimate.csv, a PNG per scenario and tyre_curves.png (paper Figs. 2-3)",
+    )
+    _add_matrix_arguments(
+        est,
+        PAPER_SCENARIOS,
+        ESTIMATE_ESTIMATORS,
+        1,
+        "results/estimate",
+        "scenario names, optionally with overrides as in compare (no +faults)",
+    )
+    est.add_argument(
+        "--road-mu",
+        action="store_true",
+        help="the fixed-mu filters (ekf, ckf, fkf, alo-fkf) assume the road's friction at the start "
+        "instead of 0.8 (the paper's section-3 reading)",
+    )
     est.set_defaults(func=_estimate)
     from fourwis.estimation.optimizers import METHODS
     from fourwis.training.tune import CRITERIA
 
-    tune = command("tune", "offline tuning of alo-fkf's noise on a calibration run; writes a JSON file "
-                           "(default: the shipped one)")
+    tune = command(
+        "tune", "offline tuning of alo-fkf's noise on a calibration run; writes a JSON file (default: the shipped one)"
+    )
     tune.add_argument("--agents", type=int, default=30, help="population size (ants, CMA-ES offspring, random draws)")
     tune.add_argument("--iterations", type=int, default=100, help="optimizer iterations")
     tune.add_argument("--duration", type=float, default=10.0, help="calibration run length [s]")
-    tune.add_argument("--criterion", choices=CRITERIA, default="nll",
-                      help="innovation negative log-likelihood (no truth needed) or error against the truth")
+    tune.add_argument(
+        "--criterion",
+        choices=CRITERIA,
+        default="nll",
+        help="innovation negative log-likelihood (no truth needed) or error against the truth",
+    )
     tune.add_argument("--seed", type=int, default=0, help="optimizer seed (>= 0)")
-    tune.add_argument("--optimizer", choices=METHODS, default="alo",
-                      help="alo: the paper's antlion optimizer; cmaes: CMA-ES; random: random search")
+    tune.add_argument(
+        "--optimizer",
+        choices=METHODS,
+        default="alo",
+        help="alo: the paper's antlion optimizer; cmaes: CMA-ES; random: random search",
+    )
     tune.add_argument("--out", help="output JSON file (default: estimation/data/tuned_noise.json)")
-    tune.add_argument("--mu-noise", action="store_true",
-                      help="instead: scan the joint estimator's mu_accel_std on held-out random scenarios (prints a table)")
+    tune.add_argument(
+        "--mu-noise",
+        action="store_true",
+        help="instead: scan the joint estimator's mu_accel_std on held-out random scenarios (prints a table)",
+    )
     tune.set_defaults(func=_tune)
     swd = command("swd", "FMVSS 126 sine-with-dwell series: the regulation's table")
     swd.add_argument("--mu", type=float, nargs="+", default=[1.0, 0.5, 0.3], help="road friction values")
     swd.add_argument("--A", type=float, help="characterisation angle [deg] (default: measured at 0.3 g)")
     swd.add_argument("--estimator", default="oracle", help="estimator run alongside (a name or module:factory)")
-    swd.add_argument("--controller", default="none",
-                     help=f"stability controller ({', '.join(CONTROLLERS)}, or module:factory) or rl:<run dir>, fed "
-                          f"by the estimator")
+    swd.add_argument(
+        "--controller",
+        default="none",
+        help=f"stability controller ({', '.join(CONTROLLERS)}, or module:factory) or rl:<run dir>, fed "
+        f"by the estimator",
+    )
     swd.add_argument("--seed", type=int, default=0, help="sensor noise seed (>= 0)")
     swd.add_argument("--out", help="directory for sine_with_dwell.md (default: print only)")
     swd.set_defaults(func=_sine_with_dwell)
     from fourwis.training.rl_config import ALGO_CONFIGS, ALGOS, EVAL_SCENARIO
 
-    train = command("train", "train an RL stability controller (stable-baselines3) on the vector env; writes the "
-                             "run directory OUT (model.zip, vecnormalize.pkl, config.json, tb/; checkpoints/ once "
-                             "the run passes --checkpoint-every env steps, evaluations.npz and learning_curve.png "
-                             "once it passes --eval-every)")
-    train.add_argument("--algo", choices=ALGOS, default="ppo",
-                       help="RL algorithm (settings: training.rl_config.ALGO_CONFIGS)")
-    train.add_argument("--env-kwargs", type=_json_object, default={},
-                       help='env keyword arguments as JSON, e.g. \'{"estimator": "joint", "observation": "true"}\'')
-    train.add_argument("--timesteps", type=int, default=400_000,
-                       help=f"total env steps to reach (a resumed run counts on from its own, so give more); rounded "
-                            f"up to whole rollouts: multiples of {ALGO_CONFIGS['ppo']['n_steps']} x --n-envs for "
-                            f"ppo, of --n-envs for sac and td3 (config.json records both)")
-    train.add_argument("--seed", type=int, default=None,
-                       help="seed of the env draws and the network (>= 0; default 0, or the resumed run's)")
-    train.add_argument("--n-envs", type=int, default=None,
-                       help="cars in the native vector env (default 16, or the resumed run's)")
-    train.add_argument("--eval-every", type=int, default=40_000, help=f"env steps between evaluations on "
-                       f"the held-out {EVAL_SCENARIO}")
+    train = command(
+        "train",
+        "train an RL stability controller (stable-baselines3) on the vector env; writes the "
+        "run directory OUT (model.zip, vecnormalize.pkl, config.json, tb/; checkpoints/ once "
+        "the run passes --checkpoint-every env steps, evaluations.npz and learning_curve.png "
+        "once it passes --eval-every)",
+    )
+    train.add_argument(
+        "--algo", choices=ALGOS, default="ppo", help="RL algorithm (settings: training.rl_config.ALGO_CONFIGS)"
+    )
+    train.add_argument(
+        "--env-kwargs",
+        type=_json_object,
+        default={},
+        help='env keyword arguments as JSON, e.g. \'{"estimator": "joint", "observation": "true"}\'',
+    )
+    train.add_argument(
+        "--timesteps",
+        type=int,
+        default=400_000,
+        help=f"total env steps to reach (a resumed run counts on from its own, so give more); rounded "
+        f"up to whole rollouts: multiples of {ALGO_CONFIGS['ppo']['n_steps']} x --n-envs for "
+        f"ppo, of --n-envs for sac and td3 (config.json records both)",
+    )
+    train.add_argument(
+        "--seed",
+        type=int,
+        default=None,
+        help="seed of the env draws and the network (>= 0; default 0, or the resumed run's)",
+    )
+    train.add_argument(
+        "--n-envs", type=int, default=None, help="cars in the native vector env (default 16, or the resumed run's)"
+    )
+    train.add_argument(
+        "--eval-every", type=int, default=40_000, help=f"env steps between evaluations on the held-out {EVAL_SCENARIO}"
+    )
     train.add_argument("--checkpoint-every", type=int, default=50_000, help="env steps between checkpoints")
     train.add_argument("--resume", help="run directory or checkpoint .zip to continue from")
     train.add_argument("--out", default="results/train", help="run directory")
-    train.add_argument("--overwrite", action="store_true",
-                       help="replace a run already in --out (its checkpoints, evaluations and logs are deleted)")
+    train.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace a run already in --out (its checkpoints, evaluations and logs are deleted)",
+    )
     train.set_defaults(func=_train)
-    evaluate = command("evaluate", "closed-loop evaluation of a trained policy (as in compare); writes "
-                                   "OUT/report.md, runs.csv and PNG plots")
+    evaluate = command(
+        "evaluate",
+        "closed-loop evaluation of a trained policy (as in compare); writes OUT/report.md, runs.csv and PNG plots",
+    )
     evaluate.add_argument("model", help="run directory of fourwis train (holds model.zip)")
-    evaluate.add_argument("--scenarios", nargs="+", default=["swd_wet", "iso3888_2", "mu_jump", "paper_dlc"],
-                          help="scenario names, with overrides as in compare")
-    evaluate.add_argument("--estimator", default=None,
-                          help="estimator in the loop, for the policy and the uncontrolled car beside it "
-                               "(default: the one the run was trained with)")
+    evaluate.add_argument(
+        "--scenarios",
+        nargs="+",
+        default=["swd_wet", "iso3888_2", "mu_jump", "paper_dlc"],
+        help="scenario names, with overrides as in compare",
+    )
+    evaluate.add_argument(
+        "--estimator",
+        default=None,
+        help="estimator in the loop, for the policy and the uncontrolled car beside it "
+        "(default: the one the run was trained with)",
+    )
     _add_run_arguments(evaluate, 2, "results/evaluate")
     evaluate.set_defaults(func=_evaluate)
     bench = command("bench", "run the performance benchmarks in benchmarks/")

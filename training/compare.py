@@ -23,23 +23,42 @@ import numpy as np
 from fourwis.control import CONTROLLERS, make_controller
 from fourwis.control.allocation import wheel_force_map
 from fourwis.control.reference import PhasePlaneRegion, reference_yaw_rate
+from fourwis.core.checks import import_factory, is_integer, is_number
 from fourwis.envs.fmvss126 import characterise
-from fourwis.envs.metrics import (alongside_path, cone_hits, mae, path_deviation, peak_abs, rms, rmse, rolling_sideslip,
-                          sine_with_dwell_metrics, spin_out, yaw_rate_tracking_rms)
+from fourwis.envs.metrics import (
+    alongside_path,
+    cone_hits,
+    mae,
+    path_deviation,
+    peak_abs,
+    rms,
+    rmse,
+    rolling_sideslip,
+    sine_with_dwell_metrics,
+    spin_out,
+    yaw_rate_tracking_rms,
+)
 from fourwis.envs.scenarios import SCENARIOS, make_scenario
 from fourwis.envs.sensors import Fault
 from fourwis.envs.simulation import Trajectory, simulate
 from fourwis.envs.vehicle import A_AY, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_X, S_Y
 from fourwis.estimation import check_estimator_name
-from fourwis.core.checks import import_factory, is_integer, is_number
 from fourwis.training.io import atomic_write, atomic_write_text, check_writable, pyplot
 from fourwis.training.pool import check_jobs, parallel_map
 from fourwis.training.tables import mean_over_seeds, require_distinct, write_runs_csv
 
 #: headline scenarios: the paper's five conditions, FMVSS 126 at 5.5A on a wet road, the mu jump,
 #: and ISO 3888-2 at 70 km/h on mu 1.0 (where the uncontrolled car spins; it clears 60 km/h)
-HEADLINE = ("paper_dlc", "paper_step", "paper_sine", "paper_split_dlc", "paper_serpentine", "swd_wet", "mu_jump",
-            "iso3888_2:speed_kph=70")
+HEADLINE = (
+    "paper_dlc",
+    "paper_step",
+    "paper_sine",
+    "paper_split_dlc",
+    "paper_serpentine",
+    "swd_wet",
+    "mu_jump",
+    "iso3888_2:speed_kph=70",
+)
 DEFAULT_ESTIMATORS = ("oracle", "ckf", "joint")
 DEFAULT_CONTROLLERS = ("none", "dyc-lqr")
 RL_PREFIX = "rl:"  #: controller name prefix of a trained policy: ``rl:<run directory>`` (training.rl)
@@ -65,6 +84,7 @@ FAULT_SUFFIX = "+faults"
 def _run_key(parsed: tuple[str, dict], faults: bool) -> tuple:
     """What a parsed entry runs, whatever the spelling: overrides sorted by key, numbers as floats
     (``duration=1`` and ``duration=1.0``, ``mu=0.3,duration=2`` and ``duration=2,mu=0.3`` run alike)."""
+
     def value(v):
         return tuple(map(value, v)) if isinstance(v, list) else float(v)
 
@@ -91,8 +111,13 @@ def parse_scenario(text: str) -> tuple[str, dict]:
         key, sep, value = item.partition("=")
         value = value.strip()
         try:  # an integer literal stays an int (a seed), anything else is a float; [...] a list of numbers
-            value = (json.loads(value) if value.startswith("[") else
-                     int(value) if value.lstrip("+-").isdigit() else float(value))
+            value = (
+                json.loads(value)
+                if value.startswith("[")
+                else int(value)
+                if value.lstrip("+-").isdigit()
+                else float(value)
+            )
         except ValueError:
             sep = ""
         if not sep or (isinstance(value, list) and not all(is_number(v) for v in value)):
@@ -165,10 +190,22 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
     T, E = traj.truth, traj.estimate
     beta = T.beta
     r_ref = reference_yaw_rate(traj.state[:, S_U], traj.state[:, S_DELTA_F], T.mu, params)
-    out = {"peak_beta": peak_abs(beta), "yaw_tracking_rms": yaw_rate_tracking_rms(traj.state[:, S_R], r_ref),
-           "spin_out": float(spin_out(beta, rolling=rolling_sideslip(
-               traj.state[:, S_U], traj.state[:, S_DELTA_F], traj.state[:, S_DELTA_R], params.cg_to_front,
-               params.cg_to_rear)))}
+    out = {
+        "peak_beta": peak_abs(beta),
+        "yaw_tracking_rms": yaw_rate_tracking_rms(traj.state[:, S_R], r_ref),
+        "spin_out": float(
+            spin_out(
+                beta,
+                rolling=rolling_sideslip(
+                    traj.state[:, S_U],
+                    traj.state[:, S_DELTA_F],
+                    traj.state[:, S_DELTA_R],
+                    params.cg_to_front,
+                    params.cg_to_rear,
+                ),
+            )
+        ),
+    }
     # how far the car left the sideslip phase-plane region it recovers from by itself (> 1:
     # outside), over the samples at speeds the region is tabulated for
     region = PhasePlaneRegion.default()
@@ -177,18 +214,26 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
     # control effort: the yaw moment the motors' torques make by driving left and right wheels
     # differently (straight-wheel arms, so equal drive torques on steered wheels count as no
     # effort) [N m], and the rear steer [rad]
-    wheel_forces = traj.state[:, S_TORQUE:S_TORQUE + 4] / params.wheel_radius
+    wheel_forces = traj.state[:, S_TORQUE : S_TORQUE + 4] / params.wheel_radius
     _, straight_levers = wheel_force_map(params, 0.0, 0.0)
-    out.update(yaw_moment_rms=rms(wheel_forces @ straight_levers[0]),
-               rear_steer_rms=rms(traj.state[:, S_DELTA_R]))
+    out.update(yaw_moment_rms=rms(wheel_forces @ straight_levers[0]), rear_steer_rms=rms(traj.state[:, S_DELTA_R]))
     if scenario.reference_path is not None:
         path = scenario.reference_path
         on_course = alongside_path(traj.state[:, S_X], path)
         rms_dev, max_dev = path_deviation(traj.state[on_course, S_X], traj.state[on_course, S_Y], path)
         out.update(path_rms=rms_dev, path_max=max_dev)
         cones = scenario.course.cones if scenario.course is not None else np.empty((0, 2))
-        out["cone_hits"] = float(cone_hits(traj.state[:, S_X], traj.state[:, S_Y], traj.state[:, S_PSI], cones,
-                                           params.width, params.front_extent, params.rear_extent))
+        out["cone_hits"] = float(
+            cone_hits(
+                traj.state[:, S_X],
+                traj.state[:, S_Y],
+                traj.state[:, S_PSI],
+                cones,
+                params.width,
+                params.front_extent,
+                params.rear_extent,
+            )
+        )
         # a car that stopped short of the last cones (a coasting car at walking pace) has not
         # driven the course; the driver's line runs on beyond them, which a car slowed by its
         # controller need not reach within the scenario's time (no cones: the line's end). Where
@@ -196,15 +241,21 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
         end = cones[:, 0].max() if len(cones) else path[-1, 0]
         out["course_completed"] = float(traj.state[-1, S_X] >= end)
     if scenario.name == "sine_with_dwell":
-        res = sine_with_dwell_metrics(traj.t, traj.steering_wheel, traj.state[:, S_R], traj.aux[:, A_AY],
-                                      sideslip=beta, A=swd_A)
-        out.update(swd_ratio_1000=res.yaw_rate_ratio_1000, swd_ratio_1750=res.yaw_rate_ratio_1750,
-                   swd_displacement=res.lateral_displacement, swd_passed=float(res.passed))
+        res = sine_with_dwell_metrics(
+            traj.t, traj.steering_wheel, traj.state[:, S_R], traj.aux[:, A_AY], sideslip=beta, A=swd_A
+        )
+        out.update(
+            swd_ratio_1000=res.yaw_rate_ratio_1000,
+            swd_ratio_1750=res.yaw_rate_ratio_1750,
+            swd_displacement=res.lateral_displacement,
+            swd_passed=float(res.passed),
+        )
     # the pass-rate map's verdict: no spin-out, on a course its end reached, and on sine with
     # dwell FMVSS 126 passed (the yaw ratios and the responsiveness displacement: a stable car
     # can still fail the latter)
-    out["passed"] = float(not out["spin_out"] and out.get("course_completed", 1.0) == 1.0
-                          and out.get("swd_passed", 1.0) == 1.0)
+    out["passed"] = float(
+        not out["spin_out"] and out.get("course_completed", 1.0) == 1.0 and out.get("swd_passed", 1.0) == 1.0
+    )
     for name in ("u", "v", "beta", "r"):
         out[f"rmse_{name}"] = rmse(getattr(E, name), getattr(T, name))
         out[f"mae_{name}"] = mae(getattr(E, name), getattr(T, name))
@@ -259,9 +310,14 @@ def _check(kind: str, names: Sequence[str], known: Sequence[str]) -> None:
         raise ValueError(f"unknown {kind} {unknown}; known: {list(known)}")
 
 
-def run_matrix(scenarios: Sequence[str] = HEADLINE, estimators: Sequence[str] = DEFAULT_ESTIMATORS,
-               controllers: Sequence[str] = DEFAULT_CONTROLLERS, seeds: int = 2, jobs: int | None = None,
-               progress: bool = True) -> tuple[list[tuple[RunSpec, dict]], dict]:
+def run_matrix(
+    scenarios: Sequence[str] = HEADLINE,
+    estimators: Sequence[str] = DEFAULT_ESTIMATORS,
+    controllers: Sequence[str] = DEFAULT_CONTROLLERS,
+    seeds: int = 2,
+    jobs: int | None = None,
+    progress: bool = True,
+) -> tuple[list[tuple[RunSpec, dict]], dict]:
     """Run the matrix in parallel processes; returns per-run (spec, metrics) and seed-0 trajectories."""
     if not (is_integer(seeds) and seeds >= 1):
         raise ValueError(f"seeds must be an integer >= 1, got {seeds!r}")
@@ -271,8 +327,10 @@ def run_matrix(scenarios: Sequence[str] = HEADLINE, estimators: Sequence[str] = 
         check_estimator_name(name)
     for name in controllers:
         if not isinstance(name, str):
-            raise ValueError(f"a controller is given by name, got {name!r}: pass your own as 'module:factory' "
-                             "(factory(params, dt) -> controller), or the object itself to envs.simulate")
+            raise ValueError(
+                f"a controller is given by name, got {name!r}: pass your own as 'module:factory' "
+                "(factory(params, dt) -> controller), or the object itself to envs.simulate"
+            )
     runs = [_run_key(run, s.endswith(FAULT_SUFFIX)) for s, run in zip(scenarios, parsed)]  # what each one runs
     repeated = [s for s, run in zip(scenarios, runs) if runs.count(run) > 1]
     if repeated:
@@ -293,8 +351,9 @@ def run_matrix(scenarios: Sequence[str] = HEADLINE, estimators: Sequence[str] = 
             except FileNotFoundError as err:
                 raise ValueError(f"controller {name!r}: {err}") from None
     A = {s: entry_A(s) for s in scenarios}
-    specs = [RunSpec(s, e, c, k, A[s]) for s in scenarios for c in controllers for e in estimators
-             for k in range(seeds)]
+    specs = [
+        RunSpec(s, e, c, k, A[s]) for s in scenarios for c in controllers for e in estimators for k in range(seeds)
+    ]
     results, trajectories = [], {}
     for spec, metrics, traj in parallel_map(_run, specs, jobs, "closed-loop runs", progress):
         results.append((spec, metrics))
@@ -310,54 +369,79 @@ def aggregate(results: list[tuple[RunSpec, dict]]) -> dict[tuple[str, str, str],
 
 def write_csv(results: list[tuple[RunSpec, dict]], path: Path) -> Path:
     names = sorted({m for _, metrics in results for m in metrics})
-    return write_runs_csv(results, ["scenario", "estimator", "controller", "seed"],
-                          lambda spec: [spec.scenario, spec.estimator, spec.controller, spec.seed], names, path)
+    return write_runs_csv(
+        results,
+        ["scenario", "estimator", "controller", "seed"],
+        lambda spec: [spec.scenario, spec.estimator, spec.controller, spec.seed],
+        names,
+        path,
+    )
 
 
 def _fmt(value: float | None, scale: float = 1.0, digits: int = 2) -> str:
     return "—" if value is None or not math.isfinite(value) else f"{value * scale:.{digits}f}"
 
 
-def markdown_report(table: dict, scenarios: Sequence[str], estimators: Sequence[str], controllers: Sequence[str],
-                    seeds: int) -> str:
+def markdown_report(
+    table: dict, scenarios: Sequence[str], estimators: Sequence[str], controllers: Sequence[str], seeds: int
+) -> str:
     deg = 180.0 / math.pi
-    lines = ["# fourwis closed-loop comparison", "",
-             f"Runs: {len(scenarios)} scenarios x {len(estimators)} estimators x {len(controllers)} controllers "
-             f"x {seeds} seeds (means over seeds). The controller sees only the estimate.",
-             *([f"`swd_wet`: FMVSS 126 sine with dwell at {SWD_MULTIPLE}A on mu {SWD_MU} from 80 km/h "
-                 "(overrides after its ':' replace these)."]
-               if any(s.startswith("swd_wet") for s in scenarios)
-               else []),
-             "Phase-plane peak: the largest index of the car's sideslip phase-plane stability region "
-             "(control.reference.PhasePlaneRegion: max(|beta_dot + c1 beta| / c2, |r| / (3 mu g / u))) at speeds "
-             ">= 10 m/s; above 1 the car left the region it recovers from by itself with the steering straight.", "",
-             "## Stability", "",
-             "| scenario | controller | estimator | peak beta [deg] | phase-plane peak | yaw-rate RMS err [deg/s] "
-             "| spin-outs | path RMS [m] | cone hits | SWD ratio @1.0 s | SWD ratio @1.75 s | SWD displ. [m] "
-             "| yaw moment RMS [N m] |",
-             "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = [
+        "# fourwis closed-loop comparison",
+        "",
+        f"Runs: {len(scenarios)} scenarios x {len(estimators)} estimators x {len(controllers)} controllers "
+        f"x {seeds} seeds (means over seeds). The controller sees only the estimate.",
+        *(
+            [
+                f"`swd_wet`: FMVSS 126 sine with dwell at {SWD_MULTIPLE}A on mu {SWD_MU} from 80 km/h "
+                "(overrides after its ':' replace these)."
+            ]
+            if any(s.startswith("swd_wet") for s in scenarios)
+            else []
+        ),
+        "Phase-plane peak: the largest index of the car's sideslip phase-plane stability region "
+        "(control.reference.PhasePlaneRegion: max(|beta_dot + c1 beta| / c2, |r| / (3 mu g / u))) at speeds "
+        ">= 10 m/s; above 1 the car left the region it recovers from by itself with the steering straight.",
+        "",
+        "## Stability",
+        "",
+        "| scenario | controller | estimator | peak beta [deg] | phase-plane peak | yaw-rate RMS err [deg/s] "
+        "| spin-outs | path RMS [m] | cone hits | SWD ratio @1.0 s | SWD ratio @1.75 s | SWD displ. [m] "
+        "| yaw moment RMS [N m] |",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     for s in scenarios:
         for c in controllers:
             for e in estimators:
                 m = table[(s, e, c)]
-                lines.append(f"| {s} | {c} | {e} | {_fmt(m['peak_beta'], deg, 1)} | {_fmt(m['phase_plane_peak'])} "
-                             f"| {_fmt(m['yaw_tracking_rms'], deg)} "
-                             f"| {_fmt(m['spin_out'], 1, 1)} | {_fmt(m.get('path_rms'))} | {_fmt(m.get('cone_hits'), 1, 1)} "
-                             f"| {_fmt(m.get('swd_ratio_1000'), 100, 0)}{'%' if 'swd_ratio_1000' in m else ''} "
-                             f"| {_fmt(m.get('swd_ratio_1750'), 100, 0)}{'%' if 'swd_ratio_1750' in m else ''} "
-                             f"| {_fmt(m.get('swd_displacement'))} | {_fmt(m['yaw_moment_rms'], 1, 0)} |")
+                lines.append(
+                    f"| {s} | {c} | {e} | {_fmt(m['peak_beta'], deg, 1)} | {_fmt(m['phase_plane_peak'])} "
+                    f"| {_fmt(m['yaw_tracking_rms'], deg)} "
+                    f"| {_fmt(m['spin_out'], 1, 1)} | {_fmt(m.get('path_rms'))} | {_fmt(m.get('cone_hits'), 1, 1)} "
+                    f"| {_fmt(m.get('swd_ratio_1000'), 100, 0)}{'%' if 'swd_ratio_1000' in m else ''} "
+                    f"| {_fmt(m.get('swd_ratio_1750'), 100, 0)}{'%' if 'swd_ratio_1750' in m else ''} "
+                    f"| {_fmt(m.get('swd_displacement'))} | {_fmt(m['yaw_moment_rms'], 1, 0)} |"
+                )
     lines += oracle_ratio_lines(table, scenarios, estimators, controllers)
-    lines += ["", "## Estimation accuracy (paper Table 2 form, open loop: controller none)" if "none" in controllers
-              else "## Estimation accuracy (first controller)", "",
-              "| scenario | estimator | RMSE u [m/s] | RMSE v [m/s] | RMSE beta [deg] | MAE beta [deg] "
-              "| RMSE r [deg/s] | RMSE mu | final mu error |", "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+    lines += [
+        "",
+        "## Estimation accuracy (paper Table 2 form, open loop: controller none)"
+        if "none" in controllers
+        else "## Estimation accuracy (first controller)",
+        "",
+        "| scenario | estimator | RMSE u [m/s] | RMSE v [m/s] | RMSE beta [deg] | MAE beta [deg] "
+        "| RMSE r [deg/s] | RMSE mu | final mu error |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     c = "none" if "none" in controllers else controllers[0]
     for s in scenarios:
         for e in estimators:
             m = table[(s, e, c)]
-            lines.append(f"| {s} | {e} | {_fmt(m['rmse_u'], 1, 3)} | {_fmt(m['rmse_v'], 1, 3)} "
-                         f"| {_fmt(m['rmse_beta'], deg, 3)} | {_fmt(m['mae_beta'], deg, 3)} | {_fmt(m['rmse_r'], deg, 3)} "
-                         f"| {_fmt(m['rmse_mu'], 1, 3)} | {_fmt(m['final_mu_error'], 1, 3)} |")
+            lines.append(
+                f"| {s} | {e} | {_fmt(m['rmse_u'], 1, 3)} | {_fmt(m['rmse_v'], 1, 3)} "
+                f"| {_fmt(m['rmse_beta'], deg, 3)} | {_fmt(m['mae_beta'], deg, 3)} | {_fmt(m['rmse_r'], deg, 3)} "
+                f"| {_fmt(m['rmse_mu'], 1, 3)} | {_fmt(m['final_mu_error'], 1, 3)} |"
+            )
     return "\n".join(lines) + "\n"
 
 
@@ -372,8 +456,9 @@ def oracle_ratio(value: float, oracle: float) -> float:
     return value / oracle if math.isfinite(oracle) and oracle >= RATIO_FLOOR else math.nan
 
 
-def oracle_ratio_lines(table: dict, scenarios: Sequence[str], estimators: Sequence[str],
-                       controllers: Sequence[str]) -> list[str]:
+def oracle_ratio_lines(
+    table: dict, scenarios: Sequence[str], estimators: Sequence[str], controllers: Sequence[str]
+) -> list[str]:
     """The report's section of ratios to the oracle (peak sideslip / yaw-rate RMS, means over
     seeds) for every controlled (scenario, controller) and every other estimator; none without
     the oracle or a controller."""
@@ -386,17 +471,25 @@ def oracle_ratio_lines(table: dict, scenarios: Sequence[str], estimators: Sequen
         text = _fmt(value)
         return f"**{text}**" if math.isfinite(value) and value > ORACLE_TOLERANCE else text
 
-    lines = ["", "## Against the oracle", "",
-             "Each estimator's mean over seeds as a ratio to the oracle's, same scenario and controller: peak "
-             f"sideslip / yaw-rate RMS error; bold above {ORACLE_TOLERANCE:.2f} (the target for the joint "
-             f"estimator: within 10%); — where the oracle's value is below {RATIO_FLOOR:g} rad (rad/s).", "",
-             "| scenario | controller | " + " | ".join(others) + " |", "|---|---|" + "---:|" * len(others)]
+    lines = [
+        "",
+        "## Against the oracle",
+        "",
+        "Each estimator's mean over seeds as a ratio to the oracle's, same scenario and controller: peak "
+        f"sideslip / yaw-rate RMS error; bold above {ORACLE_TOLERANCE:.2f} (the target for the joint "
+        f"estimator: within 10%); — where the oracle's value is below {RATIO_FLOOR:g} rad (rad/s).",
+        "",
+        "| scenario | controller | " + " | ".join(others) + " |",
+        "|---|---|" + "---:|" * len(others),
+    ]
     for s in scenarios:
         for c in controlled:
             oracle = table[(s, "oracle", c)]
-            cells = [f"{cell(oracle_ratio(table[(s, e, c)]['peak_beta'], oracle['peak_beta']))} / "
-                     f"{cell(oracle_ratio(table[(s, e, c)]['yaw_tracking_rms'], oracle['yaw_tracking_rms']))}"
-                     for e in others]
+            cells = [
+                f"{cell(oracle_ratio(table[(s, e, c)]['peak_beta'], oracle['peak_beta']))} / "
+                f"{cell(oracle_ratio(table[(s, e, c)]['yaw_tracking_rms'], oracle['yaw_tracking_rms']))}"
+                for e in others
+            ]
             lines.append(f"| {s} | {c} | " + " | ".join(cells) + " |")
     return lines
 
@@ -424,9 +517,14 @@ def plot_report(table: dict, trajectories: dict, scenarios, estimators, controll
     plt.close(fig)
 
     # one heat map per controller, stacked, sharing the scenario axis
-    fig, axes = plt.subplots(len(controllers), 1, figsize=(max(6.0, 2.0 + 1.1 * len(scenarios)),
-                                                            1.4 + len(controllers) * (0.6 + 0.3 * len(estimators))),
-                             squeeze=False, sharex=True, layout="constrained")
+    fig, axes = plt.subplots(
+        len(controllers),
+        1,
+        figsize=(max(6.0, 2.0 + 1.1 * len(scenarios)), 1.4 + len(controllers) * (0.6 + 0.3 * len(estimators))),
+        squeeze=False,
+        sharex=True,
+        layout="constrained",
+    )
     for ax, c in zip(axes[:, 0], controllers):
         rate = np.array([[table[(s, e, c)]["passed"] for s in scenarios] for e in estimators])
         ax.imshow(rate, vmin=0.0, vmax=1.0, cmap="RdYlGn", aspect="auto")
@@ -435,8 +533,7 @@ def plot_report(table: dict, trajectories: dict, scenarios, estimators, controll
         ax.set_yticks(range(len(estimators)), estimators, fontsize=8)
         ax.set_title(f"controller {c}", fontsize=9)
     axes[-1, 0].set_xticks(range(len(scenarios)), scenarios, rotation=30, ha="right", fontsize=8)
-    fig.suptitle("pass rate over seeds: no spin-out, course completed, FMVSS 126 passed on sine with dwell",
-                 fontsize=9)
+    fig.suptitle("pass rate over seeds: no spin-out, course completed, FMVSS 126 passed on sine with dwell", fontsize=9)
     paths.append(atomic_write(out / "pass_rate.png", lambda p: fig.savefig(p, format="png", dpi=110)))
     plt.close(fig)
 
@@ -461,15 +558,29 @@ def plot_report(table: dict, trajectories: dict, scenarios, estimators, controll
             axes[2].plot(first.t, first.truth.mu.mean(axis=1), "k--", label="truth")
             # the stable band at the run's median speed and lowest road friction
             lowest = int(np.argmin(first.truth.mu.mean(axis=1)))
-            c1, c2 = PhasePlaneRegion.default().coefficients(np.median(first.truth.u)[None], first.truth.mu[lowest][None])
+            c1, c2 = PhasePlaneRegion.default().coefficients(
+                np.median(first.truth.u)[None], first.truth.mu[lowest][None]
+            )
             sideslip, rate = np.array(axes[3].get_xlim()), axes[3].get_ylim()
             for sign in (1.0, -1.0):
-                axes[3].plot(sideslip, sign * math.degrees(c2[0]) - c1[0] * sideslip, "k:", lw=1,
-                             label="stable band" if sign > 0 else None)
+                axes[3].plot(
+                    sideslip,
+                    sign * math.degrees(c2[0]) - c1[0] * sideslip,
+                    "k:",
+                    lw=1,
+                    label="stable band" if sign > 0 else None,
+                )
             axes[3].set(xlim=sideslip, ylim=rate)
             axes[3].legend(fontsize=7)
-        for a, title in zip(axes, ("yaw rate [deg/s]", "sideslip [deg]", "mean mu (last controller)",
-                                   "phase portrait: sideslip rate [deg/s] vs sideslip [deg]")):
+        for a, title in zip(
+            axes,
+            (
+                "yaw rate [deg/s]",
+                "sideslip [deg]",
+                "mean mu (last controller)",
+                "phase portrait: sideslip rate [deg/s] vs sideslip [deg]",
+            ),
+        ):
             a.set_title(title, fontsize=9)
             a.set_xlabel("t [s]")
             a.grid(alpha=0.3)
@@ -478,13 +589,21 @@ def plot_report(table: dict, trajectories: dict, scenarios, estimators, controll
         axes[2].legend(fontsize=7)
         fig.suptitle(s)
         fig.tight_layout()
-        paths.append(atomic_write(out / f"{file_stem(s)}.png", lambda p: fig.savefig(p, format="png", dpi=100)))
+        paths.append(
+            atomic_write(out / f"{file_stem(s)}.png", lambda p, fig=fig: fig.savefig(p, format="png", dpi=100))
+        )
         plt.close(fig)
     return paths
 
 
-def compare(out: str | Path, scenarios: Sequence[str] = HEADLINE, estimators: Sequence[str] = DEFAULT_ESTIMATORS,
-            controllers: Sequence[str] = DEFAULT_CONTROLLERS, seeds: int = 2, jobs: int | None = None) -> Path:
+def compare(
+    out: str | Path,
+    scenarios: Sequence[str] = HEADLINE,
+    estimators: Sequence[str] = DEFAULT_ESTIMATORS,
+    controllers: Sequence[str] = DEFAULT_CONTROLLERS,
+    seeds: int = 2,
+    jobs: int | None = None,
+) -> Path:
     """Run the matrix and write report.md, runs.csv and PNG plots into ``out``; returns the report path."""
     out = check_writable(out)
     pyplot()  # (its plots need matplotlib: say so before the runs, not after them)

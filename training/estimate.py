@@ -17,15 +17,22 @@ from pathlib import Path
 
 import numpy as np
 
+from fourwis.core.checks import is_integer
 from fourwis.envs.metrics import mae, rmse
 from fourwis.envs.road import contact_points
 from fourwis.envs.scenarios import PAPER_SCENARIOS, Scenario
 from fourwis.envs.simulation import Trajectory, simulate
 from fourwis.estimation import ESTIMATORS, Estimate, check_estimator_name, make_estimator, parse_estimator_name
 from fourwis.estimation.joint import KINDS
-from fourwis.core.checks import is_integer
-from fourwis.training.compare import (FAULT_SUFFIX, build_scenario, check_file_stems, entry_A, file_stem, naming_the_run,
-                              parse_scenario)
+from fourwis.training.compare import (
+    FAULT_SUFFIX,
+    build_scenario,
+    check_file_stems,
+    entry_A,
+    file_stem,
+    naming_the_run,
+    parse_scenario,
+)
 from fourwis.training.io import atomic_write, atomic_write_text, check_writable, pyplot
 from fourwis.training.pool import parallel_map
 from fourwis.training.tables import mean_over_seeds, require_distinct, write_runs_csv
@@ -33,8 +40,17 @@ from fourwis.training.tyre_fit import plot_tyre_curves
 
 DEFAULT_ESTIMATORS = tuple(e for e in ESTIMATORS if e != "oracle")  #: the oracle is the truth itself
 MU_TOLERANCE = 0.1  #: mean |mu_hat - mu| over the wheels below which mu counts as converged
-METRICS = ("mae_u", "rmse_u", "mae_v", "rmse_v", "mae_beta", "rmse_beta", "mu_error_last_half",
-           "mu_convergence_time", "mu_estimated")
+METRICS = (
+    "mae_u",
+    "rmse_u",
+    "mae_v",
+    "rmse_v",
+    "mae_beta",
+    "rmse_beta",
+    "mu_error_last_half",
+    "mu_convergence_time",
+    "mu_estimated",
+)
 WHEELS = ("FL", "FR", "RL", "RR")
 
 #: The paper's Table 2 (section 3.3.3, double lane change on mu 0.5 at 35 km/h, CarSim, sampled
@@ -88,7 +104,7 @@ def run_metrics(traj: Trajectory) -> dict[str, float]:
         out[f"mae_{name}"] = mae(getattr(E, name), getattr(T, name))
         out[f"rmse_{name}"] = rmse(getattr(E, name), getattr(T, name))
     mu_error = np.mean(np.abs(E.mu - T.mu), axis=1)  # (T,) mean over the wheels
-    out["mu_error_last_half"] = float(np.mean(mu_error[mu_error.size // 2:]))
+    out["mu_error_last_half"] = float(np.mean(mu_error[mu_error.size // 2 :]))
     estimated = bool(np.any(E.mu_std > 0) or np.any(E.mu != E.mu[0]))
     out["mu_convergence_time"] = convergence_time(traj.t, mu_error) if estimated else math.nan
     out["mu_estimated"] = float(estimated)
@@ -97,8 +113,11 @@ def run_metrics(traj: Trajectory) -> dict[str, float]:
 
 @naming_the_run
 def _run(spec: RunSpec) -> tuple[RunSpec, dict[str, float], tuple[np.ndarray, Estimate, Estimate] | None]:
-    estimator = spec.estimator if spec.nominal_mu is None else \
-        make_estimator(spec.estimator, spec.scenario.vehicle_params, nominal_mu=spec.nominal_mu)
+    estimator = (
+        spec.estimator
+        if spec.nominal_mu is None
+        else make_estimator(spec.estimator, spec.scenario.vehicle_params, nominal_mu=spec.nominal_mu)
+    )
     traj = simulate(spec.scenario, controller=None, estimator=estimator, seed=spec.seed)
     keep = (traj.t, traj.truth, traj.estimate) if spec.seed == 0 else None  # seed 0 feeds the plots
     metrics = run_metrics(traj)
@@ -120,19 +139,29 @@ def _scenarios(scenarios: Sequence[str | Scenario]) -> list[Scenario]:
     texts = [s for s in scenarios if not isinstance(s, Scenario)]
     for text in texts:
         if not isinstance(text, str) or text.endswith(FAULT_SUFFIX):
-            raise ValueError(f"scenario {text!r}: give a Scenario or a name with optional overrides "
-                             f"(the {FAULT_SUFFIX} variant is the closed-loop comparison's)")
-    built = [s if isinstance(s, Scenario) else
-             replace(build_scenario(s, entry_A(s) if "amplitude_A" in parse_scenario(s)[1] else math.nan), name=s)
-             for s in scenarios]
+            raise ValueError(
+                f"scenario {text!r}: give a Scenario or a name with optional overrides "
+                f"(the {FAULT_SUFFIX} variant is the closed-loop comparison's)"
+            )
+    built = [
+        s
+        if isinstance(s, Scenario)
+        else replace(build_scenario(s, entry_A(s) if "amplitude_A" in parse_scenario(s)[1] else math.nan), name=s)
+        for s in scenarios
+    ]
     require_distinct("scenario names", [s.name for s in built])
     check_file_stems([s.name for s in built])
     return built
 
 
-def run_all(scenarios: Sequence[str | Scenario] = PAPER_SCENARIOS, estimators: Sequence[str] = DEFAULT_ESTIMATORS,
-            seeds: int = 1, jobs: int | None = None, progress: bool = True,
-            road_mu: bool = False) -> tuple[list[tuple[RunSpec, dict]], dict]:
+def run_all(
+    scenarios: Sequence[str | Scenario] = PAPER_SCENARIOS,
+    estimators: Sequence[str] = DEFAULT_ESTIMATORS,
+    seeds: int = 1,
+    jobs: int | None = None,
+    progress: bool = True,
+    road_mu: bool = False,
+) -> tuple[list[tuple[RunSpec, dict]], dict]:
     """Run every (scenario, estimator, seed) open loop in parallel processes. ``road_mu``: the
     fixed-mu filters (:data:`FIXED_MU`) assume the road's friction at the start
     (:func:`road_friction`) instead of 0.8, as the paper's section-3 filters presumably do.
@@ -149,8 +178,12 @@ def run_all(scenarios: Sequence[str | Scenario] = PAPER_SCENARIOS, estimators: S
         raise ValueError(f"seeds must be an integer >= 1, got {seeds!r}")
     if not isinstance(road_mu, bool):
         raise ValueError(f"road_mu must be True or False, got {road_mu!r}")
-    specs = [RunSpec(s, e, k, road_friction(s) if road_mu and e in FIXED_MU else None)
-             for s in built for e in estimators for k in range(seeds)]
+    specs = [
+        RunSpec(s, e, k, road_friction(s) if road_mu and e in FIXED_MU else None)
+        for s in built
+        for e in estimators
+        for k in range(seeds)
+    ]
     results, series = [], {}
     for spec, metrics, keep in parallel_map(_run, specs, jobs, "open-loop estimation runs", progress):
         results.append((spec, metrics))
@@ -165,8 +198,13 @@ def aggregate(results: list[tuple[RunSpec, dict]]) -> dict[tuple[str, str], dict
 
 
 def write_csv(results: list[tuple[RunSpec, dict]], path: Path) -> Path:
-    return write_runs_csv(results, ["scenario", "estimator", "seed"],
-                          lambda spec: [spec.scenario.name, spec.estimator, spec.seed], METRICS, path)
+    return write_runs_csv(
+        results,
+        ["scenario", "estimator", "seed"],
+        lambda spec: [spec.scenario.name, spec.estimator, spec.seed],
+        METRICS,
+        path,
+    )
 
 
 def _fmt(value: float, digits: int = 5) -> str:
@@ -181,50 +219,76 @@ def _convergence(m: dict[str, float], estimator: str) -> str:
     return "never" if not math.isfinite(m["mu_convergence_time"]) else f"{m['mu_convergence_time']:.2f}"
 
 
-def markdown_report(table: dict, scenarios: Sequence[Scenario], estimators: Sequence[str], seeds: int,
-                    road_mu: bool = False) -> str:
+def markdown_report(
+    table: dict, scenarios: Sequence[Scenario], estimators: Sequence[str], seeds: int, road_mu: bool = False
+) -> str:
     """estimate.md: per-scenario tables (means over seeds) and the paper's Table 2 beside ours."""
-    lines = ["# fourwis open-loop estimation accuracy (paper Table 2 form)", "",
-             f"Runs: {len(scenarios)} scenarios x {len(estimators)} estimators x {seeds} seeds, no controller "
-             "(scripted steering or the path-following driver; the estimator only observes). Values are "
-             "means over seeds. mu error: mean over wheels of |mu_hat - mu| over the last half of the run; "
-             f"mu convergence: first time after which that error stays below {MU_TOLERANCE} to the end "
-             "(estimators that hold a nominal mu: n/a). "
-             + (f"The fixed-mu filters ({', '.join(FIXED_MU)}) assume the road's friction at the start "
-                "(--road-mu)." if road_mu else f"The fixed-mu filters ({', '.join(FIXED_MU)}) assume mu 0.8 "
-                                               "(--road-mu: the road's)."), ""]
+    lines = [
+        "# fourwis open-loop estimation accuracy (paper Table 2 form)",
+        "",
+        f"Runs: {len(scenarios)} scenarios x {len(estimators)} estimators x {seeds} seeds, no controller "
+        "(scripted steering or the path-following driver; the estimator only observes). Values are "
+        "means over seeds. mu error: mean over wheels of |mu_hat - mu| over the last half of the run; "
+        f"mu convergence: first time after which that error stays below {MU_TOLERANCE} to the end "
+        "(estimators that hold a nominal mu: n/a). "
+        + (
+            f"The fixed-mu filters ({', '.join(FIXED_MU)}) assume the road's friction at the start (--road-mu)."
+            if road_mu
+            else f"The fixed-mu filters ({', '.join(FIXED_MU)}) assume mu 0.8 (--road-mu: the road's)."
+        ),
+        "",
+    ]
     for s in scenarios:
         heading = f"## {s.name} ({s.speed_kph:g} km/h, {s.duration:.1f} s, mean mu {road_friction(s):.2f} at the start)"
-        lines += [heading, "",
-                  "| estimator | MAE u [m/s] | RMSE u [m/s] | MAE v [m/s] | RMSE v [m/s] | MAE beta [rad] "
-                  "| RMSE beta [rad] | mu error, last half | mu convergence [s] |",
-                  "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+        lines += [
+            heading,
+            "",
+            "| estimator | MAE u [m/s] | RMSE u [m/s] | MAE v [m/s] | RMSE v [m/s] | MAE beta [rad] "
+            "| RMSE beta [rad] | mu error, last half | mu convergence [s] |",
+            "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+        ]
         for e in estimators:
             m = table[(s.name, e)]
-            lines.append(f"| {e} | " + " | ".join(_fmt(m[k]) for k in METRICS[:6])
-                         + f" | {_fmt(m['mu_error_last_half'], 3)} | {_convergence(m, e)} |")
+            lines.append(
+                f"| {e} | "
+                + " | ".join(_fmt(m[k]) for k in METRICS[:6])
+                + f" | {_fmt(m['mu_error_last_half'], 3)} | {_convergence(m, e)} |"
+            )
         lines.append("")
-    lines += ["## The paper's Table 2 beside ours", "",
-              "Table 2 of *Joint Estimation of Driving State and Road Surface Adhesion Coefficient of a "
-              "Four-Wheel Independent and Steering-Drive Electric Vehicle* (section 3.3.3: double lane change, "
-              "mu 0.5, 35 km/h, CarSim 2019 + MATLAB/Simulink, sampled every 0.002 s), transcribed as printed; "
-              f"ours: the same estimator on `{PAPER_TABLE2_SCENARIO}` (mean over seeds; u, v in m/s, beta in rad).", "",
-              "| statistic | estimator | u: paper | u: ours | v: paper | v: ours | beta: paper | beta: ours |",
-              "|---|---|---:|---:|---:|---:|---:|---:|"]
+    lines += [
+        "## The paper's Table 2 beside ours",
+        "",
+        "Table 2 of *Joint Estimation of Driving State and Road Surface Adhesion Coefficient of a "
+        "Four-Wheel Independent and Steering-Drive Electric Vehicle* (section 3.3.3: double lane change, "
+        "mu 0.5, 35 km/h, CarSim 2019 + MATLAB/Simulink, sampled every 0.002 s), transcribed as printed; "
+        f"ours: the same estimator on `{PAPER_TABLE2_SCENARIO}` (mean over seeds; u, v in m/s, beta in rad).",
+        "",
+        "| statistic | estimator | u: paper | u: ours | v: paper | v: ours | beta: paper | beta: ours |",
+        "|---|---|---:|---:|---:|---:|---:|---:|",
+    ]
     for (stat, e), paper in PAPER_TABLE2.items():
         ours = table.get((PAPER_TABLE2_SCENARIO, e))
-        cells = [f"{p:.4f} | {_fmt(ours[f'{stat.lower()}_{q}']) if ours else 'not run'}"
-                 for p, q in zip(paper, ("u", "v", "beta"))]
+        cells = [
+            f"{p:.4f} | {_fmt(ours[f'{stat.lower()}_{q}']) if ours else 'not run'}"
+            for p, q in zip(paper, ("u", "v", "beta"))
+        ]
         lines.append(f"| {stat} | {e} | " + " | ".join(cells) + " |")
     lines += _ratio_section(table, scenarios, estimators)
-    lines += ["", "The estimators' tyre: `tyre_curves.png` draws the plant's PAC2002 curves against the fitted "
-              "Dugoff (eq. 17 stiffness and friction scale, training/tyre_fit.py) at 2-5 kN, in the form of the "
-              "paper's Figures 2 and 3."]
-    lines += ["", "Caveats: the paper states no sensor noise levels (nor biases) for its CarSim runs, "
-              "nor the units of Table 2 (the sideslip column is read as rad here), nor its filters' initial "
-              "errors; its plant is CarSim's, ours is fourwis's own model. Our runs use the default sensor "
-              "model (envs.sensors.SensorParams: white noise and turn-on biases on every channel), so the "
-              "numbers are comparable in form, not like for like.", ""]
+    lines += [
+        "",
+        "The estimators' tyre: `tyre_curves.png` draws the plant's PAC2002 curves against the fitted "
+        "Dugoff (eq. 17 stiffness and friction scale, training/tyre_fit.py) at 2-5 kN, in the form of the "
+        "paper's Figures 2 and 3.",
+    ]
+    lines += [
+        "",
+        "Caveats: the paper states no sensor noise levels (nor biases) for its CarSim runs, "
+        "nor the units of Table 2 (the sideslip column is read as rad here), nor its filters' initial "
+        "errors; its plant is CarSim's, ours is fourwis's own model. Our runs use the default sensor "
+        "model (envs.sensors.SensorParams: white noise and turn-on biases on every channel), so the "
+        "numbers are comparable in form, not like for like.",
+        "",
+    ]
     return "\n".join(lines)
 
 
@@ -235,15 +299,21 @@ def _ratio_section(table: dict, scenarios: Sequence[Scenario], estimators: Seque
     if "fkf" not in estimators or not others:
         return []
     paper = PAPER_TABLE2[("RMSE", "alo-fkf")][2] / PAPER_TABLE2[("RMSE", "fkf")][2]
-    lines = ["", "### Sideslip RMSE relative to fkf", "",
-             f"Below 1: better than `fkf`. The paper's ALO-FKF / FKF on its DLC: {paper:.3f} "
-             f"({PAPER_TABLE2[('RMSE', 'alo-fkf')][2]} / {PAPER_TABLE2[('RMSE', 'fkf')][2]}).", "",
-             "| scenario | " + " | ".join(f"{e} / fkf" for e in others) + " |",
-             "|---|" + "---:|" * len(others)]
+    lines = [
+        "",
+        "### Sideslip RMSE relative to fkf",
+        "",
+        f"Below 1: better than `fkf`. The paper's ALO-FKF / FKF on its DLC: {paper:.3f} "
+        f"({PAPER_TABLE2[('RMSE', 'alo-fkf')][2]} / {PAPER_TABLE2[('RMSE', 'fkf')][2]}).",
+        "",
+        "| scenario | " + " | ".join(f"{e} / fkf" for e in others) + " |",
+        "|---|" + "---:|" * len(others),
+    ]
     for s in scenarios:
         fkf = table[(s.name, "fkf")]["rmse_beta"]
-        lines.append(f"| {s.name} | " + " | ".join(f"{table[(s.name, e)]['rmse_beta'] / fkf:.3f}" for e in others)
-                     + " |")
+        lines.append(
+            f"| {s.name} | " + " | ".join(f"{table[(s.name, e)]['rmse_beta'] / fkf:.3f}" for e in others) + " |"
+        )
     return lines
 
 
@@ -279,9 +349,14 @@ def plot_scenario(name: str, series: dict, estimators: Sequence[str], path: Path
     return path
 
 
-def estimate_report(out: str | Path, scenarios: Sequence[str | Scenario] = PAPER_SCENARIOS,
-                    estimators: Sequence[str] = DEFAULT_ESTIMATORS, seeds: int = 1, jobs: int | None = None,
-                    road_mu: bool = False) -> Path:
+def estimate_report(
+    out: str | Path,
+    scenarios: Sequence[str | Scenario] = PAPER_SCENARIOS,
+    estimators: Sequence[str] = DEFAULT_ESTIMATORS,
+    seeds: int = 1,
+    jobs: int | None = None,
+    road_mu: bool = False,
+) -> Path:
     """Run the open-loop matrix; write estimate.csv, estimate.md, <scenario>.png and tyre_curves.png
     (the plant's tyre against the estimator's fitted Dugoff, paper Figures 2-3) into ``out``.
 

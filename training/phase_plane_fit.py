@@ -35,8 +35,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from fourwis.envs.tyre import tyre_forces
 from fourwis.core.constants import GRAVITY
+from fourwis.envs.tyre import tyre_forces
 from fourwis.envs.vehicle import VehicleParams
 from fourwis.training.io import atomic_write_json
 
@@ -54,8 +54,9 @@ RECOVERED_YAW_RATE = 0.02  #: [rad/s]
 SLOPES = np.linspace(0.0, 10.0, 201)  #: candidate slopes c1 [1/s]
 
 
-def sideslip_dynamics(beta: np.ndarray, r: np.ndarray, u: float, mu: float,
-                      params: VehicleParams) -> tuple[np.ndarray, np.ndarray]:
+def sideslip_dynamics(
+    beta: np.ndarray, r: np.ndarray, u: float, mu: float, params: VehicleParams
+) -> tuple[np.ndarray, np.ndarray]:
     """(beta_dot [rad/s], r_dot [rad/s^2]) of the straight-steered 2-DOF model, shapes of ``beta``."""
     fz = params.static_wheel_loads
     a, b = params.cg_to_front, params.cg_to_rear
@@ -63,13 +64,14 @@ def sideslip_dynamics(beta: np.ndarray, r: np.ndarray, u: float, mu: float,
     slip = np.concatenate([tan_beta + a * r / u, tan_beta - b * r / u])  # contact-centre tan(alpha)
     loads = np.repeat([fz[0], fz[2]], beta.size)
     _, fy = tyre_forces(params.tyre, loads, 0.0, slip, mu, params.reference_wheel_load)
-    fy_front, fy_rear = 2.0 * fy[:beta.size], 2.0 * fy[beta.size:]
+    fy_front, fy_rear = 2.0 * fy[: beta.size], 2.0 * fy[beta.size :]
     v_dot = (fy_front + fy_rear) / params.mass - u * r
     return np.cos(beta) ** 2 * v_dot / u, (a * fy_front - b * fy_rear) / params.yaw_inertia
 
 
 def recovers(beta: np.ndarray, r: np.ndarray, u: float, mu: float, params: VehicleParams) -> np.ndarray:
     """Whether each start (beta [rad], r [rad/s]) returns to straight running (bool, shape of beta)."""
+
     def f(x):
         return np.stack(sideslip_dynamics(x[0], x[1], u, mu, params))
 
@@ -84,8 +86,9 @@ def recovers(beta: np.ndarray, r: np.ndarray, u: float, mu: float, params: Vehic
     return (np.abs(x[0]) < RECOVERED_SIDESLIP) & (np.abs(x[1]) < RECOVERED_YAW_RATE)
 
 
-def fit_band(beta: np.ndarray, beta_rate: np.ndarray, stable: np.ndarray,
-             boundary_beta: np.ndarray, boundary_rate: np.ndarray) -> tuple[float, float, float]:
+def fit_band(
+    beta: np.ndarray, beta_rate: np.ndarray, stable: np.ndarray, boundary_beta: np.ndarray, boundary_rate: np.ndarray
+) -> tuple[float, float, float]:
     """(c1 [1/s], c2 [rad/s], coverage): the band |beta_rate + c1 beta| < c2 free of diverging
     starts and of separatrix points (``boundary_*``) that holds the largest share (coverage) of
     the stable starts."""
@@ -100,8 +103,9 @@ def fit_band(beta: np.ndarray, beta_rate: np.ndarray, stable: np.ndarray,
     return best
 
 
-def separatrix(beta: np.ndarray, r: np.ndarray, stable: np.ndarray, u: float, mu: float,
-               params: VehicleParams) -> tuple[np.ndarray, np.ndarray]:
+def separatrix(
+    beta: np.ndarray, r: np.ndarray, stable: np.ndarray, u: float, mu: float, params: VehicleParams
+) -> tuple[np.ndarray, np.ndarray]:
     """Points (beta, r) on the boundary between recovering and diverging starts, by bisection
     between neighbours along r of the (GRID, GRID) grid (rows: r) that end differently."""
     b, rr, ok = (x.reshape(GRID, GRID) for x in (beta, r, stable))
@@ -120,8 +124,10 @@ def separatrix(beta: np.ndarray, r: np.ndarray, stable: np.ndarray, u: float, mu
 def fit_cell(u: float, mu: float, params: VehicleParams | None = None) -> tuple[float, float, float]:
     """(c1, c2, coverage) at speed ``u`` [m/s] and road friction ``mu``."""
     params = params or VehicleParams()
-    beta, r = np.meshgrid(np.linspace(-MAX_SIDESLIP, MAX_SIDESLIP, GRID),
-                          np.linspace(-1.0, 1.0, GRID) * YAW_RATE_WINDOW * mu * GRAVITY / u)
+    beta, r = np.meshgrid(
+        np.linspace(-MAX_SIDESLIP, MAX_SIDESLIP, GRID),
+        np.linspace(-1.0, 1.0, GRID) * YAW_RATE_WINDOW * mu * GRAVITY / u,
+    )
     beta, r = beta.ravel(), r.ravel()
     stable = recovers(beta, r, u, mu, params)
     beta_rate, _ = sideslip_dynamics(beta, r, u, mu, params)
@@ -132,21 +138,27 @@ def fit_cell(u: float, mu: float, params: VehicleParams | None = None) -> tuple[
 
 def fit_table(params: VehicleParams | None = None) -> dict:
     """The region over SPEEDS x FRICTIONS, in the layout of control/data/phase_plane.json."""
-    cells = [[fit_cell(u, mu, params) for mu in FRICTIONS]
-             for u in tqdm(SPEEDS, desc="phase-plane region", unit="speed")]
-    return {"speeds_m_s": list(SPEEDS), "frictions": list(FRICTIONS),
-            "slope_1_s": [[c[0] for c in row] for row in cells],
-            "bound_rad_s": [[c[1] for c in row] for row in cells],
-            "coverage": [[c[2] for c in row] for row in cells], "yaw_rate_window": YAW_RATE_WINDOW,
-            "source": "python -m fourwis.training.phase_plane_fit: Inagaki et al. (AVEC '94) phase-plane method on the "
-                      "2-DOF model with the plant tyre (PAC2002) at static axle loads, steering straight"}
+    cells = [
+        [fit_cell(u, mu, params) for mu in FRICTIONS] for u in tqdm(SPEEDS, desc="phase-plane region", unit="speed")
+    ]
+    return {
+        "speeds_m_s": list(SPEEDS),
+        "frictions": list(FRICTIONS),
+        "slope_1_s": [[c[0] for c in row] for row in cells],
+        "bound_rad_s": [[c[1] for c in row] for row in cells],
+        "coverage": [[c[2] for c in row] for row in cells],
+        "yaw_rate_window": YAW_RATE_WINDOW,
+        "source": "python -m fourwis.training.phase_plane_fit: Inagaki et al. (AVEC '94) phase-plane method on the "
+        "2-DOF model with the plant tyre (PAC2002) at static axle loads, steering straight",
+    }
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         prog="python -m fourwis.training.phase_plane_fit",
         description="Derive this car's sideslip phase-plane stability region (Inagaki et al.) for a table of "
-                    "speeds x road friction and overwrite control/data/phase_plane.json (~3.5 min).")
+        "speeds x road friction and overwrite control/data/phase_plane.json (~3.5 min).",
+    )
     parser.parse_args(argv)
     table = fit_table()
     print(atomic_write_json(OUTPUT, table), end="")

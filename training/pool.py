@@ -15,8 +15,9 @@ T = TypeVar("T")
 R = TypeVar("R")
 
 
-def parallel_map(fn: Callable[[T], R], items: Sequence[T], jobs: int | None, desc: str,
-                 progress: bool = True) -> Iterator[R]:
+def parallel_map(
+    fn: Callable[[T], R], items: Sequence[T], jobs: int | None, desc: str, progress: bool = True
+) -> Iterator[R]:
     """``fn`` over ``items`` in ``jobs`` processes (default: up to 2), in order, with a tqdm bar;
     a bad ``jobs`` raises ValueError at once, not at the first result (:func:`check_jobs`)."""
     check_jobs(jobs)

@@ -45,9 +45,9 @@ try:
 except ModuleNotFoundError as err:  # an optional dependency (the rl extra)
     raise ModuleNotFoundError(RL_EXTRA_MISSING) from err
 
+from fourwis.core.checks import is_integer
 from fourwis.envs.gym_env import N_OBS, AgentController, EnvConfig, YawStabilityVectorEnv, state_observation
 from fourwis.envs.sensors import Fault
-from fourwis.core.checks import is_integer
 from fourwis.training.asymmetric import POLICIES
 from fourwis.training.io import atomic_write, atomic_write_json, atomic_write_text, check_writable, pyplot
 
@@ -94,8 +94,10 @@ class SB3VecEnv(VecEnv):
 
     def __init__(self, env: YawStabilityVectorEnv):
         if env.autoreset_mode != AutoresetMode.SAME_STEP:
-            raise ValueError(f"SB3 needs a vector env that resets in the same step; got autoreset_mode "
-                             f"{env.autoreset_mode.value!r}: build it with autoreset_mode='SameStep'")
+            raise ValueError(
+                f"SB3 needs a vector env that resets in the same step; got autoreset_mode "
+                f"{env.autoreset_mode.value!r}: build it with autoreset_mode='SameStep'"
+            )
         self.env = env
         super().__init__(env.num_envs, env.single_observation_space, env.single_action_space)
         self.metadata = {**self.metadata, "render_fps": env.metadata["render_fps"]}
@@ -129,11 +131,18 @@ class SB3VecEnv(VecEnv):
         infos: list[dict] = [dict(zip(PER_STEP_INFO, row)) for row in zip(*columns)]  # (column-wise: ~5x cheaper)
         for b in np.flatnonzero(done):
             metrics = last["episode_metrics"][b]
-            infos[b].update({"terminal_observation": info["final_obs"][b],
-                             "TimeLimit.truncated": bool(truncated[b] and not terminated[b]),
-                             "episode": {"r": metrics["return"], "l": metrics["length"],
-                                         "t": round(time.time() - self._start, 6)},
-                             "episode_metrics": metrics})
+            infos[b].update(
+                {
+                    "terminal_observation": info["final_obs"][b],
+                    "TimeLimit.truncated": bool(truncated[b] and not terminated[b]),
+                    "episode": {
+                        "r": metrics["return"],
+                        "l": metrics["length"],
+                        "t": round(time.time() - self._start, 6),
+                    },
+                    "episode_metrics": metrics,
+                }
+            )
         return obs, reward.astype(np.float32), done, infos
 
     def close(self) -> None:
@@ -164,8 +173,9 @@ class SB3VecEnv(VecEnv):
     def _all_cars(self, indices, method: str) -> None:
         """ValueError naming ``method`` unless ``indices`` select every car."""
         if sorted(self._indices(indices)) != list(range(self.num_envs)):
-            raise ValueError(f"{method}: the cars are one vector env, which acts on all of them at once, not on "
-                             f"indices {indices!r}")
+            raise ValueError(
+                f"{method}: the cars are one vector env, which acts on all of them at once, not on indices {indices!r}"
+            )
 
     def _indices(self, indices) -> list[int]:
         if indices is None:
@@ -189,8 +199,18 @@ class RunConfig:
 
 
 REPLAY_BUFFER = "replay_buffer.pkl"  #: an off-policy run's replay buffer, saved with its final model
-RUN_FILES = ("model.zip", "vecnormalize.pkl", "config.json", REPLAY_BUFFER, EVALUATIONS, "learning_curve.png",
-             "learning_curve.csv", "checkpoints", "tb", ".evaluating")  #: what ``train`` writes into a run directory
+RUN_FILES = (
+    "model.zip",
+    "vecnormalize.pkl",
+    "config.json",
+    REPLAY_BUFFER,
+    EVALUATIONS,
+    "learning_curve.png",
+    "learning_curve.csv",
+    "checkpoints",
+    "tb",
+    ".evaluating",
+)  #: what ``train`` writes into a run directory
 
 
 def _vec_env(env_kwargs: dict, n_envs: int, seed: int):
@@ -263,8 +283,15 @@ def _callbacks(out: Path, eval_env, checkpoint_every: int, eval_every: int, eval
         run keeps the schedule and extends its evaluations.npz); the file is replaced atomically."""
 
         def __init__(self) -> None:
-            super().__init__(eval_env, n_eval_episodes=eval_episodes, eval_freq=1, log_path=str(out / ".evaluating"),
-                             best_model_save_path=None, deterministic=True, verbose=0)
+            super().__init__(
+                eval_env,
+                n_eval_episodes=eval_episodes,
+                eval_freq=1,
+                log_path=str(out / ".evaluating"),
+                best_model_save_path=None,
+                deterministic=True,
+                verbose=0,
+            )
             self.target = out / EVALUATIONS
 
         def _on_training_start(self) -> None:
@@ -286,10 +313,22 @@ def _callbacks(out: Path, eval_env, checkpoint_every: int, eval_every: int, eval
     return [AtomicCheckpoint(), Evaluation()]
 
 
-def train(algo: str, out: str | Path, timesteps: int, seed: int | None = None, env_kwargs: dict | None = None,
-          n_envs: int | None = None, eval_scenario: str = EVAL_SCENARIO, eval_every: int = 40_000, eval_episodes: int = 4,
-          checkpoint_every: int = 50_000, resume: str | Path | None = None, progress: bool = True,
-          algo_overrides: dict | None = None, overwrite: bool = False) -> Path:
+def train(
+    algo: str,
+    out: str | Path,
+    timesteps: int,
+    seed: int | None = None,
+    env_kwargs: dict | None = None,
+    n_envs: int | None = None,
+    eval_scenario: str = EVAL_SCENARIO,
+    eval_every: int = 40_000,
+    eval_episodes: int = 4,
+    checkpoint_every: int = 50_000,
+    resume: str | Path | None = None,
+    progress: bool = True,
+    algo_overrides: dict | None = None,
+    overwrite: bool = False,
+) -> Path:
     """Train ``algo`` until ``timesteps`` env steps in total (counting a resumed checkpoint's, so
     more than it has; rounded up to whole rollouts); writes the run directory ``out`` and returns
     the path of ``model.zip``. An ``out`` holding another run than the one resumed is refused
@@ -313,8 +352,11 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int | None = None, e
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     if not (is_integer(n_envs) and n_envs > 0):
         raise ValueError(f"n_envs must be a positive integer, got {n_envs!r}")
-    for name, value in (("eval_every", eval_every), ("checkpoint_every", checkpoint_every),
-                        ("eval_episodes", eval_episodes)):
+    for name, value in (
+        ("eval_every", eval_every),
+        ("checkpoint_every", checkpoint_every),
+        ("eval_episodes", eval_episodes),
+    ):
         if not (is_integer(value) and value > 0):
             raise ValueError(f"{name} must be a positive integer, got {value!r}")
     timesteps, seed, n_envs = int(timesteps), int(seed), int(n_envs)  # (numpy integers too; config.json takes int)
@@ -322,12 +364,14 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int | None = None, e
     try:
         env_config = EnvConfig(**env_kwargs)  # validate now, with clear errors
     except TypeError as err:
-        raise ValueError(f"bad env_kwargs {env_kwargs!r}: {err}; known: {[f.name for f in fields(EnvConfig)]}") \
-            from None
+        raise ValueError(
+            f"bad env_kwargs {env_kwargs!r}: {err}; known: {[f.name for f in fields(EnvConfig)]}"
+        ) from None
     replaces = _other_run(out, resume)
     if replaces and not overwrite:
-        raise ValueError(f"{out} already holds a run: continue it with --resume {out}, or give a new --out "
-                         f"(--overwrite replaces it)")
+        raise ValueError(
+            f"{out} already holds a run: continue it with --resume {out}, or give a new --out (--overwrite replaces it)"
+        )
     from stable_baselines3.common.noise import NormalActionNoise
     from stable_baselines3.common.vec_env import VecNormalize
 
@@ -336,17 +380,20 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int | None = None, e
     eval_kwargs = {**env_kwargs, "scenario": eval_scenario}
     for name in ("speed_kph", "mu", "scenario_kwargs", "max_episode_steps"):  # the held-out scenario, run whole
         eval_kwargs.pop(name, None)
-    eval_env = VecNormalize(_vec_env(eval_kwargs, min(eval_episodes, 4), seed + 10_000), training=False,
-                            norm_reward=False)
+    eval_env = VecNormalize(
+        _vec_env(eval_kwargs, min(eval_episodes, 4), seed + 10_000), training=False, norm_reward=False
+    )
     if resume is not None:
         model_path, normalizer_path, _ = run_files(resume)
         normalized = VecNormalize.load(str(normalizer_path), train_env)
         model = algo_class.load(str(model_path), env=normalized, device="cpu")
         model.tensorboard_log = str(out / "tb")  # this run's logs in its own folder, not the resumed one's
         if model.num_timesteps >= timesteps:  # checked before anything is written
-            raise ValueError(f"cannot resume {resume}: it already has {model.num_timesteps} timesteps and "
-                             f"--timesteps is the total to reach, so give more than {model.num_timesteps}, "
-                             f"not {timesteps}")
+            raise ValueError(
+                f"cannot resume {resume}: it already has {model.num_timesteps} timesteps and "
+                f"--timesteps is the total to reach, so give more than {model.num_timesteps}, "
+                f"not {timesteps}"
+            )
         if off_policy:
             buffer = _replay_buffer_path(model_path)
             if buffer.exists():
@@ -359,8 +406,9 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int | None = None, e
     else:
         settings = {**ALGO_CONFIGS[algo], **(algo_overrides or {})}
         # the reward scale from returns discounted as the algorithm discounts them
-        normalized = VecNormalize(train_env, norm_obs=True, norm_reward=not off_policy, clip_obs=10.0,
-                                  gamma=settings["gamma"])
+        normalized = VecNormalize(
+            train_env, norm_obs=True, norm_reward=not off_policy, clip_obs=10.0, gamma=settings["gamma"]
+        )
         if algo == "ppo" and "batch_size" not in (algo_overrides or {}):
             settings["batch_size"] = _minibatch(settings["batch_size"], settings["n_steps"] * n_envs)
         noise_std = settings.pop("action_noise_std", None)
@@ -368,8 +416,9 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int | None = None, e
             dim = train_env.action_space.shape[0]
             settings["action_noise"] = NormalActionNoise(np.zeros(dim), noise_std * np.ones(dim))
         policy = POLICIES[algo] if env_config.privileged else "MlpPolicy"
-        model = algo_class(policy, normalized, seed=seed, device="cpu", tensorboard_log=str(out / "tb"),
-                           verbose=0, **settings)
+        model = algo_class(
+            policy, normalized, seed=seed, device="cpu", tensorboard_log=str(out / "tb"), verbose=0, **settings
+        )
     if replaces:  # no checkpoint or evaluation of the replaced run may pass for this one's
         _delete_run(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -380,12 +429,16 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int | None = None, e
     chunk = model.n_steps * n_envs if algo == "ppo" else n_envs
     remaining = -(-(timesteps - model.num_timesteps) // chunk) * chunk
     try:
-        model.learn(remaining, callback=_callbacks(out, eval_env, checkpoint_every, eval_every, eval_episodes,
-                                                   resume is not None),
-                    progress_bar=progress, reset_num_timesteps=resume is None, tb_log_name=algo)
+        model.learn(
+            remaining,
+            callback=_callbacks(out, eval_env, checkpoint_every, eval_every, eval_episodes, resume is not None),
+            progress_bar=progress,
+            reset_num_timesteps=resume is None,
+            tb_log_name=algo,
+        )
         interrupted = False
     except KeyboardInterrupt:  # Ctrl-C: keep the model as it stands (resumable; PPO drops the rollout it was
-        interrupted = True     # collecting, whose steps it has counted), then stop
+        interrupted = True  # collecting, whose steps it has counted), then stop
     shutil.rmtree(out / ".evaluating", ignore_errors=True)
     atomic_write_json(out / "config.json", asdict(replace(config, timesteps=model.num_timesteps)))
     if off_policy:  # before the model: a kill in between leaves an old model with a newer buffer
@@ -393,8 +446,10 @@ def train(algo: str, out: str | Path, timesteps: int, seed: int | None = None, e
     model_path = _atomic_save_model(model, out / "model.zip")
     _atomic_save_normalizer(normalized, out / "vecnormalize.pkl")
     if interrupted:
-        raise KeyboardInterrupt(f"interrupted after {model.num_timesteps:,} env steps; saved {model_path} "
-                                f"(--resume {out} continues the run)")
+        raise KeyboardInterrupt(
+            f"interrupted after {model.num_timesteps:,} env steps; saved {model_path} "
+            f"(--resume {out} continues the run)"
+        )
     plot_learning_curve(out)
     return model_path
 
@@ -416,8 +471,9 @@ def _delete_run(out: Path) -> None:
             path.unlink(missing_ok=True)
 
 
-def _check_resumable(resume: str | Path, algo: str, env_kwargs: dict, seed: int | None,
-                     n_envs: int | None) -> tuple[int, int]:
+def _check_resumable(
+    resume: str | Path, algo: str, env_kwargs: dict, seed: int | None, n_envs: int | None
+) -> tuple[int, int]:
     """A resumed run continues the same algorithm on the same env with the same seed and cars
     (an off-policy replay buffer holds rows of n_envs cars): ValueError naming what differs from
     the resumed run's config.json (checked before anything is written; ``env_kwargs`` as :func:`_as_json`
@@ -429,12 +485,16 @@ def _check_resumable(resume: str | Path, algo: str, env_kwargs: dict, seed: int 
     if saved["algo"] != algo:
         raise ValueError(f"cannot resume {resume}: it was trained with --algo {saved['algo']}, not {algo}")
     if saved["env_kwargs"] != env_kwargs:
-        raise ValueError(f"cannot resume {resume}: it was trained with env_kwargs {saved['env_kwargs']!r}, "
-                         f"not {env_kwargs!r} (pass the same --env-kwargs)")
+        raise ValueError(
+            f"cannot resume {resume}: it was trained with env_kwargs {saved['env_kwargs']!r}, "
+            f"not {env_kwargs!r} (pass the same --env-kwargs)"
+        )
     for name, value in (("seed", seed), ("n_envs", n_envs)):
         if value is not None and value != saved[name]:
-            raise ValueError(f"cannot resume {resume}: it was trained with {name} {saved[name]}, not {value} "
-                             f"(leave it out to continue with the run's)")
+            raise ValueError(
+                f"cannot resume {resume}: it was trained with {name} {saved[name]}, not {value} "
+                f"(leave it out to continue with the run's)"
+            )
     return saved["seed"], saved["n_envs"]
 
 
@@ -449,8 +509,10 @@ def _as_json(env_kwargs: dict) -> dict:
             return asdict(value)
         if isinstance(value, (np.generic, np.ndarray)):
             return value.tolist()
-        raise TypeError(f"env_kwargs value {value!r} cannot be recorded in config.json and read back "
-                        "(give numbers, lists, strings and envs.sensors.Fault)")
+        raise TypeError(
+            f"env_kwargs value {value!r} cannot be recorded in config.json and read back "
+            "(give numbers, lists, strings and envs.sensors.Fault)"
+        )
 
     try:
         return json.loads(json.dumps(env_kwargs, default=plain))
@@ -483,12 +545,17 @@ def _check_no_abandoned_branch(resume: str | Path, out: Path) -> None:
     model_path, _, config_path = run_files(resume)
     if config_path.parent.resolve() != out.resolve():
         return
-    step = json.loads(config_path.read_text())["timesteps"] if model_path.name == "model.zip" \
+    step = (
+        json.loads(config_path.read_text())["timesteps"]
+        if model_path.name == "model.zip"
         else _checkpoint_step(model_path)
+    )
     later = sorted(p.name for p in (out / "checkpoints").glob("step_*.zip") if _checkpoint_step(p) > step)
     if later:
-        raise ValueError(f"resuming {resume} into its own run {out} would leave the run's later checkpoints "
-                         f"{later} beside the new branch's: resume the latest checkpoint, or give a new --out")
+        raise ValueError(
+            f"resuming {resume} into its own run {out} would leave the run's later checkpoints "
+            f"{later} beside the new branch's: resume the latest checkpoint, or give a new --out"
+        )
 
 
 def run_files(path: str | Path) -> tuple[Path, Path, Path]:
@@ -500,12 +567,18 @@ def run_files(path: str | Path) -> tuple[Path, Path, Path]:
         path = SHIPPED_POLICIES.joinpath(*path.parts[2:])
     if not path.exists():
         raise FileNotFoundError(f"no trained policy at {given}: no such run directory or checkpoint")
-    files = (path / "model.zip", path / "vecnormalize.pkl", path / "config.json") if path.is_dir() else \
-        (path, path.with_suffix(".pkl"), path.parent.parent / "config.json")
+    files = (
+        (path / "model.zip", path / "vecnormalize.pkl", path / "config.json")
+        if path.is_dir()
+        else (path, path.with_suffix(".pkl"), path.parent.parent / "config.json")
+    )
     for p in files[:2]:  # the config is read only where a policy is rebuilt (PolicyController)
         if not p.exists():
-            latest = max((path / "checkpoints").glob("step_*.zip"), key=_checkpoint_step, default=None) \
-                if path.is_dir() else None
+            latest = (
+                max((path / "checkpoints").glob("step_*.zip"), key=_checkpoint_step, default=None)
+                if path.is_dir()
+                else None
+            )
             hint = f" (an interrupted run? its latest checkpoint is {latest})" if latest else ""
             raise FileNotFoundError(f"no trained policy at {path}: {p} is missing{hint}")
     return files
@@ -519,8 +592,10 @@ def plot_learning_curve(out: Path) -> Path | None:
     data = np.load(data_path)
     steps, returns = data["timesteps"], data["results"]
     mean, std = returns.mean(axis=1), returns.std(axis=1)
-    atomic_write_text(out / "learning_curve.csv", "timesteps,mean_return,std_return\n"
-                      + "".join(f"{s},{m:.6g},{d:.6g}\n" for s, m, d in zip(steps, mean, std)))
+    atomic_write_text(
+        out / "learning_curve.csv",
+        "timesteps,mean_return,std_return\n" + "".join(f"{s},{m:.6g},{d:.6g}\n" for s, m, d in zip(steps, mean, std)),
+    )
     plt = pyplot()  # (the CSV first: it needs no matplotlib)
     fig, ax = plt.subplots(figsize=(6, 3.5))
     ax.plot(steps, mean, marker="o")
@@ -555,16 +630,20 @@ class PolicyController:
             raise ValueError("PolicyController needs a policy trained on estimated or true observations")
         self.model = _algo_class(config["algo"]).load(str(model_path), device="cpu")
         if env.privileged and not isinstance(self.model.policy, tuple(POLICIES.values())):
-            raise ValueError(f"{run} was trained on the privileged observation without an asymmetric policy: its "
-                             "actor reads the truth, which a controller does not have")
+            raise ValueError(
+                f"{run} was trained on the privileged observation without an asymmetric policy: its "
+                "actor reads the truth, which a controller does not have"
+            )
         with open(normalizer_path, "rb") as handle:
             normalizer = pickle.load(handle)
         self._mean, self._var = normalizer.obs_rms.mean, normalizer.obs_rms.var
         self._clip, self._epsilon = normalizer.clip_obs, normalizer.epsilon
         substeps = int(round(env.control_dt / dt)) if dt > 0 else 0
         if substeps < 1 or abs(env.control_dt - substeps * dt) > 1e-6 * env.control_dt:
-            raise ValueError(f"the policy acts every control_dt = {env.control_dt!r} s, which is no whole number of "
-                             f"dt = {dt!r} s steps")
+            raise ValueError(
+                f"the policy acts every control_dt = {env.control_dt!r} s, which is no whole number of "
+                f"dt = {dt!r} s steps"
+            )
         self.params, self.dt, self.substeps = params, dt, substeps  # dt [s]: the loop's step (ClosedLoop checks it)
         self.env_config = env
         self._agent: AgentController | None = None
@@ -572,8 +651,9 @@ class PolicyController:
 
     def normalise(self, obs: np.ndarray) -> np.ndarray:
         """VecNormalize's observation transform with the run's frozen statistics."""
-        return np.clip((obs - self._mean) / np.sqrt(self._var + self._epsilon), -self._clip, self._clip
-                       ).astype(np.float32)
+        return np.clip((obs - self._mean) / np.sqrt(self._var + self._epsilon), -self._clip, self._clip).astype(
+            np.float32
+        )
 
     def reset(self) -> None:
         self._agent, self._k = None, 0
@@ -591,8 +671,9 @@ class PolicyController:
         return self._agent(t, estimate, front_steer, base_torques)
 
 
-def evaluate(run: str | Path, out: str | Path, scenarios, estimator: str | None = None, seeds: int = 2,
-             jobs: int | None = None) -> Path:
+def evaluate(
+    run: str | Path, out: str | Path, scenarios, estimator: str | None = None, seeds: int = 2, jobs: int | None = None
+) -> Path:
     """``fourwis evaluate``: the policy of ``run`` as controller ``rl:<run>`` next to no control,
     through :func:`training.compare.compare`, with ``estimator`` in the loop (None: the one the
     run was trained with, from its config.json); returns the report path."""

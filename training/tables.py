@@ -20,8 +20,9 @@ def require_distinct(kind: str, names: Sequence[str]) -> None:
         raise ValueError(f"{kind} must be distinct, got {repeated} more than once")
 
 
-def mean_over_seeds(results: Sequence[tuple[object, dict[str, float]]],
-                    key: Callable[[object], Hashable]) -> dict[Hashable, dict[str, float]]:
+def mean_over_seeds(
+    results: Sequence[tuple[object, dict[str, float]]], key: Callable[[object], Hashable]
+) -> dict[Hashable, dict[str, float]]:
     """Mean of every metric of the runs grouped by ``key(spec)`` (NaN stays NaN)."""
     groups: dict[Hashable, list[dict]] = {}
     for spec, metrics in results:
@@ -29,8 +30,13 @@ def mean_over_seeds(results: Sequence[tuple[object, dict[str, float]]],
     return {k: {m: float(np.mean([r[m] for r in runs])) for m in runs[0]} for k, runs in groups.items()}
 
 
-def write_runs_csv(results: Sequence[tuple[object, dict[str, float]]], columns: Sequence[str],
-                   row: Callable[[object], list], metrics: Sequence[str], path: Path) -> Path:
+def write_runs_csv(
+    results: Sequence[tuple[object, dict[str, float]]],
+    columns: Sequence[str],
+    row: Callable[[object], list],
+    metrics: Sequence[str],
+    path: Path,
+) -> Path:
     """One row per run: ``row(spec)`` under ``columns``, then ``metrics`` (blank where a run lacks
     one) with 6 significant digits; written atomically."""
     buffer = io.StringIO()

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
+from fourwis.core.constants import GRAVITY
 from fourwis.envs.simulation import Trajectory
 from fourwis.envs.vehicle import A_AX, A_AY, A_FZ, A_MU, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_V, S_X, S_Y
-from fourwis.core.constants import GRAVITY
 from fourwis.training.io import atomic_write, atomic_write_text, pyplot
 
 WHEELS = ("fl", "fr", "rl", "rr")
@@ -27,9 +27,19 @@ def trajectory_columns(traj: Trajectory) -> dict[str, np.ndarray]:
     est_mu_std_<wheel>, ...)."""
     s, a, est = traj.state, traj.aux, traj.estimate
     cols = {
-        "t": traj.t, "x": s[:, S_X], "y": s[:, S_Y], "psi": s[:, S_PSI], "u": s[:, S_U], "v": s[:, S_V],
-        "r": s[:, S_R], "beta": traj.truth.beta, "ax": a[:, A_AX], "ay": a[:, A_AY],
-        "steering_wheel": traj.steering_wheel, "delta_f": s[:, S_DELTA_F], "delta_r": s[:, S_DELTA_R],
+        "t": traj.t,
+        "x": s[:, S_X],
+        "y": s[:, S_Y],
+        "psi": s[:, S_PSI],
+        "u": s[:, S_U],
+        "v": s[:, S_V],
+        "r": s[:, S_R],
+        "beta": traj.truth.beta,
+        "ax": a[:, A_AX],
+        "ay": a[:, A_AY],
+        "steering_wheel": traj.steering_wheel,
+        "delta_f": s[:, S_DELTA_F],
+        "delta_r": s[:, S_DELTA_R],
     }
     for i, w in enumerate(WHEELS):
         cols[f"torque_{w}"] = s[:, S_TORQUE + i]
@@ -75,8 +85,10 @@ def plot_trajectory(traj: Trajectory, path: str | Path, title: str | None = None
     ax.plot(t, np.degrees(cols["delta_r"]), label="rear steer")
     ax.set(xlabel="t [s]", ylabel="[deg]", title="steering")
     ax.legend(loc="best")
-    for ax, key, label, scale in ((axes[1, 0], "r", "yaw rate [deg/s]", np.degrees),
-                                  (axes[1, 1], "beta", "sideslip [deg]", np.degrees)):
+    for ax, key, label, scale in (
+        (axes[1, 0], "r", "yaw rate [deg/s]", np.degrees),
+        (axes[1, 1], "beta", "sideslip [deg]", np.degrees),
+    ):
         ax.plot(t, scale(cols[key]), label="truth")
         ax.plot(t, scale(cols[f"est_{key}"]), "--", label="estimate")
         ax.set(xlabel="t [s]", ylabel=label)
@@ -87,8 +99,8 @@ def plot_trajectory(traj: Trajectory, path: str | Path, title: str | None = None
     ax.set(xlabel="t [s]", ylabel="[g]", title="accelerations")
     ax.legend(loc="best")
     ax = axes[2, 1]
-    for i, w in enumerate(WHEELS):
-        line, = ax.plot(t, cols[f"mu_{w}"], label=f"mu {w.upper()}")
+    for w in WHEELS:
+        (line,) = ax.plot(t, cols[f"mu_{w}"], label=f"mu {w.upper()}")
         ax.plot(t, cols[f"est_mu_{w}"], "--", color=line.get_color())
     ax.set(xlabel="t [s]", ylabel="mu [-]", title="road friction (solid truth, dashed estimate)")
     ax.legend(loc="best", ncol=2)

@@ -19,7 +19,8 @@ Criterion (``criterion``):
   simulation-only criterion kept for comparison.
 
 Deviation from the project's design notes and its tuning issue (not part of this repository), on
-purpose: they describe the offline tuning as "against truth". Measured (README, "Noise tuning"): the truth-error optimum is a badly
+purpose: they describe the offline tuning as "against truth". Measured (README, "Noise tuning"): the
+truth-error optimum is a badly
 calibrated filter (alo-fkf's innovation NLL +10.7 against -10.7 hand-set on the slalom) and
 did not transfer to ``joint``; the likelihood optimum beats the hand-set noise on both the
 sideslip error and the NLL on every unseen paper scenario, so it is the default.
@@ -35,12 +36,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from fourwis.envs.scenarios import make_scenario
+from fourwis.core.checks import is_integer
 from fourwis.core.types import SensorReading
+from fourwis.envs.scenarios import make_scenario
 from fourwis.envs.simulation import Trajectory, simulate
 from fourwis.estimation import NoiseParams, make_estimator, tuned_noise
 from fourwis.estimation.optimizers import minimize
-from fourwis.core.checks import is_integer
 from fourwis.training.io import atomic_write_json, check_writable
 from fourwis.training.pool import parallel_map
 
@@ -77,8 +78,9 @@ def replay(log10_factors: np.ndarray, traj: Trajectory, kind: str = "alo-fkf") -
     T = len(traj.t)
     beta, r, u, nll = np.empty((T, n)), np.empty((T, n)), np.empty((T, n)), np.zeros(n)
     for k in range(T):
-        reading = SensorReading(np.repeat(traj.sensors[k][None], n, 0), np.repeat(traj.sensor_valid[k][None], n, 0),
-                                np.full(n, traj.t[k]))
+        reading = SensorReading(
+            np.repeat(traj.sensors[k][None], n, 0), np.repeat(traj.sensor_valid[k][None], n, 0), np.full(n, traj.t[k])
+        )
         if k == 0:
             est.reset(reading, np.full(n, traj.scenario.speed))
         e = est.step(reading)
@@ -87,8 +89,9 @@ def replay(log10_factors: np.ndarray, traj: Trajectory, kind: str = "alo-fkf") -
     return Replay(beta, r, u, nll / T)
 
 
-def replay_cost(log10_factors: np.ndarray, traj: Trajectory, kind: str = "alo-fkf",
-                criterion: str = "nll") -> np.ndarray:
+def replay_cost(
+    log10_factors: np.ndarray, traj: Trajectory, kind: str = "alo-fkf", criterion: str = "nll"
+) -> np.ndarray:
     """Cost of ``kind`` with scaled noise replayed on ``traj`` (:func:`replay`) for a population
     of candidates ``log10_factors`` (N, 4); (N,) costs, inf for members whose replay failed.
     ``nll``: mean innovation NLL per step; ``truth``: beta RMSE / 0.1 deg + yaw-rate RMSE /
@@ -108,8 +111,11 @@ def replay_cost(log10_factors: np.ndarray, traj: Trajectory, kind: str = "alo-fk
     def error(est_series: np.ndarray, truth: np.ndarray) -> np.ndarray:
         return np.sqrt(np.mean((est_series - truth[:, None]) ** 2, axis=0))
 
-    cost = (error(run.beta, traj.truth.beta) / math.radians(0.1) + error(run.r, traj.truth.r) / 0.01
-            + error(run.u, traj.truth.u) / 0.05)
+    cost = (
+        error(run.beta, traj.truth.beta) / math.radians(0.1)
+        + error(run.r, traj.truth.r) / 0.01
+        + error(run.u, traj.truth.u) / 0.05
+    )
     return np.where(np.isfinite(cost), cost, math.inf)
 
 
@@ -126,8 +132,12 @@ def _mu_error(job: tuple[int, float]) -> float:
     return float(np.mean(np.abs(traj.estimate.mu[half] - traj.truth.mu[half])))
 
 
-def mu_noise_scan(grid: Sequence[float] = MU_NOISE_GRID, seeds: Sequence[int] = MU_NOISE_SEEDS,
-                  jobs: int | None = None, progress: bool = True) -> dict[float, float]:
+def mu_noise_scan(
+    grid: Sequence[float] = MU_NOISE_GRID,
+    seeds: Sequence[int] = MU_NOISE_SEEDS,
+    jobs: int | None = None,
+    progress: bool = True,
+) -> dict[float, float]:
     """The joint estimator's mean |mu_hat - mu| over the last half of open-loop random scenarios
     ``seeds`` (10 s, sensor noise seeded alike) for each mu_accel_std of ``grid`` (the rest of
     the noise as shipped): the scan behind NoiseParams.mu_accel_std."""
@@ -137,11 +147,19 @@ def mu_noise_scan(grid: Sequence[float] = MU_NOISE_GRID, seeds: Sequence[int] = 
         raise ValueError(f"seeds must be distinct integers >= 0 (at least one), got {list(seeds)!r}")
     jobs_list = [(seed, float(g)) for g in grid for seed in seeds]
     errors = list(parallel_map(_mu_error, jobs_list, jobs, "mu-noise scan", progress))
-    return {float(g): float(np.mean(errors[i * len(seeds):(i + 1) * len(seeds)])) for i, g in enumerate(grid)}
+    return {float(g): float(np.mean(errors[i * len(seeds) : (i + 1) * len(seeds)])) for i, g in enumerate(grid)}
 
 
-def tune(n_agents: int = 30, iterations: int = 100, seed: int = 0, out: Path = OUTPUT, optimizer: str = "alo",
-         duration: float = 10.0, progress: bool = True, criterion: str = "nll") -> dict:
+def tune(
+    n_agents: int = 30,
+    iterations: int = 100,
+    seed: int = 0,
+    out: Path = OUTPUT,
+    optimizer: str = "alo",
+    duration: float = 10.0,
+    progress: bool = True,
+    criterion: str = "nll",
+) -> dict:
     """Tune alo-fkf's noise with ``optimizer`` (see estimation.optimizers) by ``criterion`` on a
     ``duration`` [s] calibration run; returns (and writes atomically) the result. If the optimizer
     does not beat the hand-set noise the result keeps it (log10 factors 0, ``improved`` false;
@@ -157,18 +175,30 @@ def tune(n_agents: int = 30, iterations: int = 100, seed: int = 0, out: Path = O
         return replay_cost(X, traj, criterion=criterion)
 
     default = float(objective(np.zeros((1, 4)))[0])
-    result = minimize(objective, BOUNDS, optimizer, n_agents=n_agents, iterations=iterations, seed=seed,
-                      progress=progress)
+    result = minimize(
+        objective, BOUNDS, optimizer, n_agents=n_agents, iterations=iterations, seed=seed, progress=progress
+    )
     improved = bool(result.fun < default)  # else the hand-set noise (factors 0) is kept, not a worse tuning
-    data = {"log10_factors": [float(v) for v in result.x] if improved else [0.0] * 4,
-            "cost": float(result.fun) if improved else default, "default_cost": default, "improved": improved,
-            "optimizer_best": {"log10_factors": [float(v) for v in result.x], "cost": float(result.fun)},
-            "optimizer": optimizer, "history": [float(v) for v in result.history],
-            "evaluations": result.n_evaluations,
-            "seed": seed, "n_agents": int(n_agents), "iterations": int(iterations), "duration": float(duration),
-            "calibration": f"random scenario seed {CALIBRATION_SEED}, {duration:g} s, sensor seed {CALIBRATION_SEED}",
-            "criterion": criterion,
-            "objective": ("mean innovation NLL per step of alo-fkf" if criterion == "nll" else
-                          "beta RMSE/0.1 deg + r RMSE/0.01 rad/s + u RMSE/0.05 m/s of alo-fkf")}
+    data = {
+        "log10_factors": [float(v) for v in result.x] if improved else [0.0] * 4,
+        "cost": float(result.fun) if improved else default,
+        "default_cost": default,
+        "improved": improved,
+        "optimizer_best": {"log10_factors": [float(v) for v in result.x], "cost": float(result.fun)},
+        "optimizer": optimizer,
+        "history": [float(v) for v in result.history],
+        "evaluations": result.n_evaluations,
+        "seed": seed,
+        "n_agents": int(n_agents),
+        "iterations": int(iterations),
+        "duration": float(duration),
+        "calibration": f"random scenario seed {CALIBRATION_SEED}, {duration:g} s, sensor seed {CALIBRATION_SEED}",
+        "criterion": criterion,
+        "objective": (
+            "mean innovation NLL per step of alo-fkf"
+            if criterion == "nll"
+            else "beta RMSE/0.1 deg + r RMSE/0.01 rad/s + u RMSE/0.05 m/s of alo-fkf"
+        ),
+    }
     atomic_write_json(out, data)
     return data

@@ -35,7 +35,7 @@ FIGURE_SPEED = 20.0  #: wheel-centre speed [m/s] at which the figure's slip rati
 
 def fit_quadratic(fz: np.ndarray, stiffness: np.ndarray) -> tuple[float, float, float]:
     """Least-squares (m, n, R^2) of ``stiffness = m fz - n fz^2`` (no constant: zero at zero load)."""
-    design = np.column_stack([fz, -fz**2])
+    design = np.column_stack([fz, -(fz**2)])
     (m, n), *_ = np.linalg.lstsq(design, stiffness, rcond=None)
     residual = stiffness - design @ (m, n)
     return float(m), float(n), float(1.0 - residual.var() / stiffness.var())
@@ -77,11 +77,20 @@ def fit_dugoff(tyre: TyreParams | None = None, reference_load: float | None = No
     m1, n1, r2x = fit_quadratic(LOADS, np.asarray(tyre.slip_stiffness(LOADS)))
     m2, n2, r2y = fit_quadratic(LOADS, np.asarray(tyre.cornering_stiffness(LOADS)))
     mu_scale, rms_scaled, rms_unscaled = fit_friction_scale(tyre, m2, n2, reference_load)
-    return {"m1": m1, "n1": n1, "m2": m2, "n2": n2, "r2_longitudinal": r2x, "r2_lateral": r2y,
-            "mu_scale": mu_scale, "lateral_rms_error_mu_fz": rms_scaled, "lateral_rms_error_mu_fz_unscaled": rms_unscaled,
-            "loads_N": [float(LOADS[0]), float(LOADS[-1])],
-            "source": "least-squares fit of eq. 17 to the plant tyre (PAC2002, chrono mf_185_80R14.tir) stiffness; "
-                      "mu_scale: least squares on the lateral force up to the plant tyre's peak"}
+    return {
+        "m1": m1,
+        "n1": n1,
+        "m2": m2,
+        "n2": n2,
+        "r2_longitudinal": r2x,
+        "r2_lateral": r2y,
+        "mu_scale": mu_scale,
+        "lateral_rms_error_mu_fz": rms_scaled,
+        "lateral_rms_error_mu_fz_unscaled": rms_unscaled,
+        "loads_N": [float(LOADS[0]), float(LOADS[-1])],
+        "source": "least-squares fit of eq. 17 to the plant tyre (PAC2002, chrono mf_185_80R14.tir) stiffness; "
+        "mu_scale: least squares on the lateral force up to the plant tyre's peak",
+    }
 
 
 class TyreCurves(NamedTuple):
@@ -125,14 +134,18 @@ def plot_tyre_curves(path: str | Path, mu: float = 1.0, loads=FIGURE_LOADS, vehi
     fig, (ax_x, ax_y) = plt.subplots(1, 2, figsize=(12, 4.5))
     for load in loads:
         c = tyre_curves(load, mu, vehicle)
-        line, = ax_x.plot(c.kappa, c.fx_plant, lw=1.5, label=f"{load / 1000:g} kN")
+        (line,) = ax_x.plot(c.kappa, c.fx_plant, lw=1.5, label=f"{load / 1000:g} kN")
         ax_x.plot(c.kappa, c.fx_dugoff, "--", lw=1.2, color=line.get_color())
         ax_y.plot(np.degrees(c.alpha), c.fy_plant, lw=1.5, color=line.get_color(), label=f"{load / 1000:g} kN")
         ax_y.plot(np.degrees(c.alpha), c.fy_dugoff, "--", lw=1.2, color=line.get_color())
-    ax_x.set(xlabel="slip ratio [-]", ylabel="longitudinal force Fx [N]",
-             title="longitudinal slip characteristic (paper Fig. 2)")
-    ax_y.set(xlabel="slip angle [deg]", ylabel="lateral force |Fy| [N]",
-             title="lateral slip characteristic (paper Fig. 3)")
+    ax_x.set(
+        xlabel="slip ratio [-]",
+        ylabel="longitudinal force Fx [N]",
+        title="longitudinal slip characteristic (paper Fig. 2)",
+    )
+    ax_y.set(
+        xlabel="slip angle [deg]", ylabel="lateral force |Fy| [N]", title="lateral slip characteristic (paper Fig. 3)"
+    )
     for ax in (ax_x, ax_y):
         ax.grid(alpha=0.3)
         ax.legend(title="wheel load (solid: plant PAC2002, dashed: fitted Dugoff)", fontsize=8, title_fontsize=8)
@@ -145,8 +158,11 @@ def plot_tyre_curves(path: str | Path, mu: float = 1.0, loads=FIGURE_LOADS, vehi
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m fourwis.training.tyre_fit", description=__doc__.splitlines()[0])
-    parser.add_argument("--plot", metavar="DIR", help="only draw DIR/tyre_curves.png (paper Figs. 2-3) from the "
-                                                      "shipped fit; the fit file is left as it is")
+    parser.add_argument(
+        "--plot",
+        metavar="DIR",
+        help="only draw DIR/tyre_curves.png (paper Figs. 2-3) from the shipped fit; the fit file is left as it is",
+    )
     args = parser.parse_args(argv)
     if args.plot:
         directory = Path(args.plot)

@@ -2,11 +2,38 @@
 the Estimate, Command and SensorReading types, the sensor channel layout, the Estimator and
 Controller protocols, the input checks, physical constants and the compiled-kernel plumbing."""
 
-from fourwis.core.checks import (check_command, check_controller, check_estimate, check_estimator, check_step,
-                                 check_vehicle_params, import_factory, is_integer, is_number, member_rows)
+from fourwis.core.checks import (
+    check_command,
+    check_controller,
+    check_estimate,
+    check_estimator,
+    check_step,
+    check_vehicle_params,
+    import_factory,
+    is_integer,
+    is_number,
+    member_rows,
+)
 from fourwis.core.constants import GRAVITY
 from fourwis.core.types import CHANNELS, N_CHANNELS, Command, Controller, Estimate, Estimator, SensorReading
 
-__all__ = ["CHANNELS", "GRAVITY", "N_CHANNELS", "Command", "Controller", "Estimate", "Estimator", "SensorReading",
-           "check_command", "check_controller", "check_estimate", "check_estimator", "check_step",
-           "check_vehicle_params", "import_factory", "is_integer", "is_number", "member_rows"]
+__all__ = [
+    "CHANNELS",
+    "GRAVITY",
+    "N_CHANNELS",
+    "Command",
+    "Controller",
+    "Estimate",
+    "Estimator",
+    "SensorReading",
+    "check_command",
+    "check_controller",
+    "check_estimate",
+    "check_estimator",
+    "check_step",
+    "check_vehicle_params",
+    "import_factory",
+    "is_integer",
+    "is_number",
+    "member_rows",
+]

@@ -14,6 +14,7 @@ import numpy as np
 
 from fourwis.core.types import Command, Estimate
 
+
 def import_factory(name: str, kind: str):
     """The callable a ``module:attribute`` name points to (a user's ``kind``, e.g. "estimator",
     built as ``factory(params, dt)``), imported; ValueError naming what is missing."""
@@ -23,8 +24,9 @@ def import_factory(name: str, kind: str):
         for part in attribute.split("."):
             target = getattr(target, part)
     except Exception as err:  # a missing or broken module (a syntax error in it too), a missing attribute
-        raise ValueError(f"{kind} {name!r}: cannot import {attribute!r} from {module_name!r} "
-                         f"({type(err).__name__}: {err})") from None
+        raise ValueError(
+            f"{kind} {name!r}: cannot import {attribute!r} from {module_name!r} ({type(err).__name__}: {err})"
+        ) from None
     if not callable(target):
         raise ValueError(f"{kind} {name!r} is not callable: give a factory(params, dt) -> {kind}")
     try:
@@ -47,15 +49,21 @@ def check_estimator(estimator, source) -> None:
     """ValueError naming ``source`` (a name, or the object) unless ``estimator`` has the step
     interface of :class:`fourwis.core.types.Estimator` (``reset`` and ``step``)."""
     if not (callable(getattr(estimator, "step", None)) and callable(getattr(estimator, "reset", None))):
-        raise ValueError(f"estimator {source!r} lacks reset() and step(), got {estimator!r}: give an Estimator, "
-                         "a name for estimation.make_estimator or None")
+        raise ValueError(
+            f"estimator {source!r} lacks reset() and step(), got {estimator!r}: give an Estimator, "
+            "a name for estimation.make_estimator or None"
+        )
 
 
 PER_WHEEL = ("mu", "fz", "mu_std")  #: the Estimate fields with a wheel axis (B, 4)
 #: (low, high, rule) of the Estimate fields with physical bounds: a road friction coefficient
 #: (the plant's range), a normal load, one-sigma uncertainties
-ESTIMATE_BOUNDS = {"mu": (0.0, 2.0, "in (0, 2]"), "fz": (0.0, math.inf, ">= 0 N"),
-                   "beta_std": (0.0, math.inf, ">= 0"), "mu_std": (0.0, math.inf, ">= 0")}
+ESTIMATE_BOUNDS = {
+    "mu": (0.0, 2.0, "in (0, 2]"),
+    "fz": (0.0, math.inf, ">= 0 N"),
+    "beta_std": (0.0, math.inf, ">= 0"),
+    "mu_std": (0.0, math.inf, ">= 0"),
+}
 
 
 def check_estimate(estimate, batch: int, source) -> None:
@@ -69,7 +77,9 @@ def check_estimate(estimate, batch: int, source) -> None:
         if np.shape(value) != shape:
             raise ValueError(f"estimator {source!r} returned {name} of shape {np.shape(value)}, expected {shape}")
         if np.asarray(value).dtype.kind not in "fiu":
-            raise ValueError(f"estimator {source!r} returned {name} of dtype {np.asarray(value).dtype}, not real numbers")
+            raise ValueError(
+                f"estimator {source!r} returned {name} of dtype {np.asarray(value).dtype}, not real numbers"
+            )
         if not np.all(np.isfinite(value)):
             raise ValueError(f"estimator {source!r} returned a non-finite {name}: {value!r}")
         if name in ESTIMATE_BOUNDS:
@@ -77,7 +87,9 @@ def check_estimate(estimate, batch: int, source) -> None:
             value = np.asarray(value)
             outside = ~(((value > low) if name == "mu" else (value >= low)) & (value <= high))
             if np.any(outside):
-                raise ValueError(f"estimator {source!r} returned {name} {float(value[outside].flat[0])!r}: it must be {rule}")
+                raise ValueError(
+                    f"estimator {source!r} returned {name} {float(value[outside].flat[0])!r}: it must be {rule}"
+                )
 
 
 def is_number(value) -> bool:
@@ -113,8 +125,11 @@ def member_rows(members, batch_size: int) -> np.ndarray:
     if given.size and not np.issubdtype(given.dtype, np.integer):
         raise ValueError(f"members must be integer indices into the batch of {batch_size}, got {members!r}")
     rows = np.ascontiguousarray(given, dtype=np.int64)
-    if rows.ndim != 1 or (len(rows) and not (0 <= rows.min() and rows.max() < batch_size)) \
-            or len(np.unique(rows)) != len(rows):
+    if (
+        rows.ndim != 1
+        or (len(rows) and not (0 <= rows.min() and rows.max() < batch_size))
+        or len(np.unique(rows)) != len(rows)
+    ):
         raise ValueError(f"members must be distinct indices into the batch of {batch_size}, got {members!r}")
     return rows
 
@@ -123,8 +138,10 @@ def check_controller(controller, source) -> None:
     """ValueError naming ``source`` (a name, or the object) unless ``controller`` has the
     interface of :class:`fourwis.core.types.Controller` (``reset`` and a call)."""
     if not (callable(controller) and callable(getattr(controller, "reset", None))):
-        raise ValueError(f"controller {source!r} lacks reset() or a call, got {controller!r}: give a Controller, "
-                         "a name from control.CONTROLLERS or None")
+        raise ValueError(
+            f"controller {source!r} lacks reset() or a call, got {controller!r}: give a Controller, "
+            "a name from control.CONTROLLERS or None"
+        )
 
 
 def check_command(command, batch: int, source) -> None:
@@ -135,5 +152,6 @@ def check_command(command, batch: int, source) -> None:
     for name, shape in (("torques", (batch, 4)), ("rear_steer", (batch,))):
         value = getattr(command, name)
         if np.shape(value) != shape or np.asarray(value).dtype.kind not in "fiu" or not np.all(np.isfinite(value)):
-            raise ValueError(f"controller {source!r} returned {name} {value!r}: expected finite real numbers of "
-                             f"shape {shape}")
+            raise ValueError(
+                f"controller {source!r} returned {name} {value!r}: expected finite real numbers of shape {shape}"
+            )

@@ -129,8 +129,11 @@ def _stack_array(typingctx, shape, dtype):
     """Uninitialised C-contiguous array of ``shape`` (a tuple of ints) and ``dtype`` in the
     calling function's stack frame: SCRATCH_BYTES reserved once in its entry block (so a call
     in a loop reuses the same bytes), no meminfo (so no reference counting and no free)."""
-    if not (isinstance(shape, types.UniTuple) and isinstance(shape.dtype, types.Integer)
-            and isinstance(dtype, types.NumberClass)):
+    if not (
+        isinstance(shape, types.UniTuple)
+        and isinstance(shape.dtype, types.Integer)
+        and isinstance(dtype, types.NumberClass)
+    ):
         return None
     array_type = types.Array(dtype.dtype, shape.count, "C")
 
@@ -139,15 +142,23 @@ def _stack_array(typingctx, shape, dtype):
         element = context.get_data_type(dtype.dtype)
         itemsize = context.get_abi_sizeof(element)
         buffer = cgutils.alloca_once(builder, ir.DoubleType(), size=ir.Constant(intp, SCRATCH_BYTES // 8))
-        sizes = [context.cast(builder, size, shape.dtype, types.intp)
-                 for size in cgutils.unpack_tuple(builder, args[0], shape.count)]
+        sizes = [
+            context.cast(builder, size, shape.dtype, types.intp)
+            for size in cgutils.unpack_tuple(builder, args[0], shape.count)
+        ]
         strides, stride = [], ir.Constant(intp, itemsize)
         for size in reversed(sizes):
             strides.insert(0, stride)
             stride = builder.mul(stride, size)
         array = make_array(array_type)(context, builder)
-        populate_array(array, data=builder.bitcast(buffer, element.as_pointer()), shape=sizes, strides=strides,
-                       itemsize=ir.Constant(intp, itemsize), meminfo=None)
+        populate_array(
+            array,
+            data=builder.bitcast(buffer, element.as_pointer()),
+            shape=sizes,
+            strides=strides,
+            itemsize=ir.Constant(intp, itemsize),
+            meminfo=None,
+        )
         return array._getvalue()
 
     return array_type(shape, dtype), codegen
@@ -156,8 +167,11 @@ def _stack_array(typingctx, shape, dtype):
 @intrinsic
 def _nbytes(typingctx, shape, dtype):
     """Bytes of an array of ``shape`` (a tuple of ints) and NumPy scalar type ``dtype``."""
-    if not (isinstance(shape, types.UniTuple) and isinstance(shape.dtype, types.Integer)
-            and isinstance(dtype, types.NumberClass)):
+    if not (
+        isinstance(shape, types.UniTuple)
+        and isinstance(shape.dtype, types.Integer)
+        and isinstance(dtype, types.NumberClass)
+    ):
         return None
 
     def codegen(context, builder, signature, args):

@@ -12,8 +12,21 @@ import numpy as np
 #: Channel order of every sensor reading (13 channels; fourwis.envs.sensors produces them, the
 #: estimators read them): accelerations [m/s^2], yaw rate [rad/s], wheel speeds [rad/s], road-
 #: wheel steer angles [rad], motor torques [N m].
-CHANNELS = ("ax", "ay", "yaw_rate", "omega_fl", "omega_fr", "omega_rl", "omega_rr", "delta_f", "delta_r",
-            "torque_fl", "torque_fr", "torque_rl", "torque_rr")
+CHANNELS = (
+    "ax",
+    "ay",
+    "yaw_rate",
+    "omega_fl",
+    "omega_fr",
+    "omega_rl",
+    "omega_rr",
+    "delta_f",
+    "delta_r",
+    "torque_fl",
+    "torque_fr",
+    "torque_rl",
+    "torque_rr",
+)
 N_CHANNELS = len(CHANNELS)
 
 
@@ -33,7 +46,8 @@ class Estimate(NamedTuple):
     u, v: body velocities [m/s] (B,); beta = atan2(v, |u|) [rad] (B,) (the filters floor |u| at
     1 m/s: a car at rest has no defined sideslip); r: yaw rate [rad/s] (B,); ax, ay: body
     specific forces [m/s^2] (B,) (the joint estimator's are its model's, whose lack of rolling
-    resistance and drag reads ~0.1 m/s^2 high on the paper's sine); mu: road friction per wheel (B, 4); fz: normal loads per
+    resistance and drag reads ~0.1 m/s^2 high on the paper's sine); mu: road friction per wheel (B, 4); fz: normal
+    loads per
     wheel [N] (B, 4); beta_std [rad] (B,) and mu_std (B, 4): the filter's own one-sigma
     uncertainty, from its covariance (zero for the oracle; mu_std also zero for the filters that
     assume a nominal mu). The state filters' covariance does not model the estimation model's
@@ -74,7 +88,9 @@ class Controller(Protocol):
 
     def reset(self) -> None: ...
 
-    def __call__(self, t: np.ndarray, estimate: Estimate, front_steer: np.ndarray, base_torques: np.ndarray) -> Command: ...
+    def __call__(
+        self, t: np.ndarray, estimate: Estimate, front_steer: np.ndarray, base_torques: np.ndarray
+    ) -> Command: ...
 
 
 class Estimator(Protocol):
@@ -94,6 +110,7 @@ class Estimator(Protocol):
 
     def reset(self, reading: SensorReading, initial_speed: np.ndarray, mask: np.ndarray | None = None) -> None: ...
 
-    def step(self, reading: SensorReading, truth: Estimate | None = None,
-             members: np.ndarray | None = None) -> Estimate:
+    def step(
+        self, reading: SensorReading, truth: Estimate | None = None, members: np.ndarray | None = None
+    ) -> Estimate:
         """Step every vehicle, or only the rows ``members`` (the estimate then has those rows)."""
