@@ -16,8 +16,8 @@ import numba
 import numpy as np
 from numba.extending import register_jitable
 
+from fourwis.core.constants import GRAVITY
 from fourwis.core.kernels import JIT
-from fourwis.estimation.model import GRAVITY  # the controller plans with the estimation model's g
 
 FRICTION_USE = 0.85  #: share of mu*g the reference may ask for (Rajamani 2012, sec. 8.5)
 MIN_SPEED = 1.0  #: speed floor in divisions [m/s]

@@ -52,9 +52,9 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
+from fourwis.core.constants import GRAVITY
 from fourwis.core.kernels import JIT, fixed_tuple, scratch
 
-GRAVITY = 9.81  #: [m/s^2] (the plant uses standard gravity 9.80665; the model's own value)
 MIN_SPEED = 1.0  #: denominator floor for slip quantities [m/s]
 
 

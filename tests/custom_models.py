@@ -3,6 +3,7 @@ name (tests/test_custom_models.py): this folder is on sys.path under pytest."""
 
 import numpy as np
 
+from fourwis.core.constants import GRAVITY
 from fourwis.core.types import Command
 from fourwis.estimation import Estimate, make_estimator
 
@@ -82,7 +83,7 @@ class ReusesArrays:
             zeros.copy(),
             zeros.copy(),
             wheels + 0.8,
-            wheels + self.params.mass * 9.81 / 4,
+            wheels + self.params.mass * GRAVITY / 4,
             zeros.copy(),
             wheels.copy(),
         )
