@@ -27,12 +27,7 @@ STATE = np.zeros(26)
 
 @pytest.mark.parametrize(
     "name, speed_kph, mu",
-    [
-        ("paper_dlc", 35.0, 0.5),
-        ("paper_step", 40.0, 0.3),
-        ("paper_sine", 40.0, 0.8),
-        ("paper_serpentine", 40.0, 0.5),
-    ],
+    [("paper_dlc", 35.0, 0.5), ("paper_step", 40.0, 0.3), ("paper_sine", 40.0, 0.8), ("paper_serpentine", 40.0, 0.5)],
 )
 def test_paper_scenarios_have_the_papers_speed_and_friction(name, speed_kph, mu):
     scenario = SCENARIOS[name]
