@@ -14,13 +14,14 @@ from collections.abc import Callable
 
 import numpy as np
 
+from fourwis.envs.layout import NU
 from fourwis.envs.scenarios import make_scenario
 from fourwis.envs.sensors import SensorModel, SensorParams
-from fourwis.envs.simulation import DT, sensor_truth
-from fourwis.envs.vehicle import NU, VehicleParams, derivatives
+from fourwis.envs.simulation import DT, truth_of
+from fourwis.envs.vehicle import VehicleParams, derivatives
 from fourwis.estimation import make_estimator
-from fourwis.estimation.joint import measure_state_1
-from fourwis.estimation.model import steer_trig, transition
+from fourwis.estimation.joint import MeasurementInputs, measure_state_1
+from fourwis.estimation.model import ModelInputs, steer_trig, transition
 
 
 def _per_call(fn: Callable[[], None], seconds: float = 3.0) -> float:
@@ -43,7 +44,7 @@ def _started(name: str, batch: int, **options):
     scenario = make_scenario("paper_sine")
     state = scenario.initial_state(batch)
     aux = derivatives(state, np.zeros((batch, NU)), np.full((batch, 4), 0.8), params)[1]
-    reading = SensorModel(SensorParams(), (), batch, np.random.default_rng(0)).measure(sensor_truth(state, aux), 0.0)
+    reading = SensorModel(SensorParams(), (), batch, np.random.default_rng(0)).measure(truth_of(state, aux)[0], 0.0)
     estimator = make_estimator(name, params, DT, stuck_samples=math.inf, **options)
     estimator.reset(reading, np.full(batch, scenario.speed))
     return estimator, reading
@@ -67,11 +68,13 @@ def ckf_versus_filterpy() -> tuple[float, float]:
     values = reading.values[0]
     delta = np.array([values[7], values[7], values[8], values[8]])
     trig = steer_trig(delta)
-    h_args = (trig, p.packed)
+    h_args = MeasurementInputs(trig, p.kernel)
     # the compiled transition with its arguments built once, as hx has them (not the checked
     # convenience wrapper estimation.model.state_transition, whose argument checks and
     # conversions cost ~5 us per sigma point: filterpy would be timed with our Python overhead)
-    f_args = (np.full(4, 0.8), trig, values[3:7].copy(), values[9:13].copy(), np.zeros(4), p.packed, float(DT))
+    f_args = ModelInputs(
+        np.full(4, 0.8), trig, values[3:7].copy(), values[9:13].copy(), np.zeros(4), p.kernel, float(DT)
+    )
 
     def fx(x: np.ndarray, dt: float) -> np.ndarray:
         out = np.empty((1, 6))
@@ -86,7 +89,7 @@ def ckf_versus_filterpy() -> tuple[float, float]:
     noise = estimator.noise
     # (2n + 1 = 13 sigma points, the centre one with weight 0: one model call more than the CKF's 12)
     ukf = UnscentedKalmanFilter(6, 7, DT, hx, fx, MerweScaledSigmaPoints(6, alpha=1.0, beta=0.0, kappa=0.0))
-    ukf.x, ukf.P = estimator.x[0].copy(), estimator.P[0].copy()
+    ukf.x, ukf.P = estimator.state.x[0].copy(), estimator.state.P[0].copy()
     ukf.Q = np.diag(np.square(noise.process_std))
     ukf.R = np.diag([noise.accel_std**2] * 2 + [noise.gyro_std**2] + [noise.wheel_speed_std**2] * 4)
     z = np.concatenate([values[:3], values[3:7] * p.wheel_radius])

@@ -13,8 +13,9 @@ import time
 import numpy as np
 from _common import report
 
+from fourwis.envs.layout import NU
 from fourwis.envs.road import RoadTables, uniform
-from fourwis.envs.vehicle import NU, VehicleParams, initial_state, step
+from fourwis.envs.vehicle import VehicleParams, initial_state, step
 
 
 def _rate(fn, vehicle_steps: int, repeats: int = 3) -> float:

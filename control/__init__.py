@@ -17,28 +17,24 @@ from fourwis.control.allocation import (
 )
 from fourwis.control.dyc import (
     ACTIVE_SPEED,
-    M_DELIVERED,
-    M_FEASIBLE,
-    M_FORCE,
-    M_MOMENT,
-    M_REAR,
-    M_REFERENCE,
-    M_TORQUES,
-    M_WIDTH,
     MIN_PLANNING_MU,
-    SETTINGS,
     YAW_DEADBAND,
+    DycKernel,
+    DycMemory,
+    DycSettings,
     LQRWeights,
     LQRYawController,
     SlidingModeYawController,
     actuator_lag_terms,
-    allocation_inputs,
+    clear_memory,
+    fresh_memory,
+    inputs_row,
     planning_friction,
     stability_commands,
 )
 from fourwis.control.reference import understeer_gradient
 from fourwis.core.checks import check_controller, check_step, check_vehicle_params, import_factory, is_number
-from fourwis.core.types import Command
+from fourwis.core.types import Command, Estimate
 
 CONTROLLERS = ("none", "dyc-lqr", "dyc-smc", "dyc-lqr-4ws", "dyc-smc-4ws")
 #: default StabilityController.mu_margin. Measured on the headline matrix before the yaw
@@ -101,7 +97,7 @@ class StabilityController:
     plans with the point estimate.
 
     Each call runs :func:`control.dyc.stability_command` per vehicle, a compiled kernel that
-    the compiled closed loop (:mod:`envs.compiled_loop`) runs too, on the controller's own
+    the compiled closed loop (:mod:`fourwis.envs.loop`) runs too, on the controller's own
     per-vehicle memory (reference, rear angle, delivered moment, latest allocation), so the
     two loops hand the controller over to each other mid-run. Written with the laws' and the
     reference's functions (:mod:`control.dyc`, :mod:`control.reference`), which the numpy
@@ -134,9 +130,9 @@ class StabilityController:
                 f"reference_understeer must be a finite gradient >= 0 [rad s^2/m], got {self.reference_understeer!r}"
             )
         if self.law == "lqr":
-            law = LQRYawController(self.params, LQRWeights())
+            law = LQRYawController(self.params, LQRWeights()).law
         elif self.law == "smc":
-            law = SlidingModeYawController(self.params)
+            law = SlidingModeYawController(self.params).law
         else:
             raise ValueError(f"unknown yaw-moment law {self.law!r}; known: ['lqr', 'smc']")
         p = self.params
@@ -144,31 +140,27 @@ class StabilityController:
         understeer = self.reference_understeer
         if understeer is None:  # the car's own, floored at neutral
             understeer = max(understeer_gradient(p), 0.0)
-        values = dict(
-            sliding_mode=float(self.law == "smc"),
-            rear_steer=float(self.rear_steer),
-            dt=self.dt,
-            friction_ellipse=float(self.friction_ellipse),
-            mu_margin=self.mu_margin,
-            understeer=understeer,
-            wheelbase=p.wheelbase,
-            max_rear_steer=p.max_rear_steer if self.rear_steer else 0.0,
-            rear_steer_rate=getattr(p, "rear_steer_rate", np.inf),
-            c_f=c_f,
-            c_r=c_r,
-            mass=p.mass,
-            yaw_inertia=p.yaw_inertia,
-            cg_to_front=p.cg_to_front,
-            cg_to_rear=p.cg_to_rear,
+        motor_lag, sigma_kappa = actuator_lag_terms(p)
+        settings = DycSettings(
+            rear_steer=bool(self.rear_steer),
+            friction_ellipse=bool(self.friction_ellipse),
+            dt=float(self.dt),
+            mu_margin=float(self.mu_margin),
+            understeer=float(understeer),
+            wheelbase=float(p.wheelbase),
+            max_rear_steer=float(p.max_rear_steer) if self.rear_steer else 0.0,
+            rear_steer_rate=float(getattr(p, "rear_steer_rate", np.inf)),
+            motor_lag=float(motor_lag),
+            sigma_kappa=float(sigma_kappa),
+            c_f=float(c_f),
+            c_r=float(c_r),
+            mass=float(p.mass),
+            yaw_inertia=float(p.yaw_inertia),
+            cg_to_front=float(p.cg_to_front),
+            cg_to_rear=float(p.cg_to_rear),
         )
-        values["motor_lag"], values["sigma_kappa"] = actuator_lag_terms(p)
-        if self.law == "lqr":
-            table, terms = (np.ascontiguousarray(law.speeds, dtype=float), law.gains), (0.0,) * 11
-        else:
-            table, terms = (np.zeros(1), np.zeros((1, 3))), law.terms()
         # (frozen: the fields are the settings, so these are set once)
-        settings = np.array([values[name] for name in SETTINGS])
-        object.__setattr__(self, "_kernel", (*allocator_limits(p), settings, *table, terms))
+        object.__setattr__(self, "_parts", (settings, allocator_limits(p), law))
         object.__setattr__(self, "_memory", None)
 
     def reset(self, members: np.ndarray | None = None) -> None:
@@ -176,39 +168,30 @@ class StabilityController:
         if members is None or self._memory is None:
             object.__setattr__(self, "_memory", None)
         else:
-            self._memory[np.asarray(members, dtype=bool)] = _fresh_memory(1)
+            clear_memory(self._memory, np.asarray(members, dtype=bool))
 
-    def kernel_arrays(self, batch: int) -> tuple:
-        """The arguments of :func:`control.dyc.stability_command` after the vehicle's estimate,
-        steer and base torques, reordered as the compiled closed loop (envs.compiled_loop) takes
-        them: the allocator's wheel positions and motor limits (this controller's vehicle
-        parameters), the settings (:data:`control.dyc.SETTINGS`), the LQR's speeds and gains, the
-        sliding mode's terms and the memory (batch, M_WIDTH), the controller's own, which the
-        compiled loop updates in place."""
-        return (*self._kernel, self._vehicle_memory(batch))
-
-    def _vehicle_memory(self, batch: int) -> np.ndarray:
+    def kernel(self, batch: int) -> DycKernel:
+        """This controller as its compiled step and the compiled closed loop take it, for a batch
+        of ``batch`` vehicles: its settings, the allocator's limits (this controller's vehicle
+        parameters), its law and its memory (the arrays themselves, updated in place)."""
         if self._memory is None:
-            object.__setattr__(self, "_memory", _fresh_memory(batch))
-        elif len(self._memory) != batch:
-            raise ValueError(f"the controller steers {len(self._memory)} vehicles, not {batch}: reset() it first")
-        return self._memory
+            object.__setattr__(self, "_memory", fresh_memory(batch))
+        elif len(self._memory.rear) != batch:
+            raise ValueError(f"the controller steers {len(self._memory.rear)} vehicles, not {batch}: reset() it first")
+        return DycKernel(*self._parts, self._memory)
 
     @property
-    def _reference(self) -> np.ndarray | None:
+    def reference(self) -> np.ndarray | None:
         """The lagged yaw-rate reference (B,) [rad/s] of the latest call (None before it)."""
-        return None if self._memory is None else self._memory[:, M_REFERENCE].copy()
+        return None if self._memory is None else self._memory.reference.copy()
 
     @property
     def last_allocation(self) -> Allocation | None:
-        """The latest :class:`control.allocation.Allocation` (None before the first call; a
-        vehicle held in every call so far has NaN rows)."""
-        if self._memory is None or np.isnan(self._memory[:, M_MOMENT]).all():
+        """The latest :class:`fourwis.control.allocation.Allocation` (None before the first call;
+        a vehicle held in every call so far has NaN rows)."""
+        if self._memory is None or np.isnan(self._memory.allocation.yaw_moment).all():
             return None
-        m = self._memory
-        return Allocation(
-            m[:, M_TORQUES : M_TORQUES + 4].copy(), m[:, M_MOMENT].copy(), m[:, M_FORCE].copy(), m[:, M_FEASIBLE] == 1.0
-        )
+        return Allocation(*(field.copy() for field in self._memory.allocation))
 
     def planning_mu(self, estimate) -> np.ndarray:
         """Per-wheel friction (B, 4) the controller plans with (see the class docstring)."""
@@ -216,60 +199,44 @@ class StabilityController:
         mu_std = getattr(estimate, "mu_std", None)
         return mu if mu_std is None else planning_friction(mu, np.asarray(mu_std, dtype=float), self.mu_margin)
 
-    def __call__(
-        self,
-        t: np.ndarray,
-        estimate,
-        front_steer: np.ndarray,
-        base_torques: np.ndarray,
-        moving: np.ndarray | None = None,
-    ) -> Command:
-        """The command (B vehicles) at the estimate, the driver's front road-wheel angles (B,) [rad]
-        and base torques (B, 4) [N m]. ``moving`` (B,) bool: only these vehicles' memories step
-        (a closed loop's held vehicles keep theirs; their rows of the command are stale); all if
-        None. A call that fails (ValueError naming the allocator's bad input) changes nothing."""
+    def __call__(self, t: np.ndarray, estimate, front_steer: np.ndarray, base_torques: np.ndarray) -> Command:
+        """The command (B vehicles) at the estimate (an Estimate-like object; without ``mu_std``
+        the friction is taken as certain), the driver's front road-wheel angles (B,) [rad] and
+        base torques (B, 4) [N m]. A call that fails (ValueError naming the allocator's bad
+        input) changes nothing."""
         u = np.ascontiguousarray(estimate.u, dtype=float)
         B = u.shape[0] if u.ndim == 1 else -1
-        mu_std = getattr(estimate, "mu_std", None)
-        inputs = {
-            "u": u,
-            **{
-                name: np.ascontiguousarray(value, dtype=float)
-                for name, value in (
-                    ("beta", estimate.beta),
-                    ("r", estimate.r),
-                    ("ay", estimate.ay),
-                    ("mu", estimate.mu),
-                    ("mu_std", np.zeros((max(B, 0), 4)) if mu_std is None else mu_std),
-                    ("fz", estimate.fz),
-                    ("front_steer", front_steer),
-                    ("base_torques", base_torques),
-                )
-            },
-        }
-        moving = np.ones(max(B, 0), dtype=bool) if moving is None else np.asarray(moving)
-        shapes = {name: value.shape for name, value in inputs.items()} | {"moving": moving.shape}
+        given = {name: getattr(estimate, name, None) for name in Estimate._fields}
+        if given["mu_std"] is None:
+            given["mu_std"] = np.zeros((max(B, 0), 4))
+        if given["v"] is None or given["ax"] is None or given["beta_std"] is None:  # (unread by the controller)
+            given["v"] = given["ax"] = given["beta_std"] = np.zeros(max(B, 0))
+        inputs = {name: np.ascontiguousarray(value, dtype=float) for name, value in given.items()}
+        steer = {"front_steer": np.ascontiguousarray(front_steer, dtype=float),
+                 "base_torques": np.ascontiguousarray(base_torques, dtype=float)}  # fmt: skip
+        shapes = {name: value.shape for name, value in (inputs | steer).items()}
         expected = {name: (B, 4) if name in ("mu", "mu_std", "fz", "base_torques") else (B,) for name in shapes}
-        if B < 0 or shapes != expected or moving.dtype != np.bool_:
+        if B < 0 or shapes != expected:
             raise ValueError(
-                f"the estimate's u, beta, r, ay, front_steer and moving (bool) must have shape (B,), "
-                f"mu, mu_std, fz and base_torques (B, 4); got {shapes}"
+                "the estimate's u, beta, r, ay, and front_steer must have shape (B,), mu, mu_std, fz and base_torques "
+                f"(B, 4); got {shapes}"
             )
-        memory = self._vehicle_memory(B)
-        before = memory.copy()
-        bad, vehicle = stability_commands(*inputs.values(), moving, *self._kernel, memory)
+        dyc = self.kernel(B)
+        before = _copied(dyc.memory)
+        bad, vehicle = stability_commands(dyc, Estimate(**inputs), steer["front_steer"], steer["base_torques"])
         if bad:
-            failed = memory[vehicle].copy()
-            memory[:] = before
-            raise allocation_error(bad, allocation_inputs(failed))
-        return Command(memory[:, M_TORQUES : M_TORQUES + 4].copy(), memory[:, M_REAR].copy())
+            failed = inputs_row(dyc.memory.inputs, vehicle)
+            failed = type(failed)(*(field.copy() for field in failed))
+            object.__setattr__(self, "_memory", before)
+            raise allocation_error(bad, failed)
+        return Command(dyc.memory.allocation.torques.copy(), dyc.memory.rear.copy())
 
 
-def _fresh_memory(batch: int) -> np.ndarray:
-    """A :class:`StabilityController`'s memory (batch, M_WIDTH) before its first call."""
-    memory = np.full((batch, M_WIDTH), np.nan)
-    memory[:, M_DELIVERED] = 0.0  # (before any moment, the wheels deliver none)
-    return memory
+def _copied(memory: DycMemory) -> DycMemory:
+    """A deep copy of ``memory``."""
+    return DycMemory(
+        *(type(part)(*(field.copy() for field in part)) if isinstance(part, tuple) else part.copy() for part in memory)
+    )
 
 
 #: the DYC controllers' (law, rear steer) by name

@@ -47,12 +47,38 @@ _FACES = np.array([[(face // 3**w) % 3 for w in range(4)] for face in range(81)]
 
 class Allocation(NamedTuple):
     """Allocator output for a batch of B vehicles: wheel torques [N m] (B, 4), the yaw moment
-    [N m] (B,) and drive force [N] (B,) they deliver, and whether the demand was met (B,)."""
+    [N m] (B,) and drive force [N] (B,) they deliver, and whether the demand was met (B,) bool."""
 
     torques: np.ndarray
     yaw_moment: np.ndarray
     drive_force: np.ndarray
     feasible: np.ndarray
+
+
+class AllocationInputs(NamedTuple):
+    """The allocator's demand for B vehicles: the driver's base torques (B, 4) [N m] (their drive
+    force), the yaw moment (B,) [N m], the estimated wheel loads (B, 4) [N], friction (B, 4) and
+    lateral tyre forces (B, 4) [N] (the friction ellipse; zero: the circle), the speed (B,)
+    [m/s] (the motors' power limit) and the front and rear road-wheel angles (B,) [rad]."""
+
+    base_torques: np.ndarray
+    yaw_moment: np.ndarray
+    fz: np.ndarray
+    mu: np.ndarray
+    lateral: np.ndarray
+    speed: np.ndarray
+    front_steer: np.ndarray
+    rear_steer: np.ndarray
+
+
+class AllocatorLimits(NamedTuple):
+    """The car the allocator drives: contact-point positions (4, 2) [m] (body frame), motor peak
+    torque [N m] and power [W], wheel radius [m]."""
+
+    positions: np.ndarray
+    motor_peak_torque: float
+    motor_peak_power: float
+    wheel_radius: float
 
 
 @numba.njit(**JIT)
@@ -133,26 +159,12 @@ NEGATIVE_LOAD, NONPOSITIVE_FRICTION = -1, -2  #: statuses of allocation_kernel f
 
 
 @numba.njit(**JIT)
-def allocation_kernel(
-    base_torques,
-    yaw_moment,
-    fz,
-    mu,
-    lateral,
-    speed,
-    front_steer,
-    rear_steer,
-    positions,
-    motor_peak_torque,
-    motor_peak_power,
-    wheel_radius,
-    torques,
-    delivered_moment,
-    delivered_force,
-    feasible,
-) -> int:
-    """Fills the outputs; returns 0, 1 + the index of the first non-finite input, or
-    NEGATIVE_LOAD / NONPOSITIVE_FRICTION."""
+def allocation_kernel(inputs: AllocationInputs, limits: AllocatorLimits, out: Allocation) -> int:
+    base_torques, yaw_moment, fz, mu, lateral, speed, front_steer, rear_steer = inputs
+    positions, motor_peak_torque, motor_peak_power, wheel_radius = limits
+    torques, delivered_moment, delivered_force, feasible = out
+    """Fills ``out`` (its rows as ``inputs``'); returns 0, 1 + the index of the first non-finite
+    input (AllocationInputs order), or NEGATIVE_LOAD / NONPOSITIVE_FRICTION."""
     for i, value in enumerate(
         (
             base_torques.sum(),
@@ -241,6 +253,7 @@ def _zeros(batch: int) -> tuple[np.ndarray, np.ndarray]:
     return wheels, cars
 
 
+#: how errors name AllocationInputs' fields
 _INPUTS = (
     "base torques",
     "yaw moment",
@@ -278,7 +291,7 @@ def allocate_torques(
         raise ValueError(f"base_torques must have shape (B, 4), got {base_torques.shape}")
     B = base_torques.shape[0]
     wheels, cars = _zeros(B)  # read-only defaults, shared: this runs at every 2 ms substep
-    inputs = (
+    inputs = AllocationInputs(
         base_torques,
         np.ascontiguousarray(yaw_moment, dtype=np.float64),
         np.ascontiguousarray(fz, dtype=np.float64),
@@ -294,27 +307,25 @@ def allocate_torques(
             f"yaw_moment, speed and the steer angles must have shape ({B},) and fz, mu, "
             f"lateral_forces ({B}, 4); got " + ", ".join(f"{name} {shape}" for name, shape in zip(_INPUTS[1:], shapes))
         )
-    torques, moment, force = np.empty((B, 4)), np.empty(B), np.empty(B)
-    feasible = np.empty(B, dtype=np.bool_)
-    bad = allocation_kernel(*inputs, *allocator_limits(params), torques, moment, force, feasible)
+    out = Allocation(np.empty((B, 4)), np.empty(B), np.empty(B), np.empty(B, dtype=np.bool_))
+    bad = allocation_kernel(inputs, allocator_limits(params), out)
     if bad:
         raise allocation_error(bad, inputs)
-    return Allocation(torques, moment, force, feasible)
+    return out
 
 
-def allocator_limits(params) -> tuple[np.ndarray, float, float, float]:
-    """The allocator's vehicle arguments of duck-typed ``params``: wheel positions (4, 2) [m],
-    motor peak torque [N m] and power [W], wheel radius [m]."""
-    return (
-        params.wheel_positions,
+def allocator_limits(params) -> AllocatorLimits:
+    """The :class:`AllocatorLimits` of duck-typed vehicle ``params``."""
+    return AllocatorLimits(
+        np.ascontiguousarray(params.wheel_positions, dtype=np.float64),
         float(params.motor_peak_torque),
         float(params.motor_peak_power),
         float(params.wheel_radius),
     )
 
 
-def allocation_error(bad: int, inputs: tuple[np.ndarray, ...]) -> ValueError:
-    """The error for :func:`allocation_kernel`'s status ``bad`` (not 0) on its first eight arguments ``inputs``."""
+def allocation_error(bad: int, inputs: AllocationInputs) -> ValueError:
+    """The error for :func:`allocation_kernel`'s status ``bad`` (not 0) on ``inputs``."""
     if bad == NEGATIVE_LOAD:
         return ValueError(f"wheel loads must be >= 0 N, got {inputs[2][inputs[2] < 0.0][:4]}")
     if bad == NONPOSITIVE_FRICTION:

@@ -11,13 +11,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numba
 import numpy as np
 from numba.extending import register_jitable
 from scipy.linalg import solve_continuous_are
 
-from fourwis.control.allocation import allocation_kernel
+from fourwis.control.allocation import Allocation, AllocationInputs, AllocatorLimits, allocation_kernel
 from fourwis.control.reference import (
     GRAVITY,
     axle_friction,
@@ -27,7 +28,8 @@ from fourwis.control.reference import (
     slower_time_constant,
     steady_yaw_rate,
 )
-from fourwis.core.kernels import JIT, scratch
+from fourwis.core.kernels import JIT, bundle_dispatch, scratch
+from fourwis.core.types import Estimate
 
 
 def bicycle_matrices(u: float, params) -> tuple[np.ndarray, np.ndarray]:
@@ -64,7 +66,7 @@ def lag_time(u, motor: float, sigma_kappa: float):
 @register_jitable
 def delivered_next(delivered, moment, lag, dt: float):
     """The yaw moment [N m] the wheels deliver after ``dt`` [s] of ``moment``, a first-order lag
-    ``lag`` [s] behind it (:meth:`LQRYawController.note_delivered`)."""
+    ``lag`` [s] behind it (the LQR's M, :class:`LQRYawController`)."""
     return delivered + (moment - delivered) * np.minimum(dt / np.maximum(lag, 1e-12), 1.0)
 
 
@@ -102,17 +104,23 @@ class LQRWeights:
     yaw_moment: float = 2500.0
 
 
+class LqrLaw(NamedTuple):
+    """The LQR as the compiled DYC step takes it: its gain table, gains (S, 3) on sideslip,
+    yaw-rate error and delivered moment at the speeds (S,) [m/s]."""
+
+    speeds: np.ndarray
+    gains: np.ndarray
+
+
 @dataclass
 class LQRYawController:
     """Gain-scheduled LQR aware of the actuator's lag: Mz = -K(u) [beta, r - r_ref, M], with M the yaw
     moment the wheels deliver now (a first-order lag :func:`actuator_lag` behind what they were
-    given, which the caller reports through :meth:`note_delivered`). K from the continuous Riccati
-    equation of the 2-DOF model augmented with that lag, M_dot = (Mz - M) / tau(u), on a speed grid
-    (3-45 m/s), interpolated linearly in u. Designed without the lag, the gains that suit 80 km/h
-    leave the loop with damping ratio ~0.4 there and, at 20 km/h where the tyres' force build-up
-    (sigma / u) is slower than the car's yaw response, commanded moments the tyres could not follow:
-    the wheels spun up and the car oscillated in a gentle turn (README, "Control"). With it: damping
-    ~0.8 at every speed, and 2.5x lower yaw-rate gain at 20 km/h."""
+    given: :func:`delivered_next`). K from the continuous Riccati equation of the 2-DOF model
+    augmented with that lag, M_dot = (Mz - M) / tau(u), on a speed grid (3-45 m/s), interpolated
+    linearly in u. The lag is in the design because without it the gains that suit 80 km/h leave
+    the loop poorly damped and command, at low speed, moments the tyres cannot build up in time.
+    The law is stateless: M is its caller's (:class:`fourwis.control.StabilityController`'s memory)."""
 
     params: object
     weights: LQRWeights = field(default_factory=LQRWeights)
@@ -123,12 +131,11 @@ class LQRYawController:
         if min(w.beta, w.yaw_rate_error, w.yaw_moment) <= 0:
             raise ValueError(f"LQR weights must be > 0, got {w}")
         R = np.array([[1 / w.yaw_moment**2]])
-        self._lag_terms = actuator_lag_terms(self.params)
-        self._delivered: np.ndarray | None = None
+        lag_terms = actuator_lag_terms(self.params)
         gains = []
         for u in self.speeds:
             A, B = bicycle_matrices(float(u), self.params)
-            tau = float(actuator_lag(float(u), self.params, self._lag_terms))
+            tau = float(actuator_lag(float(u), self.params, lag_terms))
             if tau > 0.0:  # states [beta, r, M], input the commanded moment
                 A = np.block([[A, B], [np.zeros((1, 2)), np.full((1, 1), -1.0 / tau)]])
                 B = np.array([[0.0], [0.0], [1.0 / tau]])
@@ -137,6 +144,7 @@ class LQRYawController:
             k = np.linalg.solve(R, B.T @ P)[0]
             gains.append(np.append(k, 0.0) if tau == 0.0 else k)
         self.gains = np.array(gains)  # (S, 3): on beta, r - r_ref and the delivered moment
+        self.law = LqrLaw(np.ascontiguousarray(self.speeds, dtype=float), self.gains)
 
     def gain(self, u: np.ndarray) -> np.ndarray:
         """K(u): shape u.shape + (3,) (u scalar or any array of speeds [m/s])."""
@@ -145,22 +153,30 @@ class LQRYawController:
         _interpolated_gains(np.ascontiguousarray(u).ravel(), self.speeds, self.gains, out)
         return out.reshape(u.shape + (3,))
 
-    def reset(self) -> None:
-        self._delivered = None
-
-    def note_delivered(self, moment: np.ndarray, u: np.ndarray, dt: float) -> None:
-        """The wheels were given ``moment`` (B,) [N m] for ``dt`` [s] at speed ``u``: the moment
-        they deliver follows it through the actuator lag."""
-        delivered = np.zeros_like(moment) if self._delivered is None else self._delivered
-        self._delivered = delivered_next(delivered, moment, actuator_lag(u, self.params, self._lag_terms), dt)
-
-    def __call__(self, u, beta, r, r_ref, delta_f, delta_r, dt: float, mu: np.ndarray | None = None) -> np.ndarray:
-        """Mz (B,) [N m]; the steer angles enter through the reference only (pure state feedback),
-        the moment the wheels deliver now through :meth:`note_delivered` (zero before). ``mu``
-        is unused (the laws' common signature): the gains are scheduled on speed only."""
+    def moment(self, u, beta, r, r_ref, delivered=0.0) -> np.ndarray:
+        """Mz [N m] at speed u [m/s], sideslip beta [rad], yaw rate r and its reference r_ref
+        [rad/s] (arrays of one shape), with the wheels delivering ``delivered`` [N m] now; the
+        steer angles enter through the reference only (pure state feedback)."""
         k = self.gain(u)
-        delivered = 0.0 if self._delivered is None else self._delivered
         return lqr_moment(k[..., 0], k[..., 1], k[..., 2], beta, r, r_ref, delivered)
+
+
+class SmcLaw(NamedTuple):
+    """The sliding mode as :func:`smc_moment` takes it: the 2-DOF model's axle cornering
+    stiffnesses c_f, c_r [N/rad], CG to axle distances a, b [m], yaw inertia iz [kg m^2], mass m
+    [kg], wheelbase [m], and the law's lam [-], eta [rad/s^2], phi [rad/s], max_moment [N m]."""
+
+    c_f: float
+    c_r: float
+    a: float
+    b: float
+    iz: float
+    m: float
+    wheelbase: float
+    lam: float
+    eta: float
+    phi: float
+    max_moment: float
 
 
 @dataclass
@@ -179,14 +195,14 @@ class SlidingModeYawController:
     over-predicts a braked axle past its peak by more than ``eta``, so outside the boundary
     layer the equivalent control is dropped where it points away from the surface: the
     moment then always has the sign of -s there (reaching holds; Slotine & Li's condition
-    needs eta above the model error, which this keeps from mattering)."""
+    needs eta above the model error, which this keeps from mattering). The law is stateless:
+    the reference's previous value (for its rate) is its caller's."""
 
     params: object
     lam: float = 0.5
     eta: float = 1.0
     phi: float = 0.05
     max_moment: float = 4000.0
-    _previous_ref: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         for name in ("eta", "phi", "max_moment"):
@@ -194,57 +210,39 @@ class SlidingModeYawController:
                 raise ValueError(f"SlidingModeYawController.{name} must be > 0, got {getattr(self, name)!r}")
         if self.lam < 0:
             raise ValueError(f"lam must be >= 0, got {self.lam!r}")
+        p = self.params
+        c_f, c_r = p.axle_cornering_stiffness
+        self.law = SmcLaw(
+            float(c_f), float(c_r), float(p.cg_to_front), float(p.cg_to_rear), float(p.yaw_inertia), float(p.mass),
+            float(p.wheelbase), float(self.lam), float(self.eta), float(self.phi), float(self.max_moment),
+        )  # fmt: skip
 
-    def reset(self) -> None:
-        self._previous_ref = None
-
-    def __call__(self, u, beta, r, r_ref, delta_f, delta_r, dt: float, mu: np.ndarray | None = None) -> np.ndarray:
-        """Mz (B,) [N m] at speed u, sideslip beta, yaw rate r and reference r_ref (B,), front and
-        rear road-wheel angles delta_f, delta_r [rad] (B,), per-wheel mu (B, 4). ``beta`` as the
-        StabilityController shrinks it: where it is exactly 0 (inside the sideslip deadband) it is
-        held, so its rate in the equivalent control is 0 too (the linear model's beta_dot at
-        beta = 0 is not 0 in a turn: it had commanded ~-67 N m at 0.43 g, 80 km/h, with the car
-        on its reference)."""
+    def moment(self, u, beta, r, r_ref, delta_f, delta_r, dt: float, mu=None, previous_ref=None) -> np.ndarray:
+        """Mz [N m] at speed u [m/s], sideslip beta [rad], yaw rate r and reference r_ref [rad/s],
+        front and rear road-wheel angles delta_f, delta_r [rad] (broadcast together), per-wheel
+        mu (..., 4) (None: 1) and the reference ``previous_ref`` [rad/s] a step ``dt`` [s] before
+        (None: no previous step, its rate is 0). ``beta`` as the StabilityController shrinks it:
+        where it is exactly 0 (inside the sideslip deadband) it is held, so its rate in the
+        equivalent control is 0 too (the linear model's beta_dot at beta = 0 is not 0 in a turn)."""
         u, beta, r, r_ref, delta_f, delta_r = np.broadcast_arrays(
             *(np.asarray(x, dtype=float) for x in (u, beta, r, r_ref, delta_f, delta_r))
         )
-        mu_mean = np.ones_like(u) if mu is None else np.broadcast_to(np.mean(mu, axis=-1), u.shape)
-        previous = np.full(u.shape, np.nan) if self._previous_ref is None else self._previous_ref
+        mu_mean = np.ones_like(u) if mu is None else np.broadcast_to(np.sum(mu, axis=-1) / 4.0, u.shape)
+        previous = np.full(u.shape, np.nan) if previous_ref is None else np.broadcast_to(previous_ref, u.shape)
         flat = (
             np.ascontiguousarray(x, dtype=float).ravel()
-            for x in (u, beta, r, r_ref, delta_f, delta_r, mu_mean, np.broadcast_to(previous, u.shape))
+            for x in (u, beta, r, r_ref, delta_f, delta_r, mu_mean, previous)
         )
         moment = np.empty(u.size)
-        _smc_moments(*flat, float(dt), self.terms(), moment)
-        moment = moment.reshape(u.shape)
-        self._previous_ref = r_ref.copy()
-        return moment
-
-    def terms(self) -> tuple[float, ...]:
-        """(C_f, C_r, a, b, I_z, m, L, lam, eta, phi, max_moment) as :func:`smc_moment` takes them."""
-        p = self.params
-        c_f, c_r = p.axle_cornering_stiffness
-        return (
-            float(c_f),
-            float(c_r),
-            float(p.cg_to_front),
-            float(p.cg_to_rear),
-            float(p.yaw_inertia),
-            float(p.mass),
-            float(p.wheelbase),
-            float(self.lam),
-            float(self.eta),
-            float(self.phi),
-            float(self.max_moment),
-        )
+        _smc_moments(*flat, float(dt), self.law, moment)
+        return moment.reshape(u.shape)
 
 
 @numba.njit(inline="always", **JIT)
-def smc_moment(u, beta, r, r_ref, delta_f, delta_r, mu_mean, previous_ref, dt, terms) -> float:
+def smc_moment(u, beta, r, r_ref, delta_f, delta_r, mu_mean, previous_ref, dt, law: SmcLaw) -> float:
     """:class:`SlidingModeYawController`'s moment [N m] for one vehicle; ``previous_ref``: the
-    reference at the previous call (NaN: none, its rate is then 0); ``terms``:
-    :meth:`SlidingModeYawController.terms`."""
-    c_f, c_r, a, b, iz, m, wheelbase, lam, eta, phi, max_moment = terms
+    reference at the previous call (NaN: none, its rate is then 0)."""
+    c_f, c_r, a, b, iz, m, wheelbase, lam, eta, phi, max_moment = law
     u = max(abs(u), 1.0)
     front_limit = mu_mean * m * GRAVITY * b / wheelbase
     rear_limit = mu_mean * m * GRAVITY * a / wheelbase
@@ -257,9 +255,8 @@ def smc_moment(u, beta, r, r_ref, delta_f, delta_r, mu_mean, previous_ref, dt, t
     equivalent = ref_dot + lam * beta_dot - f_r
     # outside the boundary layer the model's equivalent control may only help reach the surface:
     # the linear axle model (clipped at mu Fz) over-predicts a saturated axle's force (beyond the
-    # tyre's peak, under combined slip), by far more than the reaching rate eta, and cancelling
-    # that phantom yaw acceleration turned the moment against s (ISO 3888-2 at 70 km/h, oracle:
-    # r stuck near 0 at full right lock with +3 kN m, 5.6 m off the line)
+    # tyre's peak, under combined slip) by far more than the reaching rate eta, and cancelling
+    # that phantom yaw acceleration would turn the moment against s
     if abs(s) > phi and equivalent * s > 0.0:
         equivalent = 0.0
     mz = iz * (equivalent - eta * min(max(s / phi, -1.0), 1.0))
@@ -267,71 +264,87 @@ def smc_moment(u, beta, r, r_ref, delta_f, delta_r, mu_mean, previous_ref, dt, t
 
 
 @numba.njit(**JIT)
-def _smc_moments(u, beta, r, r_ref, delta_f, delta_r, mu_mean, previous_ref, dt, terms, out) -> None:
+def _smc_moments(u, beta, r, r_ref, delta_f, delta_r, mu_mean, previous_ref, dt, law, out) -> None:
     for b in range(u.size):
-        out[b] = smc_moment(
-            u[b], beta[b], r[b], r_ref[b], delta_f[b], delta_r[b], mu_mean[b], previous_ref[b], dt, terms
-        )
+        out[b] = smc_moment(u[b], beta[b], r[b], r_ref[b], delta_f[b], delta_r[b], mu_mean[b], previous_ref[b], dt, law)
 
 
 ACTIVE_SPEED = 2.0  #: below this speed [m/s] the law's moment is zero (the allocator still shares the drive)
 YAW_DEADBAND = 0.02  #: |r - r_ref| [rad/s] tolerated without intervention (ESC practice)
 MIN_PLANNING_MU = 0.1  #: the margin's floor: it lowers no planning friction below this (nor lifts one)
 
-#: the settings of :func:`stability_command`, in the order of its settings array
-#: (:meth:`control.StabilityController.kernel_arrays`): the law (1: sliding mode, 0: LQR), rear
-#: steer (1 / 0), the step [s], the friction ellipse (1 / 0), mu_margin, the reference's
-#: understeer gradient [rad s^2/m], wheelbase [m], the rear servo's range [rad] and rate
-#: [rad/s], the actuator lag's terms (:func:`actuator_lag_terms`) and
-#: :func:`control.reference.bicycle_terms`
-SETTINGS = (
-    "sliding_mode",
-    "rear_steer",
-    "dt",
-    "friction_ellipse",
-    "mu_margin",
-    "understeer",
-    "wheelbase",
-    "max_rear_steer",
-    "rear_steer_rate",
-    "motor_lag",
-    "sigma_kappa",
-    "c_f",
-    "c_r",
-    "mass",
-    "yaw_inertia",
-    "cg_to_front",
-    "cg_to_rear",
-)
-(
-    S_SMC,
-    S_REAR_STEER,
-    S_DT,
-    S_ELLIPSE,
-    S_MARGIN,
-    S_UNDERSTEER,
-    S_WHEELBASE,
-    S_MAX_REAR,
-    S_REAR_RATE,
-    S_MOTOR_LAG,
-    S_SIGMA_KAPPA,
-    S_C_F,
-    S_C_R,
-    S_MASS,
-    S_IZ,
-    S_A,
-    S_B,
-) = range(len(SETTINGS))
 
-#: columns of a StabilityController's memory (B, M_WIDTH), one row per vehicle: the lagged yaw
-#: reference [rad/s], the rear angle [rad], the moment the wheels deliver [N m] (LQR), the
-#: previous reference [rad/s] (sliding mode) (NaN: no call yet); then the latest allocation
-#: (torques (4) [N m], delivered yaw moment [N m] and drive force [N], feasible 1 / 0) and the
-#: allocator's inputs of that call (for its error message): base torques (4), yaw moment, wheel
-#: loads (4), friction (4), lateral forces (4), speed, front and rear steer
-M_REFERENCE, M_REAR, M_DELIVERED, M_PREVIOUS_REF, M_TORQUES, M_MOMENT, M_FORCE, M_FEASIBLE = 0, 1, 2, 3, 4, 8, 9, 10
-M_INPUTS = 11
-M_WIDTH = M_INPUTS + 20
+class DycSettings(NamedTuple):
+    """A :class:`fourwis.control.StabilityController`'s settings as its compiled step takes them:
+    rear steer (eq. 20) on, friction ellipse on, the step dt [s], mu_margin [sigma], the
+    reference's understeer gradient [rad s^2/m], wheelbase [m], the rear servo's range [rad] and
+    rate [rad/s], the actuator lag's terms (:func:`actuator_lag_terms`: motor lag [s],
+    sigma_kappa [m]) and the 2-DOF model's c_f, c_r [N/rad], mass [kg], yaw inertia [kg m^2],
+    cg_to_front, cg_to_rear [m]."""
+
+    rear_steer: bool
+    friction_ellipse: bool
+    dt: float
+    mu_margin: float
+    understeer: float
+    wheelbase: float
+    max_rear_steer: float
+    rear_steer_rate: float
+    motor_lag: float
+    sigma_kappa: float
+    c_f: float
+    c_r: float
+    mass: float
+    yaw_inertia: float
+    cg_to_front: float
+    cg_to_rear: float
+
+
+class DycMemory(NamedTuple):
+    """A StabilityController's memory of B vehicles, one row each (NaN: no step yet): the lagged
+    yaw reference (B,) [rad/s], the rear road-wheel angle it commands (B,) [rad], the yaw moment
+    the wheels deliver (B,) [N m] (the LQR's M), the reference at the previous step (B,) [rad/s]
+    (the sliding mode's rate), the latest allocation (the command: its torques) and the
+    allocator's inputs of that step (for its error message)."""
+
+    reference: np.ndarray
+    rear: np.ndarray
+    delivered: np.ndarray
+    previous_reference: np.ndarray
+    allocation: Allocation
+    inputs: AllocationInputs
+
+
+def fresh_memory(batch: int) -> DycMemory:
+    """A :class:`DycMemory` of ``batch`` vehicles before their first step (the wheels deliver no moment)."""
+
+    def nan(*shape) -> np.ndarray:
+        return np.full(shape, np.nan)
+
+    return DycMemory(
+        nan(batch), nan(batch), np.zeros(batch), nan(batch),
+        Allocation(nan(batch, 4), nan(batch), nan(batch), np.zeros(batch, dtype=np.bool_)),
+        AllocationInputs(nan(batch, 4), nan(batch), nan(batch, 4), nan(batch, 4), nan(batch, 4), nan(batch),
+                         nan(batch), nan(batch)),
+    )  # fmt: skip
+
+
+def clear_memory(memory: DycMemory, rows: np.ndarray) -> None:
+    """Forget the vehicles ``rows`` (B,) bool of ``memory``, in place."""
+    fresh = fresh_memory(1)
+    for group, new in ((memory, fresh), (memory.allocation, fresh.allocation), (memory.inputs, fresh.inputs)):
+        for field_now, field_new in zip(group, new):
+            if isinstance(field_now, np.ndarray):
+                field_now[rows] = field_new[0]
+
+
+class DycKernel(NamedTuple):
+    """A StabilityController as its compiled step (and the compiled closed loop) takes it."""
+
+    settings: DycSettings
+    limits: AllocatorLimits
+    law: LqrLaw | SmcLaw
+    memory: DycMemory
 
 
 @register_jitable
@@ -350,186 +363,117 @@ def deadband(x, width):
     return np.sign(x) * np.maximum(np.abs(x) - width, 0.0)
 
 
+#: ``law_moment(law, b, u, beta, r_ref, error, front, rear, mu_mean, memory, dt) -> Mz``: the yaw
+#: moment [N m] of ``law`` (:class:`LqrLaw` or :class:`SmcLaw`) for vehicle b at speed u, the
+#: shrunk sideslip beta and yaw-rate error, the reference r_ref, the road-wheel angles and mean
+#: planning friction, from its ``memory`` row (the LQR's delivered moment; the sliding mode's
+#: previous reference, which it updates)
+law_moment = bundle_dispatch("law_moment", "law, b, u, beta, r_ref, error, front, rear, mu_mean, memory, dt")
+#: ``law_delivered(law, b, delivered, u, memory, settings)``: after the allocation, the LQR's
+#: memory of the moment the wheels deliver follows the allocated ``delivered`` [N m] through the
+#: actuator lag; the sliding mode keeps none
+law_delivered = bundle_dispatch("law_delivered", "law, b, delivered, u, memory, settings")
+
+
+@law_moment.register(LqrLaw)
+def _lqr_law_moment(law, b, u, beta, r_ref, error, front, rear, mu_mean, memory, dt):
+    speeds, gains = law
+    return lqr_moment(
+        interpolated_gain(u, speeds, gains, 0), interpolated_gain(u, speeds, gains, 1),
+        interpolated_gain(u, speeds, gains, 2), beta, r_ref + error, r_ref, memory.delivered[b],
+    )  # fmt: skip
+
+
+@law_moment.register(SmcLaw)
+def _smc_law_moment(law, b, u, beta, r_ref, error, front, rear, mu_mean, memory, dt):
+    moment = smc_moment(u, beta, r_ref + error, r_ref, front, rear, mu_mean, memory.previous_reference[b], dt, law)
+    memory.previous_reference[b] = r_ref
+    return moment
+
+
+@law_delivered.register(LqrLaw)
+def _lqr_delivered(law, b, delivered, u, memory, settings):
+    lag = lag_time(u, settings.motor_lag, settings.sigma_kappa)
+    memory.delivered[b] = delivered_next(memory.delivered[b], delivered, lag, settings.dt)
+
+
+@law_delivered.register(SmcLaw)
+def _smc_delivered(law, b, delivered, u, memory, settings):
+    pass
+
+
 @numba.njit(**JIT)
-def stability_command(
-    u,
-    beta,
-    r,
-    ay,
-    mu_hat,
-    mu_std,
-    fz,
-    front,
-    base,
-    positions,
-    peak_torque,
-    peak_power,
-    radius,
-    settings,
-    speeds,
-    gains,
-    law,
-    memory,
-) -> int:
-    """One vehicle's step of :class:`control.StabilityController` (its docstring has the design):
-    from the estimate (speed u [m/s], sideslip beta [rad], yaw rate r [rad/s], ay [m/s^2], per-wheel
-    mu_hat, mu_std and loads fz [N] (4,)), the front road-wheel angle [rad] and the driver's base
-    torques (4,) [N m]; the allocator's wheel positions and motor limits; ``settings``:
-    :data:`SETTINGS`; ``speeds``, ``gains``: the LQR's table; ``law``:
-    :meth:`SlidingModeYawController.terms`; ``memory`` (M_WIDTH,): the vehicle's row, updated
-    (its rear angle and the allocation's torques are the command). Returns the allocator's
-    status (0: fine)."""
-    dt, margin = settings[S_DT], settings[S_MARGIN]
+def stability_command(dyc: DycKernel, b: int, estimate: Estimate, front: float, base: np.ndarray) -> int:
+    """Vehicle b's step of :class:`fourwis.control.StabilityController` (its docstring has the
+    design): from row b of the ``estimate`` (u, beta, r, ay, per-wheel mu, mu_std and fz), the
+    front road-wheel angle [rad] and the driver's base torques (4,) [N m], into row b of the
+    controller's memory, whose allocation's torques and rear angle are the command. Returns the
+    allocator's status (0: fine)."""
+    settings, memory = dyc.settings, dyc.memory
+    dt, margin = settings.dt, settings.mu_margin
+    u, beta, r, ay = estimate.u[b], estimate.beta[b], estimate.r[b], estimate.ay[b]
     mu = scratch((4,))
     for w in range(4):
-        mu[w] = planning_friction(mu_hat[w], mu_std[w], margin)
-    c_f, c_r, mass, iz, a, b = (
-        settings[S_C_F],
-        settings[S_C_R],
-        settings[S_MASS],
-        settings[S_IZ],
-        settings[S_A],
-        settings[S_B],
-    )
+        mu[w] = planning_friction(estimate.mu[b, w], estimate.mu_std[b, w], margin)
+    c_f, c_r, mass, iz = settings.c_f, settings.c_r, settings.mass, settings.yaw_inertia
+    a, b_rear = settings.cg_to_front, settings.cg_to_rear
     rear = 0.0
-    if settings[S_REAR_STEER] != 0.0:  # eq. 20 at the servo's rate
-        limit = settings[S_MAX_REAR]
-        target = min(max(eq20_gain(u, a, b, mass, c_f, c_r) * front, -limit), limit)
-        previous = 0.0 if math.isnan(memory[M_REAR]) else memory[M_REAR]
-        step = settings[S_REAR_RATE] * dt
+    if settings.rear_steer:  # eq. 20 at the servo's rate
+        limit = settings.max_rear_steer
+        target = min(max(eq20_gain(u, a, b_rear, mass, c_f, c_r) * front, -limit), limit)
+        previous = 0.0 if math.isnan(memory.rear[b]) else memory.rear[b]
+        step = settings.rear_steer_rate * dt
         rear = previous + min(max(target - previous, -step), step)
-    memory[M_REAR] = rear
+    memory.rear[b] = rear
     # the 2-DOF steady state of the car as steered, bounded by the weaker axle's friction, lagged
     steady = steady_yaw_rate(
-        u, front - rear, axle_friction(mu[0], mu[1], mu[2], mu[3]), settings[S_WHEELBASE], settings[S_UNDERSTEER]
+        u, front - rear, axle_friction(mu[0], mu[1], mu[2], mu[3]), settings.wheelbase, settings.understeer
     )
-    reference = steady if math.isnan(memory[M_REFERENCE]) else memory[M_REFERENCE]
-    reference = reference + (steady - reference) * min(dt / slower_time_constant(u, c_f, c_r, mass, iz, a, b), 1.0)
-    memory[M_REFERENCE] = r_ref = reference
+    reference = steady if math.isnan(memory.reference[b]) else memory.reference[b]
+    reference = reference + (steady - reference) * min(dt / slower_time_constant(u, c_f, c_r, mass, iz, a, b_rear), 1.0)
+    memory.reference[b] = r_ref = reference
     mu_mean = (mu[0] + mu[1] + mu[2] + mu[3]) / 4.0
     bound = sideslip_bound_of(mu_mean)
     shrunk_error, shrunk_beta = deadband(r - r_ref, YAW_DEADBAND), deadband(beta, 0.5 * bound)
-    if settings[S_SMC] != 0.0:
-        moment = smc_moment(
-            u, shrunk_beta, r_ref + shrunk_error, r_ref, front, rear, mu_mean, memory[M_PREVIOUS_REF], dt, law
-        )
-        memory[M_PREVIOUS_REF] = r_ref
-    else:
-        moment = lqr_moment(
-            interpolated_gain(u, speeds, gains, 0),
-            interpolated_gain(u, speeds, gains, 1),
-            interpolated_gain(u, speeds, gains, 2),
-            shrunk_beta,
-            r_ref + shrunk_error,
-            r_ref,
-            memory[M_DELIVERED],
-        )
+    moment = law_moment(dyc.law, b, u, shrunk_beta, r_ref, shrunk_error, front, rear, mu_mean, memory, dt)
     # a moment that turns the car further (understeer correction) fades out as |beta| approaches its bound
     if np.sign(moment) == np.sign(r_ref):
         moment = moment * min(max(1.0 - abs(beta) / bound, 0.0), 1.0)
     if not abs(u) > ACTIVE_SPEED:
         moment = 0.0
-    base_in, fz_in, mu_in, lateral = scratch((1, 4)), scratch((1, 4)), scratch((1, 4)), scratch((1, 4))
-    yaw, speed, front_in, rear_in = scratch((1,)), scratch((1,)), scratch((1,)), scratch((1,))
+    inputs = memory.inputs
     for w in range(4):
-        base_in[0, w], fz_in[0, w], mu_in[0, w] = base[w], fz[w], mu[w]
-        lateral[0, w] = fz[w] * (ay / GRAVITY) if settings[S_ELLIPSE] != 0.0 else 0.0
-    yaw[0], speed[0], front_in[0], rear_in[0] = moment, u, front, rear
-    inputs = memory[M_INPUTS:]
-    inputs[0:4], inputs[4], inputs[5:9], inputs[9:13] = base_in[0], moment, fz_in[0], mu_in[0]
-    inputs[13:17], inputs[17], inputs[18], inputs[19] = lateral[0], u, front, rear
-    torques, delivered, force, feasible = scratch((1, 4)), scratch((1,)), scratch((1,)), scratch((1,), np.bool_)
+        inputs.base_torques[b, w], inputs.fz[b, w], inputs.mu[b, w] = base[w], estimate.fz[b, w], mu[w]
+        inputs.lateral[b, w] = estimate.fz[b, w] * (ay / GRAVITY) if settings.friction_ellipse else 0.0
+    inputs.yaw_moment[b], inputs.speed[b], inputs.front_steer[b], inputs.rear_steer[b] = moment, u, front, rear
+    row = slice(b, b + 1)
+    allocation = memory.allocation
     bad = allocation_kernel(
-        base_in,
-        yaw,
-        fz_in,
-        mu_in,
-        lateral,
-        speed,
-        front_in,
-        rear_in,
-        positions,
-        peak_torque,
-        peak_power,
-        radius,
-        torques,
-        delivered,
-        force,
-        feasible,
-    )
+        AllocationInputs(
+            inputs.base_torques[row], inputs.yaw_moment[row], inputs.fz[row], inputs.mu[row], inputs.lateral[row],
+            inputs.speed[row], inputs.front_steer[row], inputs.rear_steer[row],
+        ),
+        dyc.limits,
+        Allocation(allocation.torques[row], allocation.yaw_moment[row], allocation.drive_force[row],
+                   allocation.feasible[row]),
+    )  # fmt: skip
     if bad:
         return bad
-    memory[M_TORQUES : M_TORQUES + 4] = torques[0]
-    memory[M_MOMENT], memory[M_FORCE], memory[M_FEASIBLE] = delivered[0], force[0], 1.0 if feasible[0] else 0.0
-    if settings[S_SMC] == 0.0:  # the LQR is told what the wheels now deliver
-        lag = lag_time(u, settings[S_MOTOR_LAG], settings[S_SIGMA_KAPPA])
-        memory[M_DELIVERED] = delivered_next(memory[M_DELIVERED], delivered[0], lag, dt)
+    law_delivered(dyc.law, b, allocation.yaw_moment[b], u, memory, settings)
     return 0
 
 
-def allocation_inputs(row: np.ndarray) -> tuple[np.ndarray, ...]:
-    """The allocator's eight inputs of a vehicle's last :func:`stability_command` (its memory row),
-    as :func:`control.allocation.allocation_error` takes them."""
-    inputs = row[M_INPUTS:]
-    return (
-        inputs[None, 0:4],
-        inputs[4:5],
-        inputs[None, 5:9],
-        inputs[None, 9:13],
-        inputs[None, 13:17],
-        inputs[17:18],
-        inputs[18:19],
-        inputs[19:20],
-    )
+def inputs_row(inputs: AllocationInputs, b: int) -> AllocationInputs:
+    """Row b of ``inputs`` as a batch of one (for :func:`fourwis.control.allocation.allocation_error`)."""
+    return AllocationInputs(*(field[b : b + 1] for field in inputs))
 
 
 @numba.njit(**JIT)
-def stability_commands(
-    u,
-    beta,
-    r,
-    ay,
-    mu,
-    mu_std,
-    fz,
-    front,
-    base,
-    moving,
-    positions,
-    peak_torque,
-    peak_power,
-    radius,
-    settings,
-    speeds,
-    gains,
-    law,
-    memory,
-) -> tuple[int, int]:
-    """:func:`stability_command` for each vehicle selected by ``moving`` (B,) bool (rows (B,) or
+def stability_commands(dyc: DycKernel, estimate: Estimate, front: np.ndarray, base: np.ndarray) -> tuple[int, int]:
+    """:func:`stability_command` for each vehicle (rows of ``estimate``, ``front`` (B,), ``base``
     (B, 4)); returns (status, vehicle) of the first failure, (0, -1) if none."""
-    for b in range(u.size):
-        if not moving[b]:
-            continue
-        bad = stability_command(
-            u[b],
-            beta[b],
-            r[b],
-            ay[b],
-            mu[b],
-            mu_std[b],
-            fz[b],
-            front[b],
-            base[b],
-            positions,
-            peak_torque,
-            peak_power,
-            radius,
-            settings,
-            speeds,
-            gains,
-            law,
-            memory[b],
-        )
+    for b in range(front.size):
+        bad = stability_command(dyc, b, estimate, front[b], base[b])
         if bad:
             return bad, b
     return 0, -1

@@ -12,6 +12,7 @@ kernel call per class, and any other callable one by one.
 
 from __future__ import annotations
 
+import enum
 import functools
 import math
 from collections.abc import Callable, Sequence
@@ -26,28 +27,35 @@ from fourwis.control.reference import bicycle_state_matrix
 from fourwis.core.constants import GRAVITY
 from fourwis.core.kernels import JIT, scratch
 from fourwis.envs.courses import stack_polylines
-from fourwis.envs.vehicle import S_PSI, S_R, S_U, S_V, S_X, S_Y, VehicleParams
+from fourwis.envs.layout import S_PSI, S_R, S_U, S_V, S_X, S_Y
+from fourwis.envs.vehicle import VehicleParams
 
 SWD_FREQUENCY = 0.7  #: FMVSS 126 sine-with-dwell frequency [Hz]
 SWD_DWELL = 0.5  #: FMVSS 126 dwell at the second peak [s]
 
 
 class VectorisedDriver:
-    """A driver given by its parameters (:meth:`row`) and its class's compiled ``kernel``:
-    ``kernel(table (B, k), members (M,) int64, t (B,) [s], states (B, NX), out (B,))`` writes
-    the output of the drivers b in ``members``, whose parameters are ``table[b]``, at time
-    ``t[b]`` and plant state ``states[b]`` into ``out[b]``."""
+    """A driver given by its parameters (:meth:`row`, a record of the fields ``COLUMNS``) and its
+    class's compiled ``kernel``: ``kernel(table (B,) records, members (M,) int64, t (B,) [s],
+    states (B, NX), out (B,))`` writes the output of the drivers b in ``members``, whose
+    parameters are ``table[b]``, at time ``t[b]`` and plant state ``states[b]`` into ``out[b]``."""
 
     kernel: Callable[..., None]
+    COLUMNS: tuple[str, ...] = ()  #: the fields of the kernel's records, in :meth:`row`'s order
 
-    def row(self) -> tuple[float, ...]:
-        """This driver's parameters, in the column order of its kernel's table."""
+    def row(self) -> tuple:
+        """This driver's parameters, in the order of ``COLUMNS``."""
         raise NotImplementedError
+
+    @classmethod
+    def table_dtype(cls) -> np.dtype:
+        """The record type of this class's parameter table (float64 fields ``COLUMNS``)."""
+        return np.dtype([(name, np.float64) for name in cls.COLUMNS])
 
     def __call__(self, t: float, state: np.ndarray) -> float:
         out = np.zeros(1)
         self.kernel(
-            np.array([self.row()], dtype=np.float64),
+            np.array([self.row()], dtype=self.table_dtype()),
             np.zeros(1, dtype=np.int64),
             np.array([t], dtype=np.float64),
             np.ascontiguousarray(state, dtype=np.float64)[None],
@@ -59,34 +67,36 @@ class VectorisedDriver:
 @numba.njit(**JIT)
 def _constant(table, members, t, states, out):
     for b in members:
-        out[b] = table[b, 0] if t[b] >= table[b, 1] else 0.0
+        out[b] = table[b]["angle"] if t[b] >= table[b]["start"] else 0.0
 
 
 @numba.njit(**JIT)
 def _step(table, members, t, states, out):
     for b in members:
-        out[b] = table[b, 0] * min(max((t[b] - table[b, 1]) / table[b, 2], 0.0), 1.0)
+        d = table[b]
+        out[b] = d["angle"] * min(max((t[b] - d["start"]) / d["rise_time"], 0.0), 1.0)
 
 
 @numba.njit(**JIT)
 def _sine(table, members, t, states, out):
     for b in members:
-        phase = (t[b] - table[b, 2]) * table[b, 1]
-        out[b] = 0.0 if phase < 0.0 or phase > table[b, 3] else table[b, 0] * math.sin(2.0 * math.pi * phase)
+        d = table[b]
+        phase = (t[b] - d["start"]) * d["frequency"]
+        out[b] = 0.0 if phase < 0.0 or phase > d["cycles"] else d["amplitude"] * math.sin(2.0 * math.pi * phase)
 
 
 @numba.njit(**JIT)
 def _ramp(table, members, t, states, out):
     for b in members:
-        rate = table[b, 0]
-        out[b] = math.copysign(min(abs(rate * max(t[b] - table[b, 1], 0.0)), table[b, 2]), rate)
+        d = table[b]
+        out[b] = math.copysign(min(abs(d["rate"] * max(t[b] - d["start"], 0.0)), d["limit"]), d["rate"])
 
 
 @numba.njit(**JIT)
 def _sine_with_dwell(table, members, t, states, out):
     omega, three_quarters = 2.0 * math.pi * SWD_FREQUENCY, 0.75 / SWD_FREQUENCY
     for b in members:
-        amplitude, tau = table[b, 0], t[b] - table[b, 1]
+        amplitude, tau = table[b]["amplitude"], t[b] - table[b]["start"]
         if tau > three_quarters + SWD_DWELL:
             tau -= SWD_DWELL  # the last quarter cycle, after the dwell
         elif tau > three_quarters:
@@ -98,14 +108,15 @@ def _sine_with_dwell(table, members, t, states, out):
 @numba.njit(**JIT)
 def _speed_hold(table, members, t, states, out):
     for b in members:
-        target_speed, gain, coast_after, mass, rolling_resistance, air_density, drag_area, radius, peak = table[b]
+        d = table[b]
         u = states[b, S_U]
         force = (
-            mass * gain * (target_speed - u)
-            + rolling_resistance * mass * GRAVITY
-            + 0.5 * air_density * drag_area * u * abs(u)
+            d["mass"] * d["gain"] * (d["target_speed"] - u)
+            + d["rolling_resistance"] * d["mass"] * GRAVITY
+            + 0.5 * d["air_density"] * d["drag_area"] * u * abs(u)
         )
-        out[b] = 0.0 if t[b] >= coast_after else min(max(force * radius / 4.0, -peak), peak)
+        peak = d["motor_peak_torque"]
+        out[b] = 0.0 if t[b] >= d["coast_after"] else min(max(force * d["wheel_radius"] / 4.0, -peak), peak)
 
 
 @dataclass(frozen=True)
@@ -116,6 +127,7 @@ class Constant(VectorisedDriver):
     start: float = 0.0
 
     kernel = staticmethod(_constant)
+    COLUMNS = ("angle", "start")
 
     def row(self) -> tuple[float, ...]:
         return self.angle, self.start
@@ -131,6 +143,7 @@ class Step(VectorisedDriver):
     rise_time: float = 0.1
 
     kernel = staticmethod(_step)
+    COLUMNS = ("angle", "start", "rise_time")
 
     def row(self) -> tuple[float, ...]:
         return self.angle, self.start, self.rise_time
@@ -146,6 +159,7 @@ class Sine(VectorisedDriver):
     cycles: float = math.inf
 
     kernel = staticmethod(_sine)
+    COLUMNS = ("amplitude", "frequency", "start", "cycles")
 
     def row(self) -> tuple[float, ...]:
         return self.amplitude, self.frequency, self.start, self.cycles
@@ -160,6 +174,7 @@ class Ramp(VectorisedDriver):
     limit: float = math.inf
 
     kernel = staticmethod(_ramp)
+    COLUMNS = ("rate", "start", "limit")
 
     def row(self) -> tuple[float, ...]:
         return self.rate, self.start, self.limit
@@ -178,6 +193,7 @@ class SineWithDwell(VectorisedDriver):
     start: float = 1.0
 
     kernel = staticmethod(_sine_with_dwell)
+    COLUMNS = ("amplitude", "start")
 
     def row(self) -> tuple[float, ...]:
         return self.amplitude, self.start
@@ -188,13 +204,16 @@ class SineWithDwell(VectorisedDriver):
         return self.start + 1.0 / SWD_FREQUENCY + SWD_DWELL
 
 
+MAX_SINES = 8  #: most terms a SumOfSines has (its table's records hold this many, unused ones zero)
+
+
 @numba.njit(**JIT)
 def _sum_of_sines(table, members, t, states, out):
-    n = table.shape[1] // 3
     for b in members:
+        d = table[b]
         total = 0.0
-        for i in range(n):
-            total += table[b, i] * math.sin(2 * math.pi * table[b, n + i] * t[b] + table[b, 2 * n + i])
+        for i in range(MAX_SINES):
+            total += d["amplitudes"][i] * math.sin(2 * math.pi * d["frequencies"][i] * t[b] + d["phases"][i])
         out[b] = min(t[b], 1.0) * total  # faded in over the first second
 
 
@@ -208,9 +227,22 @@ class SumOfSines(VectorisedDriver):
     phases: tuple[float, ...]
 
     kernel = staticmethod(_sum_of_sines)
+    COLUMNS = ("amplitudes", "frequencies", "phases")
 
-    def row(self) -> tuple[float, ...]:
-        return self.amplitudes + self.frequencies + self.phases
+    def __post_init__(self) -> None:
+        if not len(self.amplitudes) == len(self.frequencies) == len(self.phases) <= MAX_SINES:
+            raise ValueError(
+                f"a SumOfSines takes as many amplitudes, frequencies and phases, at most {MAX_SINES}, got "
+                f"{len(self.amplitudes)}, {len(self.frequencies)} and {len(self.phases)}"
+            )
+
+    @classmethod
+    def table_dtype(cls) -> np.dtype:
+        return np.dtype([(name, np.float64, (MAX_SINES,)) for name in cls.COLUMNS])
+
+    def row(self) -> tuple:
+        pad = (0.0,) * (MAX_SINES - len(self.amplitudes))  # (zero terms add nothing)
+        return self.amplitudes + pad, self.frequencies + pad, self.phases + pad
 
 
 @functools.lru_cache(maxsize=4096)
@@ -321,10 +353,7 @@ class PathFollowerBatch:
         """Write the steering-wheel angles [rad] of vehicles ``members`` (M,) int64 at plant
         states (B, NX) (float64, C-contiguous) into ``out[members]``."""
         while True:
-            paths, offsets, response_row, free, step, preview_time, ratio, max_steer = self.kernel_form()
-            code, value = _follow_paths(
-                paths, offsets, members, response_row, free, step, states, preview_time, ratio, max_steer, out
-            )
+            code, value = _follow_paths(self.kernel(), members, states, out)
             if code == DRIVEN:
                 return
             if code == BAD_DRIVER_STATE:
@@ -339,19 +368,29 @@ class PathFollowerBatch:
         self.response_row[tenths] = len(self.free)
         self.free, self.step = np.concatenate([self.free, free[None]]), np.concatenate([self.step, step[None]])
 
-    def kernel_form(self) -> tuple:
-        """The arguments of :func:`_follow_paths` around ``members``, as :func:`drive` takes them."""
+    def kernel(self) -> FollowerKernel:
+        """These path followers as :func:`_follow_paths` takes them (the arrays themselves)."""
         p = self.params
-        return (
-            self.paths,
-            self.offsets,
-            self.response_row,
-            self.free,
-            self.step,
-            self.preview_time,
-            float(p.steering_ratio),
-            float(p.max_front_steer),
-        )
+        return FollowerKernel(
+            self.paths, self.offsets, self.response_row, self.free, self.step, self.preview_time,
+            float(p.steering_ratio), float(p.max_front_steer),
+        )  # fmt: skip
+
+
+class FollowerKernel(NamedTuple):
+    """A :class:`PathFollowerBatch` as its kernel takes it: the resampled paths of its vehicles
+    stacked (N, 2) [m] with each vehicle's first row (B + 1,) int64, the preview-response table's
+    row by speed in 0.1 m/s (-1: not yet), the responses free (R, P, 4) and step (R, P), the
+    preview time [s], steering ratio [-] and front steer limit [rad]."""
+
+    paths: np.ndarray
+    offsets: np.ndarray
+    response_row: np.ndarray
+    free: np.ndarray
+    step: np.ndarray
+    preview_time: float
+    ratio: float
+    max_steer: float
 
 
 #: statuses of a driver kernel: done, needs preview responses at a new speed, cannot steer from the state
@@ -368,11 +407,12 @@ def bad_follower_state(b: int, state: np.ndarray) -> ValueError:
 
 
 @numba.njit(**JIT)
-def _follow_paths(paths, offsets, members, response_row, free, step, states, preview_time, ratio, max_steer, out):
+def _follow_paths(follower: FollowerKernel, members, states, out):
     """:class:`PathFollowerBatch`'s kernel: (DRIVEN, 0) once every member's steering-wheel angle
     is in ``out``, (NEEDS_PREVIEW, tenths) if the preview responses at a speed of ``tenths`` x 0.1 m/s
     are not in the table yet (the speed is |u| floored at 1 m/s, rounded as np.round(u, 1)), or
     (BAD_DRIVER_STATE, vehicle) for a pose or speed that is not finite or beyond MAX_FOLLOW_SPEED."""
+    paths, offsets, response_row, free, step, preview_time, ratio, max_steer = follower
     for b in members:
         speed = max(abs(states[b, S_U]), 1.0)
         pose = states[b, S_X] + states[b, S_Y] + states[b, S_PSI] + states[b, S_V] + states[b, S_R]
@@ -477,6 +517,10 @@ class SpeedHold(VectorisedDriver):
     coast_after: float = math.inf
 
     kernel = staticmethod(_speed_hold)
+    COLUMNS = (
+        "target_speed", "gain", "coast_after", "mass", "rolling_resistance", "air_density", "drag_area",
+        "wheel_radius", "motor_peak_torque",
+    )  # fmt: skip
 
     def row(self) -> tuple[float, ...]:
         p = self.params
@@ -493,59 +537,81 @@ class SpeedHold(VectorisedDriver):
         )
 
 
-#: the driver classes the compiled closed loop (envs.compiled_loop) evaluates, by code (their
-#: index); :data:`FOLLOWER` is the path follower's code
-COMPILED_DRIVERS = (Constant, Step, Sine, Ramp, SineWithDwell, SumOfSines, SpeedHold)
-FOLLOWER = len(COMPILED_DRIVERS)
+class DriverKind(enum.IntEnum):
+    """Which driver a vehicle has, in a :class:`DriverTables` (a compiled driver class, or a path follower)."""
+
+    CONSTANT = 0
+    STEP = 1
+    SINE = 2
+    RAMP = 3
+    SINE_WITH_DWELL = 4
+    SUM_OF_SINES = 5
+    SPEED_HOLD = 6
+    PATH_FOLLOWER = 7
+
+
+#: the driver classes the compiled closed loop evaluates, by their DriverKind
+COMPILED_DRIVERS = {
+    Constant: DriverKind.CONSTANT,
+    Step: DriverKind.STEP,
+    Sine: DriverKind.SINE,
+    Ramp: DriverKind.RAMP,
+    SineWithDwell: DriverKind.SINE_WITH_DWELL,
+    SumOfSines: DriverKind.SUM_OF_SINES,
+    SpeedHold: DriverKind.SPEED_HOLD,
+}
+
+
+class DriverTables(NamedTuple):
+    """The drivers of B vehicles as :func:`drive` takes them: each vehicle's :class:`DriverKind`
+    (B,) int64, each compiled class's parameter records (B,) (rows of the vehicles of that kind;
+    empty if none has it) and the path followers."""
+
+    kind: np.ndarray
+    constant: np.ndarray
+    step: np.ndarray
+    sine: np.ndarray
+    ramp: np.ndarray
+    sine_with_dwell: np.ndarray
+    sum_of_sines: np.ndarray
+    speed_hold: np.ndarray
+    follower: FollowerKernel
 
 
 @numba.njit(**JIT)
-def drive(code, tables, follower, b, t, states, out) -> tuple[int, int]:
-    """The output of vehicle b's driver of ``code`` into ``out[b]``, as its class's kernel writes
-    it: ``tables`` holds each class's (B, k) parameter table, ``follower`` the path followers'
-    arrays (:meth:`PathFollowerBatch.kernel_form`). Returns the path follower's (status, value)
+def drive(drivers: DriverTables, b, t, states, out) -> tuple[int, int]:
+    """The output of vehicle b's driver into ``out[b]``, as its class's kernel writes it at the
+    times t (B,) [s] and plant states (B, NX). Returns the path follower's (status, value)
     (:func:`_follow_paths`), (DRIVEN, 0) for the others."""
     members = scratch((1,), np.int64)
     members[0] = b
-    if code == 0:
-        _constant(tables[0], members, t, states, out)
-    elif code == 1:
-        _step(tables[1], members, t, states, out)
-    elif code == 2:
-        _sine(tables[2], members, t, states, out)
-    elif code == 3:
-        _ramp(tables[3], members, t, states, out)
-    elif code == 4:
-        _sine_with_dwell(tables[4], members, t, states, out)
-    elif code == 5:
-        _sum_of_sines(tables[5], members, t, states, out)
-    elif code == 6:
-        _speed_hold(tables[6], members, t, states, out)
+    kind = drivers.kind[b]
+    if kind == DriverKind.CONSTANT:
+        _constant(drivers.constant, members, t, states, out)
+    elif kind == DriverKind.STEP:
+        _step(drivers.step, members, t, states, out)
+    elif kind == DriverKind.SINE:
+        _sine(drivers.sine, members, t, states, out)
+    elif kind == DriverKind.RAMP:
+        _ramp(drivers.ramp, members, t, states, out)
+    elif kind == DriverKind.SINE_WITH_DWELL:
+        _sine_with_dwell(drivers.sine_with_dwell, members, t, states, out)
+    elif kind == DriverKind.SUM_OF_SINES:
+        _sum_of_sines(drivers.sum_of_sines, members, t, states, out)
+    elif kind == DriverKind.SPEED_HOLD:
+        _speed_hold(drivers.speed_hold, members, t, states, out)
     else:
-        paths, offsets, response_row, free, step, preview_time, ratio, max_steer = follower
-        return _follow_paths(
-            paths, offsets, members, response_row, free, step, states, preview_time, ratio, max_steer, out
-        )
+        return _follow_paths(drivers.follower, members, states, out)
     return DRIVEN, 0
 
 
-class CompiledDrivers(NamedTuple):
-    """A :class:`DriverBatch` in the form :func:`drive` takes: ``codes`` (B,) int64, ``tables``
-    (one (B, k) table per class of COMPILED_DRIVERS) and ``follower`` (the path followers' batch,
-    or None)."""
-
-    codes: np.ndarray
-    tables: tuple[np.ndarray, ...]
-    follower: PathFollowerBatch | None
-
-
-_NO_TABLE = np.zeros((1, 1))  #: the table of a class no vehicle drives with
-_NO_FOLLOWER = PathFollowerBatch(VehicleParams(), 1.0, 1)
-
-
-def follower_form(follower: PathFollowerBatch | None) -> tuple:
-    """``follower``'s :meth:`PathFollowerBatch.kernel_form` (a placeholder's for None)."""
-    return (follower or _NO_FOLLOWER).kernel_form()
+#: each compiled class's table of a batch in which no vehicle has it (no rows)
+_NO_ROWS = {cls: np.zeros(0, dtype=cls.table_dtype()) for cls in COMPILED_DRIVERS}
+#: the path followers' kernel of a batch without any (never read: no vehicle has PATH_FOLLOWER)
+_NO_FOLLOWERS = FollowerKernel(
+    np.zeros((0, 2)), np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros((0, 1, 4)), np.zeros((0, 1)),
+    1.0, 1.0, 1.0,
+)  # fmt: skip
 
 
 class DriverBatch:
@@ -568,11 +634,10 @@ class DriverBatch:
             self.drivers[b] = driver
             self._keys[b] = None
             if isinstance(driver, VectorisedDriver):
-                row = driver.row()
-                self._keys[b] = key = (type(driver), len(row))
+                self._keys[b] = key = (type(driver),)
                 if key not in self._tables:
-                    self._tables[key] = np.zeros((len(self.drivers), len(row)))
-                self._tables[key][b] = row
+                    self._tables[key] = np.zeros(len(self.drivers), dtype=driver.table_dtype())
+                self._tables[key][b] = driver.row()
             elif isinstance(driver, PathFollower):
                 self._keys[b] = key = (PathFollower, driver.params, float(driver.preview_time), int(driver.points))
                 if key not in self._followers:
@@ -584,28 +649,38 @@ class DriverBatch:
         for key, batch in self._followers.items():
             batch.replace({int(b): self.drivers[b] for b in self._members[key]})
         self._looped = np.array([b for b, k in enumerate(self._keys) if k is None], dtype=np.int64)
-        self.compiled = self._compiled_form()
+        self.compiled = self._compiled()
+        if self.compiled:  # (the kinds and tables change only here; the path followers' responses as speeds come up)
+            self._kind = np.array(
+                [
+                    DriverKind.PATH_FOLLOWER if key[0] is PathFollower else COMPILED_DRIVERS[key[0]]
+                    for key in self._keys
+                ],
+                dtype=np.int64,
+            )
+            self._class_tables = [self._tables.get((cls,), _NO_ROWS[cls]) for cls in COMPILED_DRIVERS]
 
-    def _compiled_form(self) -> CompiledDrivers | None:
-        """This batch for :func:`drive`; None if a driver is none of COMPILED_DRIVERS nor a path
-        follower, or the followers differ in preview."""
-        classes = [key[0] for key in self._tables]
-        if (
-            len(self._looped)
-            or len(self._followers) > 1
-            or len(set(classes)) < len(classes)
-            or not set(classes) <= set(COMPILED_DRIVERS)
-        ):
+    def _compiled(self) -> bool:
+        """Whether :meth:`kernel` has a form for this batch: every driver one of COMPILED_DRIVERS or
+        a path follower, the followers of one preview."""
+        classes = {key[0] for key in self._tables}
+        return not len(self._looped) and len(self._followers) <= 1 and classes <= set(COMPILED_DRIVERS)
+
+    def kernel(self) -> DriverTables:
+        """This batch as :func:`drive` takes it (the tables themselves; the path followers' as they
+        are now: their response table grows as speeds come up); only where :attr:`compiled`."""
+        follower = next(iter(self._followers.values()), None)
+        return DriverTables(self._kind, *self._class_tables, _NO_FOLLOWERS if follower is None else follower.kernel())
+
+    def follower_lacking(self, b: int, tenths: int) -> PathFollowerBatch | None:
+        """Vehicle b's path follower if it has no preview responses at ``tenths`` x 0.1 m/s (None
+        if it has them, or vehicle b has no path follower)."""
+        key = self._keys[b]
+        follower = self._followers.get(key) if key is not None and key[0] is PathFollower else None
+        if follower is None:
             return None
-        tables = tuple(
-            next((table for (cls, _), table in self._tables.items() if cls is driver), _NO_TABLE)
-            for driver in COMPILED_DRIVERS
-        )
-        codes = np.array(
-            [FOLLOWER if key[0] is PathFollower else COMPILED_DRIVERS.index(key[0]) for key in self._keys],
-            dtype=np.int64,
-        )
-        return CompiledDrivers(codes, tables, next(iter(self._followers.values()), None))
+        rows = follower.response_row
+        return follower if tenths >= len(rows) or rows[tenths] < 0 else None
 
     def __call__(self, t: np.ndarray, states: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         """Outputs (R,) of the drivers of vehicles ``rows`` (R,) (default: all B) from every

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
+from fourwis.envs.layout import A_AY, S_R
 from fourwis.envs.metrics import (
     SineWithDwellResult,
     peak_abs,
@@ -30,7 +31,7 @@ from fourwis.envs.metrics import (
 )
 from fourwis.envs.scenarios import make_scenario
 from fourwis.envs.simulation import simulate
-from fourwis.envs.vehicle import A_AY, S_R, VehicleParams
+from fourwis.envs.vehicle import VehicleParams
 
 MAX_AMPLITUDE = math.radians(300.0)  #: no sine-with-dwell run above this [rad]
 MIN_LAST_AMPLITUDE = math.radians(270.0)  #: the series reaches at least this unless 6.5A is larger [rad]

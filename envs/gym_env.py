@@ -28,8 +28,9 @@ from fourwis.control.allocation import allocate_for_estimate, allocator_limits
 from fourwis.control.reference import PhasePlaneRegion, reference_yaw_rate
 from fourwis.core.checks import is_integer, is_number
 from fourwis.core.types import Command, Estimate
-from fourwis.envs import compiled_loop
 from fourwis.envs.fmvss126 import characterise
+from fourwis.envs.layout import A_AY, S_DELTA_F, S_DELTA_R, S_R, S_U, S_X, S_Y
+from fourwis.envs.loop import HeldAction
 from fourwis.envs.metrics import (
     SPIN_OUT_SIDESLIP,
     CoursePaths,
@@ -41,7 +42,6 @@ from fourwis.envs.render import close_window, show_frame
 from fourwis.envs.scenarios import SCENARIOS, Scenario, make_scenario
 from fourwis.envs.sensors import Fault
 from fourwis.envs.simulation import DT, ClosedLoop
-from fourwis.envs.vehicle import A_AY, S_DELTA_F, S_DELTA_R, S_R, S_U, S_X, S_Y
 from fourwis.estimation import check_estimator_name
 
 MAX_YAW_MOMENT = 3000.0  #: yaw-moment action scale [N m]
@@ -201,13 +201,11 @@ class AgentController:
         limit = p.motor_peak_torque
         return Command(np.clip(base_torques + self.action * limit, -limit, limit), np.zeros(len(base_torques)))
 
-    def kernel_form(self) -> tuple:
-        """This controller as envs.compiled_loop runs it: (mode, held actions (B, n), yaw-moment
-        scale [N m], rear-steer scale [rad], wheel positions, motor peak torque [N m] and power
-        [W], wheel radius [m])."""
+    def kernel(self) -> HeldAction:
+        """This controller as the compiled loop runs it (the held actions themselves)."""
         p = self.params
-        mode = compiled_loop.YAW_MOMENT if self.action_mode == "yaw_moment" else compiled_loop.WHEEL_TORQUES
-        return (mode, self.action, MAX_YAW_MOMENT, float(p.max_rear_steer), *allocator_limits(p))
+        yaw_moment = self.action_mode == "yaw_moment"
+        return HeldAction(self.action, yaw_moment, MAX_YAW_MOMENT, float(p.max_rear_steer), allocator_limits(p))
 
 
 class _EpisodeStats:

@@ -15,8 +15,8 @@ import warnings
 
 import numpy as np
 
+from fourwis.envs.layout import A_MU, A_USAGE, S_DELTA_F, S_DELTA_R, S_PSI, S_U, S_X, S_Y
 from fourwis.envs.road import contact_points
-from fourwis.envs.vehicle import A_MU, A_USAGE, S_DELTA_F, S_DELTA_R, S_PSI, S_U, S_X, S_Y
 
 FRAME_WIDTH, FRAME_HEIGHT = 640, 480  #: frame size [pixels]
 VIEW_HALF_X, VIEW_HALF_Y = 15.0, 12.0  #: half extents of the top-down window [m]

@@ -21,7 +21,7 @@ from typing import NamedTuple
 import numpy as np
 
 from fourwis.core.checks import is_number
-from fourwis.envs.vehicle import MU_MAX, S_PSI, S_X, S_Y, VehicleParams
+from fourwis.envs.layout import MU_MAX, S_PSI, S_X, S_Y
 
 
 def check_mu(name: str, value: float) -> float:
@@ -154,8 +154,9 @@ def as_friction_map(road: FrictionMap | float | Callable) -> FrictionMap:
     raise ValueError(f"road must be a FrictionMap, a friction coefficient or a callable mu(x, y), got {road!r}")
 
 
-def contact_points(state: np.ndarray, params: VehicleParams) -> tuple[np.ndarray, np.ndarray]:
-    """Global (X, Y) [m] of the four contact points, each (B, 4), from plant states (B, NX)."""
+def contact_points(state: np.ndarray, params) -> tuple[np.ndarray, np.ndarray]:
+    """Global (X, Y) [m] of the four contact points, each (B, 4), from plant states (B, NX) of a
+    car with vehicle parameters ``params`` (their ``wheel_positions``)."""
     pos = params.wheel_positions
     c, s = np.cos(state[:, S_PSI])[:, None], np.sin(state[:, S_PSI])[:, None]
     gx = state[:, S_X][:, None] + c * pos[:, 0] - s * pos[:, 1]
@@ -201,7 +202,7 @@ def _per_vehicle(road, batch: int) -> list[FrictionMap]:
     return roads
 
 
-def road_tables(road, state: np.ndarray, params: VehicleParams) -> RoadTables:
+def road_tables(road, state: np.ndarray, params) -> RoadTables:
     """Kernel arguments for a batch of plant states (B, NX): maps evaluated where they must be.
 
     With any callable map in the batch, friction is evaluated here at every vehicle's contact

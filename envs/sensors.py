@@ -31,6 +31,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -38,7 +39,7 @@ import numpy as np
 from fourwis.core.checks import member_rows  # (the readings' layout, which the estimators read)
 from fourwis.core.kernels import JIT
 from fourwis.core.types import CHANNELS, SensorReading
-from fourwis.envs.vehicle import A_AX, A_AY, S_DELTA_F, S_DELTA_R, S_OMEGA, S_R, S_TORQUE
+from fourwis.envs.layout import A_AX, A_AY, S_DELTA_F, S_DELTA_R, S_OMEGA, S_R, S_TORQUE
 
 FAULT_KINDS = ("spike", "dropout", "stuck", "bias_step")
 
@@ -126,36 +127,41 @@ TRUE_STATE_COLUMNS = (
 )
 
 NOISE_BLOCK = 256  #: samples of noise each vehicle draws from its generator at a time
-_DONE, _BLOCK_USED_UP = -1, -2  #: statuses of noisy_readings (>= 0: a non-finite channel)
+SENSED, BLOCK_USED_UP = -1, -2  #: statuses of noisy_readings (>= 0: a non-finite channel)
+
+
+class SensorKernel(NamedTuple):
+    """A :class:`SensorModel` as its compiled kernel takes it (the arrays themselves, updated in
+    place): each vehicle's turn-on bias (B, 13), its block of standard normal draws (B,
+    NOISE_BLOCK, 13), the noise standard deviation per channel (13,) and each vehicle's cursor
+    into its block (B,) int64."""
+
+    bias: np.ndarray
+    normal: np.ndarray
+    noise_std: np.ndarray
+    cursor: np.ndarray
 
 
 @numba.njit(**JIT)
-def noisy_readings(
-    truth: np.ndarray,
-    rows: np.ndarray,
-    bias: np.ndarray,
-    normal: np.ndarray,
-    noise: np.ndarray,
-    cursor: np.ndarray,
-    values: np.ndarray,
-) -> int:
-    """values[i] = truth[i] + bias[rows[i]] + normal[rows[i], cursor[rows[i]]] * noise, advancing each
-    row's noise cursor: truth, values (M, 13); bias (B, 13); normal (B, NOISE_BLOCK, 13); cursor (B,).
-    Returns _DONE; or, writing nothing, the first channel of a non-finite truth value, or
-    _BLOCK_USED_UP when a row's noise block is exhausted (refill and call again)."""
+def noisy_readings(sensors: SensorKernel, truth: np.ndarray, rows: np.ndarray, values: np.ndarray) -> int:
+    """values[i] = truth[i] + bias[rows[i]] + normal[rows[i], cursor[rows[i]]] * noise_std, advancing
+    each row's cursor: truth, values (M, 13). Returns SENSED; or, writing nothing, the first
+    channel of a non-finite truth value, or BLOCK_USED_UP when a row's noise block is exhausted
+    (refill and call again)."""
+    bias, normal, noise, cursor = sensors
     for i in range(truth.shape[0]):
         for c in range(truth.shape[1]):
             if not np.isfinite(truth[i, c]):
                 return c
         if cursor[rows[i]] >= NOISE_BLOCK:
-            return _BLOCK_USED_UP
+            return BLOCK_USED_UP
     for i in range(truth.shape[0]):
         b = rows[i]
         k = cursor[b]
         for c in range(truth.shape[1]):
             values[i, c] = truth[i, c] + bias[b, c] + normal[b, k, c] * noise[c]
         cursor[b] = k + 1
-    return _DONE
+    return SENSED
 
 
 class SensorModel:
@@ -214,10 +220,9 @@ class SensorModel:
         self._held[members] = 0.0
         self._is_frozen[:, members] = False
 
-    def kernel_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(bias (B, 13), noise block (B, NOISE_BLOCK, 13), noise std (13,), cursor (B,)): what
-        :func:`noisy_readings` reads and advances (the arrays themselves, updated in place)."""
-        return self.bias, self._normal, self._noise, self._cursor
+    def kernel(self) -> SensorKernel:
+        """These sensors as :func:`noisy_readings` takes them (the arrays themselves)."""
+        return SensorKernel(self.bias, self._normal, self._noise, self._cursor)
 
     def refill(self, b: int) -> None:
         """Draw vehicle b's next block of NOISE_BLOCK samples from its generator."""
@@ -238,11 +243,11 @@ class SensorModel:
         if t.shape != (len(rows),):
             raise ValueError(f"time must be a scalar or have shape ({len(rows)},), got {t.shape}")
         values = np.empty(truth.shape)
-        status = noisy_readings(truth, rows, self.bias, self._normal, self._noise, self._cursor, values)
-        if status == _BLOCK_USED_UP:
+        status = noisy_readings(self.kernel(), truth, rows, values)
+        if status == BLOCK_USED_UP:
             for b in rows[self._cursor[rows] >= NOISE_BLOCK]:
                 self.refill(b)
-            status = noisy_readings(truth, rows, self.bias, self._normal, self._noise, self._cursor, values)
+            status = noisy_readings(self.kernel(), truth, rows, values)
         if status >= 0:
             raise ValueError(f"non-finite true value on sensor channel {CHANNELS[status]!r}")
         valid = np.ones(truth.shape, dtype=bool)

@@ -1,9 +1,11 @@
-"""Closed-loop simulation of one scenario: driver, plant, sensors, estimator, controller.
+"""Closed-loop simulation: driver, plant, sensors, estimator and controller of B vehicles.
 
-Each 2 ms step (the paper's sample time): the sensors measure the plant, the estimator turns
-the readings into an :class:`estimation.types.Estimate`, the driver gives steering and base
-torques (from the true pose and speed), the stability controller (if any) corrects the
-torques and rear steer using the estimate only, and the plant advances one RK4 step.
+Each 2 ms step (the paper's sample time) runs the stages of :mod:`fourwis.envs.loop` in their
+one order: the stability controller (if any) corrects the driver's torques and rear steer using
+the estimate only, the plant advances one RK4 step, the sensors measure it, the estimator turns
+the readings into an :class:`fourwis.core.types.Estimate`, and the drivers give steering and
+base torques (from the true pose and speed). :class:`ClosedLoop` hands its components to that
+loop (compiled bundles, or Python for a user's own) and serves the stages that run in Python.
 """
 
 from __future__ import annotations
@@ -16,85 +18,65 @@ import numpy as np
 from tqdm import tqdm
 
 from fourwis.control import StabilityController
+from fourwis.control.allocation import allocation_error
+from fourwis.control.dyc import inputs_row
 from fourwis.core.checks import check_command, check_controller, check_estimate, check_estimator, is_integer
-from fourwis.core.types import Controller, Estimate, Estimator, SensorReading
-from fourwis.envs import compiled_loop
-from fourwis.envs.driver import DriverBatch
+from fourwis.core.types import CHANNELS, Controller, Estimate, Estimator, SensorReading
+from fourwis.envs import loop as compiled
+from fourwis.envs.driver import DriverBatch, bad_follower_state
+from fourwis.envs.layout import C_DELTA_F, C_DELTA_R, C_TORQUE, NAUX, NU, NX
+from fourwis.envs.loop import (
+    Call,
+    Cars,
+    HeldAction,
+    NoControl,
+    Parts,
+    PlantStage,
+    PythonStage,
+    Sample,
+    Stage,
+    Status,
+    StepRecord,
+    measure_truths,
+    new_records,
+)
 from fourwis.envs.road import RoadTables, contact_points
 from fourwis.envs.scenarios import Scenario, make_scenario
-from fourwis.envs.sensors import TRUE_AUX_COLUMNS, TRUE_STATE_COLUMNS, Fault, SensorModel, SensorParams
+from fourwis.envs.sensors import Fault, SensorModel, SensorParams
 from fourwis.envs.vehicle import (
-    A_AX,
-    A_AY,
-    A_FZ,
-    A_MU,
-    C_DELTA_F,
-    C_DELTA_R,
-    C_TORQUE,
-    NU,
-    S_R,
-    S_U,
-    S_V,
+    RK4_REAL_LIMIT,
     check_lag_step,
     check_plant_step,
+    check_relaxation_step,
     derivatives,
-    sideslip_angles,
+    plant_error,
     step,
 )
+from fourwis.estimation.joint import StateEstimator, empty_estimate
+from fourwis.estimation.oracle import Oracle
 
 DT = 0.002  #: physics, sensor and estimator step [s] (the paper samples at 2 ms)
 SIMULATE_CHUNK = 250  #: steps :func:`simulate` advances per call (its progress bar moves by as many)
+#: largest batch whose plant steps car by car inside the compiled loop; beyond it the plant steps
+#: the whole batch at once between the loop's other stages, in SIMD lanes of cars (BENCHMARKS:
+#: the two are even at about this size)
+PER_CAR_PLANT_MAX = 32
 
 
-_MEASURED_AUX = np.array(TRUE_AUX_COLUMNS)  #: sensor channels 0-1 from the plant diagnostics
-_MEASURED_STATE = np.array(TRUE_STATE_COLUMNS)  #: sensor channels 2-12 from the plant state
-
-
-def front_steer_command(steering_wheel: np.ndarray, params) -> np.ndarray:
-    """The front road-wheel angle (B,) [rad] the driver's steering-wheel angle commands, within
-    the steering's lock (``max_front_steer``): the angle the servo is sent, and what the
-    controller, its allocator's lever arms and the references see (a steering wheel turned
-    past the lock does not steer the wheels further)."""
-    delta = np.asarray(steering_wheel, dtype=float) / params.steering_ratio
-    return np.minimum(np.maximum(delta, -params.max_front_steer), params.max_front_steer)  # (np.clip: 2x the time)
-
-
-def sensor_truth(state: np.ndarray, aux: np.ndarray) -> np.ndarray:
-    """The 13 measured quantities (B, 13) in :data:`envs.sensors.CHANNELS` order from plant state/aux."""
-    truth = np.empty((len(state), 13))
-    truth[:, :2] = aux[:, _MEASURED_AUX]
-    truth[:, 2:] = state[:, _MEASURED_STATE]
-    return truth
-
-
-_TRUTH_STATE = np.array([S_U, S_V, S_R])
-_TRUTH_AUX = np.array([A_AX, A_AY, *range(A_MU, A_MU + 4), *range(A_FZ, A_FZ + 4)])
-
-
-def true_estimate(state: np.ndarray, aux: np.ndarray) -> Estimate:
-    """The truth in estimator form: what a perfect estimator would report (fields are views of
-    two fresh arrays, never of ``state`` or ``aux``)."""
-    body, diag = state[:, _TRUTH_STATE], aux[:, _TRUTH_AUX]
-    u, v = body[:, 0], body[:, 1]
-    zeros = np.zeros((len(state), 5))
-    return Estimate(
-        u=u,
-        v=v,
-        beta=sideslip_angles(u, v),
-        r=body[:, 2],
-        ax=diag[:, 0],
-        ay=diag[:, 1],
-        mu=diag[:, 2:6],
-        fz=diag[:, 6:10],
-        beta_std=zeros[:, 0],
-        mu_std=zeros[:, 1:],
-    )
+def truth_of(state: np.ndarray, aux: np.ndarray) -> tuple[np.ndarray, Estimate]:
+    """The true measured quantities (B, 13) in the sensor channels' order and the truth in
+    estimator form (what a perfect estimator would report) of plant states (B, NX) and their
+    diagnostics (B, NAUX): the loop's own computation (:func:`fourwis.envs.loop.measure_truth`)."""
+    state, aux = np.ascontiguousarray(state, dtype=float), np.ascontiguousarray(aux, dtype=float)
+    sensed, truth = np.empty((len(state), len(CHANNELS))), empty_estimate(len(state))
+    measure_truths(state, aux, sensed, truth)
+    return sensed, truth
 
 
 class Trajectory(NamedTuple):
     """Time series of one run (time-major, no batch axis).
 
-    t (T,) [s]; state (T, NX) and aux (T, NAUX) of the plant (see envs.vehicle names);
+    t (T,) [s]; state (T, NX) and aux (T, NAUX) of the plant (:mod:`fourwis.envs.layout`);
     controls (T, NU) applied commands; steering_wheel (T,) driver's angle [rad];
     sensors (T, 13) and sensor_valid (T, 13) readings; truth and estimate: Estimate of (T,...)
     arrays; scenario: the Scenario run.
@@ -112,67 +94,37 @@ class Trajectory(NamedTuple):
     scenario: Scenario
 
 
-def _merged(full: np.ndarray, part: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """A copy of ``full`` with ``rows`` replaced by ``part``."""
-    out = full.copy()
-    out[rows] = part
-    return out
-
-
-def _rows(estimate: Estimate, rows: np.ndarray) -> Estimate:
-    return Estimate(*(field[rows] for field in estimate))
-
-
-class Sample(NamedTuple):
-    """What a closed loop knows at its current time, before the controller acts (B vehicles).
-
-    t (B,) [s]; reading: the sensors' :class:`envs.sensors.SensorReading`; truth and estimate
-    (:class:`Estimate` of (B, ...)); steering_wheel (B,) driver's angle [rad]; front_steer (B,)
-    the road-wheel angle it commands, within the lock (:func:`front_steer_command`) [rad];
-    base_torques (B, 4) the speed-holding driver's wheel torques [N m].
-    """
-
-    t: np.ndarray
-    reading: SensorReading
-    truth: Estimate
-    estimate: Estimate
-    steering_wheel: np.ndarray
-    front_steer: np.ndarray
-    base_torques: np.ndarray
-
-
-class StepRecord(NamedTuple):
-    """One 2 ms sample of a closed loop of B vehicles, taken before the plant advances:
-    t (B,), state (B, NX), aux (B, NAUX), controls (B, NU) applied, steering_wheel (B,),
-    reading, truth, estimate. :meth:`ClosedLoop.advance_steps` returns n of them stacked in
-    one: every array then has the leading axes (n, B) (the reading's and the Estimates' too)."""
-
-    t: np.ndarray
-    state: np.ndarray
-    aux: np.ndarray
-    controls: np.ndarray
-    steering_wheel: np.ndarray
-    reading: SensorReading
-    truth: Estimate
-    estimate: Estimate
-
-
-def _stacked(records: list[StepRecord]) -> StepRecord:
-    """One StepRecord of a list of them, stacked (leading axes (n, B))."""
-
-    def stack(field: str, group: str | None = None) -> np.ndarray:
-        return np.stack([getattr(getattr(r, group) if group else r, field) for r in records])
-
-    return StepRecord(
-        stack("t"),
-        stack("state"),
-        stack("aux"),
-        stack("controls"),
-        stack("steering_wheel"),
-        SensorReading(*(stack(f, "reading") for f in SensorReading._fields)),
-        Estimate(*(stack(f, "truth") for f in Estimate._fields)),
-        Estimate(*(stack(f, "estimate") for f in Estimate._fields)),
-    )
+def kernel_parts(loop: ClosedLoop) -> Parts:
+    """``loop``'s components as the compiled loop runs them: each one's own bundle where it has a
+    compiled form (fourwis's estimators and controllers, the envs' agent, sensors without faults,
+    table friction maps, the built-in drivers), else its :class:`fourwis.envs.loop.PythonStage`."""
+    python = loop.python_stages
+    estimator, controller = loop.estimator, loop.controller
+    if type(estimator) is Oracle or (type(estimator) is StateEstimator and estimator.state is not None):
+        estimator_part = (
+            estimator.kernel()
+        )  # (before its first reset a StateEstimator has no state: no vehicle reads it)
+    else:
+        estimator_part = python[Stage.ESTIMATE]
+    kind = type(controller)  # (a subclass that changes the call but inherits kernel(): Python)
+    if controller is None:
+        controller_part = NoControl()
+    elif kind is StabilityController:
+        controller_part = controller.kernel(loop.batch_size)
+    elif "kernel" in vars(kind) and "__call__" in vars(kind):
+        controller_part = controller.kernel()
+    else:
+        controller_part = python[Stage.CONTROL]
+    if isinstance(loop.road, RoadTables) and loop.batch_size <= PER_CAR_PLANT_MAX:
+        params = loop.params
+        speed = RK4_REAL_LIMIT * params.min_relaxation_length / loop.dt
+        plant_part = PlantStage(params.kernel, loop.road, speed, params.contact_point_reach)
+    else:
+        plant_part = python[Stage.PLANT]
+    sensors = python[Stage.SENSE] if loop.sensors.faults else loop.sensors.kernel()
+    steering = loop.steering_drivers.kernel() if loop.steering_drivers.compiled else python[Stage.STEER]
+    speed_part = loop.speed_drivers.kernel() if loop.speed_drivers.compiled else python[Stage.SPEED]
+    return Parts(controller_part, plant_part, sensors, estimator_part, steering, speed_part)
 
 
 class ClosedLoop:
@@ -181,13 +133,15 @@ class ClosedLoop:
     ``scenarios``: one :class:`Scenario` (B = 1) or a sequence (one per vehicle, all with the
     same vehicle parameters); each vehicle keeps its own clock, so :meth:`reset_members` can
     restart some of them mid-run (the vector env's autoreset). ``rng``: sensor noise and
-    fault generators (see :class:`envs.sensors.SensorModel`). Used by :func:`simulate` (B = 1,
-    records every sample) and the Gymnasium envs (an agent's command enters through
+    fault generators (see :class:`fourwis.envs.sensors.SensorModel`). Used by :func:`simulate`
+    (B = 1, records every sample) and the Gymnasium envs (an agent's command enters through
     ``controller``, which must then handle the batch; it is reset once, at construction).
 
-    Each time instant is sensed once: :meth:`sample` measures and estimates (cached until
-    the plant moves), :meth:`advance` applies the controller and integrates;
-    :meth:`advance_steps` does both for several steps, compiled where it can.
+    Every step runs in :mod:`fourwis.envs.loop`, compiled, with the stages whose component is
+    Python (a user's estimator or controller, sensor faults, a callable friction map, a user's
+    driver, and the plant of batches beyond PER_CAR_PLANT_MAX) served here in one batched call
+    each. Each time instant is sensed once: :meth:`sample` returns the current sample,
+    :meth:`advance_steps` advances.
     """
 
     def __init__(
@@ -231,12 +185,6 @@ class ClosedLoop:
             estimator = make_estimator(estimator or "oracle", params, dt)
         else:
             check_estimator(estimator, estimator)
-        from fourwis.estimation import Oracle, StateEstimator
-
-        # fourwis's own estimators and controllers guard their outputs; anyone else's are
-        # checked every step
-        self._check_estimates = type(estimator) not in (Oracle, StateEstimator)
-        self._needs_truth = bool(getattr(estimator, "needs_truth", False))
         if isinstance(controller, str):
             from fourwis.control import make_controller
 
@@ -263,16 +211,26 @@ class ClosedLoop:
                 "rear_steer_feedforward would add the same law again: use one of them"
             )
         self.controller, self.estimator, self.dt = controller, estimator, dt
-        self.sensors = SensorModel(sensor_params, fault_list, self.batch_size, rng)
-        self.state = np.concatenate([s.initial_state() for s in self.scenarios])
+        self._check_estimates = type(estimator) not in (Oracle, StateEstimator)
+        self._needs_truth = bool(getattr(estimator, "needs_truth", False))
+        B = self.batch_size
+        self.sensors = SensorModel(sensor_params, fault_list, B, rng)
         self.steering_drivers = DriverBatch([s.steering for s in self.scenarios])
         self.speed_drivers = DriverBatch([s.speed_driver() for s in self.scenarios])
-        self.k = np.zeros(self.batch_size, dtype=np.int64)
-        self._fresh = np.ones(self.batch_size, dtype=bool)  # estimator needs a reset
-        self._stale = np.ones(self.batch_size, dtype=bool)  # needs sensing at the current time
-        self._sample: Sample | None = None
+        state = np.concatenate([s.initial_state() for s in self.scenarios])
+        self.cars = Cars(
+            state, np.zeros((B, NAUX)), np.zeros((B, NU)), np.zeros(B, dtype=np.int64), np.full(B, Stage.SENSE),
+            np.ones(B, dtype=bool), np.zeros((B, len(CHANNELS))), np.zeros(B),
+        )  # fmt: skip
+        reading = SensorReading(np.zeros((B, len(CHANNELS))), np.ones((B, len(CHANNELS)), dtype=bool), np.zeros(B))
+        self._sample = Sample(
+            np.zeros(B), reading, empty_estimate(B), empty_estimate(B), np.zeros(B), np.zeros(B), np.zeros((B, 4))
+        )
+        #: the stages this loop serves in Python, each with its vehicles' served marks
+        self.python_stages = {stage: PythonStage(np.zeros(B, dtype=bool)) for stage in compiled.STAGES}
+        self._timing = compiled.Timing(dt, float(params.steering_ratio), float(params.max_front_steer))
         self._update_road()
-        self.aux = self._diagnostics(np.arange(self.batch_size))
+        self.cars.aux[:] = self._diagnostics(np.arange(B))
         if controller is not None:
             controller.reset()
 
@@ -284,9 +242,29 @@ class ClosedLoop:
         return self.scenarios[0]
 
     @property
+    def state(self) -> np.ndarray:
+        """Each vehicle's plant state (B, NX) (the loop's own array)."""
+        return self.cars.state
+
+    @property
+    def aux(self) -> np.ndarray:
+        """Each vehicle's plant diagnostics (B, NAUX) at its state."""
+        return self.cars.aux
+
+    @property
+    def k(self) -> np.ndarray:
+        """Each vehicle's steps since its (re)start (B,)."""
+        return self.cars.k
+
+    @property
+    def fresh(self) -> np.ndarray:
+        """Which vehicles' estimators are yet to be reset (B,) bool."""
+        return self.cars.fresh
+
+    @property
     def t(self) -> np.ndarray:
         """Each vehicle's time since its (re)start (B,) [s]."""
-        return self.k * self.dt
+        return self.cars.k * self.dt
 
     def _check_params(self, scenarios: Sequence[Scenario]) -> None:
         for s in scenarios:
@@ -304,7 +282,7 @@ class ClosedLoop:
 
     def _diagnostics(self, rows: np.ndarray) -> np.ndarray:
         """Plant diagnostics (len(rows), NAUX) of vehicles ``rows`` at rest controls (the initial sample)."""
-        state = self.state[rows]
+        state = self.cars.state[rows]
         gx, gy = contact_points(state, self.params)
         mu = np.stack([self.scenarios[b].road.mu_at(gx[i], gy[i]) for i, b in enumerate(rows)])
         return derivatives(state, np.zeros((len(rows), NU)), mu, self.params)[1]
@@ -322,55 +300,25 @@ class ClosedLoop:
         self._check_params(scenarios)
         for b, scenario in zip(members, scenarios):
             self.scenarios[b] = scenario
-            self.state[b] = scenario.initial_state()[0]
+            self.cars.state[b] = scenario.initial_state()[0]
         self.steering_drivers.replace(members, [s.steering for s in scenarios])
         self.speed_drivers.replace(members, [s.speed_driver() for s in scenarios])
         self.sensors.reset_members(mask, rngs)
         if isinstance(self.controller, StabilityController):
             self.controller.reset(mask)
-        self.k[members] = 0
-        self._fresh[members] = True
-        self._stale[members] = True
+        self.cars.k[members] = 0
+        self._sample.t[members] = 0.0
+        self.cars.fresh[members] = True
+        self.cars.stage[members] = Stage.SENSE
         self._update_road()
-        self.aux[members] = self._diagnostics(members)
+        self.cars.aux[members] = self._diagnostics(members)
 
-    def sample(self) -> Sample:
-        """Measure, estimate and drive at the current time: once per time instant and vehicle
-        (cached; after :meth:`reset_members` only the restarted vehicles are sensed)."""
-        n_stale = np.count_nonzero(self._stale)  # (count_nonzero: ~10x cheaper than .any() on small arrays)
-        if not n_stale:
-            return self._sample
-        now = self.t
-        if n_stale == self.batch_size:
-            part, t, state, aux = None, now, self.state, self.aux
-        else:
-            rows = part = np.flatnonzero(self._stale)
-            t, state, aux = now[rows], self.state[rows], self.aux[rows]
-        reading = self.sensors.measure(sensor_truth(state, aux), t, part)
-        truth = true_estimate(state, aux)
-        steering = self.steering_drivers(now, self.state, part)
-        base = np.repeat(self.speed_drivers(now, self.state, part)[:, None], 4, axis=1)
-        if part is not None:  # merge into copies: records handed out earlier stay intact
-            old = self._sample
-            reading = SensorReading(*(_merged(full, new, rows) for full, new in zip(old.reading, reading)))
-            truth = Estimate(*(_merged(full, new, rows) for full, new in zip(old.truth, truth)))
-            steering, base = _merged(old.steering_wheel, steering, rows), _merged(old.base_torques, base, rows)
-        if np.count_nonzero(self._fresh):
-            speeds = np.array([s.speed for s in self.scenarios])
-            self.estimator.reset(reading, speeds, None if self._fresh.all() else self._fresh.copy())
-            self._fresh[:] = False
-        if part is not None:
-            estimate = self.estimator.step(reading, _rows(truth, rows) if self._needs_truth else None, rows)
-        else:
-            estimate = self.estimator.step(reading, truth if self._needs_truth else None)
-        if self._check_estimates:  # and copied: records handed out earlier stay intact if it reuses its arrays
-            check_estimate(estimate, self.batch_size if part is None else len(rows), self._labels[0])
-            estimate = Estimate(*(np.array(field, dtype=float) for field in estimate))
-        if part is not None:
-            estimate = Estimate(*(_merged(full, new, rows) for full, new in zip(self._sample.estimate, estimate)))
-        self._sample = Sample(now, reading, truth, estimate, steering, front_steer_command(steering, self.params), base)
-        self._stale[:] = False
-        return self._sample
+    def sample(self) -> compiled.Sample:
+        """What the loop knows at the current time (a copy): measured, estimated and driven once
+        per time instant and vehicle (after :meth:`reset_members` only the restarted vehicles)."""
+        if np.any(self.cars.stage != Stage.CONTROL):
+            self._run(0, None, final=False, keep=False)
+        return _copied(self._sample)
 
     def _checked_moving(self, moving) -> np.ndarray | None:
         """``moving`` as an array if it is None or a bool array (B,); else ValueError naming it."""
@@ -382,89 +330,199 @@ class ClosedLoop:
         return array
 
     def advance(self, integrate: bool = True, moving: np.ndarray | None = None) -> StepRecord:
-        """Control at the current time from :meth:`sample`; then (if ``integrate``) advance the
-        plant one step: every vehicle, or those selected by ``moving`` (B,) bool (the others
-        keep their time, state and sample). Returns the sample taken before the plant moved."""
+        """One step: control at the current time and (if ``integrate``) advance the plant, every
+        vehicle or those selected by ``moving`` (B,) bool (the others keep their time, state and
+        sample). Returns the step's record (leading axis B), taken before the plant moved; without
+        ``integrate`` the loop stays at this time instant (and controls it again next time)."""
         moving = self._checked_moving(moving)
-        s = self.sample()
-        controls = np.zeros((self.batch_size, NU))
-        controls[:, C_TORQUE : C_TORQUE + 4] = s.base_torques
-        controls[:, C_DELTA_F] = s.front_steer
-        if isinstance(self.controller, StabilityController):  # (held vehicles keep its memory, as when compiled)
-            command = self.controller(s.t, s.estimate, controls[:, C_DELTA_F].copy(), s.base_torques.copy(), moving)
-        elif self.controller is not None:
-            command = self.controller(s.t, s.estimate, controls[:, C_DELTA_F].copy(), s.base_torques.copy())
-            if self._check_commands:
-                check_command(command, self.batch_size, self._labels[1])
-        if self.controller is not None:
-            controls[:, C_TORQUE : C_TORQUE + 4] = command.torques
-            controls[:, C_DELTA_R] = command.rear_steer
-        record = StepRecord(
-            s.t, self.state.copy(), self.aux.copy(), controls, s.steering_wheel, s.reading, s.truth, s.estimate
-        )
-        if integrate:
-            state, aux = step(self.state, controls, self.params, self.road, self.dt)
-            if moving is None:
-                self.state, self.aux = state, aux
-                self.k += 1
-                self._stale[:] = True
-            else:
-                self.state = np.where(moving[:, None], state, self.state)
-                self.aux = np.where(moving[:, None], aux, self.aux)
-                self.k += moving
-                self._stale |= moving
-        return record
+        records = self._run(1 if integrate else 0, moving, final=not integrate, keep=True)
+        return _index(records, 0)
 
     def advance_steps(self, n: int, moving: np.ndarray | None = None, records: bool = True) -> StepRecord | None:
-        """:meth:`advance` ``n`` times (every vehicle, or those selected by ``moving`` (B,) bool),
-        then :meth:`sample`; returns the steps' records, stacked (None if not ``records``). In one
-        compiled call where the loop has a compiled form (:func:`envs.compiled_loop.supports`:
-        fourwis's estimators, no controller, the envs' agent or fourwis's DYC, no sensor faults,
-        table roads, built-in drivers, up to 32 cars), else step by step in Python; the two agree
-        bit for bit, but for the rows of held vehicles, which the compiled path leaves NaN, and
-        for errors: the compiled path skips held vehicles (the Python loop also allocates and
-        integrates them, and discards the result; the DYC's memory of them stays in both) and
-        raises the lowest failing vehicle's error, leaving the vehicles at different steps (reset
-        them after an error)."""
+        """:meth:`advance` ``n`` times (every vehicle, or those selected by ``moving`` (B,) bool);
+        returns the steps' records, stacked (leading axes (n, B); a held vehicle's rows are NaN),
+        or None if not ``records``. A failing vehicle raises the error of its failure (the
+        lowest failing vehicle's of a batch); the vehicles then stand at different steps: reset
+        them."""
         if not (is_integer(n) and n >= 1):
             raise ValueError(f"n must be a positive integer, got {n!r}")
         if not isinstance(records, (bool, np.bool_)):
             raise ValueError(f"records must be True or False, got {records!r}")
         moving = self._checked_moving(moving)
-        if not compiled_loop.supports(self):
-            steps = [self.advance(moving=moving) for _ in range(n)]
-            self.sample()
-            return _stacked(steps) if records else None
+        out = self._run(int(n), moving, final=False, keep=bool(records))
+        return out if records else None
+
+    # ---- the loop ------------------------------------------------------------------------
+    def _run(self, n: int, moving: np.ndarray | None, final: bool, keep: bool) -> StepRecord:
+        """Run the vehicles selected by ``moving`` (all if None) ``n`` steps (and with ``final`` a
+        control and record at the end); returns the records (empty unless ``keep``)."""
+        B = self.batch_size
         check_lag_step(self.params, self.dt)
-        old = self.sample()
-        arrays = compiled_loop.Arrays(
-            old.t.copy(),
-            old.reading.values.copy(),
-            old.reading.valid.copy(),
-            compiled_loop.estimate_rows(old.truth),
-            compiled_loop.estimate_rows(old.estimate),
-            old.steering_wheel.copy(),
-            old.front_steer.copy(),
-            old.base_torques.copy(),
-        )
-        oracle = compiled_loop.reports_truth(self.estimator)
-        try:
-            rows = compiled_loop.advance(self, n, moving, arrays)
-        except (ValueError, FloatingPointError):
-            self._stale[:] = True  # (the next sample senses every vehicle where it stopped)
-            raise
-        truth = compiled_loop.rows_estimate(arrays.truth)
-        estimate = truth if oracle else compiled_loop.rows_estimate(arrays.estimate)
-        self._sample = Sample(
-            arrays.t,
-            SensorReading(arrays.readings, arrays.valid, arrays.t),
-            truth,
-            estimate,
-            arrays.steering_wheel,
-            arrays.front_steer,
-            arrays.base_torques,
-        )
-        return compiled_loop.step_records(rows, oracle) if records else None
+        call = Call(n, final, np.zeros(B, np.int64), np.zeros(B, np.int64), np.zeros(B, np.int64), np.zeros((B, NX)))
+        cars = np.arange(B) if moving is None else np.flatnonzero(moving)
+        records = new_records(n + final if keep else 0, B)
+        while len(cars):
+            compiled.run(cars, call, self.cars, self._sample, kernel_parts(self), self._timing, records)
+            cars = cars[call.status[cars] != Status.DONE]
+            self._serve(cars, call)
+        return records
+
+    def _serve(self, cars: np.ndarray, call: Call) -> None:
+        """What Python does for the stopped vehicles ``cars``: refill noise, add preview responses,
+        reset estimators and serve the Python stages, in the stages' order; or raise a failure."""
+        status = call.status[cars]
+        failed = cars[status >= Status.BAD_TRUTH]
+        if len(failed):
+            raise self._failure(int(failed.min()), call)
+        for b in cars[status == Status.NEEDS_NOISE]:
+            self.sensors.refill(b)
+        for b in cars[status == Status.NEEDS_PREVIEW]:
+            drivers = self.steering_drivers if self.cars.stage[b] == Stage.STEER else self.speed_drivers
+            follower = drivers.follower_lacking(b, int(call.value[b]))
+            if follower is not None:  # (None: added for another vehicle just now)
+                follower.add_responses(int(call.value[b]))
+        resets = cars[status == Status.NEEDS_RESET]
+        if len(resets):
+            self._reset_estimator(resets)
+        waiting = cars[status == Status.WAITING]
+        for stage in compiled.STAGES:
+            rows = waiting[self.cars.stage[waiting] == stage]
+            if len(rows):
+                _SERVERS[stage](self, rows)
+                self.python_stages[stage].served[rows] = True
+
+    def _reading(self) -> SensorReading:
+        return SensorReading(*(field.copy() for field in self._sample.reading))
+
+    def _reset_estimator(self, rows: np.ndarray) -> None:
+        speeds = np.array([s.speed for s in self.scenarios])
+        fresh = self.cars.fresh
+        self.estimator.reset(self._reading(), speeds, None if fresh.all() else fresh.copy())
+        fresh[:] = False
+
+    def _serve_control(self, rows: np.ndarray) -> None:
+        s = self._sample
+        controls = self.cars.controls
+        controls[rows] = 0.0
+        controls[rows, C_TORQUE : C_TORQUE + 4] = s.base_torques[rows]
+        controls[rows, C_DELTA_F] = s.front_steer[rows]
+        if self.controller is None:
+            return
+        command = self.controller(s.t.copy(), _copied_estimate(s.estimate), s.front_steer.copy(), s.base_torques.copy())
+        if self._check_commands:
+            check_command(command, self.batch_size, self._labels[1])
+        controls[rows, C_TORQUE : C_TORQUE + 4] = command.torques[rows]
+        controls[rows, C_DELTA_R] = command.rear_steer[rows]
+
+    def _serve_plant(self, rows: np.ndarray) -> None:
+        road = self.road if isinstance(self.road, RoadTables) else [self.road[b] for b in rows]
+        if isinstance(road, RoadTables) and len(rows) < self.batch_size:
+            road = RoadTables(road.base_mu[rows], road.rects[rows], road.mu_given[rows], road.use_map)
+        result = step(self.cars.state[rows], self.cars.controls[rows], self.params, road, self.dt)
+        self.cars.state[rows], self.cars.aux[rows] = result.state, result.aux
+
+    def _serve_sensors(self, rows: np.ndarray) -> None:
+        partial = len(rows) < self.batch_size
+        reading = self.sensors.measure(self.cars.sensed[rows], self._sample.t[rows], rows if partial else None)
+        self._sample.reading.values[rows], self._sample.reading.valid[rows] = reading.values, reading.valid
+
+    def _serve_estimator(self, rows: np.ndarray) -> None:
+        partial = len(rows) < self.batch_size
+        truth = _rows(self._sample.truth, rows) if self._needs_truth else None
+        estimate = self.estimator.step(self._reading(), truth, rows if partial else None)
+        if self._check_estimates:
+            check_estimate(estimate, len(rows), self._labels[0])
+        for target, value in zip(self._sample.estimate, estimate):
+            target[rows] = value
+
+    def _serve_steering(self, rows: np.ndarray) -> None:
+        self._sample.steering_wheel[rows] = self.steering_drivers(self._sample.t, self.cars.state, rows)
+
+    def _serve_speed(self, rows: np.ndarray) -> None:
+        self.cars.drive_torque[rows] = self.speed_drivers(self._sample.t, self.cars.state, rows)
+
+    def _failure(self, b: int, call: Call) -> Exception:
+        """The error of vehicle b's failed stage (its status and value in ``call``)."""
+        code, value = Status(call.status[b]), int(call.value[b])
+        if code == Status.BAD_TRUTH:
+            return ValueError(f"non-finite true value on sensor channel {CHANNELS[value]!r}")
+        if code == Status.ESTIMATOR_FAILED:
+            return self.estimator.step_error(b, value, self._sample.reading.values[b])
+        if code == Status.ALLOCATION_FAILED and isinstance(self.controller, StabilityController):
+            return allocation_error(value, inputs_row(self.controller.kernel(self.batch_size).memory.inputs, b))
+        if code == Status.ALLOCATION_FAILED:
+            return allocation_error(value, _held_action_inputs(self.controller.kernel(), self._sample, b))
+        if code == Status.TOO_FAST_FOR_RELAXATION:
+            check_relaxation_step(self.cars.state[b : b + 1], self.params, self.dt)
+        if code == Status.PLANT_FAILED:
+            return plant_error(b, value, self.cars.state[b], self.cars.controls[b], call.reached[b])
+        if code == Status.BAD_FOLLOWER_STATE:
+            return bad_follower_state(b, self.cars.state[b])
+        return RuntimeError(f"vehicle {b}: closed-loop status {code!r} ({value})")
+
+
+#: the Python server of each stage
+_SERVERS = {
+    Stage.CONTROL: ClosedLoop._serve_control,
+    Stage.PLANT: ClosedLoop._serve_plant,
+    Stage.SENSE: ClosedLoop._serve_sensors,
+    Stage.ESTIMATE: ClosedLoop._serve_estimator,
+    Stage.STEER: ClosedLoop._serve_steering,
+    Stage.SPEED: ClosedLoop._serve_speed,
+}
+
+
+def _held_action_inputs(action: HeldAction, sample: Sample, b: int):
+    """The allocator's inputs of a held yaw-moment action's failed step (vehicle b)."""
+    from fourwis.control.allocation import AllocationInputs
+
+    e, row = sample.estimate, slice(b, b + 1)
+    rear = action.action[row, 1] * action.max_rear_steer if action.action.shape[1] == 2 else np.zeros(1)
+    return AllocationInputs(
+        sample.base_torques[row], action.action[row, 0] * action.max_yaw_moment, e.fz[row], e.mu[row],
+        np.zeros((1, 4)), e.u[row], sample.front_steer[row], rear,
+    )  # fmt: skip
+
+
+def _rows(estimate: Estimate, rows: np.ndarray) -> Estimate:
+    return Estimate(*(field[rows] for field in estimate))
+
+
+def _copied_estimate(estimate: Estimate) -> Estimate:
+    return Estimate(*(field.copy() for field in estimate))
+
+
+def _copied(sample: Sample) -> Sample:
+    """A copy of ``sample`` (records and samples handed out stay as they were)."""
+    return Sample(
+        sample.t.copy(), SensorReading(*(field.copy() for field in sample.reading)), _copied_estimate(sample.truth),
+        _copied_estimate(sample.estimate), sample.steering_wheel.copy(), sample.front_steer.copy(),
+        sample.base_torques.copy(),
+    )  # fmt: skip
+
+
+def _index(records: StepRecord, i: int) -> StepRecord:
+    """Step i of stacked ``records`` (leading axis B)."""
+    return StepRecord(
+        records.t[i], records.state[i], records.aux[i], records.controls[i], records.steering_wheel[i],
+        SensorReading(*(field[i] for field in records.reading)), Estimate(*(field[i] for field in records.truth)),
+        Estimate(*(field[i] for field in records.estimate)),
+    )  # fmt: skip
+
+
+def _stacked(records: list[StepRecord]) -> StepRecord:
+    """One StepRecord of stacked records (leading axes (n, B)), along their first axis."""
+
+    def join(parts):
+        return np.concatenate(parts)
+
+    return StepRecord(
+        join([r.t for r in records]), join([r.state for r in records]), join([r.aux for r in records]),
+        join([r.controls for r in records]), join([r.steering_wheel for r in records]),
+        SensorReading(*(join([getattr(r.reading, f) for r in records]) for f in SensorReading._fields)),
+        Estimate(*(join([getattr(r.truth, f) for r in records]) for f in Estimate._fields)),
+        Estimate(*(join([getattr(r.estimate, f) for r in records]) for f in Estimate._fields)),
+    )  # fmt: skip
 
 
 def simulate(
@@ -485,8 +543,7 @@ def simulate(
     ``seed`` seeds the sensor noise and faults. ``dt`` [s] at most :data:`envs.vehicle.MAX_DT`
     (10 ms); the sensors sample once per step, so another ``dt`` than 2 ms needs
     ``SensorParams(sample_time=dt)``. With fourwis's own estimators and controllers (or none),
-    no sensor faults and a table friction map, the steps run compiled (:mod:`envs.compiled_loop`),
-    with the same result.
+    no sensor faults and a table friction map, every stage runs compiled (:mod:`fourwis.envs.loop`).
     """
     if isinstance(scenario, str):
         scenario = make_scenario(scenario)
@@ -501,7 +558,7 @@ def simulate(
         for start in range(0, n, SIMULATE_CHUNK):
             chunks.append(loop.advance_steps(min(SIMULATE_CHUNK, n - start)))
             bar.update(len(chunks[-1].t))
-        chunks.append(_stacked([loop.advance(integrate=False)]))  # the last sample, where the run ends
+        chunks.append(loop._run(0, None, final=True, keep=True))  # the last sample, where the run ends
         bar.update(1)
 
     def joined(part) -> np.ndarray:

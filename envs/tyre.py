@@ -38,6 +38,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
+from functools import cached_property
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -93,9 +95,10 @@ class TyreParams:
             if not getattr(self, name) > 0.0:  # divisors and the curves' sizes
                 raise ValueError(f"TyreParams.{name} must be > 0, got {getattr(self, name)!r}")
 
-    def as_array(self) -> np.ndarray:
-        """Coefficients in field order, shape (N_TYRE_COEFFS,), for the compiled kernel."""
-        return np.array([getattr(self, f.name) for f in fields(self)], dtype=np.float64)
+    @cached_property
+    def kernel(self) -> TyreCoefficients:
+        """These coefficients as the compiled tyre reads them (a value: numba keeps it in registers)."""
+        return TyreCoefficients(*(float(getattr(self, f.name)) for f in fields(self)))
 
     def peak_friction(self, fz: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Unscaled (mu_road = mu_ref) peak coefficients (mu_x, mu_y) at load ``fz`` [N]."""
@@ -114,44 +117,8 @@ class TyreParams:
         return fz * (self.pkx1 + self.pkx2 * dfz) * np.exp(self.pkx3 * dfz)
 
 
-N_TYRE_COEFFS = len(fields(TyreParams))
-# Kernel indices into TyreParams.as_array(), in field order.
-(
-    _NOMINAL_LOAD,
-    _UNLOADED_RADIUS,
-    _PCX1,
-    _PDX1,
-    _PDX2,
-    _PEX1,
-    _PEX2,
-    _PEX3,
-    _PEX4,
-    _PKX1,
-    _PKX2,
-    _PKX3,
-    _RBX1,
-    _RBX2,
-    _RCX1,
-    _REX1,
-    _REX2,
-    _PTX1,
-    _PTX2,
-    _PTX3,
-    _PCY1,
-    _PDY1,
-    _PDY2,
-    _PEY1,
-    _PEY2,
-    _PKY1,
-    _PKY2,
-    _RBY1,
-    _RBY2,
-    _RCY1,
-    _REY1,
-    _REY2,
-    _PTY1,
-    _PTY2,
-) = range(N_TYRE_COEFFS)
+#: :class:`TyreParams` as the compiled tyre reads it (:attr:`TyreParams.kernel`): the same fields (floats)
+TyreCoefficients = NamedTuple("TyreCoefficients", [(f.name, float) for f in fields(TyreParams)])
 
 
 @numba.njit(inline="always", **JIT)
@@ -168,7 +135,7 @@ def _weight(b: float, c: float, e: float, x: float) -> float:
 
 @numba.njit(**JIT)
 def combined_forces(
-    tp: np.ndarray,
+    tp: TyreCoefficients,
     fz: np.ndarray,
     kappa: np.ndarray,
     tan_alpha: np.ndarray,
@@ -179,54 +146,54 @@ def combined_forces(
 ) -> None:
     """Tyre forces (Fx, Fy) [N] in the wheel frame of ``n`` wheels, written to ``fx``, ``fy`` (n,).
 
-    ``tp``: TyreParams.as_array(); ``fz`` > 0 [N]; ``kappa`` longitudinal slip [-];
+    ``tp``: :attr:`TyreParams.kernel`; ``fz`` > 0 [N]; ``kappa`` longitudinal slip [-];
     ``tan_alpha`` lateral slip (tangent of the slip angle) [-]; ``scale_x/y``: LMUX, LMUY; all (n,).
     One branch-free loop over the wheels (:mod:`envs.vecmath`) that LLVM vectorises. The
     formula is written in the loop body on purpose: moved into an inlined per-wheel
     function, the loop was no longer vectorised (measured 3.5x slower, numba 0.68).
     """
-    fz0 = tp[_NOMINAL_LOAD]
+    fz0 = tp.nominal_load
     for i in range(fz.size):
         dfz = (fz[i] - fz0) / fz0
         alpha = vecmath.atan(tan_alpha[i])
         # pure longitudinal
-        cx = tp[_PCX1]
-        dx = (tp[_PDX1] + tp[_PDX2] * dfz) * scale_x[i] * fz[i]
-        kx = fz[i] * (tp[_PKX1] + tp[_PKX2] * dfz) * vecmath.exp(tp[_PKX3] * dfz)
+        cx = tp.pcx1
+        dx = (tp.pdx1 + tp.pdx2 * dfz) * scale_x[i] * fz[i]
+        kx = fz[i] * (tp.pkx1 + tp.pkx2 * dfz) * vecmath.exp(tp.pkx3 * dfz)
         sgn_k = 1.0 if kappa[i] >= 0.0 else -1.0
-        ex = (tp[_PEX1] + tp[_PEX2] * dfz + tp[_PEX3] * dfz * dfz) * (1.0 - tp[_PEX4] * sgn_k)
+        ex = (tp.pex1 + tp.pex2 * dfz + tp.pex3 * dfz * dfz) * (1.0 - tp.pex4 * sgn_k)
         ex = min(ex, 1.0)
         fx0 = _magic(kx / (cx * dx), cx, dx, ex, kappa[i])
         # pure lateral (odd in alpha)
-        cy = tp[_PCY1]
-        dy = (tp[_PDY1] + tp[_PDY2] * dfz) * scale_y[i] * fz[i]
-        xr = fz[i] / (tp[_PKY2] * fz0)
-        ky = tp[_PKY1] * fz0 * 2.0 * xr / (1.0 + xr * xr)
-        ey = min(tp[_PEY1] + tp[_PEY2] * dfz, 1.0)
+        cy = tp.pcy1
+        dy = (tp.pdy1 + tp.pdy2 * dfz) * scale_y[i] * fz[i]
+        xr = fz[i] / (tp.pky2 * fz0)
+        ky = tp.pky1 * fz0 * 2.0 * xr / (1.0 + xr * xr)
+        ey = min(tp.pey1 + tp.pey2 * dfz, 1.0)
         fy0 = _magic(ky / (cy * dy), cy, dy, ey, alpha)
         # combined slip weights, of the slips normalised by the friction scales (the
         # similarity method): the peaks come at slips ~scale times the tyre file's
         kappa_n = kappa[i] / scale_x[i]
         alpha_n = alpha / scale_y[i]
-        rbx_kappa = tp[_RBX2] * kappa_n
-        bxa = tp[_RBX1] / vecmath.sqrt(1.0 + rbx_kappa * rbx_kappa)
-        gxa = _weight(bxa, tp[_RCX1], tp[_REX1] + tp[_REX2] * dfz, alpha_n)
-        rby_alpha = tp[_RBY2] * alpha_n
-        byk = tp[_RBY1] / vecmath.sqrt(1.0 + rby_alpha * rby_alpha)
-        gyk = _weight(byk, tp[_RCY1], tp[_REY1] + tp[_REY2] * dfz, kappa_n)
+        rbx_kappa = tp.rbx2 * kappa_n
+        bxa = tp.rbx1 / vecmath.sqrt(1.0 + rbx_kappa * rbx_kappa)
+        gxa = _weight(bxa, tp.rcx1, tp.rex1 + tp.rex2 * dfz, alpha_n)
+        rby_alpha = tp.rby2 * alpha_n
+        byk = tp.rby1 / vecmath.sqrt(1.0 + rby_alpha * rby_alpha)
+        gyk = _weight(byk, tp.rcy1, tp.rey1 + tp.rey2 * dfz, kappa_n)
         fx[i] = gxa * fx0
         fy[i] = -gyk * fy0
 
 
 @numba.njit(inline="always", **JIT)
-def relaxation_lengths(tp: np.ndarray, fz: float) -> tuple[float, float]:
+def relaxation_lengths(tp: TyreCoefficients, fz: float) -> tuple[float, float]:
     """PAC2002 relaxation lengths (sigma_kappa, sigma_alpha) [m] at load ``fz`` [N]."""
-    fz0 = tp[_NOMINAL_LOAD]
-    r0 = tp[_UNLOADED_RADIUS]
+    fz0 = tp.nominal_load
+    r0 = tp.unloaded_radius
     dfz = (fz - fz0) / fz0
-    sig_k = fz * (tp[_PTX1] + tp[_PTX2] * dfz) * vecmath.exp(-tp[_PTX3] * dfz) * r0 / fz0
-    xr = fz / (tp[_PTY2] * fz0)
-    sig_a = tp[_PTY1] * 2.0 * xr / (1.0 + xr * xr) * r0
+    sig_k = fz * (tp.ptx1 + tp.ptx2 * dfz) * vecmath.exp(-tp.ptx3 * dfz) * r0 / fz0
+    xr = fz / (tp.pty2 * fz0)
+    sig_a = tp.pty1 * 2.0 * xr / (1.0 + xr * xr) * r0
     return sig_k, sig_a
 
 
@@ -248,7 +215,7 @@ def tyre_forces(tyre: TyreParams, fz, kappa, tan_alpha, mu_road=1.0, reference_l
     fx = np.empty(fz.size)
     fy = np.empty(fz.size)
     combined_forces(
-        tyre.as_array(),
+        tyre.kernel,
         fz.ravel(),
         kappa.ravel(),
         tan_alpha.ravel(),

@@ -60,9 +60,42 @@ from fourwis.control.reference import eq20_gain  # the 4WS law, written once (co
 from fourwis.core import vecmath
 from fourwis.core.checks import is_integer, is_number
 from fourwis.core.constants import GRAVITY
-from fourwis.core.kernels import JIT
+from fourwis.core.kernels import JIT, run_parallel
 from fourwis.core.vecmath import LANE_MULTIPLE
-from fourwis.envs.tyre import TyreParams, combined_forces, relaxation_lengths
+from fourwis.envs.layout import (
+    A_ALPHA,
+    A_AX,
+    A_AY,
+    A_FX,
+    A_FY,
+    A_FZ,
+    A_KAPPA,
+    A_MU,
+    A_USAGE,
+    C_DELTA_F,
+    C_DELTA_R,
+    C_TORQUE,
+    MU_MAX,
+    NAUX,
+    NU,
+    NX,
+    S_AX,
+    S_AY,
+    S_DEFL_X,
+    S_DEFL_Y,
+    S_DELTA_F,
+    S_DELTA_R,
+    S_OMEGA,
+    S_PSI,
+    S_R,
+    S_TORQUE,
+    S_U,
+    S_V,
+    S_X,
+    S_Y,
+)
+from fourwis.envs.road import RoadTables, road_tables
+from fourwis.envs.tyre import TyreCoefficients, TyreParams, combined_forces, relaxation_lengths
 
 #: VehicleParams fields that may be 0 (switching off a resistance or the low-speed damping);
 #: every other number must be > 0
@@ -162,7 +195,7 @@ class VehicleParams:
     @cached_property
     def static_relaxation_lengths(self) -> tuple[float, float]:
         """The tyre's relaxation lengths (sigma_kappa, sigma_alpha) [m] at the reference wheel load."""
-        sig_k, sig_a = relaxation_lengths(self.kernel_tyre_array, self.reference_wheel_load)
+        sig_k, sig_a = relaxation_lengths(self.tyre.kernel, self.reference_wheel_load)
         return float(sig_k), float(sig_a)
 
     @property
@@ -208,13 +241,8 @@ class VehicleParams:
         return positions
 
     @cached_property
-    def kernel_tyre_array(self) -> np.ndarray:
-        """Tyre coefficients packed for the compiled kernel, shape (N_TYRE_COEFFS,)."""
-        return self.tyre.as_array()
-
-    @cached_property
-    def kernel_array(self) -> np.ndarray:
-        """Parameters packed for the compiled kernel, shape (N_PARAMS,)."""
+    def kernel(self) -> Plant:
+        """The plant as its compiled kernels take it: these parameters and the tyre's coefficients."""
         mux, muy = self.tyre.peak_friction(self.reference_wheel_load)
         c_f, c_r = self.axle_cornering_stiffness
         values = {
@@ -249,7 +277,7 @@ class VehicleParams:
             "axle_stiffness_rear": c_r,
             "reference_wheel_load": self.reference_wheel_load,
         }
-        return np.array([values[name] for name in PARAM_NAMES], dtype=np.float64)
+        return Plant(PlantParams(*(float(values[name]) for name in PARAM_NAMES)), self.tyre.kernel)
 
 
 PARAM_NAMES = (
@@ -284,130 +312,16 @@ PARAM_NAMES = (
     "axle_stiffness_rear",
     "reference_wheel_load",
 )
-(
-    P_M,
-    P_IZ,
-    P_A,
-    P_B,
-    P_TF,
-    P_TR,
-    P_RW,
-    P_H,
-    P_JW,
-    P_TMAX,
-    P_PMAX,
-    P_TAU_M,
-    P_DF_MAX,
-    P_DF_RATE,
-    P_DR_MAX,
-    P_DR_RATE,
-    P_TAU_S,
-    P_FRR,
-    P_CDA,
-    P_RHO,
-    P_TAU_LT,
-    P_CLOW,
-    P_VLOW,
-    P_SIGMA_MIN,
-    P_FF4WS,
-    P_INV_MUX,
-    P_INV_MUY,
-    P_CF,
-    P_CR,
-    P_FZREF,
-) = range(len(PARAM_NAMES))
+#: :class:`VehicleParams` as the compiled plant reads it (:attr:`VehicleParams.kernel`): the
+#: PARAM_NAMES (floats; rear_steer_feedforward 1 / 0, the reference friction as inverses)
+PlantParams = NamedTuple("PlantParams", [(name, float) for name in PARAM_NAMES])
 
-#: State layout, shape (..., NX): pose, body velocities, wheel speeds, motor torques,
-#: steer angles, tyre deflections (relaxed slip * relaxation length) and lagged accelerations.
-STATE_NAMES = (
-    "x",
-    "y",
-    "psi",
-    "u",
-    "v",
-    "r",
-    "omega_fl",
-    "omega_fr",
-    "omega_rl",
-    "omega_rr",
-    "torque_fl",
-    "torque_fr",
-    "torque_rl",
-    "torque_rr",
-    "delta_f",
-    "delta_r",
-    "defl_x_fl",
-    "defl_x_fr",
-    "defl_x_rl",
-    "defl_x_rr",
-    "defl_y_fl",
-    "defl_y_fr",
-    "defl_y_rl",
-    "defl_y_rr",
-    "ax_lag",
-    "ay_lag",
-)
-NX = len(STATE_NAMES)
-S_X, S_Y, S_PSI, S_U, S_V, S_R = range(6)
-S_OMEGA, S_TORQUE, S_DELTA_F, S_DELTA_R, S_DEFL_X, S_DEFL_Y, S_AX, S_AY = 6, 10, 14, 15, 16, 20, 24, 25
 
-#: Control layout, shape (..., NU): motor torque commands [N m] and road-wheel steer commands [rad].
-CONTROL_NAMES = ("torque_fl", "torque_fr", "torque_rl", "torque_rr", "delta_f", "delta_r")
-NU = len(CONTROL_NAMES)
-C_TORQUE, C_DELTA_F, C_DELTA_R = 0, 4, 5
+class Plant(NamedTuple):
+    """A car as the compiled plant takes it (:attr:`VehicleParams.kernel`)."""
 
-#: Diagnostic outputs, shape (..., NAUX), evaluated at the returned state:
-#:
-#: ========  ============================================================================
-#: ax, ay    body specific forces [m/s^2] (what an accelerometer reads: du/dt - r v and
-#:           dv/dt + r u, not du/dt), before the load-transfer lag
-#: fz        normal loads [N] (with the lagged load transfer)
-#: fx, fy    tyre forces [N] in each wheel's own frame (rotate by its steer angle for body
-#:           axes), including the low-speed damping
-#: kappa     relaxed (transient) longitudinal slip [-], as the tyre sees it
-#: alpha     relaxed (transient) slip angle [rad]
-#: mu        road friction under each wheel [-]
-#: usage     friction used, |F| / (mu Fz) [-]; can exceed 1 where the Magic Formula's peak
-#:           rises above mu at light loads (load sensitivity), and in combined slip, whose
-#:           MF 5.2 weights of Fx and Fy are independent (1.04 at the reference load at
-#:           kappa -0.13 and 4.1 deg)
-#: ========  ============================================================================
-AUX_NAMES = (
-    "ax",
-    "ay",
-    "fz_fl",
-    "fz_fr",
-    "fz_rl",
-    "fz_rr",
-    "fx_fl",
-    "fx_fr",
-    "fx_rl",
-    "fx_rr",
-    "fy_fl",
-    "fy_fr",
-    "fy_rl",
-    "fy_rr",
-    "kappa_fl",
-    "kappa_fr",
-    "kappa_rl",
-    "kappa_rr",
-    "alpha_fl",
-    "alpha_fr",
-    "alpha_rl",
-    "alpha_rr",
-    "mu_fl",
-    "mu_fr",
-    "mu_rl",
-    "mu_rr",
-    "usage_fl",
-    "usage_fr",
-    "usage_rl",
-    "usage_rr",
-)
-NAUX = len(AUX_NAMES)
-A_AX, A_AY, A_FZ, A_FX, A_FY, A_KAPPA, A_ALPHA, A_MU, A_USAGE = 0, 1, 2, 6, 10, 14, 18, 22, 26
-
-MU_MAX = 2.0  #: largest accepted road friction coefficient
+    params: PlantParams
+    tyre: TyreCoefficients
 
 
 # Lane rows of the wheel-lane scratch arrays. Lane ``4 c + i`` is wheel ``i`` of car ``c`` of a
@@ -476,24 +390,24 @@ def _wheel_scratch(p, n_cars: int) -> np.ndarray:
     filled: contact position (the kernel's one copy of the wheel geometry), static load, load
     transfer per unit acceleration."""
     lanes = np.empty(N_LANE_ROWS * LANES)
-    m, a, b, h = p[P_M], p[P_A], p[P_B], p[P_H]
+    m, a, b, h = p.mass, p.cg_to_front, p.cg_to_rear, p.cg_height
     wheelbase = a + b
     for lane in range(_block_lanes(n_cars)):
         i = lane % 4
         front = i < 2
         side = -1.0 if i % 2 == 0 else 1.0  # left wheels unload in a left turn (ay > 0)
         lanes[L_WX + lane] = a if front else -b
-        lanes[L_WY + lane] = -0.5 * side * (p[P_TF] if front else p[P_TR])
+        lanes[L_WY + lane] = -0.5 * side * (p.track_front if front else p.track_rear)
         lanes[L_FZ_STATIC + lane] = m * GRAVITY * (b if front else a) / (2.0 * wheelbase)
         lanes[L_FZ_PER_AX + lane] = (-1.0 if front else 1.0) * m * h / (2.0 * wheelbase)
-        lanes[L_FZ_PER_AY + lane] = side * m * h * (b / p[P_TF] if front else a / p[P_TR]) / wheelbase
+        lanes[L_FZ_PER_AY + lane] = side * m * h * (b / p.track_front if front else a / p.track_rear) / wheelbase
     return lanes
 
 
 @numba.njit(**JIT)
 def _slip_lanes(p, tp, lanes, n_lanes):
     """Per lane: normal load, contact-centre velocities and the transient slips."""
-    sigma_min, inv_mux, inv_muy = p[P_SIGMA_MIN], p[P_INV_MUX], p[P_INV_MUY]
+    sigma_min, inv_mux, inv_muy = p.min_relaxation_length, p.inv_mux_ref, p.inv_muy_ref
     for lane in range(n_lanes):
         u = lanes[L_U + lane]
         v = lanes[L_V + lane]
@@ -525,8 +439,13 @@ def _wheel_lanes(p, lanes, n_lanes):
     """Per lane, after the tyre forces: low-speed damping, slip, wheel-spin and motor
     derivatives, body-frame forces and yaw moment, diagnostics."""
     # parameters read before the loop: a load inside a conditional would stop if-conversion
-    rw, jw, v_low, damping_per_load = p[P_RW], p[P_JW], p[P_VLOW], p[P_CLOW] / p[P_FZREF]
-    rolling, t_max, p_max, tau_m = p[P_FRR], p[P_TMAX], p[P_PMAX], p[P_TAU_M]
+    rw, jw, v_low, damping_per_load = (
+        p.wheel_radius,
+        p.wheel_inertia,
+        p.low_speed_fade,
+        p.low_speed_damping / p.reference_wheel_load,
+    )
+    rolling, t_max, p_max, tau_m = p.rolling_resistance, p.motor_peak_torque, p.motor_peak_power, p.motor_time_constant
     for lane in range(n_lanes):
         u = lanes[L_U + lane]
         v = lanes[L_V + lane]
@@ -611,7 +530,7 @@ def _derivative_block(x, ctrl, mu, p, tp, dx, lanes):
         lanes[L_TORQUE + lane] = x[c, S_TORQUE + i]
         lanes[L_TCMD + lane] = ctrl[c, C_TORQUE + i]
     _tyre_lanes(p, tp, lanes, n_lanes)
-    m, iz, a, b = p[P_M], p[P_IZ], p[P_A], p[P_B]
+    m, iz, a, b = p.mass, p.yaw_inertia, p.cg_to_front, p.cg_to_rear
     for c in range(n_cars):
         fx_sum = 0.0
         fy_sum = 0.0
@@ -626,7 +545,7 @@ def _derivative_block(x, ctrl, mu, p, tp, dx, lanes):
             dx[c, S_OMEGA + i] = lanes[O_DOMEGA + lane]
             dx[c, S_TORQUE + i] = lanes[O_DTORQUE + lane]
         u, v, r = x[c, S_U], x[c, S_V], x[c, S_R]
-        drag = 0.5 * p[P_RHO] * p[P_CDA] * u * abs(u)
+        drag = 0.5 * p.air_density * p.drag_area * u * abs(u)
         ax = (fx_sum - drag) / m
         ay = fy_sum / m
         lanes[O_CAR_AX + 4 * c] = ax
@@ -638,19 +557,19 @@ def _derivative_block(x, ctrl, mu, p, tp, dx, lanes):
         dx[c, S_U] = ax + v * r
         dx[c, S_V] = ay - u * r
         dx[c, S_R] = mz_sum / iz
-        dx[c, S_AX] = (ax - x[c, S_AX]) / p[P_TAU_LT]
-        dx[c, S_AY] = (ay - x[c, S_AY]) / p[P_TAU_LT]
+        dx[c, S_AX] = (ax - x[c, S_AX]) / p.load_transfer_time_constant
+        dx[c, S_AY] = (ay - x[c, S_AY]) / p.load_transfer_time_constant
         # steering servos with angle and rate limits; optional 4WS feed-forward (paper eq. 20)
         delta_f, delta_r = x[c, S_DELTA_F], x[c, S_DELTA_R]
-        target_f = min(max(ctrl[c, C_DELTA_F], -p[P_DF_MAX]), p[P_DF_MAX])
-        rate_f = (target_f - delta_f) / p[P_TAU_S]
-        dx[c, S_DELTA_F] = min(max(rate_f, -p[P_DF_RATE]), p[P_DF_RATE])
+        target_f = min(max(ctrl[c, C_DELTA_F], -p.max_front_steer), p.max_front_steer)
+        rate_f = (target_f - delta_f) / p.steer_time_constant
+        dx[c, S_DELTA_F] = min(max(rate_f, -p.front_steer_rate), p.front_steer_rate)
         target_r = ctrl[c, C_DELTA_R]
-        if p[P_FF4WS] > 0.0:
-            target_r += eq20_gain(u, a, b, m, p[P_CF], p[P_CR]) * delta_f
-        target_r = min(max(target_r, -p[P_DR_MAX]), p[P_DR_MAX])
-        rate_r = (target_r - delta_r) / p[P_TAU_S]
-        dx[c, S_DELTA_R] = min(max(rate_r, -p[P_DR_RATE]), p[P_DR_RATE])
+        if p.rear_steer_feedforward > 0.0:
+            target_r += eq20_gain(u, a, b, m, p.axle_stiffness_front, p.axle_stiffness_rear) * delta_f
+        target_r = min(max(target_r, -p.max_rear_steer), p.max_rear_steer)
+        rate_r = (target_r - delta_r) / p.steer_time_constant
+        dx[c, S_DELTA_R] = min(max(rate_r, -p.rear_steer_rate), p.rear_steer_rate)
 
 
 @numba.njit(**JIT)
@@ -687,12 +606,16 @@ def _wheel_mu(x, lanes, base_mu, rects, mu):
 
 
 @numba.njit(**JIT)
-def advance_block(x, ctrl, p, tp, base_mu, rects, mu_given, use_map, dt, n_steps, aux, status):
-    """RK4 over ``n_steps`` steps of ``dt`` for a block of cars ``x (n, NX)``, in place.
+def advance_block(x, ctrl, plant: Plant, road: RoadTables, dt, n_steps, aux, status):
+    """RK4 over ``n_steps`` steps of ``dt`` [s] for a block of cars ``x (n, NX)``, in place, with
+    controls ``ctrl`` (n, NU) held, on the roads ``road`` (n rows); the diagnostics at the
+    returned state into ``aux`` (n, NAUX).
 
     Sets ``status`` (n,) to 1 (non-finite control), 2 (friction outside (0, MU_MAX]) or 3
     (state turned non-finite) for the first failing car and stops the block.
     """
+    p, tp = plant
+    base_mu, rects, mu_given, use_map = road
     n_cars = x.shape[0]
     for c in range(n_cars):
         for j in range(NU):
@@ -740,50 +663,18 @@ def advance_block(x, ctrl, p, tp, base_mu, rects, mu_given, use_map, dt, n_steps
                     return
 
 
-@numba.njit(**JIT)
-def _advance_serial(x, ctrl, p, tp, base_mu, rects, mu_given, use_map, dt, n_steps, aux, status):
-    for lo in range(0, x.shape[0], BLOCK):
-        hi = min(lo + BLOCK, x.shape[0])
-        advance_block(
-            x[lo:hi],
-            ctrl[lo:hi],
-            p,
-            tp,
-            base_mu[lo:hi],
-            rects[lo:hi],
-            mu_given[lo:hi],
-            use_map,
-            dt,
-            n_steps,
-            aux[lo:hi],
-            status[lo:hi],
-        )
-
-
-@numba.njit(parallel=True, **JIT)
-def _advance_parallel(x, ctrl, p, tp, base_mu, rects, mu_given, use_map, dt, n_steps, aux, status):
-    n_blocks = -(-x.shape[0] // BLOCK)
-    for block in numba.prange(n_blocks):
-        lo = block * BLOCK
-        hi = min(lo + BLOCK, x.shape[0])
-        advance_block(
-            x[lo:hi],
-            ctrl[lo:hi],
-            p,
-            tp,
-            base_mu[lo:hi],
-            rects[lo:hi],
-            mu_given[lo:hi],
-            use_map,
-            dt,
-            n_steps,
-            aux[lo:hi],
-            status[lo:hi],
-        )
+@numba.njit(nogil=True, **JIT)
+def _advance_blocks(blocks, x, ctrl, plant: Plant, road: RoadTables, dt, n_steps, aux, status):
+    """:func:`advance_block` of each block of BLOCK cars in ``blocks`` (indices of blocks)."""
+    for block in blocks:
+        lo, hi = block * BLOCK, min((block + 1) * BLOCK, x.shape[0])
+        rows = RoadTables(road.base_mu[lo:hi], road.rects[lo:hi], road.mu_given[lo:hi], road.use_map)
+        advance_block(x[lo:hi], ctrl[lo:hi], plant, rows, dt, n_steps, aux[lo:hi], status[lo:hi])
 
 
 @numba.njit(**JIT)
-def _derivatives_batch(x, ctrl, mu, p, tp, dx, aux):
+def _derivatives_batch(x, ctrl, mu, plant: Plant, dx, aux):
+    p, tp = plant
     for lo in range(0, x.shape[0], BLOCK):
         hi = min(lo + BLOCK, x.shape[0])
         lanes = _wheel_scratch(p, hi - lo)
@@ -791,7 +682,7 @@ def _derivatives_batch(x, ctrl, mu, p, tp, dx, aux):
         _fill_aux(mu[lo:hi], lanes, aux[lo:hi])
 
 
-PARALLEL_MIN_BATCH = 64  #: batches at least this large run on all cores
+PARALLEL_MIN_BATCH = 64  #: batches at least this large run on all cores (:func:`step`)
 #: largest RK4 step [s] :func:`step` takes. Closed loops run at 2 ms. The shipped car's
 #: fastest linearised mode (100 1/s; 127 1/s at 45 m/s) leaves RK4's stability region at 28 ms
 #: (22 ms at 45 m/s); against 2 ms (simulate, no control, sensors at the same step) peak
@@ -900,7 +791,7 @@ def derivatives(
     _check_mu(mu)
     dx = np.empty_like(state)
     aux = np.empty((state.shape[0], NAUX))
-    _derivatives_batch(state, controls, mu, params.kernel_array, params.kernel_tyre_array, dx, aux)
+    _derivatives_batch(state, controls, mu, params.kernel, dx, aux)
     return dx, aux
 
 
@@ -934,8 +825,6 @@ def step(
     Non-finite controls or road friction outside (0, 2] raise ValueError; a state that turns
     non-finite raises FloatingPointError (a run never silently produces NaN).
     """
-    from fourwis.envs.road import RoadTables, road_tables
-
     state = np.asarray(state, dtype=np.float64)
     controls = np.ascontiguousarray(controls, dtype=np.float64)
     if state.ndim != 2 or state.shape[1] != NX:
@@ -954,21 +843,12 @@ def step(
     out = state.copy()
     aux = np.empty((batch, NAUX))
     status = np.zeros(batch, dtype=np.int64)
-    kernel = _advance_parallel if batch >= PARALLEL_MIN_BATCH else _advance_serial
-    kernel(
-        out,
-        controls,
-        params.kernel_array,
-        params.kernel_tyre_array,
-        tables.base_mu,
-        tables.rects,
-        tables.mu_given,
-        tables.use_map,
-        float(dt),
-        int(n_steps),
-        aux,
-        status,
-    )
+    blocks = np.arange(-(-batch // BLOCK))
+    road_rows = RoadTables(tables.base_mu, tables.rects, tables.mu_given, bool(tables.use_map))
+    run_parallel(
+        _advance_blocks, blocks, out, controls, params.kernel, road_rows, float(dt), int(n_steps), aux, status,
+        min_items=-(-PARALLEL_MIN_BATCH // BLOCK),
+    )  # fmt: skip
     if np.count_nonzero(status):
         b = int(np.flatnonzero(status)[0])
         raise plant_error(b, int(status[b]), state[b], controls[b], out[b])

@@ -67,13 +67,14 @@ import math
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
+from typing import NamedTuple
 
 import numba
 import numpy as np
 
 from fourwis.core.checks import check_step, is_number, member_rows
-from fourwis.core.kernels import JIT, dot, matmul, scratch
-from fourwis.core.types import CHANNELS, Estimate
+from fourwis.core.kernels import JIT, dot, matmul, run_parallel, scratch
+from fourwis.core.types import CHANNELS, Estimate, SensorReading
 from fourwis.estimation.ckf import (
     NO_HUBER,
     cholesky,
@@ -87,9 +88,8 @@ from fourwis.estimation.ckf import (
 from fourwis.estimation.federated import fuse, sharing_coefficients
 from fourwis.estimation.model import (
     MIN_SPEED,
-    P_IZ,
-    P_RELAX,
-    P_RW,
+    ModelInputs,
+    ModelKernel,
     ModelParams,
     body_forces,
     dugoff_lambdas,
@@ -103,8 +103,7 @@ from fourwis.estimation.model import (
 N_STATE = 6
 I_U, I_V, I_AX, I_AY, I_R, I_GAMMA = range(N_STATE)
 KINDS = ("ekf", "ckf", "fkf", "alo-fkf", "joint")
-FIRST_ROBUST_KIND = 3  #: KINDS from this index on update with Huber weights (huber_c): alo-fkf, joint
-ROBUST_KINDS = KINDS[FIRST_ROBUST_KIND:]
+ROBUST_KINDS = ("alo-fkf", "joint")  #: the kinds that update with Huber weights (huber_c)
 MU_BOUNDS = (0.1, 1.2)  #: estimated mu stays inside these bounds
 EXCITATION_LAMBDA = 1.0  #: a wheel's mu is updated only while its lateral Dugoff lambda is below this
 #: below this estimated forward speed [m/s] the friction filter does not run (mu and its
@@ -253,23 +252,7 @@ def tuned_noise(path=None) -> NoiseParams | None:
         raise ValueError(f"corrupted tuning file {path}: {err!r}; rerun `fourwis tune` or delete it") from None
 
 
-STATE_FIELDS = (
-    "x",
-    "P",
-    "mu",
-    "P_mu",
-    "beta",
-    "beta_mu",
-    "omega_prev",
-    "omega_dot",
-    "inertial_prev",
-    "inertial_repeats",
-    "zero_point",
-    "last_nll",
-    "slip_relaxed",
-)
-#: batches at least this large step on all cores (one vehicle's step is ~15-30 us, far above the
-#: ~5 us thread start-up: measured faster from B = 2 on the 2-core machine of BENCHMARKS.md)
+#: batches at least this large step on all cores (:func:`fourwis.core.kernels.run_parallel`)
 PARALLEL_MIN_BATCH = 2
 #: low-pass of the differentiated wheel speed [s]. The estimators' low-passes (this one, ZERO_POINT_*,
 #: SLIDE_TAU) take Euler steps with their gain dt / tau capped at 1, so a step longer than a time
@@ -338,8 +321,99 @@ YAW_BALANCE_STD = 45.0
 #: the steady time counts from [rad], low-passed yaw rate [rad/s], low-passed kinematic
 #: sideslip rate ay / u - r [rad/s] (SLIDE_TAU)
 ZP_OFFSET, ZP_STEADY, ZP_STEER, ZP_YAW, ZP_SLIDE = range(5)
-#: columns of the compiled step's output row
-(O_U, O_V, O_BETA, O_R, O_AX, O_AY), O_MU, O_FZ, O_BETA_STD, O_MU_STD, N_OUT = range(6), 6, 10, 14, 15, 19
+
+
+# ---- the compiled step's bundles -----------------------------------------------------------
+class FilterSettings(NamedTuple):
+    """How a :class:`StateEstimator`'s compiled step runs: which parts it has (named flags, from
+    its ``kind`` and options) and its numbers (:class:`StateEstimator` documents each)."""
+
+    extended: bool  #: EKF on finite-difference Jacobians (else the cubature rule)
+    federated: bool  #: two sub-filters fused (else one filter of all measurements)
+    robust: bool  #: Huber-weighted measurement updates (huber_c)
+    friction: bool  #: the friction filter runs (else mu is held at its nominal value)
+    yaw_balance: bool  #: state sub-filter 2 measures Gamma = 0 in steady driving (yaw_balance_std)
+    slide_detection: bool  #: a slide in a steady turn opens the friction gate (slide_rate)
+    dt: float  #: [s]
+    huber_c: float
+    zero_point_time_constant: float  #: [s] (inf: no learning)
+    stuck_samples: float  #: (inf: no check)
+    slide_rate: float  #: [rad/s]
+    yaw_balance_std: float  #: [N m]
+
+
+class FilterNoise(NamedTuple):
+    """The filters' noise variances per step: process (M, 6) and sensor (M, 3: accelerometer,
+    gyro, wheel speed) for one member (M = 1) or each (M = B), the friction filter's (3,):
+    random walk, acceleration model error, prior."""
+
+    process_var: np.ndarray
+    sensor_var: np.ndarray
+    mu_var: np.ndarray
+
+
+class FilterState(NamedTuple):
+    """Each vehicle's filter state (leading axis B, float64), which the compiled step updates in
+    place: the state x (B, 6) and its covariance P (B, 6, 6), friction mu (B, 4) and P_mu
+    (B, 4, 4), the federated sharing coefficients of the state and friction filters (B, 2) each,
+    the previous wheel speeds and their low-passed derivative (B, 4), the previous inertial
+    readings and how often each repeated (B, 3), the zero-point state (B, 5: ZP_*), the latest
+    innovation NLL (B,) and the relaxed slip of each tyre (B, 4; NaN: not started)."""
+
+    x: np.ndarray
+    P: np.ndarray
+    mu: np.ndarray
+    P_mu: np.ndarray
+    beta: np.ndarray
+    beta_mu: np.ndarray
+    omega_prev: np.ndarray
+    omega_dot: np.ndarray
+    inertial_prev: np.ndarray
+    inertial_repeats: np.ndarray
+    zero_point: np.ndarray
+    last_nll: np.ndarray
+    slip_relaxed: np.ndarray
+
+
+class FilterKernel(NamedTuple):
+    """A :class:`StateEstimator` as its compiled step takes it (:meth:`StateEstimator.kernel`)."""
+
+    settings: FilterSettings
+    model: ModelKernel
+    noise: FilterNoise
+    state: FilterState
+
+
+class MeasurementInputs(NamedTuple):
+    """What the state measurement models need besides the points: the steer table (4, 4) and the model."""
+
+    steer: np.ndarray
+    model: ModelKernel
+
+
+class FrictionInputs(NamedTuple):
+    """What the friction filter's measurement model needs besides its points (the mu): the state
+    filter's estimate x (6,), the steer table (4, 4), wheel speeds, torques and wheel
+    accelerations (4,), the model and the step dt [s]."""
+
+    x: np.ndarray
+    steer: np.ndarray
+    omega: np.ndarray
+    torque: np.ndarray
+    omega_dot: np.ndarray
+    model: ModelKernel
+    dt: float
+
+
+class ModelArgs(NamedTuple):
+    """The inputs of every model one step evaluates: the process model's, the state
+    measurements' and the friction measurements'."""
+
+    process: ModelInputs
+    measurement: MeasurementInputs
+    friction: FrictionInputs
+
+
 #: status codes of the compiled step
 OK, BAD_MEASUREMENT, FILTER_FAILED = 0, 1, 2
 N_MEASURED = 3  #: sensor channels 0-2 (ax, ay, yaw rate) are measurements, the rest the model's inputs
@@ -347,9 +421,9 @@ N_MEASURED = 3  #: sensor channels 0-2 (ax, ay, yaw rate) are measurements, the 
 
 # ---- measurement models (compiled, from the points (K, n) into out (K, m), row by row) -------------
 @numba.njit(inline="always", **JIT)
-def measure_state_1(points, k, out, args) -> None:
-    """State sub-filter 1: [ax, ay, r, wheel-centre speeds along each wheel (4)]; args = (steer, pk)."""
-    steer, pk = args
+def measure_state_1(points, k, out, inputs: MeasurementInputs) -> None:
+    """State sub-filter 1: [ax, ay, r, wheel-centre speeds along each wheel (4)]."""
+    steer, pk = inputs
     u, v, r = points[k, I_U], points[k, I_V], points[k, I_R]
     out[k, 0], out[k, 1], out[k, 2] = points[k, I_AX], points[k, I_AY], r
     for w in range(4):
@@ -357,7 +431,7 @@ def measure_state_1(points, k, out, args) -> None:
 
 
 @numba.njit(inline="always", **JIT)
-def measure_state_2(points, k, out, args) -> None:
+def measure_state_2(points, k, out, inputs: MeasurementInputs) -> None:
     """State sub-filter 2: [ay, r], and Gamma where out has a third column (the joint estimator's
     yaw balance, YAW_BALANCE_STD)."""
     out[k, 0], out[k, 1] = points[k, I_AY], points[k, I_R]
@@ -366,11 +440,11 @@ def measure_state_2(points, k, out, args) -> None:
 
 
 @numba.njit(inline="always", **JIT)
-def _mu_predictions(points: np.ndarray, args: tuple, out: np.ndarray) -> None:
+def _mu_predictions(points: np.ndarray, inputs: FrictionInputs, out: np.ndarray) -> None:
     """[ax, ay, r] predicted by the tyre model with the friction of each row of points (K, 4)
     at the state filter's estimate x (r one step ahead of the previous yaw rate), into the
-    rows of out (3, K); args = (x, steer, omega, torque, omega_dot, pk, dt)."""
-    x, steer, omega, torque, omega_dot, pk, dt = args
+    rows of out (3, K)."""
+    x, steer, omega, torque, omega_dot, pk, dt = inputs
     K = points.shape[0]
     state, mu = scratch((5, K)), scratch((4, K))
     for k in range(K):
@@ -378,13 +452,13 @@ def _mu_predictions(points: np.ndarray, args: tuple, out: np.ndarray) -> None:
         for w in range(4):
             mu[w, k] = points[k, w]
     body_forces(state, mu, steer, omega, torque, omega_dot, pk, out)
-    r_prev = x[I_R] - dt * x[I_GAMMA] / pk[P_IZ]
+    r_prev = x[I_R] - dt * x[I_GAMMA] / pk.yaw_inertia
     for k in range(K):
-        out[2, k] = r_prev + dt * out[2, k] / pk[P_IZ]
+        out[2, k] = r_prev + dt * out[2, k] / pk.yaw_inertia
 
 
 @numba.njit(inline="always", **JIT)
-def random_walk(points, k, out, args) -> None:
+def random_walk(points, k, out) -> None:
     """mu's process model: held (the random walk is in its Q)."""
     for i in range(points.shape[1]):
         out[k, i] = points[k, i]
@@ -395,25 +469,24 @@ TRANSITION, STATE_1, STATE_2, RANDOM_WALK, MU_1, MU_2 = range(6)
 
 
 @numba.njit(**JIT)
-def _evaluate(model, points, out, f_args, h_args, m_args) -> None:
-    """Model ``model`` at every row of points (K, n) into out (K, k): f_args for the transition,
-    h_args for the state measurements and the random walk, m_args for the mu measurements
-    (one dispatch per point set, not per point)."""
+def _evaluate(model, points, out, args: ModelArgs) -> None:
+    """Model ``model`` at every row of points (K, n) into out (K, k) (one dispatch per point
+    set, not per point)."""
     K = points.shape[0]
     if model == TRANSITION:
-        transition(points, out, f_args)
+        transition(points, out, args.process)
     elif model == STATE_1:
         for k in range(K):
-            measure_state_1(points, k, out, h_args)
+            measure_state_1(points, k, out, args.measurement)
     elif model == STATE_2:
         for k in range(K):
-            measure_state_2(points, k, out, h_args)
+            measure_state_2(points, k, out, args.measurement)
     elif model == RANDOM_WALK:
         for k in range(K):
-            random_walk(points, k, out, h_args)
+            random_walk(points, k, out)
     else:  # the mu sub-filters' measurements: [ax, ay, r] (MU_1) or [ay, r] (MU_2)
         predicted = scratch((3, K))
-        _mu_predictions(points, m_args, predicted)
+        _mu_predictions(points, args.friction, predicted)
         first = 0 if model == MU_1 else 1
         for k in range(K):
             for i in range(first, 3):
@@ -421,25 +494,25 @@ def _evaluate(model, points, out, f_args, h_args, m_args) -> None:
 
 
 @numba.njit(**JIT)
-def _ckf_predict(x, P, Q, model, f_args, h_args, m_args, x_out, P_out) -> bool:
+def _ckf_predict(x, P, Q, model, args, x_out, P_out) -> bool:
     """CKF time update through ``model``; False if P is not finite."""
     n = x.shape[0]
     points, moved = scratch((2 * n, n)), scratch((2 * n, n))
     if not cubature_points(x, P, points):
         return False
-    _evaluate(model, points, moved, f_args, h_args, m_args)
+    _evaluate(model, points, moved, args)
     predicted_moments(moved, Q, x_out, P_out)
     return True
 
 
 @numba.njit(**JIT)
-def _ckf_update(x, P, z, valid, R, huber_c, model, f_args, h_args, m_args, x_out, P_out) -> float:
+def _ckf_update(x, P, z, valid, R, huber_c, model, args, x_out, P_out) -> float:
     """CKF measurement update through ``model``; returns the innovation NLL (NaN on failure)."""
     n, m = x.shape[0], z.shape[0]
     points, Z = scratch((2 * n, n)), scratch((2 * n, m))
     if not cubature_points(x, P, points):
         return math.nan
-    _evaluate(model, points, Z, f_args, h_args, m_args)
+    _evaluate(model, points, Z, args)
     return measurement_update(
         x, P, points, Z, z, valid, R, huber_c, x_out, P_out, scratch((m,)), scratch((m, m)), scratch((m,))
     )
@@ -447,26 +520,7 @@ def _ckf_update(x, P, z, valid, R, huber_c, model, f_args, h_args, m_args, x_out
 
 @numba.njit(**JIT)
 def _federated(
-    x,
-    P,
-    Q,
-    beta,
-    f_model,
-    z1,
-    valid1,
-    R1,
-    h1_model,
-    z2,
-    valid2,
-    R2,
-    h2_model,
-    huber_c,
-    f_args,
-    h_args,
-    m_args,
-    x_out,
-    P_out,
-    beta_out,
+    x, P, Q, beta, f_model, z1, valid1, R1, h1_model, z2, valid2, R2, h2_model, huber_c, args, x_out, P_out, beta_out
 ) -> float:
     """One federated cycle (estimation/federated.py) with two sub-filters; returns the summed
     innovation NLL (NaN on failure)."""
@@ -479,12 +533,12 @@ def _federated(
         for i in range(n):
             for j in range(n):
                 P_shared[i, j], Q_shared[i, j] = P[i, j] / beta[s], Q[i, j] / beta[s]
-        if not _ckf_predict(x, P_shared, Q_shared, f_model, f_args, h_args, m_args, x_pred, P_pred):
+        if not _ckf_predict(x, P_shared, Q_shared, f_model, args, x_pred, P_pred):
             return math.nan
         if s == 0:
-            nll = _ckf_update(x_pred, P_pred, z1, valid1, R1, huber_c, h1_model, f_args, h_args, m_args, xs[0], Ps[0])
+            nll = _ckf_update(x_pred, P_pred, z1, valid1, R1, huber_c, h1_model, args, xs[0], Ps[0])
         else:
-            nll = _ckf_update(x_pred, P_pred, z2, valid2, R2, huber_c, h2_model, f_args, h_args, m_args, xs[1], Ps[1])
+            nll = _ckf_update(x_pred, P_pred, z2, valid2, R2, huber_c, h2_model, args, xs[1], Ps[1])
         if not math.isfinite(nll):
             return math.nan
         total += nll
@@ -504,7 +558,7 @@ def _fill_diagonal(variances, out: np.ndarray) -> None:
 
 
 @numba.njit(**JIT)
-def _finite_difference_jacobian(model, x, eps, centre, J, f_args, h_args, m_args) -> None:
+def _finite_difference_jacobian(model, x, eps, centre, J, args) -> None:
     """model(x) into centre (m,) and its central-difference Jacobian into J (m, n), steps eps (n,)."""
     n, m = x.shape[0], centre.shape[0]
     probes = scratch((2 * n + 1, n))  # x, then x + eps_k e_k, then x - eps_k e_k
@@ -514,7 +568,7 @@ def _finite_difference_jacobian(model, x, eps, centre, J, f_args, h_args, m_args
         probes[1 + k, k] += eps[k]
         probes[1 + n + k, k] -= eps[k]
     values = scratch((2 * n + 1, m))
-    _evaluate(model, probes, values, f_args, h_args, m_args)
+    _evaluate(model, probes, values, args)
     for k in range(n):
         for i in range(m):
             J[i, k] = (values[1 + k, i] - values[1 + n + k, i]) / (2.0 * eps[k])
@@ -522,7 +576,7 @@ def _finite_difference_jacobian(model, x, eps, centre, J, f_args, h_args, m_args
 
 
 @numba.njit(**JIT)
-def _ekf_step(x, P, Q, z, valid, R, f_args, h_args, m_args, x_out, P_out) -> float:
+def _ekf_step(x, P, Q, z, valid, R, args, x_out, P_out) -> float:
     """EKF on the same model (central-difference Jacobians, Joseph-form update); returns the
     innovation negative log-likelihood, as the CKF's update (NaN if S is not positive definite)."""
     n, m = x.shape[0], z.shape[0]
@@ -530,12 +584,12 @@ def _ekf_step(x, P, Q, z, valid, R, f_args, h_args, m_args, x_out, P_out) -> flo
     for k in range(n):
         eps[k] = 1e-4 * max(abs(x[k]), 1e-2)
     x_pred, F, FP, P_pred = scratch((n,)), scratch((n, n)), scratch((n, n)), scratch((n, n))
-    _finite_difference_jacobian(TRANSITION, x, eps, x_pred, F, f_args, h_args, m_args)
+    _finite_difference_jacobian(TRANSITION, x, eps, x_pred, F, args)
     matmul(F, P, FP)
     matmul(FP, F.T, P_pred)
     P_pred += Q
     z_pred, H = scratch((m,)), scratch((m, n))
-    _finite_difference_jacobian(STATE_1, x_pred, eps, z_pred, H, f_args, h_args, m_args)
+    _finite_difference_jacobian(STATE_1, x_pred, eps, z_pred, H, args)
     Rv, nu = scratch((m, m)), scratch((m,))
     m_valid = innovation(z, z_pred, valid, R, nu, Rv)
     PHt, S, L = scratch((n, m)), scratch((m, m)), scratch((m, m))
@@ -614,13 +668,13 @@ def _relax_slip(x, steer, slip_relaxed, pk, dt, relaxed_new) -> None:
     relaxation length no lag (row 3 keeps :func:`estimation.model.fill_steer_trig`'s zeros, and
     NaN is kept); on the first step (NaN) the relaxed slip starts at the kinematic one, which
     that zero row lets :func:`wheel_kinematics` give."""
-    if pk[P_RELAX] <= 0.0:
+    if pk.relaxation_length <= 0.0:
         relaxed_new[:] = math.nan
         return
     for w in range(4):
         tan_kin, along = wheel_kinematics(x[I_U], x[I_V], x[I_R], wheel_trig(steer, w), pk, w)
         relaxed_new[w] = (
-            _low_pass(slip_relaxed[w], tan_kin, dt, pk[P_RELAX] / max(abs(along), MIN_SPEED))
+            _low_pass(slip_relaxed[w], tan_kin, dt, pk.relaxation_length / max(abs(along), MIN_SPEED))
             if math.isfinite(slip_relaxed[w])
             else tan_kin
         )
@@ -628,37 +682,18 @@ def _relax_slip(x, steer, slip_relaxed, pk, dt, relaxed_new) -> None:
 
 
 @numba.njit(**JIT)
-def _step_member(
-    kind,
-    pk,
-    dt,
-    huber_c,
-    zero_point_tau,
-    stuck_samples,
-    slide_rate,
-    yaw_balance_std,
-    process_var,
-    sensor_var,
-    mu_var,
-    x,
-    P,
-    mu,
-    P_mu,
-    beta,
-    beta_mu,
-    omega_prev,
-    omega_dot,
-    inertial_prev,
-    inertial_repeats,
-    zero_point,
-    slip_relaxed,
-    reading,
-    valid_in,
-    out,
-) -> tuple[int, float]:
-    """One step of one vehicle's estimator of ``kind`` (index into KINDS) on the raw sensor
-    ``reading`` (13,); state rows are updated in place only on success. Returns (status,
-    innovation NLL) and fills ``out``."""
+def _step_vehicle(f: FilterKernel, i: int, reading, valid_in, out: Estimate, j: int) -> tuple[int, float]:
+    """One step of vehicle i's filters (:class:`FilterKernel` ``f``) on its raw sensor ``reading``
+    and ``valid_in`` (13,); its state rows are updated in place only on success. Returns (status,
+    innovation NLL) and writes the estimate into row j of ``out``."""
+    settings, pk = f.settings, f.model
+    dt = settings.dt
+    q = i if f.noise.process_var.shape[0] > 1 else 0
+    process_var, sensor_var, mu_var = f.noise.process_var[q], f.noise.sensor_var[q], f.noise.mu_var
+    state = f.state
+    x, P, mu, P_mu, beta, beta_mu = state.x[i], state.P[i], state.mu[i], state.P_mu[i], state.beta[i], state.beta_mu[i]
+    omega_prev, omega_dot, inertial_prev = state.omega_prev[i], state.omega_dot[i], state.inertial_prev[i]
+    inertial_repeats, zero_point, slip_relaxed = state.inertial_repeats[i], state.zero_point[i], state.slip_relaxed[i]
     for c in range(reading.shape[0]):  # the inputs (channels 3-12) drive the model, valid or not
         if (valid_in[c] or c >= N_MEASURED) and not math.isfinite(reading[c]):
             return BAD_MEASUREMENT, math.nan
@@ -667,15 +702,14 @@ def _step_member(
     valid[:], repeats[:] = valid_in, inertial_repeats
     for c in range(3):  # stuck inertial sensors (StateEstimator.stuck_samples)
         repeats[c] = repeats[c] + 1.0 if valid_in[c] and reading[c] == inertial_prev[c] else 0.0
-        if repeats[c] >= stuck_samples:
+        if repeats[c] >= settings.stuck_samples:
             valid[c] = False
     zero_point_new = scratch((5,))
     zero_point_new[:] = zero_point
-    _learn_zero_point(zero_point_new, reading, valid, x[I_U], dt, zero_point_tau)
+    _learn_zero_point(zero_point_new, reading, valid, x[I_U], dt, settings.zero_point_time_constant)
     values = scratch((channels,))
     values[:] = reading
     values[1] -= zero_point_new[ZP_OFFSET]
-    robust, federated, joint = kind >= FIRST_ROBUST_KIND, kind >= 2, kind == 4
     # inputs; wheel angular acceleration for eq. 7: differentiated wheel speed, low-passed
     omega, torque, od = values[3:7], values[9:13], scratch((4,))
     for w in range(4):
@@ -684,29 +718,27 @@ def _step_member(
     fill_steer_trig((values[7], values[7], values[8], values[8]), steer)
     _relax_slip(x, steer, slip_relaxed, pk, dt, relaxed_new)
     accel_var, gyro_var, wheel_var = sensor_var[0], sensor_var[1], sensor_var[2]
-    f_args = (mu, steer, omega, torque, od, pk, dt)
-    h_args = (steer, pk)
     z1 = scratch((7,))
     z1[:3] = values[:3]
     for w in range(4):
-        z1[3 + w] = values[3 + w] * pk[P_RW]
+        z1[3 + w] = values[3 + w] * pk.wheel_radius
     valid1, z2, valid2 = valid[:7], values[1:3], valid[1:3]
     R1, R2, Q = scratch((7, 7)), scratch((2, 2)), scratch((6, 6))
     _fill_diagonal((accel_var, accel_var, gyro_var, wheel_var, wheel_var, wheel_var, wheel_var), R1)
     _fill_diagonal((accel_var, gyro_var), R2)
-    # the state's sub-filter 2: [ay, r], and for the joint estimator the yaw balance Gamma = 0,
-    # measured in steady driving (a third channel, invalid otherwise)
-    balance = joint and yaw_balance_std < math.inf
-    m2 = 3 if balance else 2
+    # the state's sub-filter 2: [ay, r], and with the yaw balance Gamma = 0, measured in steady
+    # driving (a third channel, invalid otherwise)
+    m2 = 3 if settings.yaw_balance else 2
     z2_state, valid2_state, R2_state = scratch((m2,)), scratch((m2,), np.bool_), scratch((m2, m2))
     z2_state[:2], valid2_state[:2], R2_state[:2, :2] = z2, valid2, R2
-    if balance:
-        z2_state[2], R2_state[2, :2], R2_state[:2, 2], R2_state[2, 2] = 0.0, 0.0, 0.0, yaw_balance_std**2
+    if settings.yaw_balance:
+        z2_state[2], R2_state[2, :2], R2_state[:2, 2] = 0.0, 0.0, 0.0
+        R2_state[2, 2] = settings.yaw_balance_std**2
         valid2_state[2] = _settled(zero_point_new, x[I_U])
     _fill_diagonal(process_var, Q)
     unseen_slide = False  # (SLIDE_*: sliding in a steady turn while the friction gate is shut)
     outward = -zero_point_new[ZP_SLIDE] * math.copysign(1.0, zero_point_new[ZP_YAW])
-    if joint and outward > slide_rate and zero_point_new[ZP_STEADY] > SLIDE_TAU:
+    if settings.slide_detection and outward > settings.slide_rate and zero_point_new[ZP_STEADY] > SLIDE_TAU:
         lam_before = scratch((4,))
         dugoff_lambdas(x[I_U], x[I_V], x[I_R], x[I_AX], x[I_AY], mu, steer, omega, pk, lam_before)
         unseen_slide = lam_before.min() >= EXCITATION_LAMBDA
@@ -715,73 +747,44 @@ def _step_member(
         Q[I_AX, I_AX], Q[I_AY, I_AY] = max(Q[I_AX, I_AX], accel_floor), max(Q[I_AY, I_AY], accel_floor)
     x_new, P_new, beta_new = scratch((6,)), scratch((6, 6)), scratch((2,))
     beta_new[:] = beta
-    m_args = (x, steer, omega, torque, od, pk, dt)  # the mu measurements, unused by the state filter
-    if federated:
+    measurement = MeasurementInputs(steer, pk)
+    # (the friction measurements at the previous estimate: the state filter does not evaluate them)
+    args = ModelArgs(
+        ModelInputs(mu, steer, omega, torque, od, pk, dt),
+        measurement,
+        FrictionInputs(x, steer, omega, torque, od, pk, dt),
+    )
+    if settings.federated:
+        huber_c = settings.huber_c if settings.robust else NO_HUBER
         nll = _federated(
-            x,
-            P,
-            Q,
-            beta,
-            TRANSITION,
-            z1,
-            valid1,
-            R1,
-            STATE_1,
-            z2_state,
-            valid2_state,
-            R2_state,
-            STATE_2,
-            huber_c if robust else NO_HUBER,
-            f_args,
-            h_args,
-            m_args,
-            x_new,
-            P_new,
-            beta_new,
-        )
-    elif kind == 1:
-        x_pred, P_pred = scratch((6,)), scratch((6, 6))
-        if not _ckf_predict(x, P, Q, TRANSITION, f_args, h_args, m_args, x_pred, P_pred):
-            return FILTER_FAILED, math.nan
-        nll = _ckf_update(x_pred, P_pred, z1, valid1, R1, NO_HUBER, STATE_1, f_args, h_args, m_args, x_new, P_new)
+            x, P, Q, beta, TRANSITION, z1, valid1, R1, STATE_1, z2_state, valid2_state, R2_state, STATE_2, huber_c,
+            args, x_new, P_new, beta_new,
+        )  # fmt: skip
+    elif settings.extended:
+        nll = _ekf_step(x, P, Q, z1, valid1, R1, args, x_new, P_new)
     else:
-        nll = _ekf_step(x, P, Q, z1, valid1, R1, f_args, h_args, m_args, x_new, P_new)
+        x_pred, P_pred = scratch((6,)), scratch((6, 6))
+        if not _ckf_predict(x, P, Q, TRANSITION, args, x_pred, P_pred):
+            return FILTER_FAILED, math.nan
+        nll = _ckf_update(x_pred, P_pred, z1, valid1, R1, NO_HUBER, STATE_1, args, x_new, P_new)
     if not math.isfinite(nll):
         return FILTER_FAILED, math.nan
     mu_new, P_mu_new, beta_mu_new = scratch((4,)), scratch((4, 4)), scratch((2,))
     mu_new[:], P_mu_new[:, :], beta_mu_new[:] = mu, P_mu, beta_mu
-    if joint and x_new[I_U] > MU_MIN_SPEED:
+    if settings.friction and x_new[I_U] > MU_MIN_SPEED:
         walk, R1_mu, R2_mu = scratch((4, 4)), scratch((3, 3)), scratch((2, 2))
         _fill_correlated(mu_var[0], walk)
         _fill_diagonal((mu_var[1], mu_var[1], gyro_var), R1_mu)
         _fill_diagonal((mu_var[1], gyro_var), R2_mu)
-        m_args = (x_new, steer, omega, torque, od, pk, dt)
+        args = ModelArgs(args.process, measurement, FrictionInputs(x_new, steer, omega, torque, od, pk, dt))
         mu_fused, P_fused, P_mu_in = scratch((4,)), scratch((4, 4)), scratch((4, 4))
         P_mu_in[:, :] = P_mu
         if unseen_slide:  # restart from the prior covariance (mu_max_std)
             _fill_correlated(mu_var[2], P_mu_in)
         nll_mu = _federated(
-            mu,
-            P_mu_in,
-            walk,
-            beta_mu,
-            RANDOM_WALK,
-            values[:3],
-            valid[:3],
-            R1_mu,
-            MU_1,
-            z2,
-            valid2,
-            R2_mu,
-            MU_2,
-            huber_c,
-            f_args,
-            h_args,
-            m_args,
-            mu_fused,
-            P_fused,
-            beta_mu_new,
-        )
+            mu, P_mu_in, walk, beta_mu, RANDOM_WALK, values[:3], valid[:3], R1_mu, MU_1, z2, valid2, R2_mu, MU_2,
+            settings.huber_c, args, mu_fused, P_fused, beta_mu_new,
+        )  # fmt: skip
         if not math.isfinite(nll_mu):
             return FILTER_FAILED, math.nan
         # hold mu where the lateral demand is far from saturation (lambda >= EXCITATION_LAMBDA);
@@ -797,9 +800,9 @@ def _step_member(
         scale = scratch((4,))
         for w in range(4):
             scale[w] = math.sqrt(min(P_fused[w, w], mu_var[2]) / max(P_fused[w, w], 1e-300))
-        for i in range(4):
-            for j in range(4):
-                P_mu_new[i, j] = P_fused[i, j] * scale[i] * scale[j]
+        for a in range(4):
+            for b in range(4):
+                P_mu_new[a, b] = P_fused[a, b] * scale[a] * scale[b]
     # commit
     x[:], P[:, :], beta[:] = x_new, P_new, beta_new
     mu[:], P_mu[:, :], beta_mu[:] = mu_new, P_mu_new, beta_mu_new
@@ -812,229 +815,51 @@ def _step_member(
             inertial_prev[c] = reading[c]
     # the estimate
     u, v = x[I_U], x[I_V]
-    out[O_U], out[O_V], out[O_R], out[O_AX], out[O_AY] = u, v, x[I_R], x[I_AX], x[I_AY]
+    out.u[j], out.v[j], out.r[j], out.ax[j], out.ay[j] = u, v, x[I_R], x[I_AX], x[I_AY]
     speed = max(abs(u), MIN_SPEED)  # sideslip of a car at rest: lateral speed over a floored speed
-    out[O_BETA] = math.atan2(v, speed)
+    out.beta[j] = math.atan2(v, speed)
     denom = speed * speed + v * v
     grad_u = 0.0 if abs(u) < MIN_SPEED else (-v if u >= 0.0 else v) / denom
     grad_v = speed / denom
     beta_var = grad_u**2 * P[I_U, I_U] + 2 * grad_u * grad_v * P[I_U, I_V] + grad_v**2 * P[I_V, I_V]
-    out[O_BETA_STD] = math.sqrt(max(beta_var, 0.0))
-    wheel_loads(x[I_AX], x[I_AY], pk, out[O_FZ : O_FZ + 4])
+    out.beta_std[j] = math.sqrt(max(beta_var, 0.0))
+    wheel_loads(x[I_AX], x[I_AY], pk, out.fz[j])
     for w in range(4):
-        out[O_MU + w] = mu[w]
-        out[O_MU_STD + w] = math.sqrt(P_mu[w, w]) if joint else 0.0
+        out.mu[j, w] = mu[w]
+        out.mu_std[j, w] = math.sqrt(P_mu[w, w]) if settings.friction else 0.0
     return OK, nll
 
 
-@numba.njit(inline="always", **JIT)
-def step_row(
-    j,
-    rows,
-    kind,
-    pk,
-    dt,
-    huber_c,
-    zero_point_tau,
-    stuck_samples,
-    slide_rate,
-    yaw_balance_std,
-    process_var,
-    sensor_var,
-    mu_var,
-    X,
-    P,
-    MU,
-    P_MU,
-    BETA,
-    BETA_MU,
-    OMEGA_PREV,
-    OMEGA_DOT,
-    INERTIAL_PREV,
-    INERTIAL_REPEATS,
-    ZERO_POINT,
-    LAST_NLL,
-    SLIP_RELAXED,
-    values,
-    valid,
-    out,
-    status,
-):
-    i = rows[j]
-    q = i if process_var.shape[0] > 1 else 0
-    status[j], nll = _step_member(
-        kind,
-        pk,
-        dt,
-        huber_c,
-        zero_point_tau,
-        stuck_samples,
-        slide_rate,
-        yaw_balance_std,
-        process_var[q],
-        sensor_var[q],
-        mu_var,
-        X[i],
-        P[i],
-        MU[i],
-        P_MU[i],
-        BETA[i],
-        BETA_MU[i],
-        OMEGA_PREV[i],
-        OMEGA_DOT[i],
-        INERTIAL_PREV[i],
-        INERTIAL_REPEATS[i],
-        ZERO_POINT[i],
-        SLIP_RELAXED[i],
-        values[i],
-        valid[i],
-        out[j],
-    )
-    LAST_NLL[i] = nll if status[j] == OK else math.nan  # (NaN: this row's step failed)
-
-
 @numba.njit(**JIT)
-def _step_serial(
-    rows,
-    kind,
-    pk,
-    dt,
-    huber_c,
-    zero_point_tau,
-    stuck_samples,
-    slide_rate,
-    yaw_balance_std,
-    process_var,
-    sensor_var,
-    mu_var,
-    X,
-    P,
-    MU,
-    P_MU,
-    BETA,
-    BETA_MU,
-    OMEGA_PREV,
-    OMEGA_DOT,
-    INERTIAL_PREV,
-    INERTIAL_REPEATS,
-    ZERO_POINT,
-    LAST_NLL,
-    SLIP_RELAXED,
-    values,
-    valid,
-    out,
-    status,
-):
-    for j in range(rows.shape[0]):
-        step_row(
-            j,
-            rows,
-            kind,
-            pk,
-            dt,
-            huber_c,
-            zero_point_tau,
-            stuck_samples,
-            slide_rate,
-            yaw_balance_std,
-            process_var,
-            sensor_var,
-            mu_var,
-            X,
-            P,
-            MU,
-            P_MU,
-            BETA,
-            BETA_MU,
-            OMEGA_PREV,
-            OMEGA_DOT,
-            INERTIAL_PREV,
-            INERTIAL_REPEATS,
-            ZERO_POINT,
-            LAST_NLL,
-            SLIP_RELAXED,
-            values,
-            valid,
-            out,
-            status,
-        )
+def step_vehicle(f: FilterKernel, i: int, reading: SensorReading, out: Estimate, j: int) -> int:
+    """Vehicle i's filter step on row i of ``reading`` (values and valid (B, 13)), its estimate
+    into row j of ``out``; returns the status (OK, BAD_MEASUREMENT, FILTER_FAILED). Its
+    ``last_nll`` turns NaN on a failure (the state rows stay as they were)."""
+    status, nll = _step_vehicle(f, i, reading.values[i], reading.valid[i], out, j)
+    f.state.last_nll[i] = nll if status == OK else math.nan
+    return status
 
 
-@numba.njit(parallel=True, **JIT)
-def _step_parallel(
-    rows,
-    kind,
-    pk,
-    dt,
-    huber_c,
-    zero_point_tau,
-    stuck_samples,
-    slide_rate,
-    yaw_balance_std,
-    process_var,
-    sensor_var,
-    mu_var,
-    X,
-    P,
-    MU,
-    P_MU,
-    BETA,
-    BETA_MU,
-    OMEGA_PREV,
-    OMEGA_DOT,
-    INERTIAL_PREV,
-    INERTIAL_REPEATS,
-    ZERO_POINT,
-    LAST_NLL,
-    SLIP_RELAXED,
-    values,
-    valid,
-    out,
-    status,
-):
-    for j in numba.prange(rows.shape[0]):
-        step_row(
-            j,
-            rows,
-            kind,
-            pk,
-            dt,
-            huber_c,
-            zero_point_tau,
-            stuck_samples,
-            slide_rate,
-            yaw_balance_std,
-            process_var,
-            sensor_var,
-            mu_var,
-            X,
-            P,
-            MU,
-            P_MU,
-            BETA,
-            BETA_MU,
-            OMEGA_PREV,
-            OMEGA_DOT,
-            INERTIAL_PREV,
-            INERTIAL_REPEATS,
-            ZERO_POINT,
-            LAST_NLL,
-            SLIP_RELAXED,
-            values,
-            valid,
-            out,
-            status,
-        )
+@numba.njit(nogil=True, **JIT)
+def _step_rows(positions, rows, f: FilterKernel, reading: SensorReading, out: Estimate, status) -> None:
+    """:func:`step_vehicle` of vehicle rows[j] into row j of ``out`` and ``status``, for j in ``positions``."""
+    for j in positions:
+        status[j] = step_vehicle(f, rows[j], reading, out, j)
+
+
+def empty_estimate(batch: int) -> Estimate:
+    """An :class:`Estimate` of ``batch`` rows of uninitialised float64 arrays, to write into."""
+    return Estimate(*(np.empty((batch, 4) if name in ("mu", "fz", "mu_std") else batch) for name in Estimate._fields))
 
 
 @dataclass
 class StateEstimator:
     """Batched estimator of ``kind`` (see module doc) for model ``params`` at step ``dt`` [s].
 
-    One compiled step (numba) per call: every vehicle's filters run in compiled code, on both
-    cores for batches of PARALLEL_MIN_BATCH or more. The state lives in the arrays named by
-    STATE_FIELDS (leading axis B; writable float64 arrays the compiled step updates in place), which
-    callers may snapshot and restore (with arrays of the same kind)."""
+    One compiled step (numba) per call: every vehicle's filters run in compiled code, on every
+    thread of numba's thread count for batches of PARALLEL_MIN_BATCH or more. The state is
+    :attr:`state` (a :class:`FilterState`, leading axis B, updated in place), which callers may
+    snapshot and restore (with arrays of the same kind)."""
 
     params: ModelParams
     kind: str = "joint"
@@ -1047,9 +872,7 @@ class StateEstimator:
     zero_point_time_constant: float = ZERO_POINT_TIME_CONSTANT
     #: identical inertial readings in a row taken for a frozen sensor (STUCK_SAMPLES); math.inf
     #: switches the check off, for noise-free or coarsely quantised readings, which repeat a
-    #: value without being frozen (with SensorParams().scaled(0) the default flags ay and r on
-    #: every straight of paper_step; the model bridges them there: joint's sideslip RMSE 0.143
-    #: deg with the check, 0.141 without)
+    #: value without being frozen
     stuck_samples: float = STUCK_SAMPLES
     #: the joint estimator's slide detection threshold [rad/s] (SLIDE_*); math.inf switches it
     #: off (the paper's joint estimator, whose friction gate can stay shut after a drop)
@@ -1085,7 +908,22 @@ class StateEstimator:
             )
         if not (is_number(self.zero_point_time_constant) and self.zero_point_time_constant > 0):
             raise ValueError(f"zero_point_time_constant must be > 0 [s], got {self.zero_point_time_constant!r}")
-        self._kind_code = KINDS.index(self.kind)
+        friction = self.kind == "joint"
+        self.settings = FilterSettings(
+            extended=self.kind == "ekf",
+            federated=self.kind in ("fkf", "alo-fkf", "joint"),
+            robust=self.kind in ROBUST_KINDS,
+            friction=friction,
+            yaw_balance=friction and self.yaw_balance_std < math.inf,
+            slide_detection=friction and self.slide_rate < math.inf,
+            dt=float(self.dt),
+            huber_c=float(self.huber_c),
+            zero_point_time_constant=float(self.zero_point_time_constant),
+            stuck_samples=float(self.stuck_samples),
+            slide_rate=float(self.slide_rate),
+            yaw_balance_std=float(self.yaw_balance_std),
+        )
+        self.state: FilterState | None = None
         self.set_noise(self.noise)
 
     def set_noise(self, noise: NoiseParams) -> None:
@@ -1104,21 +942,20 @@ class StateEstimator:
         )
         sensor_var = np.square(np.stack(sensor_std, axis=1))
         members = max(len(process_var), len(sensor_var))  # the kernel reads both at one member's row
-        self._process_var = np.array(np.broadcast_to(process_var, (members, N_STATE)))  # (writable: one kernel type)
-        self._sensor_var = np.array(np.broadcast_to(sensor_var, (members, 3)))
-        self._mu_var = np.square(np.array([noise.mu_walk_std, noise.mu_accel_std, noise.mu_max_std], dtype=float))
-        self._mu_var[0] *= per_step
+        mu_var = np.square(np.array([noise.mu_walk_std, noise.mu_accel_std, noise.mu_max_std], dtype=float))
+        mu_var[0] *= per_step
+        self.noise_variances = FilterNoise(  # (writable arrays: one kernel type)
+            np.array(np.broadcast_to(process_var, (members, N_STATE))),
+            np.array(np.broadcast_to(sensor_var, (members, 3))),
+            mu_var,
+        )
 
-    @property
-    def kind_code(self) -> int:
-        """``kind``'s index in KINDS, as the compiled step takes it."""
-        return self._kind_code
-
-    @property
-    def noise_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(process variances (M, 6), sensor variances (M, 3), mu variances (3,)) per step, as the
-        compiled step reads them (M: 1, or one row per member)."""
-        return self._process_var, self._sensor_var, self._mu_var
+    def kernel(self) -> FilterKernel:
+        """This estimator as the compiled step (and the compiled closed loop) takes it: the
+        settings, model, noise and state (the state's arrays themselves, updated in place)."""
+        if self.state is None:
+            raise RuntimeError("call reset(first_reading, initial_speed) before the first step")
+        return FilterKernel(self.settings, self.params.kernel, self.noise_variances, self.state)
 
     # ---- set-up -------------------------------------------------------------------------
     def reset(self, reading, initial_speed: np.ndarray, mask: np.ndarray | None = None) -> None:
@@ -1129,8 +966,9 @@ class StateEstimator:
         if values.ndim != 2 or values.shape[1] != 13:
             raise ValueError(f"sensor reading must have shape (B, 13), got {values.shape}")
         B = values.shape[0]
-        if mask is not None and hasattr(self, "x") and self.x.shape[0] != B:
-            raise ValueError(f"a masked reset keeps the batch of {self.x.shape[0]}; the reading has {B} rows")
+        started = self.state is not None
+        if mask is not None and started and self.state.x.shape[0] != B:
+            raise ValueError(f"a masked reset keeps the batch of {self.state.x.shape[0]}; the reading has {B} rows")
         if mask is not None:
             mask = np.asarray(mask)
             if mask.dtype != np.bool_ or mask.shape != (B,):
@@ -1142,7 +980,7 @@ class StateEstimator:
                 f"initial_speed must be a speed [m/s] or one per vehicle ({B},), got {initial_speed!r}"
             ) from None
         # (a first reset starts every row, so all of them are checked)
-        rows = slice(None) if mask is None or not hasattr(self, "x") else mask
+        rows = slice(None) if mask is None or not started else mask
         if not np.all(np.isfinite(initial_speed[rows])):
             raise ValueError(f"initial_speed must be finite [m/s], got {initial_speed!r}")
         if not np.all(np.isfinite(values[rows])):
@@ -1153,35 +991,28 @@ class StateEstimator:
         x0 = np.zeros((B, N_STATE))
         x0[:, I_U] = initial_speed
         x0[:, I_AX], x0[:, I_AY], x0[:, I_R] = values[:, 0], values[:, 1], values[:, 2]
-        P0 = np.broadcast_to(np.diag([0.5, 0.3, 1.0, 1.0, 0.02, 500.0]) ** 2, (B, N_STATE, N_STATE))
-        mu0 = np.full((B, 4), self.nominal_mu)
-        Pmu0 = np.broadcast_to(_correlated(self._mu_var[2]), (B, 4, 4))  # the prior: mu_max_std per wheel
         zero_point0 = np.zeros((B, 5))
         zero_point0[:, ZP_STEER], zero_point0[:, ZP_YAW] = values[:, 7], values[:, 2]
-        if mask is None or not hasattr(self, "x"):
-            self.x, self.P = x0, P0.copy()
-            self.mu, self.P_mu = mu0, Pmu0.copy()
-            self.beta = np.full((B, 2), 0.5)
-            self.beta_mu = np.full((B, 2), 0.5)
-            self.omega_prev = values[:, 3:7].copy()
-            self.omega_dot = np.zeros((B, 4))
-            self.inertial_prev = np.full((B, 3), np.nan)
-            self.inertial_repeats = np.zeros((B, 3))
-            self.zero_point = zero_point0
-            self.slip_relaxed = np.full((B, 4), np.nan)  # (NaN: the first step starts it without lag)
-        else:
-            for name, new in (("x", x0), ("P", P0), ("mu", mu0), ("P_mu", Pmu0), ("omega_prev", values[:, 3:7])):
-                getattr(self, name)[mask] = new[mask]
-            self.beta[mask] = 0.5
-            self.beta_mu[mask] = 0.5
-            self.omega_dot[mask] = 0.0
-            self.inertial_prev[mask] = np.nan
-            self.inertial_repeats[mask] = 0.0
-            self.zero_point[mask] = zero_point0[mask]
-            self.slip_relaxed[mask] = np.nan
-            self.last_nll[mask] = 0.0
+        fresh = FilterState(
+            x=x0,
+            P=np.broadcast_to(np.diag([0.5, 0.3, 1.0, 1.0, 0.02, 500.0]) ** 2, (B, N_STATE, N_STATE)).copy(),
+            mu=np.full((B, 4), self.nominal_mu),
+            P_mu=np.broadcast_to(_correlated(self.noise_variances.mu_var[2]), (B, 4, 4)).copy(),  # mu_max_std
+            beta=np.full((B, 2), 0.5),
+            beta_mu=np.full((B, 2), 0.5),
+            omega_prev=values[:, 3:7].copy(),
+            omega_dot=np.zeros((B, 4)),
+            inertial_prev=np.full((B, 3), np.nan),
+            inertial_repeats=np.zeros((B, 3)),
+            zero_point=zero_point0,
+            last_nll=np.zeros(B),
+            slip_relaxed=np.full((B, 4), np.nan),  # (NaN: the first step starts it without lag)
+        )
+        if mask is None or not started:
+            self.state = fresh
             return
-        self.last_nll = np.zeros(B)
+        for old, new in zip(self.state, fresh):
+            old[mask] = new[mask]
 
     # ---- one step -----------------------------------------------------------------------
     def step_error(self, i: int, status: int, values: np.ndarray) -> ValueError:
@@ -1204,51 +1035,23 @@ class StateEstimator:
         only those rows step (the others keep their state) and the estimate has M rows. A
         ValueError (a bad reading, a failed filter) names the first failing vehicle; every failing
         row's state stays as it was but for ``last_nll``, which turns NaN; the other rows have
-        stepped (snapshot STATE_FIELDS to retry a batch)."""
-        if not hasattr(self, "x"):
-            raise RuntimeError("call reset(first_reading, initial_speed) before the first step")
-        B = self.x.shape[0]
+        stepped (snapshot :attr:`state` to retry a batch)."""
+        f = self.kernel()
+        B = f.state.x.shape[0]
         values = np.ascontiguousarray(reading.values, dtype=np.float64)
         valid = np.ascontiguousarray(reading.valid, dtype=np.bool_)
         if values.shape != (B, 13) or valid.shape != (B, 13):
             raise ValueError(f"sensor reading must have shape {(B, 13)}, got {values.shape} / {valid.shape}")
-        if self._process_var.shape[0] not in (1, B):
-            raise ValueError(f"per-member noise for {self._process_var.shape[0]} members, the batch has {B}")
+        if f.noise.process_var.shape[0] not in (1, B):
+            raise ValueError(f"per-member noise for {f.noise.process_var.shape[0]} members, the batch has {B}")
         rows = member_rows(members, B)
-        state = [getattr(self, name) for name in STATE_FIELDS]
-        out, status = np.empty((len(rows), N_OUT)), np.zeros(len(rows), dtype=np.int64)
-        kernel = _step_parallel if len(rows) >= PARALLEL_MIN_BATCH else _step_serial
-        kernel(
-            rows,
-            self._kind_code,
-            self.params.packed,
-            float(self.dt),
-            float(self.huber_c),
-            float(self.zero_point_time_constant),
-            float(self.stuck_samples),
-            float(self.slide_rate),
-            float(self.yaw_balance_std),
-            self._process_var,
-            self._sensor_var,
-            self._mu_var,
-            *state,
-            values,
-            valid,
-            out,
-            status,
-        )
+        out, status = empty_estimate(len(rows)), np.zeros(len(rows), dtype=np.int64)
+        t = np.zeros(0)  # (the filters do not read the time: each step is dt)
+        run_parallel(
+            _step_rows, np.arange(len(rows)), rows, f, SensorReading(values, valid, t), out, status,
+            min_items=PARALLEL_MIN_BATCH,
+        )  # fmt: skip
         if np.count_nonzero(status):
             j = int(np.flatnonzero(status)[0])
             raise self.step_error(int(rows[j]), int(status[j]), values[rows[j]])
-        return Estimate(
-            u=out[:, O_U],
-            v=out[:, O_V],
-            beta=out[:, O_BETA],
-            r=out[:, O_R],
-            ax=out[:, O_AX],
-            ay=out[:, O_AY],
-            mu=out[:, O_MU : O_MU + 4],
-            fz=out[:, O_FZ : O_FZ + 4],
-            beta_std=out[:, O_BETA_STD],
-            mu_std=out[:, O_MU_STD : O_MU_STD + 4],
-        )
+        return out

@@ -4,7 +4,7 @@ from, the truth plant (PAC2002 tyres with relaxation, wheel dynamics, lags): no 
 
 The physics is compiled (numba): the tyre functions work on scalars, and :func:`body_forces`
 / :func:`transition` evaluate them for all of a filter's cubature points at once, in SIMD
-lanes; parameters travel as the packed array :attr:`ModelParams.packed`.
+lanes; parameters travel as the value :attr:`ModelParams.kernel` (a NamedTuple of floats).
 :func:`normal_loads` and :func:`state_transition` are the Python entry points. Corrections to
 the paper (standard textbook forms, Rajamani 2012 ch. 13; Dugoff, Fancher & Segel 1970):
 
@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from functools import cached_property
 from importlib import resources
 from typing import NamedTuple
@@ -53,7 +53,7 @@ import numba
 import numpy as np
 
 from fourwis.core.constants import GRAVITY
-from fourwis.core.kernels import JIT, fixed_tuple, scratch
+from fourwis.core.kernels import JIT, scratch
 
 MIN_SPEED = 1.0  #: denominator floor for slip quantities [m/s]
 
@@ -129,52 +129,29 @@ class ModelParams:
         return self.cg_to_front + self.cg_to_rear
 
     @cached_property
-    def packed(self) -> np.ndarray:
-        """The parameters as the compiled model reads them (N_PARAMS,), in field order."""
-        return np.array([getattr(self, name) for name in PACKED_FIELDS], dtype=np.float64)
+    def kernel(self) -> ModelKernel:
+        """These parameters as the compiled model reads them (a value: numba keeps it in registers)."""
+        return ModelKernel(*(float(getattr(self, f.name)) for f in fields(self)))
 
 
-PACKED_FIELDS = (
-    "mass",
-    "yaw_inertia",
-    "cg_to_front",
-    "cg_to_rear",
-    "track_front",
-    "track_rear",
-    "wheel_radius",
-    "cg_height",
-    "wheel_inertia",
-    "m1",
-    "n1",
-    "m2",
-    "n2",
-    "eps",
-    "mu_scale",
-    "rolling_resistance",
-    "drag_factor",
-    "relaxation_length",
-)
-(
-    P_MASS,
-    P_IZ,
-    P_A,
-    P_B,
-    P_TF,
-    P_TR,
-    P_RW,
-    P_H,
-    P_IW,
-    P_M1,
-    P_N1,
-    P_M2,
-    P_N2,
-    P_EPS,
-    P_MU_SCALE,
-    P_FRR,
-    P_DRAG,
-    P_RELAX,
-) = range(len(PACKED_FIELDS))
-N_PARAMS = len(PACKED_FIELDS)
+#: :class:`ModelParams` as the compiled model takes it: a NamedTuple of the same fields (floats)
+ModelKernel = NamedTuple("ModelKernel", [(f.name, float) for f in fields(ModelParams)])
+
+
+class ModelInputs(NamedTuple):
+    """What the process model needs besides the state, for one vehicle's step: friction mu
+    (4,) (the state filter's) or the state x (6,) (the friction filter's, whose points are the
+    mu), the steer table (4, 4) (:func:`steer_trig`), wheel speeds omega (4,) [rad/s], motor
+    torques (4,) [N m], wheel accelerations omega_dot (4,) [rad/s^2], the model and the step
+    dt [s]."""
+
+    mu: np.ndarray
+    steer: np.ndarray
+    omega: np.ndarray
+    torque: np.ndarray
+    omega_dot: np.ndarray
+    model: ModelKernel
+    dt: float
 
 
 class Inputs(NamedTuple):
@@ -190,9 +167,9 @@ class Inputs(NamedTuple):
 @numba.njit(inline="always", **JIT)
 def wheel_position(pk, w: int) -> tuple[float, float]:
     """Wheel w's (FL, FR, RL, RR) position from the CG [m]: +a / -b forward, +/- t/2 left.
-    ``pk``: the packed parameters, as the array or as a tuple (the tyre functions take either)."""
-    x = pk[P_A] if w < 2 else -pk[P_B]
-    half = 0.5 * (pk[P_TF] if w < 2 else pk[P_TR])
+    ``pk``: :attr:`ModelParams.kernel`."""
+    x = pk.cg_to_front if w < 2 else -pk.cg_to_rear
+    half = 0.5 * (pk.track_front if w < 2 else pk.track_rear)
     return x, half if w % 2 == 0 else -half
 
 
@@ -201,27 +178,27 @@ def wheel_load(ax: float, ay: float, pk, w: int) -> float:
     """Quasi-static load [N] of wheel w (FL, FR, RL, RR) from body accelerations ax, ay
     [m/s^2]: static share plus longitudinal (m ax h / L) and lateral (m ay h / t, split by axle
     static share) transfer; floored at 5% of the static load."""
-    m, a, b, h = pk[P_MASS], pk[P_A], pk[P_B], pk[P_H]
+    m, a, b, h = pk.mass, pk.cg_to_front, pk.cg_to_rear, pk.cg_height
     L = a + b
     if w < 2:
         axle = m * GRAVITY * b / L - m * ax * h / L
-        transfer = m * ay * h * (b / L) / pk[P_TF]
+        transfer = m * ay * h * (b / L) / pk.track_front
         floor = 0.05 * m * GRAVITY * b / (2 * L)
     else:
         axle = m * GRAVITY * a / L + m * ax * h / L
-        transfer = m * ay * h * (a / L) / pk[P_TR]
+        transfer = m * ay * h * (a / L) / pk.track_rear
         floor = 0.05 * m * GRAVITY * a / (2 * L)
     return max(axle / 2 - transfer if w % 2 == 0 else axle / 2 + transfer, floor)
 
 
 @numba.njit(inline="always", **JIT)
-def load_tuple(ax: float, ay: float, pk: np.ndarray) -> tuple[float, float, float, float]:
+def load_tuple(ax: float, ay: float, pk: ModelKernel) -> tuple[float, float, float, float]:
     """The four wheels' :func:`wheel_load` [N] (FL, FR, RL, RR)."""
     return wheel_load(ax, ay, pk, 0), wheel_load(ax, ay, pk, 1), wheel_load(ax, ay, pk, 2), wheel_load(ax, ay, pk, 3)
 
 
 @numba.njit(**JIT)
-def wheel_loads(ax: float, ay: float, pk: np.ndarray, fz: np.ndarray) -> None:
+def wheel_loads(ax: float, ay: float, pk: ModelKernel, fz: np.ndarray) -> None:
     """:func:`load_tuple` written into fz (4,) [N]."""
     fz[0], fz[1], fz[2], fz[3] = load_tuple(ax, ay, pk)
 
@@ -295,8 +272,8 @@ def dugoff(
 @numba.njit(inline="always", **JIT)
 def stiffness(fz: float, pk) -> tuple[float, float]:
     """Eq. 17's load-dependent stiffnesses Cx(Fz) = m1 Fz - n1 Fz^2 [N/unit slip] and
-    Cy(Fz) = m2 Fz - n2 Fz^2 [N/rad] at wheel load ``fz`` [N]; ``pk``: packed parameters."""
-    return pk[P_M1] * fz - pk[P_N1] * fz * fz, pk[P_M2] * fz - pk[P_N2] * fz * fz
+    Cy(Fz) = m2 Fz - n2 Fz^2 [N/rad] at wheel load ``fz`` [N]; ``pk``: :attr:`ModelParams.kernel`."""
+    return pk.m1 * fz - pk.n1 * fz * fz, pk.m2 * fz - pk.n2 * fz * fz
 
 
 @numba.njit(inline="always", **JIT)
@@ -304,7 +281,7 @@ def tyre_operating_point(u, v, r, fz, trig, omega, pk, w) -> tuple[float, float,
     """Wheel w's tan(slip angle), longitudinal slip and stiffnesses Cx, Cy (eq. 17) at load fz;
     ``trig``: :func:`wheel_trig`, ``omega``: its speed [rad/s]."""
     tan_alpha, along = wheel_kinematics(u, v, r, trig, pk, w)
-    wheel_speed = omega * pk[P_RW]
+    wheel_speed = omega * pk.wheel_radius
     slip = (wheel_speed - along) / max(abs(wheel_speed), abs(along), MIN_SPEED)
     cx, cy = stiffness(fz, pk)
     return tan_alpha, slip, cx, cy
@@ -318,7 +295,7 @@ def body_forces(
     omega: np.ndarray,
     torque: np.ndarray,
     omega_dot: np.ndarray,
-    pk: np.ndarray,
+    pk: ModelKernel,
     out: np.ndarray,
 ) -> None:
     """Body accelerations ax, ay [m/s^2] and yaw moment Gamma [N m] from the tyre forces (eq. 4-6,
@@ -335,21 +312,20 @@ def body_forces(
     RR. Callers pass stack arrays (:func:`estimation.jit.scratch`): the compiler then knows
     they do not overlap, which it needs before it vectorises."""
     K = state.shape[1]
-    params = fixed_tuple(pk, N_PARAMS)  # a value, not an array, inside the loop (see wheel_trig)
     out[:, :] = 0.0
     for w in range(4):
-        x_w, y_w = wheel_position(params, w)
-        drive = (torque[w] - params[P_IW] * omega_dot[w]) / params[P_RW]
+        x_w, y_w = wheel_position(pk, w)
+        drive = (torque[w] - pk.wheel_inertia * omega_dot[w]) / pk.wheel_radius
         trig, spin = wheel_trig(steer, w), omega[w]
         c, s = trig[0], trig[1]
-        wheel_speed = spin * params[P_RW]
-        rolling = params[P_FRR] * wheel_speed / math.sqrt(wheel_speed * wheel_speed + 0.0025)
+        wheel_speed = spin * pk.wheel_radius
+        rolling = pk.rolling_resistance * wheel_speed / math.sqrt(wheel_speed * wheel_speed + 0.0025)
         for k in range(K):
             u, v, r = state[0, k], state[1, k], state[2, k]
-            fz = wheel_load(state[3, k], state[4, k], params, w)
-            tan_alpha, slip, cx, cy = tyre_operating_point(u, v, r, fz, trig, spin, params, w)
-            tyre_mu = params[P_MU_SCALE] * mu[w, k]
-            _, fy, _ = dugoff(fz, slip, tan_alpha, tyre_mu, cx, cy, u, params[P_EPS])
+            fz = wheel_load(state[3, k], state[4, k], pk, w)
+            tan_alpha, slip, cx, cy = tyre_operating_point(u, v, r, fz, trig, spin, pk, w)
+            tyre_mu = pk.mu_scale * mu[w, k]
+            _, fy, _ = dugoff(fz, slip, tan_alpha, tyre_mu, cx, cy, u, pk.eps)
             limit = tyre_mu * fz
             fx = min(max(drive - rolling * fz, -limit), limit)
             f_long, f_lat = fx * c - fy * s, fx * s + fy * c
@@ -358,8 +334,8 @@ def body_forces(
             out[2, k] += x_w * f_lat - y_w * f_long
     for k in range(K):
         u = state[0, k]
-        out[0, k] = (out[0, k] - params[P_DRAG] * u * abs(u)) / params[P_MASS]
-        out[1, k] /= params[P_MASS]
+        out[0, k] = (out[0, k] - pk.drag_factor * u * abs(u)) / pk.mass
+        out[1, k] /= pk.mass
 
 
 @numba.njit(inline="always", **JIT)
@@ -369,7 +345,7 @@ def dugoff_lambdas(u, v, r, ax, ay, mu, steer, omega, pk, out) -> None:
     fz = load_tuple(ax, ay, pk)
     for w in range(4):
         tan_alpha, _, cx, cy = tyre_operating_point(u, v, r, fz[w], wheel_trig(steer, w), omega[w], pk, w)
-        out[w] = dugoff(fz[w], 0.0, tan_alpha, pk[P_MU_SCALE] * mu[w], cx, cy, u, 0.0)[2]
+        out[w] = dugoff(fz[w], 0.0, tan_alpha, pk.mu_scale * mu[w], cx, cy, u, 0.0)[2]
 
 
 @numba.njit(inline="always", **JIT)
@@ -379,13 +355,13 @@ def transition(points: np.ndarray, out: np.ndarray, args: tuple) -> None:
     v+ = v + dt (ay - u r), r+ = r + dt Gamma / Iz (Euler at the 2 ms step); ax, ay, Gamma are
     algebraic: recomputed from the tyre model at the new state. ax, ay here are the body's
     specific forces (what an accelerometer reads without roll/pitch).
-    args = (mu (4,), steer_trig(delta), omega, torque, omega_dot, packed params, dt)."""
+    ``args``: :class:`ModelInputs` (mu: the state filter's friction (4,))."""
     mu, steer, omega, torque, omega_dot, pk, dt = args
     K = points.shape[0]
     state, mu_lanes, forces = scratch((5, K)), scratch((4, K)), scratch((3, K))
     for k in range(K):
         u, v, ax, ay, r, gamma = points[k, 0], points[k, 1], points[k, 2], points[k, 3], points[k, 4], points[k, 5]
-        u_new, v_new, r_new = u + dt * (ax + v * r), v + dt * (ay - u * r), r + dt * gamma / pk[P_IZ]
+        u_new, v_new, r_new = u + dt * (ax + v * r), v + dt * (ay - u * r), r + dt * gamma / pk.yaw_inertia
         out[k, 0], out[k, 1], out[k, 4] = u_new, v_new, r_new
         state[0, k], state[1, k], state[2, k], state[3, k], state[4, k] = u_new, v_new, r_new, ax, ay
         for w in range(4):
@@ -406,7 +382,7 @@ def normal_loads(ax, ay, p: ModelParams) -> np.ndarray:
     """Wheel loads (..., 4) [N] (see :func:`wheel_loads`) for arrays ax, ay (...) [m/s^2]."""
     ax, ay = np.broadcast_arrays(np.asarray(ax, dtype=np.float64), np.asarray(ay, dtype=np.float64))
     out = np.empty(ax.shape + (4,))
-    _wheel_loads_flat(np.ascontiguousarray(ax).ravel(), np.ascontiguousarray(ay).ravel(), p.packed, out.reshape(-1, 4))
+    _wheel_loads_flat(np.ascontiguousarray(ax).ravel(), np.ascontiguousarray(ay).ravel(), p.kernel, out.reshape(-1, 4))
     return out
 
 
@@ -424,5 +400,5 @@ def state_transition(x: np.ndarray, mu: np.ndarray, inputs: Inputs, p: ModelPara
     ):
         if value.shape != shape:  # (the kernel indexes without bounds checks)
             raise ValueError(f"{name} must have shape {shape}, got {value.shape}: {value!r}")
-    transition(x.reshape(1, 6), out, (mu, steer_trig(delta), omega, torque, omega_dot, p.packed, float(dt)))
+    transition(x.reshape(1, 6), out, ModelInputs(mu, steer_trig(delta), omega, torque, omega_dot, p.kernel, float(dt)))
     return out[0]

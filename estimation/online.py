@@ -33,7 +33,7 @@ import numpy as np
 
 from fourwis.core.checks import is_integer
 from fourwis.core.types import Estimate
-from fourwis.estimation.joint import STATE_FIELDS, StateEstimator
+from fourwis.estimation.joint import FilterState, StateEstimator
 from fourwis.estimation.optimizers import METHODS, minimize
 
 BOUNDS = [(-1.0, 1.0)] * 4  #: log10 factors on (process, accelerometer, gyro, wheel-speed) noise
@@ -45,7 +45,7 @@ class _Abort(Exception):
 
 class WindowReplay:
     """Scores noise candidates on a window: replays readings ``values``/``valid`` (W, 13) from
-    filter state ``snapshot`` (a single vehicle's state fields) with one batched filter whose
+    filter state ``snapshot`` (a single vehicle's :class:`FilterState`) with one batched filter whose
     members use ``template``'s base noise scaled by ``factors`` (N, 4); ``cost`` (N,) sums
     each member's innovation NLL (inf for a member whose filter failed; the others replay on).
     :meth:`advance` runs a bounded number of steps, so the work can be spread over filter steps."""
@@ -54,15 +54,14 @@ class WindowReplay:
         self,
         template: StateEstimator,
         base_noise,
-        snapshot: dict,
+        snapshot: FilterState,
         values: np.ndarray,
         valid: np.ndarray,
         factors: np.ndarray,
     ):
         n = len(factors)
         self.filter = replace(template, noise=base_noise.scaled(factors))  # its settings, fresh state
-        for name, value in snapshot.items():
-            setattr(self.filter, name, np.repeat(value, n, axis=0))
+        self.filter.state = FilterState(*(np.repeat(value, n, axis=0) for value in snapshot))
         self.values, self.valid = values, valid
         self.k, self.cost = 0, np.zeros(n)
 
@@ -85,7 +84,7 @@ class WindowReplay:
                 pass
             except (FloatingPointError, np.linalg.LinAlgError):
                 self.cost[:] = np.inf
-            nll = self.filter.last_nll[alive]
+            nll = self.filter.state.last_nll[alive]
             self.cost[alive] += np.where(np.isfinite(nll), nll, np.inf)
             self.k = self.k + 1 if np.isfinite(self.cost).any() else len(self.values)
             ran += 1
@@ -162,11 +161,11 @@ class OnlineTuner:
             self._snapshot, self._values, self._valid = self._state(), [], []
         return estimate
 
-    def _state(self) -> dict[str, np.ndarray]:
-        return {name: np.array(getattr(self.estimator, name), copy=True) for name in STATE_FIELDS}
+    def _state(self) -> FilterState:
+        return FilterState(*(np.array(value, copy=True) for value in self.estimator.state))
 
     # ---- optimizer runs -----------------------------------------------------------------
-    def _start(self, snapshot: dict, values: np.ndarray, valid: np.ndarray) -> None:
+    def _start(self, snapshot: FilterState, values: np.ndarray, valid: np.ndarray) -> None:
         self._run_data = (snapshot, values, valid)
         self._jobs: queue.Queue = queue.Queue()
         self._results: queue.Queue = queue.Queue()

@@ -7,6 +7,7 @@ state with the road's true friction)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 
@@ -25,10 +26,18 @@ TRUTH_GROUPS = {
 TRUE_SUFFIX = "+true-"  #: ``<estimator>+true-<group>[-<group>...]``, e.g. ``joint+true-mu-fz``
 
 
+class TruthKernel(NamedTuple):
+    """The oracle as the compiled closed loop takes it: the estimate is the truth (no data)."""
+
+
 class Oracle:
     """Reports the true state (the simulator hands it over: ``needs_truth``)."""
 
     needs_truth = True
+
+    def kernel(self) -> TruthKernel:
+        """This estimator as the compiled closed loop takes it."""
+        return TruthKernel()
 
     def reset(self, reading, initial_speed=None, mask=None) -> None:
         """Nothing to initialise."""

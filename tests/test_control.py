@@ -104,8 +104,8 @@ def test_the_dyc_holds_a_gentle_low_speed_turn_without_spinning_its_wheels(name)
     With a fixed 0.15 s reference lag and the lag-free LQR the wheels spun up to slip 1.2-1.6
     with the motors at +/- 550-590 N m and the yaw rate swinging +/- 0.13 rad/s; dyc-smc-4ws
     spun the car (90 deg)."""
+    from fourwis.envs.layout import A_KAPPA
     from fourwis.envs.scenarios import make_scenario
-    from fourwis.envs.vehicle import A_KAPPA
 
     traj = simulate(
         make_scenario("paper_step", speed_kph=20.0, mu=0.8, angle=2.0),
@@ -135,11 +135,7 @@ def test_lqr_reduces_yaw_error_on_an_oversteering_plant():
         x = np.zeros(2)
         err = []
         for _ in range(1500):
-            mz = (
-                lqr(np.array([u]), np.array([x[0]]), np.array([x[1]]), np.array([r_ref]), delta, 0.0, dt)[0]
-                if control
-                else 0
-            )
+            mz = lqr.moment(np.array([u]), np.array([x[0]]), np.array([x[1]]), np.array([r_ref]))[0] if control else 0
             x = x + dt * (A @ x + B[:, 0] * mz + E * delta)
             err.append(x[1] - r_ref)
         errors[control] = np.sqrt(np.mean(np.square(err)))
@@ -259,18 +255,19 @@ def test_a_reference_understeer_gradient_lowers_the_yaw_reference_the_controller
     neutral, under = StabilityController(P), StabilityController(P, reference_understeer=k)
     for c in (neutral, under):
         c(np.zeros(1), est, delta, np.zeros((1, 4)))
-    assert under._reference[0] == pytest.approx(ratio * neutral._reference[0], rel=1e-12)
+    assert under.reference[0] == pytest.approx(ratio * neutral.reference[0], rel=1e-12)
 
 
 @pytest.mark.parametrize("law", ["lqr", "smc"])
 def test_4ws_variants_add_the_eq20_rear_steer_and_the_plain_ones_do_not(law):
     from fourwis.control.reference import rear_steer_feedforward
-    from fourwis.envs.simulation import true_estimate
-    from fourwis.envs.vehicle import NU, derivatives, initial_state
+    from fourwis.envs.layout import NU
+    from fourwis.envs.simulation import truth_of
+    from fourwis.envs.vehicle import derivatives, initial_state
 
     state = initial_state(P, np.array([10.0, 25.0]), 2)
     aux = derivatives(state, np.zeros((2, NU)), np.full((2, 4), 0.9), P)[1]
-    estimate = true_estimate(state, aux)
+    estimate = truth_of(state, aux)[1]
     front = np.array([0.02, 0.02])
     base = np.full((2, 4), 50.0)
     controller = make_controller(f"dyc-{law}-4ws", P)
@@ -310,7 +307,7 @@ def test_the_yaw_reference_is_bounded_by_the_weaker_axle_s_friction():
         )
         controller = StabilityController(P)
         controller(np.zeros(1), est, delta, np.zeros((1, 4)))
-        return controller._reference[0]
+        return controller.reference[0]
 
     front_on_ice = reference([0.1, 0.1, 0.9, 0.9])
     assert front_on_ice == pytest.approx(0.85 * 0.1 * GRAVITY / 20.0, rel=1e-12)
@@ -333,13 +330,14 @@ def test_the_controller_reports_what_the_wheels_delivered():
     """A car yawing too little on ice: the LQR asks for a moment the tyres cannot give;
     ``last_allocation`` flags it and reports the (smaller, same-sign) moment the torques make,
     while on a dry road the same demand is met."""
-    from fourwis.envs.simulation import true_estimate
-    from fourwis.envs.vehicle import NU, S_R, S_U, derivatives, initial_state
+    from fourwis.envs.layout import NU, S_R, S_U
+    from fourwis.envs.simulation import truth_of
+    from fourwis.envs.vehicle import derivatives, initial_state
 
     state = initial_state(P, np.array([20.0, 20.0]), 2)
     mu, front = np.array([[0.1] * 4, [1.0] * 4]), np.array([0.02, 0.02])
     state[:, S_R] = reference_yaw_rate(state[:, S_U], front, mu, P) - 0.06  # 0.06 rad/s short of the reference
-    estimate = true_estimate(state, derivatives(state, np.zeros((2, NU)), mu, P)[1])
+    estimate = truth_of(state, derivatives(state, np.zeros((2, NU)), mu, P)[1])[1]
     controller = make_controller("dyc-lqr", P)
     assert controller.last_allocation is None
     command = controller(np.zeros(2), estimate, front, np.zeros((2, 4)))
@@ -414,11 +412,10 @@ def test_sliding_mode_meets_sideslip_with_the_lqr_gains_sign():
     lqr = LQRYawController(P, LQRWeights())
     smc = SlidingModeYawController(P)
     front, rear = np.array([0.02]), np.zeros(1)
-    smc(u, np.zeros(1), r, r, front, rear, 0.002, np.ones((1, 4)))  # the reference's previous value
-    assert lqr(u, beta, r, r, front, rear, 0.002)[0] < 0.0
+    assert lqr.moment(u, beta, r, r)[0] < 0.0
     assert (
-        smc(u, beta, r, r, front, rear, 0.002, np.ones((1, 4)))[0]
-        < smc(u, np.zeros(1), r, r, front, rear, 0.002, np.ones((1, 4)))[0]
+        smc.moment(u, beta, r, r, front, rear, 0.002, np.ones((1, 4)), previous_ref=r)[0]
+        < smc.moment(u, np.zeros(1), r, r, front, rear, 0.002, np.ones((1, 4)), previous_ref=r)[0]
     )
 
 
@@ -444,10 +441,8 @@ def test_sliding_mode_sees_the_rear_steer_angle():
     smc = SlidingModeYawController(P, lam=0.0)
     mu = np.full((1, 4), 1.0)
     moments = []
-    for rear_seen in (rear, np.zeros(1)):
-        smc.reset()
-        for _ in range(2):  # the second call has a settled reference rate
-            moment = smc(u, np.array([beta]), np.array([r]), np.array([r]), front, rear_seen, 0.002, mu)[0]
+    for rear_seen in (rear, np.zeros(1)):  # (the reference held: its rate is 0)
+        moment = smc.moment(u, np.array([beta]), np.array([r]), np.array([r]), front, rear_seen, 0.002, mu, r)[0]
         moments.append(moment)
     assert abs(moments[0]) < 1.0
     # blind to it, the law cancels the rear tyre's moment b C_r delta_r (827 N m here)
@@ -463,10 +458,10 @@ def test_sliding_mode_asks_nothing_of_a_car_on_its_reference_inside_the_deadband
     u = np.array([22.2])
     delta = 0.43 * GRAVITY * P.wheelbase / u**2
     r_ref = u * delta / P.wheelbase
-    for _ in range(2):
-        moment = smc(u, np.zeros(1), r_ref, r_ref, delta, np.zeros(1), 0.002, np.ones((1, 4)))
+    moment = smc.moment(u, np.zeros(1), r_ref, r_ref, delta, np.zeros(1), 0.002, np.ones((1, 4)), r_ref)
     np.testing.assert_array_equal(moment, 0.0)
-    assert smc(u, np.zeros(1), r_ref + 0.1, r_ref, delta, np.zeros(1), 0.002, np.ones((1, 4)))[0] < -0.5 * P.yaw_inertia
+    pushed = smc.moment(u, np.zeros(1), r_ref + 0.1, r_ref, delta, np.zeros(1), 0.002, np.ones((1, 4)), r_ref)
+    assert pushed[0] < -0.5 * P.yaw_inertia
 
 
 def test_sliding_mode_never_pushes_away_from_its_surface_outside_the_boundary_layer():
@@ -477,8 +472,7 @@ def test_sliding_mode_never_pushes_away_from_its_surface_outside_the_boundary_la
     the sign of s: the car held r ~ 0 at full lock for 4 s and left the course 5.6 m off the line."""
     smc = SlidingModeYawController(P)
     u, r_ref, front, rear, mu = np.array([17.0]), np.array([-0.47]), np.array([-0.6]), np.zeros(1), np.ones((1, 4))
-    for _ in range(2):  # the second call has a settled reference rate
-        moment = smc(u, np.zeros(1), np.zeros(1), r_ref, front, rear, 0.002, mu)[0]
+    moment = smc.moment(u, np.zeros(1), np.zeros(1), r_ref, front, rear, 0.002, mu, r_ref)[0]  # (r_ref held)
     assert moment < 0.0  # turns the car towards its reference
     assert moment == pytest.approx(-P.yaw_inertia * smc.eta)
 
@@ -495,27 +489,25 @@ def test_dyc_smc_keeps_the_car_steerable_on_iso3888_2_at_70_kph():
 
 
 def test_the_lqr_subtracts_the_moment_the_wheels_already_deliver():
-    """Mz = -K [beta, r - r_ref, M]: the moment M the wheels deliver (note_delivered, a first-order
-    lag tau(u) behind the command) lowers the next command by K_M M. K_M > 0 at every speed: a
-    moment still building up in the tyres is not asked for again (the lag-aware design)."""
-    from fourwis.control.dyc import actuator_lag
+    """Mz = -K [beta, r - r_ref, M]: the moment M the wheels deliver (a first-order lag tau(u)
+    behind the command, :func:`delivered_next`) lowers the next command by K_M M. K_M > 0 at every
+    speed: a moment still building up in the tyres is not asked for again (the lag-aware design)."""
+    from fourwis.control.dyc import actuator_lag, delivered_next
 
     lqr = LQRYawController(P)
     assert np.all(lqr.gains[:, 2] > 0.0)
     u, beta, r, r_ref, dt = np.array([20.0]), np.array([-0.01]), np.array([0.25]), np.array([0.2]), 0.002
     k = lqr.gain(u)[0]
-    before = lqr(u, beta, r, r_ref, 0.0, 0.0, dt)[0]
+    before = lqr.moment(u, beta, r, r_ref)[0]
     assert before == pytest.approx(-(k[0] * beta[0] + k[1] * (r - r_ref)[0]), rel=1e-12)
     given, tau = 1000.0, float(actuator_lag(u, P)[0])  # 30 ms at 72 km/h
-    lqr.note_delivered(np.array([given]), u, dt)  # one step of the lag: dt / tau of the way
-    after = lqr(u, beta, r, r_ref, 0.0, 0.0, dt)[0]
+    delivered = delivered_next(np.zeros(1), np.array([given]), actuator_lag(u, P), dt)  # dt / tau of the way
+    after = lqr.moment(u, beta, r, r_ref, delivered)[0]
     assert after == pytest.approx(before - k[2] * given * dt / tau, rel=1e-9)
     assert after < before
     for _ in range(int(20 * tau / dt)):  # held for 20 time constants: the wheels deliver all of it
-        lqr.note_delivered(np.array([given]), u, dt)
-    assert lqr(u, beta, r, r_ref, 0.0, 0.0, dt)[0] == pytest.approx(before - k[2] * given, rel=1e-6)
-    lqr.reset()
-    assert lqr(u, beta, r, r_ref, 0.0, 0.0, dt)[0] == before
+        delivered = delivered_next(delivered, np.array([given]), actuator_lag(u, P), dt)
+    assert lqr.moment(u, beta, r, r_ref, delivered)[0] == pytest.approx(before - k[2] * given, rel=1e-6)
 
 
 def test_sliding_mode_switching_is_proportional_to_s_inside_the_boundary_layer():
@@ -526,11 +518,8 @@ def test_sliding_mode_switching_is_proportional_to_s_inside_the_boundary_layer()
     u, beta, r, front, rear = np.array([22.0]), np.zeros(1), np.array([0.2]), np.array([0.02]), np.zeros(1)
     mu = np.ones((1, 4))
 
-    def moment(s):
-        smc.reset()
-        for _ in range(2):  # the second call has a settled reference rate (r_ref_dot = 0)
-            m = smc(u, beta, r, r - s, front, rear, 0.002, mu)[0]  # beta = 0: s = r - r_ref
-        return m
+    def moment(s):  # beta = 0: s = r - r_ref, held (r_ref_dot = 0)
+        return smc.moment(u, beta, r, r - s, front, rear, 0.002, mu, r - s)[0]
 
     on_surface = moment(0.0)
     assert abs(on_surface) < smc.max_moment - 2 * P.yaw_inertia * smc.eta  # the moment limit is out of the way
@@ -570,7 +559,7 @@ def test_only_a_moment_that_turns_the_car_further_fades_near_the_sideslip_bound(
 
     shrunk_error = np.sign(error) * (np.abs(error) - YAW_DEADBAND)
     shrunk_beta = np.sign(beta) * np.maximum(np.abs(beta) - 0.5 * bound, 0.0)
-    asked = LQRYawController(P)(u, shrunk_beta, r_ref + shrunk_error, r_ref, front, np.zeros(8), 0.002)
+    asked = LQRYawController(P).moment(u, shrunk_beta, r_ref + shrunk_error, r_ref)
     oversteer = np.sign(error) == np.sign(r_ref)
     assert np.all(np.sign(asked) == np.where(oversteer, -1.0, 1.0) * np.sign(r_ref))
     assert np.all((200.0 < np.abs(asked)) & (np.abs(asked) < 1000.0))
@@ -656,8 +645,9 @@ def test_the_phase_plane_band_separates_recovery_from_spin_on_the_full_plant(u, 
     from scipy.optimize import brentq
 
     from fourwis.control.reference import PhasePlaneRegion
+    from fourwis.envs.layout import NU, S_R, S_U, S_V
     from fourwis.envs.road import uniform
-    from fourwis.envs.vehicle import NU, S_R, S_U, S_V, initial_state, step
+    from fourwis.envs.vehicle import initial_state, step
     from fourwis.training.phase_plane_fit import sideslip_dynamics
 
     p = VehicleParams()
@@ -692,8 +682,8 @@ def test_sideslip_rate_from_the_specific_forces_matches_the_derivative_of_sidesl
     9.9 deg/s; the constant-speed form u (ay - u r) / (u^2 + v^2) errs 0.010 and 0.14 deg/s:
     the lane change slows the car)."""
     from fourwis.control.reference import sideslip_rate
+    from fourwis.envs.layout import A_AX, A_AY
     from fourwis.envs.scenarios import make_scenario
-    from fourwis.envs.vehicle import A_AX, A_AY
 
     traj = simulate(make_scenario(scenario), estimator="oracle")
     T = traj.truth

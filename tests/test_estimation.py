@@ -7,11 +7,12 @@ import numpy as np
 import pytest
 
 from fourwis.core.types import CHANNELS
+from fourwis.envs.layout import A_USAGE
 from fourwis.envs.metrics import rmse
 from fourwis.envs.scenarios import PAPER_SCENARIOS, make_scenario
 from fourwis.envs.sensors import Fault, SensorParams
 from fourwis.envs.simulation import simulate
-from fourwis.envs.vehicle import A_USAGE, VehicleParams
+from fourwis.envs.vehicle import VehicleParams
 from fourwis.estimation import ESTIMATORS, make_estimator
 from fourwis.estimation.ckf import ckf_predict, ckf_update
 from fourwis.estimation.federated import BETA_FLOOR, SubMeasurement, federated_step, fuse, sharing_coefficients
@@ -244,17 +245,31 @@ def test_the_compiled_federated_cycle_equals_federated_step_on_the_vehicle_model
     """The estimators' compiled cycle (joint._federated: share, predict, update, fuse) is the
     one federated_step runs, model for model: both driven by the compiled vehicle models, in
     a hard turn (ay 6 m/s^2 at 20 m/s on mu 0.8), with one invalid channel."""
-    from fourwis.estimation.joint import MU_1, MU_2, RANDOM_WALK, STATE_1, STATE_2, TRANSITION, _evaluate, _federated
-    from fourwis.estimation.model import fill_steer_trig
+    from fourwis.estimation.joint import (
+        MU_1,
+        MU_2,
+        RANDOM_WALK,
+        STATE_1,
+        STATE_2,
+        TRANSITION,
+        FrictionInputs,
+        MeasurementInputs,
+        ModelArgs,
+        _evaluate,
+        _federated,
+    )  # fmt: skip
+    from fourwis.estimation.model import ModelInputs, fill_steer_trig
 
-    pk, dt = PARAMS.packed, 0.002
+    pk, dt = PARAMS.kernel, 0.002
     state = np.array([20.0, -0.4, -0.3, 6.0, 0.3, 0.01])  # [u, v, ax, ay, r, Gamma]
     steer = np.empty((4, 4))
     fill_steer_trig((0.06, 0.06, 0.0, 0.0), steer)
     omega, torque, omega_dot = np.full(4, 20.0 / PARAMS.wheel_radius), np.full(4, 150.0), np.zeros(4)
     mu = np.array([0.8, 0.75, 0.82, 0.8])
-    f_args, h_args = (mu, steer, omega, torque, omega_dot, pk, dt), (steer, pk)
-    m_args = (state, steer, omega, torque, omega_dot, pk, dt)
+    args = ModelArgs(
+        ModelInputs(mu, steer, omega, torque, omega_dot, pk, dt), MeasurementInputs(steer, pk),
+        FrictionInputs(state, steer, omega, torque, omega_dot, pk, dt),
+    )  # fmt: skip
     if group == "state":
         x, P = state, np.diag([0.3, 0.1, 0.5, 0.5, 0.01, 50.0]) ** 2
         Q, models = np.diag([0.05, 0.02, 0.3, 0.3, 0.005, 5.0]) ** 2, (TRANSITION, STATE_1, STATE_2)
@@ -273,7 +288,7 @@ def test_the_compiled_federated_cycle_equals_federated_step_on_the_vehicle_model
     def model(code):
         def evaluate(points):  # (1, K, n) -> (1, K, k), one compiled model call
             out = np.empty((1, points.shape[1], {TRANSITION: 6, RANDOM_WALK: 4, STATE_1: 7, MU_1: 3}.get(code, 2)))
-            _evaluate(code, np.ascontiguousarray(points[0]), out[0], f_args, h_args, m_args)
+            _evaluate(code, np.ascontiguousarray(points[0]), out[0], args)
             return out
 
         return evaluate
@@ -306,9 +321,7 @@ def test_the_compiled_federated_cycle_equals_federated_step_on_the_vehicle_model
         R2,
         models[2],
         math.inf if huber_c is None else huber_c,
-        f_args,
-        h_args,
-        m_args,
+        args,
         x_out,
         P_out,
         beta_out,
@@ -498,14 +511,14 @@ def test_dugoff_at_the_true_state_matches_the_plant_force_near_saturation(scenar
     estimator's mu reads a few hundredths high (README, comparison section)."""
     import dataclasses
 
-    from fourwis.envs.vehicle import A_AX, A_AY, A_FY, A_FZ, A_MU, A_USAGE, S_DELTA_F, S_DELTA_R, S_OMEGA, S_R, S_U, S_V
+    from fourwis.envs.layout import A_AX, A_AY, A_FY, A_FZ, A_MU, A_USAGE, S_DELTA_F, S_DELTA_R, S_OMEGA, S_R, S_U, S_V
     from fourwis.estimation.model import dugoff, steer_trig, tyre_operating_point, wheel_loads
 
     traj = simulate(scenario, seed=1)
     S, A = traj.state, traj.aux
 
     def errors(params: ModelParams) -> np.ndarray:
-        pk, out = params.packed, []
+        pk, out = params.kernel, []
         for k in range(0, len(traj.t), 5):
             fz = np.empty(4)
             wheel_loads(A[k, A_AX], A[k, A_AY], pk, fz)
@@ -535,8 +548,9 @@ def test_the_model_loses_speed_to_drag_and_rolling_resistance_as_the_plant_does(
     both lose (1/2) rho Cd A u^2 to drag and f_r Fz to rolling resistance (coasting from 25 m/s,
     -0.34 m/s^2 after the second, 0.08 of it rolling resistance). Without them (the paper's model) its ax is off
     by the whole loss (> 0.1 m/s^2)."""
+    from fourwis.envs.layout import A_AX, C_TORQUE, NU, S_OMEGA, S_TORQUE, S_U
     from fourwis.envs.road import uniform
-    from fourwis.envs.vehicle import A_AX, C_TORQUE, NU, S_OMEGA, S_TORQUE, S_U, derivatives, initial_state, step
+    from fourwis.envs.vehicle import derivatives, initial_state, step
 
     vehicle = VehicleParams()
     controls = np.zeros((1, NU))
@@ -565,7 +579,7 @@ def test_tyre_relaxation_follows_the_plants_lateral_force_build_up():
     (PAC2002 tyres with relaxation) while it builds up: its RMS error over the first 0.25 s of the
     steer is less than half the paper's instantaneous tyre's (measured 0.054 against 0.25 m/s^2),
     and once the turn is steady the two models agree within 1%."""
-    from fourwis.envs.vehicle import S_DELTA_F, S_DELTA_R, S_OMEGA, S_R, S_TORQUE, S_U, S_V
+    from fourwis.envs.layout import S_DELTA_F, S_DELTA_R, S_OMEGA, S_R, S_TORQUE, S_U, S_V
     from fourwis.estimation.joint import _relax_slip
     from fourwis.estimation.model import body_forces, steer_trig
 
@@ -580,7 +594,7 @@ def test_tyre_relaxation_follows_the_plants_lateral_force_build_up():
         for k in range(onset - 50, steps[-1] + 1):
             table, relaxed_new = steer_trig(np.array([S[k, S_DELTA_F]] * 2 + [S[k, S_DELTA_R]] * 2)), np.empty(4)
             x_prev = np.array([T.u[k - 1], T.v[k - 1], T.ax[k - 1], T.ay[k - 1], T.r[k - 1], 0.0])
-            _relax_slip(x_prev, table, relaxed, params.packed, dt, relaxed_new)
+            _relax_slip(x_prev, table, relaxed, params.kernel, dt, relaxed_new)
             relaxed = relaxed_new
             if k in steps:
                 forces = np.empty((3, 1))
@@ -591,7 +605,7 @@ def test_tyre_relaxation_follows_the_plants_lateral_force_build_up():
                     S[k, S_OMEGA : S_OMEGA + 4].copy(),
                     S[k, S_TORQUE : S_TORQUE + 4].copy(),
                     omega_dot[k].copy(),
-                    params.packed,
+                    params.kernel,
                     forces,
                 )
                 out.append(forces[1, 0])
@@ -648,7 +662,7 @@ def test_a_masked_reset_restarts_the_relaxed_slip_with_the_row():
     for k in range(1, restart):
         batch.step(reading(k, 3))
         alone.step(reading(k, 1))
-    assert np.ptp(batch.slip_relaxed[1]) > 0.0  # a lagging row, mid-turn
+    assert np.ptp(batch.state.slip_relaxed[1]) > 0.0  # a lagging row, mid-turn
     batch.reset(reading(restart, 3), traj.truth.u[restart], mask=np.array([False, True, False]))
     fresh.reset(reading(restart, 1), traj.truth.u[restart])
     for k in range(restart + 1, restart + 300):
@@ -982,7 +996,7 @@ def test_zero_point_learning_finds_an_accelerometer_offset_in_steady_driving_onl
         sensor_params=sensors,
         faults=offset,
     )
-    assert straight.zero_point[0, ZP_OFFSET] == pytest.approx(0.2, abs=0.01)
+    assert straight.state.zero_point[0, ZP_OFFSET] == pytest.approx(0.2, abs=0.01)
     errors = {}
     for tau in (ZERO_POINT_TIME_CONSTANT, math.inf):
         estimator = make_estimator("joint", VehicleParams(), zero_point_time_constant=tau)
@@ -993,7 +1007,7 @@ def test_zero_point_learning_finds_an_accelerometer_offset_in_steady_driving_onl
     assert errors[ZERO_POINT_TIME_CONSTANT] < 0.5 * errors[math.inf]
     sine = make_estimator("joint", VehicleParams())
     simulate("paper_sine", estimator=sine, seed=0, sensor_params=sensors, faults=offset)
-    assert sine.zero_point[0, ZP_OFFSET] == 0.0  # the steering never rests for ZERO_POINT_SETTLE
+    assert sine.state.zero_point[0, ZP_OFFSET] == 0.0  # the steering never rests for ZERO_POINT_SETTLE
 
 
 @pytest.mark.parametrize("members", [[3], [-1], [1, 1], [0.5]])
@@ -1005,10 +1019,10 @@ def test_a_step_on_bad_members_raises_and_leaves_the_filters_alone(members):
     values[:, 3:7] = 20.0 / VehicleParams().wheel_radius
     reading = SensorReading(values, np.ones_like(values, dtype=bool), np.zeros(3))
     est.reset(reading, np.full(3, 20.0))
-    before = est.x.copy()
+    before = est.state.x.copy()
     with pytest.raises(ValueError, match="members"):
         est.step(reading, members=np.array(members))
-    np.testing.assert_array_equal(est.x, before)
+    np.testing.assert_array_equal(est.state.x, before)
 
 
 def test_a_nan_input_is_named_even_on_an_invalid_channel():
@@ -1149,8 +1163,8 @@ def test_estimator_input_errors_name_the_bad_value():
     make_estimator("alo-fkf", params, huber_c=0.5)
     # per-member sensor noise with a shared process noise reaches every member's row
     two = make_estimator("ckf", params, noise=NoiseParams(accel_std=np.array([0.1, 10.0])))
-    np.testing.assert_allclose(two._sensor_var[:, 0], [0.01, 100.0], rtol=1e-12)
-    assert two._process_var.shape == (2, 6)
+    np.testing.assert_allclose(two.noise_variances.sensor_var[:, 0], [0.01, 100.0], rtol=1e-12)
+    assert two.noise_variances.process_var.shape == (2, 6)
     with pytest.raises(ValueError, match="dt = 0.01"):
         simulate("paper_step", estimator=make_estimator("joint", params, dt=0.01))
 
@@ -1170,7 +1184,7 @@ def test_the_low_passes_stay_stable_on_a_log_sampled_slower_than_their_time_cons
     errors = []
     for k in range(0, len(run.t), every):
         out = est.step(SensorReading(run.sensors[k][None], run.sensor_valid[k][None], run.t[k : k + 1]))
-        assert np.all(np.abs(est.omega_dot) < 50.0)
+        assert np.all(np.abs(est.state.omega_dot) < 50.0)
         if run.t[k] >= 6.0:
             errors.append(np.abs(out.mu[0] - run.truth.mu[k]).mean())
     assert np.mean(errors) < 0.2
@@ -1183,9 +1197,9 @@ def test_a_filter_at_another_step_keeps_its_noise_per_unit_time():
     from fourwis.envs.sensors import SensorParams
 
     fine, coarse = (make_estimator("joint", VehicleParams(), dt=dt) for dt in (0.002, 0.01))
-    np.testing.assert_allclose(coarse._process_var, 5.0 * fine._process_var, rtol=1e-12)
-    np.testing.assert_allclose(coarse._mu_var, fine._mu_var * [5.0, 1.0, 1.0], rtol=1e-12)
-    np.testing.assert_array_equal(coarse._sensor_var, fine._sensor_var)
+    np.testing.assert_allclose(coarse.noise_variances.process_var, 5.0 * fine.noise_variances.process_var, rtol=1e-12)
+    np.testing.assert_allclose(coarse.noise_variances.mu_var, fine.noise_variances.mu_var * [5.0, 1.0, 1.0], rtol=1e-12)
+    np.testing.assert_array_equal(coarse.noise_variances.sensor_var, fine.noise_variances.sensor_var)
     traj = simulate("mu_jump", estimator=coarse, dt=0.01, sensor_params=SensorParams(sample_time=0.01))
     half = len(traj.t) // 2
     assert np.mean(np.abs(traj.estimate.mu - traj.truth.mu)[half:]) < 0.05

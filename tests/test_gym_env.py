@@ -15,9 +15,9 @@ from gymnasium.vector import AutoresetMode
 import fourwis  # noqa: F401  (registers the environment)
 from fourwis.control.reference import reference_yaw_rate
 from fourwis.envs.gym_env import YawStabilityEnv, YawStabilityVectorEnv
+from fourwis.envs.layout import S_DELTA_R
 from fourwis.envs.render import FRAME_HEIGHT, FRAME_WIDTH
 from fourwis.envs.sensors import Fault
-from fourwis.envs.vehicle import S_DELTA_R
 
 
 @pytest.mark.parametrize("observation", ["estimated", "true", "sensors"])
@@ -692,10 +692,10 @@ def test_episode_metrics_on_sine_with_dwell_give_the_fmvss126_verdict(amplitude_
     from fourwis.envs.simulate (same plant and driver; zero corrective moment): 40 deg (2.4A) passes with its
     ratios reported, 180 deg on mu 1.0 spins out (terminated early, failed)."""
     from fourwis.envs.fmvss126 import characterise
+    from fourwis.envs.layout import A_AY, S_R
     from fourwis.envs.metrics import sine_with_dwell_metrics
     from fourwis.envs.scenarios import make_scenario
     from fourwis.envs.simulation import simulate
-    from fourwis.envs.vehicle import A_AY, S_R
 
     env = YawStabilityEnv(
         scenario="sine_with_dwell", estimator="oracle", scenario_kwargs={"amplitude_deg": amplitude_deg}

@@ -9,7 +9,7 @@ from fourwis.envs.scenarios import make_scenario
 from fourwis.envs.simulation import simulate
 from fourwis.envs.vehicle import VehicleParams
 from fourwis.estimation import make_estimator
-from fourwis.estimation.joint import STATE_FIELDS
+from fourwis.estimation.joint import FilterState
 from fourwis.estimation.online import OnlineTuner, WindowReplay
 
 RUN = simulate(make_scenario("paper_sine", duration=3.0), seed=0)  # truth + sensor readings, 1501 samples
@@ -44,13 +44,15 @@ def test_work_per_step_is_bounded_and_results_arrive_when_runs_finish(replay_per
     def live_stds():
         """The standard deviations the filter computes with (process, then accel, gyro, wheel)."""
         est = tuner.estimator
-        return np.sqrt(np.concatenate([est._process_var.ravel(), est._sensor_var.ravel()]))
+        return np.sqrt(
+            np.concatenate([est.noise_variances.process_var.ravel(), est.noise_variances.sensor_var.ravel()])
+        )
 
     def noise_stds(noise):
         return np.concatenate([np.ravel(noise.process_std), [noise.accel_std, noise.gyro_std, noise.wheel_speed_std]])
 
     def check(k):
-        eigen_min.append(np.linalg.eigvalsh(tuner.estimator.P).min())
+        eigen_min.append(np.linalg.eigvalsh(tuner.estimator.state.P).min())
         completed.append(tuner.runs_completed)
         factors.append(None if tuner.factors is None else np.array(tuner.factors))
         stds.append(live_stds())
@@ -103,7 +105,7 @@ def test_the_likelihood_criterion_is_not_invariant_to_scaling_q_and_r_together()
     est = make_estimator("alo-fkf", VehicleParams())
     reading = SensorReading(RUN.sensors[:1], RUN.sensor_valid[:1], RUN.t[:1])
     est.reset(reading, np.array([RUN.scenario.speed]))
-    snapshot = {name: np.array(getattr(est, name)) for name in STATE_FIELDS}
+    snapshot = FilterState(*(np.array(value) for value in est.state))
     factors = np.array([[0.0] * 4, [1.0] * 4, [-1.0] * 4])
     replay = WindowReplay(est, est.noise, snapshot, RUN.sensors[1:301], RUN.sensor_valid[1:301], factors)
     replay.advance(10_000)
@@ -118,7 +120,7 @@ def test_a_candidate_whose_filter_fails_costs_inf_and_the_others_replay_on():
 
     est = make_estimator("alo-fkf", VehicleParams())
     est.reset(SensorReading(RUN.sensors[:1], RUN.sensor_valid[:1], RUN.t[:1]), np.array([RUN.scenario.speed]))
-    snapshot = {name: np.array(getattr(est, name)) for name in STATE_FIELDS}
+    snapshot = FilterState(*(np.array(value) for value in est.state))
     window = RUN.sensors[1:201], RUN.sensor_valid[1:201]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # the overflow itself

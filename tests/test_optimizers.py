@@ -135,7 +135,7 @@ def _shipped_and_hand_set(scenario_name, seeds):
     for k in range(n + 1):
         record = loop.advance(integrate=k < n)
         squared_error += (record.estimate.beta - record.truth.beta) ** 2
-        nll += est.last_nll
+        nll += est.state.last_nll
     return np.sqrt(squared_error / (n + 1)).reshape(-1, 2), (nll / (n + 1)).reshape(-1, 2)
 
 

@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 
 from fourwis.control import make_controller
+from fourwis.envs.layout import A_USAGE
 from fourwis.envs.scenarios import make_scenario
 from fourwis.envs.simulation import simulate
-from fourwis.envs.vehicle import A_USAGE, VehicleParams
+from fourwis.envs.vehicle import VehicleParams
 
 # 2.5 s of the mu jump with DYC-LQR on the joint estimator: the plant's tyres, the estimator's
 # friction update (the car reaches the 0.3 patch at ~1.5 s and saturates its tyres), the
@@ -55,16 +56,17 @@ def test_with_numba_disabled_the_closed_loop_runs_as_python_and_matches_the_comp
     np.testing.assert_allclose(python["v"], compiled.estimate.v, rtol=1e-9, atol=1e-12)
 
 
-# five control steps of the single env, whose substeps run in envs.compiled_loop's kernel
+# five control steps of the single env, whose substeps run in the compiled loop (fourwis.envs.loop)
 ENV_RUN = """
 import sys, warnings
 import gymnasium as gym
 import numpy as np
 warnings.simplefilter("ignore")
-from fourwis.envs import compiled_loop
+from fourwis.envs.loop import PythonStage
+from fourwis.envs.simulation import kernel_parts
 env = gym.make("fourwis:FourWIS/YawStability-v0")
 env.reset(seed=4)
-assert compiled_loop.supports(env.unwrapped._core.loop)
+assert not any(isinstance(part, PythonStage) for part in kernel_parts(env.unwrapped._core.loop))
 np.save(sys.argv[1], np.array([env.step(np.array([0.5, -0.3], np.float32))[0] for _ in range(5)]))
 """
 

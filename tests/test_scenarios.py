@@ -17,10 +17,11 @@ from fourwis.envs.driver import (
     SpeedHold,
     Step,
 )
+from fourwis.envs.layout import S_DELTA_R, S_U
 from fourwis.envs.road import patch
 from fourwis.envs.scenarios import PAPER_SCENARIOS, SCENARIOS, make_scenario
 from fourwis.envs.simulation import simulate
-from fourwis.envs.vehicle import S_DELTA_R, S_U, VehicleParams
+from fourwis.envs.vehicle import VehicleParams
 
 STATE = np.zeros(26)
 
@@ -311,7 +312,7 @@ def test_iso3888_2_enters_the_course_at_the_test_speed_and_coasts_from_there():
     """ISO 3888-2: the driver holds the test speed up to the first gate (X = 0) and lifts off
     there (before, it lifted off 10 m early, where the driver's line begins, and entered at 59.56
     km/h instead of 60)."""
-    from fourwis.envs.vehicle import C_TORQUE, S_U, S_X
+    from fourwis.envs.layout import C_TORQUE, S_U, S_X
 
     run = simulate(make_scenario("iso3888_2", speed_kph=60.0, duration=2.5))
     x, torque = run.state[:, S_X], run.controls[:, C_TORQUE : C_TORQUE + 4]
@@ -325,7 +326,8 @@ def test_driver_settles_on_a_circle_at_the_neutral_steer_angle():
     from dataclasses import replace
 
     from fourwis.envs.driver import PathFollower
-    from fourwis.envs.vehicle import S_X, S_Y, VehicleParams
+    from fourwis.envs.layout import S_X, S_Y
+    from fourwis.envs.vehicle import VehicleParams
 
     params, radius, speed, offset = VehicleParams(), 40.0, 8.0, 0.3
     angle = np.linspace(0.0, 1.5 * math.pi, 600)
@@ -364,7 +366,7 @@ def test_path_follower_scan_steers_as_the_whole_path_seen_from_the_car():
     before the course, on it, past its end and facing away from it."""
     from fourwis.envs.courses import lane_change
     from fourwis.envs.driver import PathFollower, _preview_responses
-    from fourwis.envs.vehicle import NX, S_PSI, S_R, S_U, S_V, S_X, S_Y
+    from fourwis.envs.layout import NX, S_PSI, S_R, S_U, S_V, S_X, S_Y
 
     follower, rng = (
         PathFollower(lane_change(2.0, scale=1.4, offset=2.5, direction=-1).centreline),
@@ -407,7 +409,7 @@ def test_path_follower_scan_steers_as_the_whole_path_seen_from_the_car():
 
 def test_path_follower_names_a_speed_it_cannot_steer_at():
     from fourwis.envs.driver import DriverBatch, PathFollower
-    from fourwis.envs.vehicle import NX, S_U
+    from fourwis.envs.layout import NX, S_U
 
     follower = PathFollower(np.column_stack([np.arange(50.0), np.zeros(50)]))
     states = np.zeros((2, NX))

@@ -7,10 +7,11 @@ import numba
 import numpy as np
 import pytest
 
+from fourwis.envs.layout import NU
 from fourwis.envs.road import uniform
 from fourwis.envs.sensors import SensorModel, SensorParams
-from fourwis.envs.simulation import sensor_truth
-from fourwis.envs.vehicle import NU, VehicleParams, initial_state, step
+from fourwis.envs.simulation import truth_of
+from fourwis.envs.vehicle import VehicleParams, initial_state, step
 from fourwis.estimation import make_estimator
 
 P = VehicleParams()
@@ -45,7 +46,7 @@ def test_parallel_plant_and_estimator_on_two_threads_equal_the_serial_kernels(tw
     readings, x = [], state[cars]
     for k in range(150):
         x, aux = step(x, controls[cars], P, [roads[c] for c in cars], 0.002)
-        readings.append(sensors.measure(sensor_truth(x, aux), k * 0.002))
+        readings.append(sensors.measure(truth_of(x, aux)[0], k * 0.002))
     batched = make_estimator("joint", P)
     batched.reset(readings[0], x[:, 3])
     singles = [make_estimator("joint", P) for _ in cars]
@@ -64,7 +65,7 @@ def _row(reading, i):
 
 
 def test_compiled_closed_loop_on_two_threads_equals_one_thread(two_threads):
-    """envs.compiled_loop shares a batch's cars among numba's thread count of Python threads."""
+    """The compiled loop shares a batch's cars among numba's thread count of Python threads."""
     from fourwis.envs.gym_env import YawStabilityVectorEnv
 
     def run() -> list:

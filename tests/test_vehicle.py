@@ -6,10 +6,7 @@ import numpy as np
 import pytest
 
 from fourwis.core.constants import GRAVITY
-from fourwis.envs.road import RoadTables, split, uniform
-from fourwis.envs.simulation import DT
-from fourwis.envs.tyre import TyreParams, tyre_forces
-from fourwis.envs.vehicle import (
+from fourwis.envs.layout import (
     A_AX,
     A_AY,
     A_FZ,
@@ -30,11 +27,11 @@ from fourwis.envs.vehicle import (
     S_U,
     S_V,
     S_Y,
-    VehicleParams,
-    derivatives,
-    initial_state,
-    step,
 )
+from fourwis.envs.road import RoadTables, split, uniform
+from fourwis.envs.simulation import DT
+from fourwis.envs.tyre import TyreParams, tyre_forces
+from fourwis.envs.vehicle import VehicleParams, derivatives, initial_state, step
 
 P = VehicleParams()
 
@@ -242,7 +239,7 @@ def test_rk4_converges_at_fourth_order_for_constant_inputs():
     rate-limit kink), the position error after 0.4 s against a 0.25 ms solution falls ~16x per
     halving of dt (measured 19.4 / 17.7 / 17.8 from 4 to 0.5 ms); a second-order scheme gives
     ~4x (a review's mutation, dt/4 (k1 + k2 + k3 + k4), passed the 1% halving test above)."""
-    from fourwis.envs.vehicle import S_X
+    from fourwis.envs.layout import S_X
 
     state = initial_state(P, 20.0)
     state[0, S_DELTA_F] = 0.05

@@ -25,6 +25,7 @@ from fourwis.control.allocation import wheel_force_map
 from fourwis.control.reference import PhasePlaneRegion, reference_yaw_rate
 from fourwis.core.checks import import_factory, is_integer, is_number
 from fourwis.envs.fmvss126 import characterise
+from fourwis.envs.layout import A_AY, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_X, S_Y
 from fourwis.envs.metrics import (
     alongside_path,
     cone_hits,
@@ -41,7 +42,6 @@ from fourwis.envs.metrics import (
 from fourwis.envs.scenarios import SCENARIOS, make_scenario
 from fourwis.envs.sensors import Fault
 from fourwis.envs.simulation import Trajectory, simulate
-from fourwis.envs.vehicle import A_AY, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_X, S_Y
 from fourwis.estimation import check_estimator_name
 from fourwis.training.io import atomic_write, atomic_write_text, check_writable, pyplot
 from fourwis.training.pool import check_jobs, parallel_map

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 
 from fourwis.core.constants import GRAVITY
+from fourwis.envs.layout import A_AX, A_AY, A_FZ, A_MU, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_V, S_X, S_Y
 from fourwis.envs.simulation import Trajectory
-from fourwis.envs.vehicle import A_AX, A_AY, A_FZ, A_MU, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_V, S_X, S_Y
 from fourwis.training.io import atomic_write, atomic_write_text, pyplot
 
 WHEELS = ("fl", "fr", "rl", "rr")

@@ -85,7 +85,7 @@ def replay(log10_factors: np.ndarray, traj: Trajectory, kind: str = "alo-fkf") -
             est.reset(reading, np.full(n, traj.scenario.speed))
         e = est.step(reading)
         beta[k], r[k], u[k] = e.beta, e.r, e.u
-        nll += est.last_nll
+        nll += est.state.last_nll
     return Replay(beta, r, u, nll / T)
 
 

@@ -115,7 +115,7 @@ def tyre_curves(load: float, mu: float = 1.0, vehicle=None, points: int = 121) -
     balance; Dugoff's longitudinal stiffness enters only through its combined-slip cut of Fy.)"""
     vehicle = vehicle or VehicleParams()
     p = ModelParams.from_vehicle(vehicle)
-    cx, cy = stiffness(load, p.packed)
+    cx, cy = stiffness(load, p.kernel)
     kappa, alpha = np.linspace(0.0, 0.5, points), np.radians(np.linspace(0.0, 15.0, points))
     fx_plant = tyre_forces(vehicle.tyre, load, kappa, 0.0, mu, vehicle.reference_wheel_load)[0]
     fy_plant = np.abs(tyre_forces(vehicle.tyre, load, 0.0, np.tan(alpha), mu, vehicle.reference_wheel_load)[1])

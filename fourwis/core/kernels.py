@@ -23,9 +23,12 @@ prove that a loop's arrays do not overlap, which it needs before it runs the loo
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib.util
+import inspect
 import os
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numba
@@ -203,3 +206,57 @@ def matmul(A: np.ndarray, B: np.ndarray, out: np.ndarray) -> None:
             a = A[i, k]
             for j in range(B.shape[1]):
                 out[i, j] += a * B[k, j]
+
+
+def bundle_dispatch(name: str, parameters: str):
+    """A function ``name(parameters)`` (e.g. ``"controller, b, sample"``) that runs the
+    implementation registered for the NamedTuple class of its first argument
+    (``@function.register(BundleClass)``, an implementation with the same parameters): how a
+    compiled stage dispatches on the kind of component it is handed. In compiled code the choice is
+    made when the caller compiles and the implementation is inlined into it (one specialisation
+    per bundle type, no branch and no bundle copied at run time); from Python, and with
+    NUMBA_DISABLE_JIT, by the argument's type."""
+    implementations: dict[type, object] = {}
+    first = parameters.split(",")[0].strip()
+    namespace = {"_implementations": implementations}
+    exec(  # (numba matches an overload's parameters by name: the stub is written with the stage's own)
+        f"def {name}({parameters}):\n    return _implementations[type({first})]({parameters})\n"
+        f"def _typing({parameters}):\n    return _implementations.get(getattr({first}, 'instance_class', None))\n",
+        namespace,
+    )
+    dispatcher = namespace[name]
+
+    def register(bundle_class: type):
+        def add(implementation):
+            if list(inspect.signature(implementation).parameters) != [p.strip() for p in parameters.split(",")]:
+                raise TypeError(f"{implementation.__name__} must take ({parameters}), as {name} does")
+            implementations[bundle_class] = implementation
+            return implementation
+
+        return add
+
+    dispatcher.register = register
+    dispatcher.__doc__ = f"{name}({parameters}): dispatched on the type of {first} (:func:`bundle_dispatch`)."
+    overload(dispatcher, jit_options=JIT, inline="always")(namespace["_typing"])
+    return dispatcher
+
+
+@functools.cache
+def _thread_pool(threads: int) -> ThreadPoolExecutor:
+    return ThreadPoolExecutor(threads, thread_name_prefix="fourwis-kernel")
+
+
+os.register_at_fork(after_in_child=_thread_pool.cache_clear)  # (a forked child has none of the parent's threads)
+
+
+def run_parallel(kernel, items: np.ndarray, *args, min_items: int = 2) -> None:
+    """``kernel(part, *args)`` over the parts of ``items`` (int64 (N,)), one part per thread of
+    numba's thread count (``numba.get_num_threads()``, NUMBA_NUM_THREADS) when there are at least
+    ``min_items``, else ``kernel(items, *args)`` on this thread. ``kernel`` must be compiled with
+    ``nogil=True`` and write only to its own items' rows. Python threads rather than numba's
+    ``prange``: a parallel loop cannot take the NamedTuple bundles the kernels are given."""
+    threads = min(numba.get_num_threads(), len(items))
+    if threads < 2 or len(items) < min_items:
+        kernel(items, *args)
+        return
+    list(_thread_pool(threads).map(lambda part: kernel(part, *args), np.array_split(items, threads)))

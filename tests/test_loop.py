@@ -1,20 +1,29 @@
-"""The compiled closed loop (envs.compiled_loop) equals the Python loop it replaces, bit for bit."""
+"""The one closed loop (fourwis.envs.loop): each stage's compiled component equals the same
+component served in Python, bit for bit, and a loop's components take the stage they can."""
 
 import gymnasium as gym
 import numpy as np
 import pytest
 
 import fourwis  # noqa: F401  (registers the environment)
-from fourwis.envs import compiled_loop
+from fourwis.envs import simulation
 from fourwis.envs.gym_env import YawStabilityVectorEnv
+from fourwis.envs.layout import S_R
+from fourwis.envs.loop import STAGES, NoControl, Parts, PlantStage, PythonStage, Stage
 from fourwis.envs.scenarios import make_scenario
 from fourwis.envs.sensors import Fault
-from fourwis.envs.simulation import ClosedLoop, simulate
-from fourwis.envs.vehicle import S_R
+from fourwis.envs.simulation import PER_CAR_PLANT_MAX, ClosedLoop, kernel_parts, simulate
 
 
-def _python_loop(monkeypatch) -> None:
-    monkeypatch.setattr(compiled_loop, "supports", lambda loop: False)
+def _python_stages(monkeypatch) -> None:
+    """Every stage served in Python: each component's own Python call (the plant's step, the
+    sensors' measure, the estimator's step, the controller's call, the drivers' call)."""
+
+    def python(loop):
+        return Parts(*(loop.python_stages[stage] for stage in (Stage.CONTROL, Stage.PLANT, Stage.SENSE,
+                                                                Stage.ESTIMATE, Stage.STEER, Stage.SPEED)))  # fmt: skip
+
+    monkeypatch.setattr(simulation, "kernel_parts", python)
 
 
 def _episode_record(make, steps: int) -> list:
@@ -42,6 +51,11 @@ def _assert_same(first: list, second: list) -> None:
         np.testing.assert_array_equal(a, b)
 
 
+def test_the_stages_run_in_one_declared_order():
+    assert STAGES == (Stage.CONTROL, Stage.PLANT, Stage.SENSE, Stage.ESTIMATE, Stage.STEER, Stage.SPEED)
+    assert set(simulation._SERVERS) == set(STAGES)  # (each stage has its Python server, and only that)
+
+
 @pytest.mark.parametrize(
     "kwargs",
     [
@@ -51,71 +65,74 @@ def _assert_same(first: list, second: list) -> None:
         {"scenario": "sine_with_dwell", "observation": "true"},  # the FMVSS 126 verdict from the steps' series
     ],
 )
-def test_single_env_steps_equal_the_python_loop(kwargs, monkeypatch):
+def test_single_env_steps_equal_the_python_stages(kwargs, monkeypatch):
     def make():
         return gym.make("fourwis:FourWIS/YawStability-v0", max_episode_steps=120, **kwargs)
 
     env = make()
     env.reset(seed=0)
-    assert compiled_loop.supports(env.unwrapped._core.loop)
+    assert not any(isinstance(part, PythonStage) for part in kernel_parts(env.unwrapped._core.loop))
     compiled = _episode_record(make, 300)  # 3,000 sensor samples: every car refills its noise block
-    _python_loop(monkeypatch)
+    _python_stages(monkeypatch)
     _assert_same(compiled, _episode_record(make, 300))
 
 
-def test_vector_env_with_autoresets_equals_the_python_loop(monkeypatch):
+@pytest.mark.parametrize("num_envs", [3, PER_CAR_PLANT_MAX + 3])
+def test_vector_env_with_autoresets_equals_the_python_stages(num_envs, monkeypatch):
     def run() -> list:
-        env = YawStabilityVectorEnv(num_envs=3, max_episode_steps=70, scenario_kwargs={"course_share": 0.5})
+        env = YawStabilityVectorEnv(num_envs=num_envs, max_episode_steps=70, scenario_kwargs={"course_share": 0.5})
         obs, _ = env.reset(seed=11)
         rng = np.random.default_rng(2)
         seen, ends = [obs], 0
-        for _ in range(200):
-            obs, reward, terminated, truncated, info = env.step(rng.uniform(-1, 1, (3, 2)).astype(np.float32))
+        for _ in range(160):
+            obs, reward, terminated, truncated, info = env.step(rng.uniform(-1, 1, (num_envs, 2)).astype(np.float32))
             seen += [obs, reward, terminated, truncated, info["estimate"].mu]
             ends += int(np.count_nonzero(terminated | truncated))
-        assert ends >= 6  # (the held cars of the next-step resets are exercised)
+        assert ends >= 2 * num_envs  # (the held cars of the next-step resets are exercised)
         return seen
 
     compiled = run()
-    _python_loop(monkeypatch)
+    _python_stages(monkeypatch)
     _assert_same(compiled, run())
 
 
-def test_loops_the_compiled_path_cannot_run_take_the_python_loop():
+def test_each_component_takes_the_compiled_stage_it_can():
     scenario = make_scenario("paper_sine")
-    assert compiled_loop.supports(ClosedLoop(scenario, None, "joint", np.random.default_rng(0)))
+    plain = ClosedLoop(scenario, None, "joint", np.random.default_rng(0))
+    assert isinstance(kernel_parts(plain).estimator, PythonStage)  # (before its first reset: no vehicle reads it)
+    plain.sample()
+    parts = kernel_parts(plain)
+    assert isinstance(parts.controller, NoControl) and isinstance(parts.plant, PlantStage)
+    assert not any(isinstance(part, PythonStage) for part in parts)
     faulty = ClosedLoop(scenario, None, "joint", np.random.default_rng(0), faults=(Fault("yaw_rate", "stuck", 1.0),))
-    assert not compiled_loop.supports(faulty)
-    batch = compiled_loop.MAX_BATCH + 1
+    faulty.sample()
+    assert [isinstance(part, PythonStage) for part in kernel_parts(faulty)] == [False, False, True, False, False, False]
+    bumpy = make_scenario("paper_sine", mu=lambda x, y: np.full_like(x, 0.7))  # a callable friction map
+    assert isinstance(kernel_parts(ClosedLoop(bumpy, None, "oracle", np.random.default_rng(0))).plant, PythonStage)
+    batch = PER_CAR_PLANT_MAX + 1  # (the plant of a large batch steps all cars at once, in lanes)
     many = ClosedLoop([scenario] * batch, None, "oracle", [np.random.default_rng(b) for b in range(batch)])
-    assert not compiled_loop.supports(many)
+    assert isinstance(kernel_parts(many).plant, PythonStage)
     for bad in ({"n": 0}, {"n": 2.5}, {"n": 1, "records": "yes"}, {"n": 1, "moving": np.ones(batch)}):
         with pytest.raises(ValueError, match=next(iter(k for k in bad if k != "n"), "n")):
             many.advance_steps(**bad)
     assert many.advance_steps(1, records=False) is None
-    records = many.advance_steps(3)  # (the Python loop's records)
+    records = many.advance_steps(3)
     assert records.state.shape[:2] == (3, batch) and np.all(records.t[:, 0] == [0.002, 0.004, 0.006])
     np.testing.assert_array_equal(many.state[:, S_R], many.sample().truth.r)
 
 
-def test_a_controller_or_estimator_that_only_looks_like_the_compiled_ones_takes_the_python_loop(monkeypatch):
-    from dataclasses import replace
-
+def test_a_controller_that_only_looks_like_a_compiled_one_is_served_in_python(monkeypatch):
     from fourwis.control import StabilityController
     from fourwis.envs.gym_env import AgentController
 
-    class Gentler(StabilityController):  # a user's change to the DYC: the Python loop runs it
+    class Gentler(StabilityController):  # a user's change to the DYC: served in Python
         pass
 
-    dyc = ClosedLoop(
-        make_scenario("paper_sine"),
-        Gentler(make_scenario("paper_sine").vehicle_params),
-        "joint",
-        np.random.default_rng(0),
-    )
-    assert not compiled_loop.supports(dyc)
+    params = make_scenario("paper_sine").vehicle_params
+    dyc = ClosedLoop(make_scenario("paper_sine"), Gentler(params), "joint", np.random.default_rng(0))
+    assert isinstance(kernel_parts(dyc).controller, PythonStage)
 
-    class Braking(AgentController):  # (inherits kernel_form, but commands something else)
+    class Braking(AgentController):  # (inherits kernel(), but commands something else)
         def __call__(self, t, estimate, front_steer, base_torques):
             command = super().__call__(t, estimate, front_steer, base_torques)
             return command._replace(torques=command.torques - 300.0)
@@ -124,41 +141,43 @@ def test_a_controller_or_estimator_that_only_looks_like_the_compiled_ones_takes_
     env.reset(seed=0)
     loop = env.unwrapped._core.loop
     loop.controller = Braking(loop.params, env.unwrapped.config, 1)
-    assert not compiled_loop.supports(loop)
+    assert isinstance(kernel_parts(loop).controller, PythonStage)
 
-    def run() -> list:  # a StateEstimator that asks for the truth still reports its own estimate
+
+def test_a_state_estimator_that_asks_for_the_truth_reports_its_own_estimate(monkeypatch):
+    from dataclasses import replace
+
+    def run() -> list:
         scenario = make_scenario("paper_sine")
         loop = ClosedLoop(scenario, None, "joint", np.random.default_rng(0))
         loop.estimator = replace(loop.estimator, needs_truth=True)
         loop._needs_truth = True
-        loop.estimator.reset(loop.sample().reading, np.array([scenario.speed]))
         return [*loop.advance_steps(20).estimate, *loop.sample().estimate]
 
     compiled = run()
-    _python_loop(monkeypatch)
+    _python_stages(monkeypatch)
     _assert_same(compiled, run())
 
 
 @pytest.mark.parametrize(
     "break_it, error, match",
     [
-        (lambda loop: loop.estimator.P.fill(np.nan), ValueError, "the joint filter of vehicle 0 failed"),
+        (lambda loop: loop.estimator.state.P.fill(np.nan), ValueError, "the joint filter of vehicle 0 failed"),
         (lambda loop: loop.state.__setitem__((0, S_R), np.nan), ValueError, r"state\[0\] has a non-finite value"),
     ],
 )
-def test_failures_raise_the_python_loops_errors(break_it, error, match, monkeypatch):
-    def failure() -> tuple[str, bool]:
+def test_failures_raise_the_same_error_compiled_or_in_python(break_it, error, match, monkeypatch):
+    def failure() -> str:
         loop = ClosedLoop(make_scenario("paper_sine"), None, "joint", np.random.default_rng(0))
         loop.advance_steps(5)
         break_it(loop)
         with pytest.raises(error, match=match) as caught:
             loop.advance_steps(5)
-        return str(caught.value), bool(loop._stale.all())
+        return str(caught.value)
 
-    compiled, resense = failure()
-    assert resense  # (the compiled loop's next sample senses the vehicles where they stopped)
-    _python_loop(monkeypatch)
-    assert failure()[0] == compiled
+    compiled = failure()
+    _python_stages(monkeypatch)
+    assert failure() == compiled
 
 
 @pytest.mark.parametrize(
@@ -171,9 +190,9 @@ def test_failures_raise_the_python_loops_errors(break_it, error, match, monkeypa
         ("paper_step", "dyc-lqr-4ws", "ckf"),
     ],
 )
-def test_simulate_equals_the_python_loop(scenario, controller, estimator, monkeypatch):
+def test_simulate_equals_the_python_stages(scenario, controller, estimator, monkeypatch):
     compiled = simulate(scenario, controller, estimator, seed=2)
-    _python_loop(monkeypatch)
+    _python_stages(monkeypatch)
     python = simulate(scenario, controller, estimator, seed=2)
     for name in ("t", "state", "aux", "controls", "steering_wheel", "sensors", "sensor_valid"):
         np.testing.assert_array_equal(getattr(compiled, name), getattr(python, name))
@@ -184,30 +203,22 @@ def test_simulate_equals_the_python_loop(scenario, controller, estimator, monkey
         assert np.any(compiled.controls[:, :4] != compiled.controls[:, :1])
 
 
-def test_the_dyc_hands_over_between_the_loops_mid_run(monkeypatch):
-    """The controller's memory (lagged reference, rear angle, delivered moment, allocation) is
-    one array that both loops update: compiled, Python, compiled again equals Python throughout,
-    on two cars of which one, turning, is held for a while: its memory stands still in both."""
-    from fourwis.control import StabilityController
-    from fourwis.control.dyc import M_REFERENCE
+def test_the_dyc_hands_over_between_compiled_and_python_mid_run(monkeypatch):
+    """The controller's memory (lagged reference, rear angle, delivered moment, allocation) is one
+    bundle that both the compiled stage and the controller's Python call update: compiled, then
+    Python, then compiled again equals Python throughout."""
 
     def run(switch: bool) -> list:
         scenarios = [make_scenario("paper_step", mu=0.4), make_scenario("mu_jump")]
         loop = ClosedLoop(scenarios, "dyc-smc-4ws", "joint", [np.random.default_rng(b) for b in range(2)])
-        assert isinstance(loop.controller, StabilityController) and compiled_loop.supports(loop)
         if not switch:
-            monkeypatch.setattr(compiled_loop, "supports", lambda loop: False)
-        seen = [*loop.advance_steps(900)]  # then car 1 held in its turn (the compiled records leave its rows NaN):
-        memory = loop.controller.kernel_arrays(2)[-1]
-        assert abs(memory[1, M_REFERENCE]) > 0.05  # (turning: a held step of the law would move it)
-        held_row = memory[1].copy()
-        seen += [leaf[:, 0] for leaf in _leaves(loop.advance_steps(150, moving=np.array([True, False])))]
-        np.testing.assert_array_equal(memory[1], held_row)
-        monkeypatch.setattr(compiled_loop, "supports", lambda loop: False)
+            _python_stages(monkeypatch)
+        seen = [*loop.advance_steps(900)]
+        _python_stages(monkeypatch)
         seen += [loop.advance() for _ in range(30)]
         monkeypatch.undo()
         if not switch:
-            monkeypatch.setattr(compiled_loop, "supports", lambda loop: False)
+            _python_stages(monkeypatch)
         seen += [*loop.advance_steps(300), loop.controller.last_allocation]
         monkeypatch.undo()
         return [np.asarray(leaf) for leaf in _leaves(seen)]
@@ -215,9 +226,22 @@ def test_the_dyc_hands_over_between_the_loops_mid_run(monkeypatch):
     _assert_same(run(True), run(False))
 
 
+def test_a_held_car_s_dyc_memory_stands_still():
+    scenarios = [make_scenario("paper_step", mu=0.4), make_scenario("mu_jump")]
+    loop = ClosedLoop(scenarios, "dyc-smc-4ws", "joint", [np.random.default_rng(b) for b in range(2)])
+    loop.advance_steps(900)
+    memory = loop.controller.kernel(2).memory
+    assert abs(memory.reference[1]) > 0.05  # (turning: a held step of the law would move it)
+    held = [np.array(field[1]) for field in (memory.reference, memory.rear, memory.previous_reference)]
+    records = loop.advance_steps(150, moving=np.array([True, False]))
+    assert np.isnan(records.state[:, 1]).all() and not np.isnan(records.state[:, 0]).any()
+    for before, field in zip(held, (memory.reference, memory.rear, memory.previous_reference)):
+        np.testing.assert_array_equal(field[1], before)
+
+
 def test_the_dyc_allocates_with_its_own_vehicle_parameters(monkeypatch):
     """A controller designed for other motors than the plant's (150 N m, a heavier car) commands the
-    same torques in both loops: its own limits, never more than 150 N m."""
+    same torques compiled and in Python: its own limits, never more than 150 N m."""
     from dataclasses import replace
 
     from fourwis.control import StabilityController
@@ -231,21 +255,20 @@ def test_the_dyc_allocates_with_its_own_vehicle_parameters(monkeypatch):
 
     compiled = run()
     assert np.max(np.abs(compiled[:, :4])) <= 150.0 + 1e-9
-    _python_loop(monkeypatch)
+    _python_stages(monkeypatch)
     np.testing.assert_array_equal(compiled, run())
 
 
 def test_a_reset_member_restarts_the_dyc_memory_of_that_car_only():
-    from fourwis.control.dyc import M_DELIVERED, M_REFERENCE
-
     scenarios = [make_scenario("paper_sine"), make_scenario("paper_step")]
     loop = ClosedLoop(scenarios, "dyc-lqr", "joint", [np.random.default_rng(b) for b in range(2)])
     loop.advance_steps(800)
-    memory = loop.controller.kernel_arrays(2)[-1]
-    kept = memory[0].copy()
+    memory = loop.controller.kernel(2).memory
+    kept = [np.array(field[0]) for field in (memory.reference, memory.delivered, memory.allocation.torques)]
     loop.reset_members(np.array([False, True]), [make_scenario("paper_step")], [np.random.default_rng(5)])
-    np.testing.assert_array_equal(memory[0], kept)
-    assert np.isnan(memory[1, M_REFERENCE]) and memory[1, M_DELIVERED] == 0.0
+    for before, field in zip(kept, (memory.reference, memory.delivered, memory.allocation.torques)):
+        np.testing.assert_array_equal(field[0], before)
+    assert np.isnan(memory.reference[1]) and memory.delivered[1] == 0.0
 
 
 def _leaves(tree) -> list:
@@ -255,17 +278,15 @@ def _leaves(tree) -> list:
     return [tree]
 
 
-def test_a_dyc_failure_raises_the_python_loops_error(monkeypatch):
-    from fourwis.control.dyc import M_DELIVERED
-
+def test_a_dyc_failure_raises_the_same_error_compiled_or_in_python(monkeypatch):
     def failure() -> str:
         loop = ClosedLoop(make_scenario("paper_step"), "dyc-lqr", "oracle", np.random.default_rng(0))
         loop.advance_steps(5)
-        loop.controller.kernel_arrays(1)[-1][:, M_DELIVERED] = np.nan  # a corrupted memory: the LQR's moment is NaN
+        loop.controller.kernel(1).memory.delivered[:] = np.nan  # a corrupted memory: the LQR's moment is NaN
         with pytest.raises(ValueError, match=r"yaw moment must be finite, got \[nan\]") as caught:
             loop.advance_steps(5)
         return str(caught.value)
 
     compiled = failure()
-    _python_loop(monkeypatch)
+    _python_stages(monkeypatch)
     assert failure() == compiled

@@ -1,0 +1,503 @@
+"""The closed loop's stages, in the one order every step runs them, as one compiled loop.
+
+Each 2 ms step of each vehicle runs :data:`STAGES` in order: the controller's command (and the
+step's record), one RK4 step of the plant, the sensors' reading (with the truth), the
+estimator's step, the steering driver and the speed driver. Between two steps the vehicle rests
+at CONTROL with its sample complete (what :meth:`fourwis.envs.simulation.ClosedLoop.sample`
+returns).
+
+Each stage is written once, here, and runs the component it is handed: a component with a
+compiled form hands itself over as a named bundle (``component.kernel()``: the plant's
+:class:`PlantStage`, the sensors' :class:`fourwis.envs.sensors.SensorKernel`, the estimator's
+:class:`fourwis.estimation.joint.FilterKernel` or the oracle's, the controller's
+:class:`fourwis.control.dyc.DycKernel` or :class:`HeldAction`, the drivers'
+:class:`fourwis.envs.driver.DriverTables`); a component without one (a user's Python estimator
+or controller, sensor faults, a callable friction map, a user's driver) is :class:`PythonStage`,
+and the vehicle stops there: Python serves every vehicle waiting at that stage in one batched
+call to the component and the loop resumes. A stage dispatches on its component's bundle type
+when the loop compiles (:func:`fourwis.core.kernels.bundle_dispatch`), so the loop has no branch
+on kinds at run time and compiles only the combinations a run uses.
+
+Vehicles run one after another through their stages (shared among numba's thread count of
+Python threads for batches of 2 or more); a vehicle also stops for Python to refill its sensor
+noise, to add a path follower's preview responses, or to reset its estimator.
+"""
+
+from __future__ import annotations
+
+import enum
+import functools
+import math
+from typing import NamedTuple
+
+import numba
+import numpy as np
+
+from fourwis.control.allocation import Allocation, AllocationInputs, AllocatorLimits, allocation_kernel
+from fourwis.control.dyc import DycKernel, stability_command
+from fourwis.core.kernels import JIT, bundle_dispatch, run_parallel, scratch
+from fourwis.core.types import Estimate, SensorReading
+from fourwis.envs.driver import DRIVEN, NEEDS_PREVIEW, DriverTables, drive
+from fourwis.envs.layout import A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NAUX, NU, NX, S_R, S_U, S_V
+from fourwis.envs.road import RoadTables
+from fourwis.envs.sensors import BLOCK_USED_UP, TRUE_AUX_COLUMNS, TRUE_STATE_COLUMNS, SensorKernel, noisy_readings
+from fourwis.envs.vehicle import Plant, advance_block, sideslip
+from fourwis.estimation.joint import OK, FilterKernel, step_vehicle
+from fourwis.estimation.oracle import TruthKernel
+
+
+class Stage(enum.IntEnum):
+    """The stages of a step, in their order (:data:`STAGES`)."""
+
+    CONTROL = 0  #: the controller's command into the controls; the step's record
+    PLANT = 1  #: one RK4 step of the plant; the clock advances
+    SENSE = 2  #: the truth and the sensors' reading at the new state
+    ESTIMATE = 3  #: the estimator's step on the reading (its reset first, for a new vehicle)
+    STEER = 4  #: the steering driver: steering-wheel angle, and the front road-wheel angle it commands
+    SPEED = 5  #: the speed driver: the base wheel torques
+
+
+STAGES = tuple(Stage)  #: the one stage order
+
+
+class Status(enum.IntEnum):
+    """Why a vehicle's run through its stages stopped."""
+
+    DONE = 0  #: it has run its steps (it rests at CONTROL)
+    WAITING = 1  #: its component at this stage is Python's (:class:`PythonStage`)
+    NEEDS_NOISE = 2  #: its sensors' noise block is used up
+    NEEDS_PREVIEW = 3  #: its path follower needs preview responses at a new speed (value: 0.1 m/s)
+    NEEDS_RESET = 4  #: its estimator is to be reset (a new vehicle)
+    BAD_TRUTH = 5  #: a true value is not finite (value: the channel)
+    ESTIMATOR_FAILED = 6  #: value: the estimator's status
+    ALLOCATION_FAILED = 7  #: value: the allocator's status
+    TOO_FAST_FOR_RELAXATION = 8  #: the tyres relax too fast for RK4 at this step
+    PLANT_FAILED = 9  #: value: the plant's status
+    BAD_FOLLOWER_STATE = 10  #: the path follower cannot steer from the state
+
+
+class PythonStage(NamedTuple):
+    """A stage whose component runs in Python: ``served`` (B,) bool marks the vehicles Python has
+    served at this stage since they stopped there."""
+
+    served: np.ndarray
+
+
+class NoControl(NamedTuple):
+    """No stability controller: the driver's commands go to the car as they are."""
+
+
+class HeldAction(NamedTuple):
+    """A held agent action (B, n) in [-1, 1] as a controller: with ``yaw_moment``, action 0 scaled
+    by ``max_yaw_moment`` [N m] is a corrective yaw moment allocated over the wheels (and action 1,
+    if there is one, scaled by ``max_rear_steer`` [rad], the rear steer); else the actions scaled
+    by the motors' peak torque are added to the base wheel torques."""
+
+    action: np.ndarray
+    yaw_moment: bool
+    max_yaw_moment: float
+    max_rear_steer: float
+    limits: AllocatorLimits
+
+
+class PlantStage(NamedTuple):
+    """The plant as the loop runs it per vehicle: the car, each vehicle's road, and the speed
+    [m/s] beyond which its tyres relax too fast for RK4 at this step (contact-point speeds
+    bounded with ``reach`` [m], the farthest contact point's distance from the CG)."""
+
+    plant: Plant
+    road: RoadTables
+    relaxation_speed: float
+    reach: float
+
+
+class Sample(NamedTuple):
+    """What a closed loop knows at its current time, before the controller acts (B vehicles):
+    t (B,) [s]; the sensors' reading; the truth and the estimate (:class:`Estimate` of B rows);
+    the driver's steering-wheel angle (B,) [rad], the front road-wheel angle it commands within
+    the steering's lock (B,) [rad], and the speed-holding driver's wheel torques (B, 4) [N m]."""
+
+    t: np.ndarray
+    reading: SensorReading
+    truth: Estimate
+    estimate: Estimate
+    steering_wheel: np.ndarray
+    front_steer: np.ndarray
+    base_torques: np.ndarray
+
+
+class StepRecord(NamedTuple):
+    """Samples of a closed loop, taken before the plant advances: t, state (NX), aux (NAUX),
+    controls (NU) applied, steering_wheel, reading, truth, estimate, each with the leading axes
+    (n, B) of n steps of B vehicles (or (B,) for one step)."""
+
+    t: np.ndarray
+    state: np.ndarray
+    aux: np.ndarray
+    controls: np.ndarray
+    steering_wheel: np.ndarray
+    reading: SensorReading
+    truth: Estimate
+    estimate: Estimate
+
+
+class Cars(NamedTuple):
+    """Each vehicle's place in the loop (B rows): plant state (B, NX), diagnostics at it (B, NAUX)
+    and the controls last applied (B, NU); steps since its start k (B,); the stage it runs next
+    (B,) (:class:`Stage`); whether its estimator is to be reset (B,) bool; its true measured
+    quantities (B, 13) in the sensor channels' order and its speed driver's wheel torque (B,)."""
+
+    state: np.ndarray
+    aux: np.ndarray
+    controls: np.ndarray
+    k: np.ndarray
+    stage: np.ndarray
+    fresh: np.ndarray
+    sensed: np.ndarray
+    drive_torque: np.ndarray
+
+
+class Call(NamedTuple):
+    """One run of the loop: the steps to go ``n`` and, with ``final``, a control and record at the
+    end without a plant step; each vehicle's steps done (B,), status (B,) (:class:`Status`) and
+    its value (B,), and the state a failed plant step reached (B, NX)."""
+
+    n: int
+    final: bool
+    progress: np.ndarray
+    status: np.ndarray
+    value: np.ndarray
+    reached: np.ndarray
+
+
+class Parts(NamedTuple):
+    """The loop's components, each its compiled bundle or :class:`PythonStage`."""
+
+    controller: object
+    plant: object
+    sensors: object
+    estimator: object
+    steering: object
+    speed: object
+
+
+class Timing(NamedTuple):
+    """The loop's step dt [s], the steering ratio [-] and the front steer limit [rad]."""
+
+    dt: float
+    steering_ratio: float
+    max_front_steer: float
+
+
+#: the stages' compiled forms: each returns Status.DONE or why the vehicle stops (``value`` in
+#: ``call.value[b]``)
+command = bundle_dispatch("command", "controller, b, sample, cars, call")
+integrate = bundle_dispatch("integrate", "plant, b, cars, call, dt")
+sense = bundle_dispatch("sense", "sensors, b, cars, sample, call")
+estimate_stage = bundle_dispatch("estimate_stage", "estimator, b, sample, call")
+steer = bundle_dispatch("steer", "drivers, b, sample, cars, call")
+speed_hold = bundle_dispatch("speed_hold", "drivers, b, sample, cars, call")
+
+
+@numba.njit(inline="always", **JIT)
+def _served(stage: PythonStage, b: int) -> int:
+    """A Python stage's status for vehicle b: done once served (and the mark used up), else waiting."""
+    if stage.served[b]:
+        stage.served[b] = False
+        return Status.DONE
+    return Status.WAITING
+
+
+@command.register(PythonStage)
+def _python_control(controller, b, sample, cars, call):
+    return _served(controller, b)
+
+
+@integrate.register(PythonStage)
+def _python_plant(plant, b, cars, call, dt):
+    return _served(plant, b)
+
+
+@sense.register(PythonStage)
+def _python_sensors(sensors, b, cars, sample, call):
+    return _served(sensors, b)
+
+
+@estimate_stage.register(PythonStage)
+def _python_estimator(estimator, b, sample, call):
+    return _served(estimator, b)
+
+
+@steer.register(PythonStage)
+@speed_hold.register(PythonStage)
+def _python_driver(drivers, b, sample, cars, call):
+    return _served(drivers, b)
+
+
+@numba.njit(inline="always", **JIT)
+def base_controls(b: int, sample: Sample, controls: np.ndarray) -> None:
+    """Vehicle b's controls (NU,) as the driver gives them: base torques and front steer."""
+    controls[:] = 0.0
+    for w in range(4):
+        controls[C_TORQUE + w] = sample.base_torques[b, w]
+    controls[C_DELTA_F] = sample.front_steer[b]
+
+
+@command.register(NoControl)
+def _no_control(controller, b, sample, cars, call):
+    base_controls(b, sample, cars.controls[b])
+    return Status.DONE
+
+
+@command.register(HeldAction)
+def _held_action(controller, b, sample, cars, call):
+    controls = cars.controls[b]
+    base_controls(b, sample, controls)
+    action, limit = controller.action, controller.limits.motor_peak_torque
+    if not controller.yaw_moment:
+        for w in range(4):
+            controls[C_TORQUE + w] = min(max(sample.base_torques[b, w] + action[b, w] * limit, -limit), limit)
+        return Status.DONE
+    row, estimate = slice(b, b + 1), sample.estimate
+    rear, yaw, lateral = scratch((1,)), scratch((1,)), scratch((1, 4))
+    yaw[0] = action[b, 0] * controller.max_yaw_moment
+    rear[0] = action[b, 1] * controller.max_rear_steer if action.shape[1] == 2 else 0.0
+    lateral[:, :] = 0.0
+    out = Allocation(scratch((1, 4)), scratch((1,)), scratch((1,)), scratch((1,), np.bool_))
+    bad = allocation_kernel(
+        AllocationInputs(sample.base_torques[row], yaw, estimate.fz[row], estimate.mu[row], lateral,
+                         estimate.u[row], sample.front_steer[row], rear),
+        controller.limits,
+        out,
+    )  # fmt: skip
+    if bad:
+        call.value[b] = bad
+        return Status.ALLOCATION_FAILED
+    for w in range(4):
+        controls[C_TORQUE + w] = out.torques[0, w]
+    controls[C_DELTA_R] = rear[0]
+    return Status.DONE
+
+
+@command.register(DycKernel)
+def _dyc(controller, b, sample, cars, call):
+    controls = cars.controls[b]
+    base_controls(b, sample, controls)
+    bad = stability_command(controller, b, sample.estimate, sample.front_steer[b], sample.base_torques[b])
+    if bad:
+        call.value[b] = bad
+        return Status.ALLOCATION_FAILED
+    for w in range(4):
+        controls[C_TORQUE + w] = controller.memory.allocation.torques[b, w]
+    controls[C_DELTA_R] = controller.memory.rear[b]
+    return Status.DONE
+
+
+@integrate.register(PlantStage)
+def _plant_step(plant, b, cars, call, dt):
+    x = cars.state
+    if math.hypot(x[b, S_U], x[b, S_V]) + abs(x[b, S_R]) * plant.reach > plant.relaxation_speed:
+        return Status.TOO_FAST_FOR_RELAXATION
+    row = slice(b, b + 1)
+    road = RoadTables(plant.road.base_mu[row], plant.road.rects[row], plant.road.mu_given[row], plant.road.use_map)
+    state, status = x[row].copy(), scratch((1,), np.int64)
+    status[0] = 0
+    advance_block(state, cars.controls[row], plant.plant, road, dt, 1, cars.aux[row], status)
+    if status[0]:
+        call.reached[b, :] = state[0]
+        call.value[b] = status[0]
+        return Status.PLANT_FAILED
+    x[b, :] = state[0]
+    return Status.DONE
+
+
+@sense.register(SensorKernel)
+def _sensors(sensors, b, cars, sample, call):
+    rows = scratch((1,), np.int64)
+    rows[0] = b
+    found = noisy_readings(sensors, cars.sensed[b : b + 1], rows, sample.reading.values[b : b + 1])
+    if found == BLOCK_USED_UP:
+        return Status.NEEDS_NOISE
+    if found >= 0:
+        call.value[b] = found
+        return Status.BAD_TRUTH
+    return Status.DONE
+
+
+@estimate_stage.register(FilterKernel)
+def _filter(estimator, b, sample, call):
+    status = step_vehicle(estimator, b, sample.reading, sample.estimate, b)
+    if status != OK:
+        call.value[b] = status
+        return Status.ESTIMATOR_FAILED
+    return Status.DONE
+
+
+@estimate_stage.register(TruthKernel)
+def _truth(estimator, b, sample, call):
+    copy_estimate_row(sample.truth, b, sample.estimate, b)
+    return Status.DONE
+
+
+@numba.njit(inline="always", **JIT)
+def _driver(drivers, b, sample, cars, call, out):
+    code, found = drive(drivers, b, sample.t, cars.state, out)
+    if code == DRIVEN:
+        return Status.DONE
+    call.value[b] = found
+    return Status.NEEDS_PREVIEW if code == NEEDS_PREVIEW else Status.BAD_FOLLOWER_STATE
+
+
+@steer.register(DriverTables)
+def _steering(drivers, b, sample, cars, call):
+    return _driver(drivers, b, sample, cars, call, sample.steering_wheel)
+
+
+@speed_hold.register(DriverTables)
+def _speed(drivers, b, sample, cars, call):
+    return _driver(drivers, b, sample, cars, call, cars.drive_torque)
+
+
+@numba.njit(inline="always", **JIT)
+def copy_estimate_row(source: Estimate, i: int, target: Estimate, j: int) -> None:
+    """Row i of ``source`` into row j of ``target``."""
+    target.u[j], target.v[j], target.beta[j], target.r[j] = source.u[i], source.v[i], source.beta[i], source.r[i]
+    target.ax[j], target.ay[j], target.beta_std[j] = source.ax[i], source.ay[i], source.beta_std[i]
+    for w in range(4):
+        target.mu[j, w], target.fz[j, w], target.mu_std[j, w] = source.mu[i, w], source.fz[i, w], source.mu_std[i, w]
+
+
+@numba.njit(inline="always", **JIT)
+def measure_truth(b: int, state: np.ndarray, aux: np.ndarray, sensed: np.ndarray, truth: Estimate) -> None:
+    """Vehicle b's true measured quantities (13,) into ``sensed[b]`` (the sensor channels' order)
+    and its true state in estimator form into row b of ``truth`` (zero sigmas)."""
+    for c in range(2):
+        sensed[b, c] = aux[b, TRUE_AUX_COLUMNS[c]]
+    for c in range(11):
+        sensed[b, 2 + c] = state[b, TRUE_STATE_COLUMNS[c]]
+    truth.u[b], truth.v[b], truth.r[b] = state[b, S_U], state[b, S_V], state[b, S_R]
+    truth.beta[b] = sideslip(state[b, S_U], state[b, S_V])
+    truth.ax[b], truth.ay[b], truth.beta_std[b] = aux[b, A_AX], aux[b, A_AY], 0.0
+    for w in range(4):
+        truth.mu[b, w], truth.fz[b, w], truth.mu_std[b, w] = aux[b, A_MU + w], aux[b, A_FZ + w], 0.0
+
+
+@numba.njit(**JIT)
+def measure_truths(state: np.ndarray, aux: np.ndarray, sensed: np.ndarray, truth: Estimate) -> None:
+    """:func:`measure_truth` of every vehicle of ``state`` (B, NX) and ``aux`` (B, NAUX)."""
+    for b in range(state.shape[0]):
+        measure_truth(b, state, aux, sensed, truth)
+
+
+@numba.njit(inline="always", **JIT)
+def _record(records: StepRecord, s: int, b: int, sample: Sample, cars: Cars) -> None:
+    """Vehicle b's sample, plant state, diagnostics and controls as step s of ``records``."""
+    records.t[s, b], records.steering_wheel[s, b] = sample.t[b], sample.steering_wheel[b]
+    records.state[s, b, :] = cars.state[b]
+    records.aux[s, b, :] = cars.aux[b]
+    records.controls[s, b, :] = cars.controls[b]
+    records.reading.values[s, b, :] = sample.reading.values[b]
+    records.reading.valid[s, b, :] = sample.reading.valid[b]
+    records.reading.t[s, b] = sample.t[b]
+    _record_estimate(sample.truth, b, records.truth, s)
+    _record_estimate(sample.estimate, b, records.estimate, s)
+
+
+@numba.njit(inline="always", **JIT)
+def _record_estimate(source: Estimate, b: int, target: Estimate, s: int) -> None:
+    """Row b of ``source`` as step s, vehicle b of the stacked ``target``."""
+    target.u[s, b], target.v[s, b], target.beta[s, b], target.r[s, b] = (
+        source.u[b],
+        source.v[b],
+        source.beta[b],
+        source.r[b],
+    )
+    target.ax[s, b], target.ay[s, b], target.beta_std[s, b] = source.ax[b], source.ay[b], source.beta_std[b]
+    target.mu[s, b, :], target.fz[s, b, :], target.mu_std[s, b, :] = source.mu[b], source.fz[b], source.mu_std[b]
+
+
+@numba.njit(**JIT)
+def _run_car(b, call: Call, cars: Cars, sample: Sample, parts: Parts, timing: Timing, records: StepRecord) -> None:
+    """Vehicle b's stages from where it stands up to ``call.n`` steps (see the module docstring);
+    sets ``call.status[b]`` (and ``call.value[b]``)."""
+    while True:
+        stage = cars.stage[b]
+        status = Status.DONE
+        if stage == Stage.CONTROL:
+            if call.progress[b] >= call.n and not (call.final and call.progress[b] == call.n):
+                call.status[b] = Status.DONE
+                return
+            status = command(parts.controller, b, sample, cars, call)
+            if status == Status.DONE and records.t.shape[0]:
+                _record(records, call.progress[b], b, sample, cars)
+            if status == Status.DONE and call.progress[b] == call.n:  # (the final control: no plant step)
+                call.progress[b] += 1
+                call.status[b] = Status.DONE
+                return
+        elif stage == Stage.PLANT:
+            status = integrate(parts.plant, b, cars, call, timing.dt)
+            if status == Status.DONE:
+                cars.k[b] += 1
+                sample.t[b] = cars.k[b] * timing.dt
+                call.progress[b] += 1
+        elif stage == Stage.SENSE:
+            measure_truth(b, cars.state, cars.aux, cars.sensed, sample.truth)
+            for c in range(cars.sensed.shape[1]):
+                if not math.isfinite(cars.sensed[b, c]):
+                    call.value[b] = c
+                    status = Status.BAD_TRUTH
+                    break
+            if status == Status.DONE:
+                status = sense(parts.sensors, b, cars, sample, call)
+        elif stage == Stage.ESTIMATE:
+            status = Status.NEEDS_RESET if cars.fresh[b] else estimate_stage(parts.estimator, b, sample, call)
+        elif stage == Stage.STEER:
+            status = steer(parts.steering, b, sample, cars, call)
+            if status == Status.DONE:
+                delta = sample.steering_wheel[b] / timing.steering_ratio
+                sample.front_steer[b] = min(max(delta, -timing.max_front_steer), timing.max_front_steer)
+        else:
+            status = speed_hold(parts.speed, b, sample, cars, call)
+            if status == Status.DONE:
+                for w in range(4):
+                    sample.base_torques[b, w] = cars.drive_torque[b]
+        if status != Status.DONE:
+            call.status[b] = status
+            return
+        cars.stage[b] = (stage + 1) % len(STAGES)
+
+
+@numba.njit(nogil=True, **JIT)
+def run_cars(cars_to_run, call: Call, cars: Cars, sample: Sample, parts: Parts, timing: Timing, records: StepRecord):
+    """:func:`_run_car` for each vehicle of ``cars_to_run`` (M,) int64, without the GIL."""
+    for b in cars_to_run:
+        _run_car(b, call, cars, sample, parts, timing, records)
+
+
+def run(cars_to_run: np.ndarray, *args) -> None:
+    """:func:`run_cars` over ``cars_to_run``, shared among numba's threads (the cars are
+    independent: each writes only its own rows)."""
+    run_parallel(run_cars, cars_to_run, *args)
+
+
+def new_records(n: int, batch: int) -> StepRecord:
+    """A :class:`StepRecord` of n steps of ``batch`` vehicles, NaN (a held vehicle's rows stay so);
+    for n = 0 one shared, empty record (the loop writes no records into it)."""
+    return _no_records(batch) if n == 0 else _records(n, batch)
+
+
+@functools.lru_cache(maxsize=16)
+def _no_records(batch: int) -> StepRecord:
+    return _records(0, batch)
+
+
+def _records(n: int, batch: int) -> StepRecord:
+
+    def nan(*shape) -> np.ndarray:
+        return np.full((n, batch, *shape), np.nan)
+
+    def estimate() -> Estimate:
+        return Estimate(*(nan(4) if name in ("mu", "fz", "mu_std") else nan() for name in Estimate._fields))
+
+    reading = SensorReading(nan(13), np.ones((n, batch, 13), dtype=bool), nan())
+    return StepRecord(nan(), nan(NX), nan(NAUX), nan(NU), nan(), reading, estimate(), estimate())
