@@ -271,6 +271,13 @@ def _evaluate(args: argparse.Namespace) -> int:
     )
 
 
+def _list(args: argparse.Namespace) -> int:
+    from fourwis.training.catalog import catalog
+
+    print(catalog(args.what))
+    return 0
+
+
 def _positive_int(text: str) -> int:
     """argparse type: an integer >= 1 (argparse's error names the option)."""
     try:
@@ -511,6 +518,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_run_arguments(evaluate, 2, "results/evaluate")
     evaluate.set_defaults(func=_evaluate)
+    from fourwis.training.catalog import SECTIONS
+
+    list_ = command("list", "list the scenarios, estimators, controllers or recorded logs: name, what it is, defaults")
+    list_.add_argument("what", nargs="?", choices=SECTIONS, help="the section to list (default: all of them)")
+    list_.set_defaults(func=_list)
     bench = command("bench", "run the performance benchmarks in benchmarks/")
     bench.add_argument("--only", nargs="*", help="benchmark names (default: all)")
     bench.set_defaults(func=_bench)
