@@ -111,7 +111,10 @@ MEASURED_A = "0.3 g at 80 km/h, dry road"  #: where :func:`characterise` finds A
 
 
 def format_table(runs: list[SeriesRun], A: float, A_source: str = MEASURED_A) -> str:
-    """Markdown table of a series in the regulation's terms; ``A_source`` says where A came from."""
+    """Markdown table of a series in the regulation's terms; ``A_source`` says where A came from.
+    The left-first and right-first runs of an amplitude that read alike in every column (a
+    symmetric car without sensor noise in the loop steers mirror images) share one row, dir
+    ``L, R``, instead of a row repeated."""
     lines = [
         f"A = {math.degrees(A):.1f} deg ({A_source})",
         "",
@@ -119,14 +122,20 @@ def format_table(runs: list[SeriesRun], A: float, A_source: str = MEASURED_A) ->
         "| displacement @BOS+1.07 s | peak beta | yaw | resp. | spin |",
         "|---:|---:|:-:|---:|---:|---:|---:|:-:|:-:|:-:|",
     ]
+    rows: list[tuple[str, list[str], str]] = []  # (mu and amplitude, directions, the other cells)
     for run in runs:
         r = run.result
         resp = "n/a" if r.passed_responsiveness is None else ("pass" if r.passed_responsiveness else "FAIL")
-        lines.append(
-            f"| {run.mu:.2f} | {math.degrees(run.amplitude):.0f} deg ({run.amplitude / A:.1f}A) "
-            f"| {'L' if run.direction > 0 else 'R'} | {100 * r.yaw_rate_ratio_1000:.1f}% "
-            f"| {100 * r.yaw_rate_ratio_1750:.1f}% | {r.lateral_displacement:.2f} m "
-            f"| {math.degrees(run.peak_sideslip):.1f} deg | {'pass' if r.passed_yaw else 'FAIL'} "
-            f"| {resp} | {'SPIN' if r.spun_out else ''} |"
+        where = f"{run.mu:.2f} | {math.degrees(run.amplitude):.0f} deg ({run.amplitude / A:.1f}A)"
+        cells = (
+            f"{100 * r.yaw_rate_ratio_1000:.1f}% | {100 * r.yaw_rate_ratio_1750:.1f}% "
+            f"| {r.lateral_displacement:.2f} m | {math.degrees(run.peak_sideslip):.1f} deg "
+            f"| {'pass' if r.passed_yaw else 'FAIL'} | {resp} | {'SPIN' if r.spun_out else ''}"
         )
+        direction = "L" if run.direction > 0 else "R"
+        if rows and rows[-1][0] == where and rows[-1][2] == cells:
+            rows[-1][1].append(direction)
+        else:
+            rows.append((where, [direction], cells))
+    lines += [f"| {where} | {', '.join(directions)} | {cells} |" for where, directions, cells in rows]
     return "\n".join(lines)

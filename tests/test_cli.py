@@ -166,11 +166,15 @@ def test_simulate_takes_the_comparisons_overrides_and_swd_an_a_with_a_series(tmp
     main(["simulate", "paper_step:duration=0.2,mu=0.5", "--speed-kph", "30", "--out", str(tmp_path)])
     header, first, *rows = (tmp_path / "paper_step_duration_0.2_mu_0.5.csv").read_text().splitlines()
     assert len(rows) == 100  # 0.2 s at 2 ms
-    # the columns (training.trajectory_io.trajectory_columns) carry the run: SI units, overrides
-    names = header.split(",")
+    # the columns (training.trajectory_io.trajectory_columns) carry the run: SI units, overrides;
+    # each header names its unit
+    headers = header.split(",")
+    assert headers[:4] == ["t [s]", "x [m]", "y [m]", "psi [rad]"] and len(set(headers)) == len(headers)
+    units = dict(h.removesuffix("]").split(" [", 1) for h in headers)
+    assert units["r"] == units["est_r"] == "rad/s" and units["torque_fl"] == "N m" and units["est_mu_std_rr"] == "-"
+    names = list(units)
     table = np.array([line.split(",") for line in [first, *rows]], dtype=float)
     column = dict(zip(names, table.T))
-    assert names[:3] == ["t", "x", "y"] and len(set(names)) == len(names)
     np.testing.assert_allclose(np.diff(column["t"]), 0.002, atol=1e-12)
     np.testing.assert_allclose(column["u"], 30 / 3.6, rtol=0.01)  # m/s, not km/h
     for w in ("fl", "fr", "rl", "rr"):
@@ -235,3 +239,87 @@ def test_every_option_has_help_and_shows_its_default(monkeypatch):
     compare_help = commands["compare"].format_help()
     assert "dyc-smc-4ws" in compare_help and "rl:<run dir>" in compare_help
     assert "(default: None)" not in "".join(p.format_help() for p in commands.values())
+
+
+def test_tune_writes_results_tune_and_replaces_the_shipped_tuning_only_when_told(tmp_path, monkeypatch, capsys):
+    from fourwis.training import tune as training_tune
+
+    shipped = training_tune.SHIPPED.read_bytes()
+    monkeypatch.chdir(tmp_path)
+    smoke = ["tune", "--agents", "2", "--iterations", "1", "--duration", "0.6", "--optimizer", "random"]
+    assert main(smoke) == 0
+    written = tmp_path / "results" / "tune" / "tuned_noise.json"
+    data = json.loads(written.read_text())
+    assert data["optimizer"] == "random" and data["written_by"]["command"] == " ".join(["fourwis", *smoke])
+    assert training_tune.SHIPPED.read_bytes() == shipped  # a smoke run leaves alo-fkf and joint alone
+    assert "the shipped tuning is unchanged" in capsys.readouterr().out
+    stand_in = tmp_path / "package" / "tuned_noise.json"  # the shipped file's place, for this test
+    monkeypatch.setattr(training_tune, "SHIPPED", stand_in)
+    assert main([*smoke, "--out", str(tmp_path / "mine.json"), "--replace-shipped"]) == 0
+    assert json.loads(stand_in.read_text()) == json.loads((tmp_path / "mine.json").read_text())
+    assert f"replaced the shipped tuning {stand_in}" in capsys.readouterr().out
+    monkeypatch.setattr(training_tune, "calibration_run", lambda **kwargs: pytest.fail("tuning started"))
+    monkeypatch.setattr(training_tune, "SHIPPED", tmp_path / "notes.txt" / "tuned_noise.json")
+    (tmp_path / "notes.txt").write_text("a file")
+    with pytest.raises(SystemExit, match="fourwis tune: the shipped tuning .*notes.txt is not a writable directory"):
+        main([*smoke, "--replace-shipped"])
+    with pytest.raises(SystemExit, match=r"--mu-noise takes no other option, got \['--replace-shipped'\]"):
+        main(["tune", "--mu-noise", "--replace-shipped"])
+
+
+def _damage(path, content: bytes):
+    path.write_bytes(content)
+    return path
+
+
+@pytest.mark.parametrize(
+    "name, content, reason",
+    [
+        ("config.json", b'{"algo": "ppo",\n', "not the JSON run config"),  # (JSON's own: 'Expecting ...')
+        ("config.json", b'{"algo": "ppo", "env_kwargs": {}, "seed": "0"}', "it lacks a valid seed"),
+        ("vecnormalize.pkl", b"I12x\n.", "not a VecNormalize file"),  # (pickle's own: 'invalid literal for int()')
+        ("model.zip", b"PK\x03\x04 cut short", "not a ppo model"),
+    ],
+)
+def test_a_damaged_file_in_a_run_directory_is_named_before_any_run(name, content, reason, run, tmp_path, monkeypatch):
+    from fourwis.envs import simulation as envs_simulation
+
+    out = _copy(run, tmp_path)
+    damaged = _damage(out / name, content)
+    monkeypatch.setattr(envs_simulation.ClosedLoop, "__init__", lambda *a, **k: pytest.fail("a run started"))
+    named = f"{damaged} is damaged: {reason}"
+    with pytest.raises(SystemExit, match=f"fourwis evaluate: .*{named}"):
+        main(["evaluate", str(out), "--scenarios", "paper_sine", "--out", str(tmp_path / "eval")])
+    with pytest.raises(SystemExit, match=f"fourwis compare: controller 'rl:{out}': {named}"):
+        main(["compare", "--controllers", f"rl:{out}", "--out", str(tmp_path / "cmp")])
+    if name != "model.zip":  # (a resume reads the config and the normaliser before the model's weights)
+        with pytest.raises(SystemExit, match=f"fourwis train: .*{named}"):
+            main([*TRAIN, "--resume", str(out), "--timesteps", "4096", "--out", str(out)])
+
+
+def test_the_simulate_plot_names_controller_estimator_and_seed_and_draws_the_reference(tmp_path, monkeypatch):
+    import matplotlib.pyplot as plt
+
+    seen = {}
+    close = plt.close
+
+    def keep(fig=None):
+        seen["title"] = fig._suptitle.get_text()
+        seen["yaw"] = [line.get_label() for line in fig.axes[2].get_lines()]
+        close(fig)
+
+    monkeypatch.setattr(plt, "close", keep)
+    run = ["simulate", "paper_step:duration=0.2", "--controller", "dyc-lqr", "--estimator", "ckf", "--seed", "3"]
+    main([*run, "--out", str(tmp_path)])
+    assert seen["title"] == "paper_step:duration=0.2: 40 km/h, controller dyc-lqr, estimator ckf, seed 3"
+    assert seen["yaw"] == ["truth", "estimate", "reference (2-DOF, true mu)"]
+
+
+def test_the_swd_report_says_who_wrote_it(tmp_path, monkeypatch):
+    from fourwis.envs import fmvss126 as envs_fmvss126
+
+    monkeypatch.setattr(envs_fmvss126, "run_series", lambda *args, **kwargs: [])
+    main(["swd", "--mu", "0.5", "--A", "10", "--out", str(tmp_path)])
+    text = (tmp_path / "sine_with_dwell.md").read_text()
+    assert f"- command: `fourwis swd --mu 0.5 --A 10 --out {tmp_path}`" in text
+    assert all(f"- {field}: " in text for field in ("commit", "date", "host")) and "A = 10.0 deg (given)" in text

@@ -119,8 +119,8 @@ def test_report_is_reproducible_byte_for_byte_in_one_or_two_processes_and_the_fa
     header = header.split(",")
     rows = {(r[0], r[2], r[3]): r for r in (line.split(",") for line in lines)}
     assert len(rows) == len(lines) == 2 * 2 * 2  # scenarios x controllers x seeds, each once
-    assert rows[("paper_sine:duration=1.0", "none", "0")][4:] != rows[("paper_sine:duration=1.0", "none", "1")][4:]
-    col = header.index("rmse_r")
+    assert rows[("paper_sine:duration=1.0", "none", "0")][5:] != rows[("paper_sine:duration=1.0", "none", "1")][5:]
+    col = header.index("rmse_r [rad/s]")
     for seed in ("0", "1"):  # measured: 0.0019 -> 0.0081 and 0.0019 -> 0.0119 rad/s
         clean = float(rows[("paper_sine:duration=1.0", "none", seed)][col])
         faulty = float(rows[("paper_sine:duration=1.0+faults", "none", seed)][col])
@@ -246,7 +246,7 @@ def test_output_folders_must_be_named():
 def test_the_report_shows_each_estimator_against_the_oracle():
     """Ratios of the seed means to the oracle's under the same controller, bold above 1.10, none
     where the oracle's value is at the noise floor; no section without the oracle or a controller."""
-    from fourwis.training.compare import markdown_report
+    from fourwis.training.compare import RunSpec, markdown_report
 
     metrics = (
         "peak_beta",
@@ -273,11 +273,158 @@ def test_the_report_shows_each_estimator_against_the_oracle():
     }
     table |= {("paper_dlc", e, "dyc-lqr"): run(0.0004, 0.020) for e in ("oracle", "joint", "ckf")}
     table |= {(s, e, "none"): run(0.02, 0.03) for s in ("paper_step", "paper_dlc") for e in ("oracle", "joint", "ckf")}
-    text = markdown_report(table, ["paper_step", "paper_dlc"], ["oracle", "joint", "ckf"], ["none", "dyc-lqr"], 2)
+
+    def runs(table: dict) -> list:  # one seed per cell
+        return [(RunSpec(s, e, c, 0, math.nan), m) for (s, e, c), m in table.items()]
+
+    text = markdown_report(runs(table), ["paper_step", "paper_dlc"], ["oracle", "joint", "ckf"], ["none", "dyc-lqr"], 1)
     section = text.split("## Against the oracle")[1].split("##")[0]
     assert "| scenario | controller | joint | ckf |" in section and "| none |" not in section
     assert "| paper_step | dyc-lqr | **1.22** / 1.05 | **3.10** / 1.09 |" in section
     assert "| paper_dlc | dyc-lqr | — / 1.00 | — / 1.00 |" in section  # (0.0004 rad: below the floor)
     for estimators, controllers in ((["joint", "ckf"], ["none", "dyc-lqr"]), (["oracle", "joint", "ckf"], ["none"])):
         sub = {key: value for key, value in table.items() if key[1] in estimators and key[2] in controllers}
-        assert "Against the oracle" not in markdown_report(sub, ["paper_step", "paper_dlc"], estimators, controllers, 2)
+        text = markdown_report(runs(sub), ["paper_step", "paper_dlc"], estimators, controllers, 1)
+        assert "Against the oracle" not in text
+
+
+#: a report's header as a test gives it (the real one: training.provenance.provenance())
+HEADER_FIELDS = dict(command="fourwis compare --seeds 2", commit="0123456789ab", date="2026-12-01T00:00:00+00:00")
+
+
+def _metrics(**given) -> dict:
+    """One run's metrics (run_metrics' keys) with ``given`` values over zeros."""
+    from fourwis.training.compare import METRIC_UNITS
+
+    course = ("path_rms", "path_max", "cone_hits", "course_completed")
+    swd = ("swd_ratio_1000", "swd_ratio_1750", "swd_displacement", "swd_passed", "swd_responsive")
+    base = {m: 0.0 for m in METRIC_UNITS if m not in course + swd}
+    return base | {"passed": 1.0} | given
+
+
+def test_the_report_gives_each_cell_a_verdict_naming_the_failed_criteria_and_counts_spin_outs():
+    from fourwis.training.compare import RunSpec, failed_criteria, markdown_report
+    from fourwis.training.provenance import Provenance
+
+    swd_ok = dict(swd_ratio_1000=0.1, swd_ratio_1750=0.05, swd_displacement=2.0, swd_passed=1.0, swd_responsive=1.0)
+    course_ok = dict(path_rms=0.1, path_max=0.3, cone_hits=0.0, course_completed=1.0)
+    runs = {
+        ("swd_wet", "oracle", "dyc-lqr"): [
+            _metrics(**swd_ok | dict(swd_displacement=1.5, swd_responsive=0.0, swd_passed=0.0, passed=0.0)),
+            _metrics(**swd_ok),
+        ],
+        ("swd_wet", "oracle", "none"): [
+            _metrics(**swd_ok | dict(swd_ratio_1000=1.0, swd_ratio_1750=0.9, swd_passed=0.0), spin_out=1.0, passed=0.0)
+        ]
+        * 2,
+        ("iso3888_2", "oracle", "dyc-lqr"): [_metrics(**course_ok | dict(cone_hits=2.0)), _metrics(**course_ok)],
+        ("iso3888_2", "oracle", "none"): [
+            _metrics(**course_ok | dict(course_completed=0.0), spin_out=1.0, passed=0.0),
+            _metrics(**course_ok),
+        ],
+    }
+    results = [(RunSpec(s, e, c, k, math.nan), m) for (s, e, c), cell in runs.items() for k, m in enumerate(cell)]
+    for _, m in results:  # the verdict judges as `passed` does, and the cones besides
+        assert (set(failed_criteria(m)) <= {"cones"}) == (m["passed"] == 1.0)
+    header = Provenance(**HEADER_FIELDS, host="testhost (2 CPUs)")
+    text = markdown_report(results, ["swd_wet", "iso3888_2"], ["oracle"], ["none", "dyc-lqr"], 2, header)
+    for line in ("- command: `fourwis compare --seeds 2`", "- commit: 0123456789ab", "- host: testhost (2 CPUs)"):
+        assert line in text
+    assert "- date: 2026-12-01T00:00:00+00:00" in text and "seeds 0-1" in text
+    rows = {
+        tuple(cell.strip() for cell in line.split("|")[1:4]): line for line in text.splitlines() if "| oracle |" in line
+    }
+
+    def cells(key):
+        return [cell.strip() for cell in rows[key].split("|")[4:-1]]
+
+    assert "| verdict |" in text and "| spin-outs |" in text
+    assert cells(("swd_wet", "dyc-lqr", "oracle"))[0] == "FAIL 1/2: FMVSS responsiveness 1"
+    assert cells(("swd_wet", "none", "oracle"))[0] == "FAIL 2/2: spin-out 2, FMVSS yaw 1.0 s 2, FMVSS yaw 1.75 s 2"
+    assert cells(("iso3888_2", "dyc-lqr", "oracle"))[0] == "FAIL 1/2: cones 1"
+    assert cells(("iso3888_2", "none", "oracle"))[0] == "FAIL 1/2: spin-out 1, course 1"
+    spins = {key: cells(key)[4] for key in rows}  # counts of seeds, not means
+    assert spins[("swd_wet", "none", "oracle")] == "2/2" and spins[("iso3888_2", "none", "oracle")] == "1/2"
+    assert spins[("swd_wet", "dyc-lqr", "oracle")] == "0/2"
+    assert "## Estimation accuracy" not in text  # the oracle alone: no rows of zeros
+    for criterion in ("spin-out", "course", "cones", "FMVSS yaw 1.0 s", "FMVSS yaw 1.75 s", "FMVSS responsiveness"):
+        assert f"*{criterion}*:" in text  # each criterion explained in the report itself
+    assert "[rad" not in text  # degrees in every table
+
+
+def test_runs_csv_heads_each_metric_with_its_unit_and_has_one_missing_value(tmp_path):
+    import csv
+
+    from fourwis.training.compare import METRIC_UNITS, RunSpec, write_csv
+
+    results = [
+        (RunSpec("paper_step", "joint", "none", 0, math.nan), _metrics(peak_beta=0.01, rmse_mu=math.nan)),
+        (
+            RunSpec("iso3888_2", "joint", "none", 0, math.nan),
+            _metrics(path_rms=0.1, path_max=0.2, cone_hits=3.0, course_completed=1.0, spin_out=1.0, passed=0.0),
+        ),
+    ]
+    path = write_csv(results, tmp_path / "runs.csv")
+    with open(path, newline="") as f:
+        header, *rows = list(csv.reader(f))
+    assert header[:5] == ["scenario", "estimator", "controller", "seed", "verdict"]
+    assert all(h.endswith(f" [{METRIC_UNITS[h.split(' [')[0]]}]") for h in header[5:])
+    assert {"peak_beta [rad]", "yaw_tracking_rms [rad/s]", "cone_hits [count]", "spin_out [0/1]"} <= set(header)
+    column = {h.split(" [")[0]: i for i, h in enumerate(header)}
+    step, iso = rows
+    assert step[4] == "pass" and iso[4] == "fail: spin-out; cones"
+    assert step[column["rmse_mu"]] == "" and step[column["path_rms"]] == ""  # NaN and "does not apply" alike
+    assert iso[column["cone_hits"]] == "3" and "nan" not in path.read_text().lower()
+
+
+def test_the_plots_draw_the_reference_yaw_rate_and_name_their_seeds(tmp_path, monkeypatch):
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from fourwis.training.compare import compare, run_matrix
+    from fourwis.training.trajectory_io import reference_yaw_rate_of
+
+    figures = {}
+    close = plt.close
+
+    def keep(fig=None):  # the figures' contents, taken as the report closes them
+        if fig is not None and fig.axes:
+            title = fig._suptitle.get_text() if fig._suptitle else fig.axes[0].get_title()
+            figures[title] = [[(line.get_label(), line.get_ydata()) for line in ax.get_lines()] for ax in fig.axes]
+        close(fig)
+
+    monkeypatch.setattr(plt, "close", keep)
+    compare(tmp_path, ["paper_step:duration=6"], ["oracle"], ["none", "dyc-lqr"], seeds=2, jobs=1)
+    titles = sorted(figures)
+    assert any("peak sideslip" in t.lower() and "mean over seeds 0-1" in t for t in titles), titles
+    assert any(t.startswith("pass rate over seeds 0-1") for t in titles), titles
+    yaw_panel = figures["paper_step:duration=6 (seed 0)"][0]
+    labels = [label for label, _ in yaw_panel]
+    assert "dotted: its reference (2-DOF, true mu)" in labels
+    _, trajectories = run_matrix(["paper_step:duration=6"], ["oracle"], ["dyc-lqr"], 1, 1, progress=False)
+    reference = np.degrees(reference_yaw_rate_of(trajectories[("paper_step:duration=6", "oracle", "dyc-lqr")]))
+    assert any(np.allclose(ydata, reference) for _, ydata in yaw_panel)  # the controlled run's own reference
+    assert np.max(np.abs(reference)) > 5.0  # (the step turns the car: a reference worth drawing)
+
+
+def test_real_runs_are_judged_as_their_pass_flag_says_and_the_report_names_what_failed(tmp_path):
+    """On the wet sine with dwell and ISO 3888-2 at 70 km/h the uncontrolled car spins: its
+    verdict says so in runs.csv and in the report; every run's verdict agrees with its `passed`
+    flag but for the cones."""
+    import csv
+
+    from fourwis.training.compare import compare
+
+    report = compare(tmp_path, ["swd_wet", "iso3888_2:speed_kph=70"], ["oracle"], ["none", "dyc-lqr"], 1, 1)
+    with open(tmp_path / "runs.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 4
+    for row in rows:
+        failed = set(row["verdict"].removeprefix("fail: ").split("; ")) if row["verdict"] != "pass" else set()
+        assert (failed <= {"cones"}) == (row["passed [0/1]"] == "1"), row
+        assert ("spin-out" in failed) == (row["spin_out [0/1]"] == "1")
+        assert ("cones" in failed) == (row["cone_hits [count]"] not in ("", "0"))
+    uncontrolled = {row["scenario"]: row["verdict"] for row in rows if row["controller"] == "none"}
+    assert all("spin-out" in verdict for verdict in uncontrolled.values()), uncontrolled
+    text = report.read_text()
+    assert "| swd_wet | none | oracle | FAIL 1/1: spin-out 1" in text

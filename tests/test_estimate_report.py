@@ -11,7 +11,7 @@ from fourwis.envs.metrics import mae, rmse
 from fourwis.envs.scenarios import make_scenario
 from fourwis.envs.simulation import simulate
 from fourwis.training.cli import main
-from fourwis.training.estimate import METRICS, convergence_time, estimate_report, markdown_report
+from fourwis.training.estimate import METRIC_UNITS, METRICS, convergence_time, estimate_report, markdown_report
 
 T = np.arange(0.0, 5.0, 0.5)  # 0.0 .. 4.5 s
 
@@ -60,13 +60,19 @@ def test_report_writes_csv_markdown_and_plot(report):
         ("paper_sine", "ckf", "0"),
         ("paper_sine", "joint", "0"),
     ]
-    assert list(rows[0]) == ["scenario", "estimator", "seed", *METRICS]
+    # each metric's column headed with its unit (SI: beta in rad, the convergence time in s)
+    header = [f"{m} [{METRIC_UNITS[m]}]" for m in METRICS]
+    assert list(rows[0]) == ["scenario", "estimator", "seed", *header]
+    assert "mae_beta [rad]" in header and "mu_convergence_time [s]" in header and "rmse_u [m/s]" in header
+    rows = [{**r, **{m: r[h] for m, h in zip(METRICS, header)}} for r in rows]
     for r in rows:  # the CSV holds the metrics of that run, recomputed here from a fresh simulation
         expected = _metrics_of(simulate(make_scenario("paper_sine", duration=1.5), estimator=r["estimator"], seed=0))
-        assert {m: r[m] for m in METRICS} == {m: f"{v:.6g}" for m, v in expected.items()}  # CSV: 6 significant digits
+        # 6 significant digits; NaN (a convergence that never came) as the one missing value, an empty field
+        assert {m: r[m] for m in METRICS} == {m: "" if math.isnan(v) else f"{v:.6g}" for m, v in expected.items()}
     ckf, joint = rows
     assert ckf["rmse_beta"] != joint["rmse_beta"]  # two different filters, not one run written twice
-    assert float(ckf["mu_estimated"]) == 0.0 and math.isnan(float(ckf["mu_convergence_time"]))
+    assert float(ckf["mu_estimated"]) == 0.0 and ckf["mu_convergence_time"] == ""
+    assert "nan" not in (out / "estimate.csv").read_text().lower()
     assert float(joint["mu_estimated"]) == 1.0
     assert abs(float(ckf["mu_error_last_half"]) - 0.0) < 1e-9  # paper_sine: mu 0.8 = ckf's nominal mu
 
@@ -74,19 +80,19 @@ def test_report_writes_csv_markdown_and_plot(report):
 def test_markdown_has_our_table_and_the_papers_numbers(report):
     text = report.read_text()
     assert "## paper_sine" in text and "| ckf |" in text and "| joint |" in text
-    for number in (
+    for number in (  # u and v [m/s] as printed; the sideslip read as rad, in degrees
         "0.0050",
         "0.0274",
-        "0.0025",
+        "0.1432",  # 0.0025 rad
         "0.0008",
         "0.0024",
-        "0.0002",
+        "0.0115",  # 0.0002 rad
         "0.0063",
         "0.0572",
-        "0.0052",
+        "0.2979",  # 0.0052 rad
         "0.0010",
         "0.0040",
-        "0.0003",
+        "0.0172",  # 0.0003 rad
     ):
         assert number in text
     assert "not run" in text  # paper_dlc was not in this run
@@ -172,3 +178,32 @@ def test_road_mu_gives_the_fixed_mu_filters_the_roads_friction_and_leaves_joint_
     assert runs[("fkf", True)]["mu_error_last_half"] < 1e-12 < runs[("fkf", False)]["mu_error_last_half"]
     assert runs[("fkf", True)]["rmse_beta"] < 0.9 * runs[("fkf", False)]["rmse_beta"]
     assert runs[("joint", True)] == runs[("joint", False)]
+
+
+def test_the_report_says_who_wrote_it_and_gives_the_sideslip_in_degrees(report):
+    text = report.read_text()
+    head = text.split("Runs:")[0]
+    for field in ("- command: `", "- commit: ", "- date: ", "- host: "):
+        assert field in head
+    tables = [line for line in text.splitlines() if line.startswith("|")]
+    assert any("MAE beta [deg]" in line for line in tables) and not any("rad" in line for line in tables)
+
+
+def test_the_scenario_plot_names_its_seed_and_draws_degrees(tmp_path, monkeypatch):
+    import matplotlib.pyplot as plt
+
+    from fourwis.training.estimate import plot_scenario, run_all
+
+    seen = {}
+    close = plt.close
+
+    def keep(fig=None):
+        seen["title"] = fig._suptitle.get_text()
+        seen["panels"] = [ax.get_title() for ax in fig.axes]
+        close(fig)
+
+    _, series = run_all(["paper_sine:duration=1"], ["ckf"], 1, 1, progress=False)
+    monkeypatch.setattr(plt, "close", keep)
+    plot_scenario("paper_sine:duration=1", series, ["ckf"], tmp_path / "p.png")
+    assert seen["title"] == "paper_sine:duration=1: estimates vs truth (open loop, seed 0)"
+    assert "sideslip beta [deg]" in seen["panels"]

@@ -316,3 +316,20 @@ def test_course_paths_measure_each_car_from_its_own_path_while_alongside_it():
         assert deviation[b] == path_deviation(x[b : b + 1], y[b : b + 1], paths.paths[b])[1]
     paths.replace([1, 3], [straight, None])  # new episodes: car 1 on the straight, car 3 off course
     assert paths.deviation(x, y).tolist() == pytest.approx([2.0, 1.0, 3.0, 0.0])
+
+
+def test_swd_shows_mirror_image_runs_as_one_row():
+    from fourwis.envs.fmvss126 import SeriesRun, format_table
+    from fourwis.envs.metrics import SineWithDwellResult
+
+    def run(amplitude, direction, ratio):
+        result = SineWithDwellResult(direction, amplitude, 1.0, 2.9, 0.5, ratio, 0.01, 2.1, True, False)
+        return SeriesRun(0.5, amplitude, direction, result, 0.05)
+
+    A = math.radians(16.6)
+    same, differ = 5.0 * A, 5.5 * A
+    text = format_table([run(same, 1, 0.1), run(same, -1, 0.1), run(differ, 1, 0.1), run(differ, -1, 0.3)], A)
+    rows = [line for line in text.splitlines() if line.startswith("| 0.50 |")]
+    assert len(rows) == 3
+    assert "| 83 deg (5.0A) | L, R | 10.0% |" in rows[0]
+    assert "| 91 deg (5.5A) | L | 10.0% |" in rows[1] and "| 91 deg (5.5A) | R | 30.0% |" in rows[2]

@@ -123,10 +123,10 @@ def _shipped_and_hand_set(scenario_name, seeds):
     from fourwis.envs.scenarios import make_scenario
     from fourwis.envs.simulation import ClosedLoop
     from fourwis.estimation import make_estimator
-    from fourwis.training.tune import OUTPUT
+    from fourwis.training.tune import SHIPPED
 
     scenario = make_scenario(scenario_name)
-    shipped = json.loads(OUTPUT.read_text())["log10_factors"]
+    shipped = json.loads(SHIPPED.read_text())["log10_factors"]
     factors = np.array([f for _ in seeds for f in (shipped, [0.0] * 4)])
     est = make_estimator("alo-fkf", scenario.vehicle_params, noise=NoiseParams().scaled(factors))
     loop = ClosedLoop([scenario] * len(factors), None, est, [np.random.default_rng(s) for s in seeds for _ in "ab"])

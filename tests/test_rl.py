@@ -366,18 +366,26 @@ def test_sb3_video_recorder_records_car_0_and_the_adapter_refuses_a_later_reset(
         SB3VecEnv(YawStabilityVectorEnv(num_envs=2))  # gymnasium's default
 
 
-def test_evaluate_puts_the_policy_into_the_comparison(tmp_path):
+def test_evaluate_runs_the_policy_beside_no_control_and_dyc_lqr_from_its_run_or_its_model_zip(tmp_path):
+    import csv
+
     from fourwis.training.rl import evaluate
 
     run = tmp_path / "run"
     _train("ppo", run, 512)
-    report = evaluate(run, tmp_path / "eval", ["paper_sine"], seeds=1, jobs=1)  # trained on the oracle: run on it
-    text = report.read_text()
-    assert f"rl:{run}" in text and "| none |" in text
-    rows = (tmp_path / "eval" / "runs.csv").read_text().splitlines()
-    header = rows[0].split(",")
-    assert len(rows) == 3 and all("nan" not in r.split(",")[4] for r in rows[1:])
-    assert {r.split(",")[header.index("estimator")] for r in rows[1:]} == {"oracle"}
+    runs = {}
+    for given in (run, run / "model.zip"):
+        out = tmp_path / f"eval_{given.name}"
+        report = evaluate(given, out, ["paper_sine"], seeds=1, jobs=1)  # trained on the oracle: run on it
+        text = report.read_text()
+        assert f"| rl:{given} |" in text and "| none |" in text and "| dyc-lqr |" in text
+        with open(out / "runs.csv", newline="") as f:
+            rows = list(csv.DictReader(f))
+        assert [r["controller"] for r in rows] == ["none", "dyc-lqr", f"rl:{given}"]
+        assert {r["estimator"] for r in rows} == {"oracle"} and all(r["peak_beta [rad]"] for r in rows)
+        runs[given.name] = [{k: v for k, v in r.items() if k != "controller"} for r in rows]
+    assert runs["run"] == runs["model.zip"]  # the same policy either way
+    assert runs["run"][0] != runs["run"][2]  # (the policy acts: not the uncontrolled car again)
 
 
 def test_an_interrupted_run_saves_its_model_and_resumes(tmp_path, monkeypatch):

@@ -75,7 +75,7 @@ def _simulate(args: argparse.Namespace) -> int:
         file_stem,
         parse_scenario,
     )
-    from fourwis.training.io import check_writable, pyplot
+    from fourwis.training.io import check_writable, pyplot, staged_output
     from fourwis.training.trajectory_io import plot_trajectory, write_trajectory_csv
 
     try:
@@ -95,9 +95,17 @@ def _simulate(args: argparse.Namespace) -> int:
     except (ValueError, FileNotFoundError) as err:  # a bad argument or run, a user's estimator returning garbage
         raise SystemExit(f"fourwis simulate: {err}") from None
     stem = file_stem(args.scenario)
-    csv_path = write_trajectory_csv(traj, out / f"{stem}.csv")
-    png_path = plot_trajectory(traj, out / f"{stem}.png")
-    print(f"wrote {csv_path} and {png_path}")
+    with staged_output(out) as stage:  # the CSV and its plot as one set
+        write_trajectory_csv(traj, stage / f"{stem}.csv")
+        plot_trajectory(
+            traj,
+            stage / f"{stem}.png",
+            controller=args.controller,
+            estimator=args.estimator,
+            seed=args.seed,
+            name=args.scenario,
+        )
+    print(f"wrote {out / f'{stem}.csv'} and {out / f'{stem}.png'}")
     return 0
 
 
@@ -109,6 +117,7 @@ def _sine_with_dwell(args: argparse.Namespace) -> int:
     from fourwis.envs.vehicle import VehicleParams
     from fourwis.training.compare import build_controller
     from fourwis.training.io import atomic_write_text, check_writable
+    from fourwis.training.provenance import provenance
 
     try:  # fail early, before the characterisation, on every argument
         if args.A is not None and not (math.isfinite(args.A) and 0 < args.A <= MAX_A_DEG):
@@ -145,7 +154,8 @@ def _sine_with_dwell(args: argparse.Namespace) -> int:
     text = "\n\n".join(tables)
     print(text)
     if args.out:
-        print(f"wrote {atomic_write_text(Path(args.out) / 'sine_with_dwell.md', text + chr(10))}")
+        report = "\n".join(["# FMVSS 126 sine with dwell", "", *provenance(args.command_line).markdown(), "", text, ""])
+        print(f"wrote {atomic_write_text(Path(args.out) / 'sine_with_dwell.md', report)}")
     return 0
 
 
@@ -167,7 +177,9 @@ def _compare(args: argparse.Namespace) -> int:
 
     return _report(
         "compare",
-        lambda: compare(args.out, args.scenarios, args.estimators, args.controllers, args.seeds, args.jobs),
+        lambda: compare(
+            args.out, args.scenarios, args.estimators, args.controllers, args.seeds, args.jobs, args.command_line
+        ),
         "runs.csv",
     )
 
@@ -177,33 +189,56 @@ def _estimate(args: argparse.Namespace) -> int:
 
     return _report(
         "estimate",
-        lambda: estimate_report(args.out, args.scenarios, args.estimators, args.seeds, args.jobs, road_mu=args.road_mu),
+        lambda: estimate_report(
+            args.out,
+            args.scenarios,
+            args.estimators,
+            args.seeds,
+            args.jobs,
+            road_mu=args.road_mu,
+            command=args.command_line,
+        ),
         "estimate.csv",
     )
 
 
 def _tune(args: argparse.Namespace) -> int:
-    from fourwis.training.tune import OUTPUT, mu_noise_scan, tune
+    from fourwis.training.tune import SHIPPED, mu_noise_scan, tune
 
     if args.mu_noise:
         defaults = vars(build_parser().parse_args(["tune"]))
-        given = sorted(k for k, v in vars(args).items() if k not in ("mu_noise", "func") and v != defaults[k])
+        ignored = ("mu_noise", "func", "command_line")
+        given = sorted(k for k, v in vars(args).items() if k not in ignored and v != defaults[k])
         if given:  # (they were accepted and ignored)
-            raise SystemExit(f"fourwis tune: --mu-noise takes no other option, got {['--' + k for k in given]}")
+            options = ["--" + k.replace("_", "-") for k in given]
+            raise SystemExit(f"fourwis tune: --mu-noise takes no other option, got {options}")
         errors = mu_noise_scan()
         print("| mu_accel_std [m/s^2] | mean abs mu error, last half |\n|---:|---:|")
         print("\n".join(f"| {g:g} | {e:.3f} |" for g, e in errors.items()))
         return 0
-    out = Path(args.out) if args.out else OUTPUT
+    out = Path(args.out)
     try:
         _check_seed(args)
         data = tune(
-            args.agents, args.iterations, args.seed, out, args.optimizer, args.duration, criterion=args.criterion
+            args.agents,
+            args.iterations,
+            args.seed,
+            out,
+            args.optimizer,
+            args.duration,
+            criterion=args.criterion,
+            replace_shipped=args.replace_shipped,
+            command=args.command_line,
         )
     except ValueError as err:
         raise SystemExit(f"fourwis tune: {err}") from None
-    shipped = " (the shipped noise file: alo-fkf and joint use it from now on)" if out == OUTPUT else ""
-    print(f"wrote {out}{shipped}")
+    if args.replace_shipped:
+        print(f"wrote {out} and replaced the shipped tuning {SHIPPED}: alo-fkf and joint use it from now on")
+    else:
+        print(
+            f"wrote {out} (the shipped tuning is unchanged: --replace-shipped installs a result; "
+            f"make_estimator(..., noise=tuned_noise({str(out)!r})) uses this file)"
+        )
     if data["improved"]:
         print(
             f"{args.optimizer} tuning: cost {data['default_cost']:.3f} (default noise) -> {data['cost']:.3f}, "
@@ -265,10 +300,19 @@ def _evaluate(args: argparse.Namespace) -> int:
 
     return _report(
         "evaluate",
-        lambda: evaluate(args.model, args.out, args.scenarios, args.estimator, args.seeds, args.jobs),
+        lambda: evaluate(
+            args.model, args.out, args.scenarios, args.estimator, args.seeds, args.jobs, args.command_line
+        ),
         "runs.csv",
         (ValueError, FileNotFoundError),
     )
+
+
+def _list(args: argparse.Namespace) -> int:
+    from fourwis.training.catalog import catalog
+
+    print(catalog(args.what))
+    return 0
 
 
 def _positive_int(text: str) -> int:
@@ -407,7 +451,9 @@ def build_parser() -> argparse.ArgumentParser:
     from fourwis.training.tune import CRITERIA
 
     tune = command(
-        "tune", "offline tuning of alo-fkf's noise on a calibration run; writes a JSON file (default: the shipped one)"
+        "tune",
+        "offline tuning of alo-fkf's noise on a calibration run; writes a JSON file (the shipped tuning, "
+        "which alo-fkf and joint use, only with --replace-shipped)",
     )
     tune.add_argument("--agents", type=int, default=30, help="population size (ants, CMA-ES offspring, random draws)")
     tune.add_argument("--iterations", type=int, default=100, help="optimizer iterations")
@@ -425,7 +471,13 @@ def build_parser() -> argparse.ArgumentParser:
         default="alo",
         help="alo: the paper's antlion optimizer; cmaes: CMA-ES; random: random search",
     )
-    tune.add_argument("--out", help="output JSON file (default: estimation/data/tuned_noise.json)")
+    tune.add_argument("--out", default="results/tune/tuned_noise.json", help="output JSON file")
+    tune.add_argument(
+        "--replace-shipped",
+        action="store_true",
+        help="also write the result over the shipped estimation/data/tuned_noise.json, which alo-fkf and "
+        "joint use from then on (in an installed package: inside site-packages)",
+    )
     tune.add_argument(
         "--mu-noise",
         action="store_true",
@@ -494,9 +546,12 @@ def build_parser() -> argparse.ArgumentParser:
     train.set_defaults(func=_train)
     evaluate = command(
         "evaluate",
-        "closed-loop evaluation of a trained policy (as in compare); writes OUT/report.md, runs.csv and PNG plots",
+        "closed-loop evaluation of a trained policy beside no control and the DYC-LQR baseline (as in "
+        "compare); writes OUT/report.md, runs.csv and PNG plots",
     )
-    evaluate.add_argument("model", help="run directory of fourwis train (holds model.zip)")
+    evaluate.add_argument(
+        "model", help="run directory of fourwis train, its model.zip, or a checkpoint's checkpoints/step_N.zip"
+    )
     evaluate.add_argument(
         "--scenarios",
         nargs="+",
@@ -506,11 +561,16 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument(
         "--estimator",
         default=None,
-        help="estimator in the loop, for the policy and the uncontrolled car beside it "
+        help="estimator in the loop, for the policy and the uncontrolled and DYC-LQR cars beside it "
         "(default: the one the run was trained with)",
     )
     _add_run_arguments(evaluate, 2, "results/evaluate")
     evaluate.set_defaults(func=_evaluate)
+    from fourwis.training.catalog import SECTIONS
+
+    list_ = command("list", "list the scenarios, estimators, controllers or recorded logs: name, what it is, defaults")
+    list_.add_argument("what", nargs="?", choices=SECTIONS, help="the section to list (default: all of them)")
+    list_.set_defaults(func=_list)
     bench = command("bench", "run the performance benchmarks in benchmarks/")
     bench.add_argument("--only", nargs="*", help="benchmark names (default: all)")
     bench.set_defaults(func=_bench)
@@ -518,7 +578,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from fourwis.training.provenance import command_line
+
+    argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser().parse_args(argv)
+    args.command_line = command_line(argv, "fourwis")  # (what the reports' headers say wrote them)
     if "" not in sys.path and os.getcwd() not in sys.path:  # the `fourwis` script's path lacks it
         sys.path.insert(0, os.getcwd())  # your 'module:factory' estimators and controllers live here
     try:

@@ -22,11 +22,14 @@ import numpy as np
 
 from fourwis.control import CONTROLLERS, make_controller
 from fourwis.control.allocation import wheel_force_map
-from fourwis.control.reference import PhasePlaneRegion, reference_yaw_rate
+from fourwis.control.reference import PhasePlaneRegion
 from fourwis.core.checks import import_factory, is_integer, is_number
 from fourwis.envs.fmvss126 import characterise
 from fourwis.envs.layout import A_AY, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_X, S_Y
 from fourwis.envs.metrics import (
+    DISPLACEMENT_LIMIT,
+    YAW_RATIO_1000,
+    YAW_RATIO_1750,
     alongside_path,
     cone_hits,
     mae,
@@ -42,10 +45,13 @@ from fourwis.envs.metrics import (
 from fourwis.envs.scenarios import SCENARIOS, make_scenario
 from fourwis.envs.sensors import Fault
 from fourwis.envs.simulation import Trajectory, simulate
+from fourwis.envs.vehicle import VehicleParams
 from fourwis.estimation import check_estimator_name
-from fourwis.training.io import atomic_write, atomic_write_text, check_writable, pyplot
+from fourwis.training.io import atomic_write, atomic_write_text, check_writable, pyplot, staged_output
 from fourwis.training.pool import check_jobs, parallel_map
+from fourwis.training.provenance import Provenance, provenance
 from fourwis.training.tables import mean_over_seeds, require_distinct, write_runs_csv
+from fourwis.training.trajectory_io import reference_yaw_rate_of
 
 #: headline scenarios: the paper's five conditions, FMVSS 126 at 5.5A on a wet road, the mu jump,
 #: and ISO 3888-2 at 70 km/h on mu 1.0 (where the uncontrolled car spins; it clears 60 km/h)
@@ -189,7 +195,7 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
     params = scenario.vehicle_params
     T, E = traj.truth, traj.estimate
     beta = T.beta
-    r_ref = reference_yaw_rate(traj.state[:, S_U], traj.state[:, S_DELTA_F], T.mu, params)
+    r_ref = reference_yaw_rate_of(traj)
     out = {
         "peak_beta": peak_abs(beta),
         "yaw_tracking_rms": yaw_rate_tracking_rms(traj.state[:, S_R], r_ref),
@@ -249,6 +255,8 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
             swd_ratio_1750=res.yaw_rate_ratio_1750,
             swd_displacement=res.lateral_displacement,
             swd_passed=float(res.passed),
+            # FMVSS 126's responsiveness (displacement >= 1.83 m), which applies from 5A: NaN below
+            swd_responsive=math.nan if res.passed_responsiveness is None else float(res.passed_responsiveness),
         )
     # the pass-rate map's verdict: no spin-out, on a course its end reached, and on sine with
     # dwell FMVSS 126 passed (the yaw ratios and the responsiveness displacement: a stable car
@@ -263,6 +271,82 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
     out["mae_mu"] = mae(E.mu.ravel(), T.mu.ravel())
     out["final_mu_error"] = float(np.mean(np.abs(E.mu[-1] - T.mu[-1])))
     return out
+
+
+#: the unit of every per-run metric of :func:`run_metrics`, as runs.csv heads its columns ("-":
+#: dimensionless, "0/1": a flag, "count"); angles in rad (the report shows degrees)
+METRIC_UNITS = {
+    "peak_beta": "rad",
+    "yaw_tracking_rms": "rad/s",
+    "spin_out": "0/1",
+    "phase_plane_peak": "-",
+    "yaw_moment_rms": "N m",
+    "rear_steer_rms": "rad",
+    "path_rms": "m",
+    "path_max": "m",
+    "cone_hits": "count",
+    "course_completed": "0/1",
+    "swd_ratio_1000": "-",
+    "swd_ratio_1750": "-",
+    "swd_displacement": "m",
+    "swd_passed": "0/1",
+    "swd_responsive": "0/1",
+    "passed": "0/1",
+    "rmse_u": "m/s",
+    "mae_u": "m/s",
+    "rmse_v": "m/s",
+    "mae_v": "m/s",
+    "rmse_beta": "rad",
+    "mae_beta": "rad",
+    "rmse_r": "rad/s",
+    "mae_r": "rad/s",
+    "rmse_mu": "-",
+    "mae_mu": "-",
+    "final_mu_error": "-",
+}
+
+#: the criteria a run's verdict judges, in the order the report names them
+CRITERIA = {
+    "spin-out": "the sideslip passed 20 deg (envs.metrics.spin_out)",
+    "course": "the car stopped short of the course's last cones",
+    "cones": "the car's body touched a cone (ISO 3888-2: such a run is not valid)",
+    "FMVSS yaw 1.0 s": f"FMVSS 126 S5.2.1: yaw rate 1 s after the steering ends above {YAW_RATIO_1000:.0%} of its peak",
+    "FMVSS yaw 1.75 s": f"FMVSS 126 S5.2.2: yaw rate 1.75 s after the steering ends above {YAW_RATIO_1750:.0%}",
+    "FMVSS responsiveness": f"FMVSS 126 S5.2.3: lateral displacement under {DISPLACEMENT_LIMIT} m (from 5A)",
+}
+
+
+def failed_criteria(metrics: dict[str, float]) -> tuple[str, ...]:
+    """The :data:`CRITERIA` one run of :func:`run_metrics` fails (empty: it passes). The same
+    judgement as its ``passed`` flag (the pass-rate map) but for one criterion more, the cones."""
+    swd = "swd_ratio_1000" in metrics
+    failed = {
+        "spin-out": bool(metrics["spin_out"]),
+        "course": metrics.get("course_completed", 1.0) != 1.0,
+        "cones": metrics.get("cone_hits", 0.0) > 0,
+        # (magnitudes, as envs.metrics.SineWithDwellResult.passed_yaw; NaN or inf fails)
+        "FMVSS yaw 1.0 s": swd and not abs(metrics["swd_ratio_1000"]) <= YAW_RATIO_1000,
+        "FMVSS yaw 1.75 s": swd and not abs(metrics["swd_ratio_1750"]) <= YAW_RATIO_1750,
+        "FMVSS responsiveness": metrics.get("swd_responsive") == 0.0,
+    }
+    return tuple(name for name in CRITERIA if failed[name])
+
+
+def run_verdict(metrics: dict[str, float]) -> str:
+    """runs.csv's verdict of one run: ``pass`` or ``fail: <criterion>; <criterion>``."""
+    failed = failed_criteria(metrics)
+    return "fail: " + "; ".join(failed) if failed else "pass"
+
+
+def verdict_cell(runs: Sequence[dict[str, float]]) -> str:
+    """The report's verdict over a cell's seeds: ``pass n/n``, or ``FAIL k/n:`` and each failed
+    criterion with the number of runs that failed it."""
+    failures = [failed_criteria(m) for m in runs]
+    failing = sum(bool(f) for f in failures)
+    if not failing:
+        return f"pass {len(runs)}/{len(runs)}"
+    counts = {name: sum(name in f for f in failures) for name in CRITERIA}
+    return f"FAIL {failing}/{len(runs)}: " + ", ".join(f"{name} {k}" for name, k in counts.items() if k)
 
 
 def build_controller(name: str, params):
@@ -310,15 +394,12 @@ def _check(kind: str, names: Sequence[str], known: Sequence[str]) -> None:
         raise ValueError(f"unknown {kind} {unknown}; known: {list(known)}")
 
 
-def run_matrix(
-    scenarios: Sequence[str] = HEADLINE,
-    estimators: Sequence[str] = DEFAULT_ESTIMATORS,
-    controllers: Sequence[str] = DEFAULT_CONTROLLERS,
-    seeds: int = 2,
-    jobs: int | None = None,
-    progress: bool = True,
-) -> tuple[list[tuple[RunSpec, dict]], dict]:
-    """Run the matrix in parallel processes; returns per-run (spec, metrics) and seed-0 trajectories."""
+def check_matrix(
+    scenarios: Sequence[str], estimators: Sequence[str], controllers: Sequence[str], seeds: int, jobs: int | None
+) -> None:
+    """ValueError naming a bad entry of the matrix, before anything runs: an unknown or repeated
+    scenario, estimator or controller, a bad override, seeds or jobs, a policy ``rl:<run>`` whose
+    run directory lacks a file or holds a damaged one (its model is loaded to find out)."""
     if not (is_integer(seeds) and seeds >= 1):
         raise ValueError(f"seeds must be an integer >= 1, got {seeds!r}")
     check_jobs(jobs)
@@ -344,12 +425,25 @@ def run_matrix(
     _check("controller(s)", [c for c in controllers if not c.startswith(RL_PREFIX) and c not in user], CONTROLLERS)
     for name in controllers:
         if name.startswith(RL_PREFIX):
-            from fourwis.training.rl import run_files
-
             try:
-                run_files(name.removeprefix(RL_PREFIX))
-            except FileNotFoundError as err:
+                build_controller(name, VehicleParams())  # the run's config, model and normaliser read
+            except (FileNotFoundError, ValueError) as err:
                 raise ValueError(f"controller {name!r}: {err}") from None
+
+
+def run_matrix(
+    scenarios: Sequence[str] = HEADLINE,
+    estimators: Sequence[str] = DEFAULT_ESTIMATORS,
+    controllers: Sequence[str] = DEFAULT_CONTROLLERS,
+    seeds: int = 2,
+    jobs: int | None = None,
+    progress: bool = True,
+    checked: bool = False,
+) -> tuple[list[tuple[RunSpec, dict]], dict]:
+    """Run the matrix in parallel processes; returns per-run (spec, metrics) and seed-0
+    trajectories. ``checked``: :func:`check_matrix` has passed already (else it runs first)."""
+    if not checked:
+        check_matrix(scenarios, estimators, controllers, seeds, jobs)
     A = {s: entry_A(s) for s in scenarios}
     specs = [
         RunSpec(s, e, c, k, A[s]) for s in scenarios for c in controllers for e in estimators for k in range(seeds)
@@ -368,14 +462,23 @@ def aggregate(results: list[tuple[RunSpec, dict]]) -> dict[tuple[str, str, str],
 
 
 def write_csv(results: list[tuple[RunSpec, dict]], path: Path) -> Path:
+    """runs.csv: a run per row, its scenario, estimator, controller, seed and verdict
+    (:func:`run_verdict`), then its metrics in alphabetical order, each headed ``name [unit]``
+    (:data:`METRIC_UNITS`); a metric the run does not have (or NaN) is an empty field."""
     names = sorted({m for _, metrics in results for m in metrics})
     return write_runs_csv(
         results,
-        ["scenario", "estimator", "controller", "seed"],
-        lambda spec: [spec.scenario, spec.estimator, spec.controller, spec.seed],
+        ["scenario", "estimator", "controller", "seed", "verdict"],
+        lambda spec, metrics: [spec.scenario, spec.estimator, spec.controller, spec.seed, run_verdict(metrics)],
         names,
+        METRIC_UNITS,
         path,
     )
+
+
+def _seed_range(seeds: int) -> str:
+    """The sensor-noise seeds 0 .. seeds - 1 in words ("seed 0", "seeds 0-2")."""
+    return "seed 0" if seeds == 1 else f"seeds 0-{seeds - 1}"
 
 
 def _fmt(value: float | None, scale: float = 1.0, digits: int = 2) -> str:
@@ -383,14 +486,31 @@ def _fmt(value: float | None, scale: float = 1.0, digits: int = 2) -> str:
 
 
 def markdown_report(
-    table: dict, scenarios: Sequence[str], estimators: Sequence[str], controllers: Sequence[str], seeds: int
+    results: Sequence[tuple[RunSpec, dict[str, float]]],
+    scenarios: Sequence[str],
+    estimators: Sequence[str],
+    controllers: Sequence[str],
+    seeds: int,
+    header: Provenance | None = None,
 ) -> str:
+    """report.md of the runs ``results`` (every cell of the matrix, ``seeds`` runs each): who wrote
+    it (``header``, default: :func:`training.provenance.provenance` of now), the stability table
+    with each cell's verdict, the ratios to the oracle, the estimation accuracy. Angles in
+    degrees, missing values as a dash."""
     deg = 180.0 / math.pi
+    table = aggregate(list(results))
+    runs: dict[tuple[str, str, str], list[dict]] = {}
+    for spec, metrics in results:
+        runs.setdefault((spec.scenario, spec.estimator, spec.controller), []).append(metrics)
+    header = header or provenance()
     lines = [
         "# fourwis closed-loop comparison",
         "",
+        *header.markdown(),
+        "",
         f"Runs: {len(scenarios)} scenarios x {len(estimators)} estimators x {len(controllers)} controllers "
-        f"x {seeds} seeds (means over seeds). The controller sees only the estimate.",
+        f"x {seeds} seeds (sensor-noise {_seed_range(seeds)}; means over seeds). The controller sees only the "
+        "estimate. Angles in degrees; — : the metric does not apply to the scenario (runs.csv: an empty field).",
         *(
             [
                 f"`swd_wet`: FMVSS 126 sine with dwell at {SWD_MULTIPLE}A on mu {SWD_MU} from 80 km/h "
@@ -403,45 +523,55 @@ def markdown_report(
         "(control.reference.PhasePlaneRegion: max(|beta_dot + c1 beta| / c2, |r| / (3 mu g / u))) at speeds "
         ">= 10 m/s; above 1 the car left the region it recovers from by itself with the steering straight.",
         "",
+        "Verdict: `pass k/n` when all n seeds pass, else `FAIL k/n` (k seeds failed) and each failed "
+        "criterion with the number of seeds that failed it: "
+        + "; ".join(f"*{name}*: {text}" for name, text in CRITERIA.items())
+        + ". The pass-rate map (pass_rate.png, runs.csv `passed`) judges the same but for the cones.",
+        "",
         "## Stability",
         "",
-        "| scenario | controller | estimator | peak beta [deg] | phase-plane peak | yaw-rate RMS err [deg/s] "
-        "| spin-outs | path RMS [m] | cone hits | SWD ratio @1.0 s | SWD ratio @1.75 s | SWD displ. [m] "
-        "| yaw moment RMS [N m] |",
-        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "| scenario | controller | estimator | verdict | peak beta [deg] | phase-plane peak "
+        "| yaw-rate RMS err [deg/s] | spin-outs | path RMS [m] | cone hits | SWD ratio @1.0 s "
+        "| SWD ratio @1.75 s | SWD displ. [m] | yaw moment RMS [N m] |",
+        "|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for s in scenarios:
         for c in controllers:
             for e in estimators:
-                m = table[(s, e, c)]
+                m, cell = table[(s, e, c)], runs[(s, e, c)]
+                spins = sum(bool(r["spin_out"]) for r in cell)
                 lines.append(
-                    f"| {s} | {c} | {e} | {_fmt(m['peak_beta'], deg, 1)} | {_fmt(m['phase_plane_peak'])} "
-                    f"| {_fmt(m['yaw_tracking_rms'], deg)} "
-                    f"| {_fmt(m['spin_out'], 1, 1)} | {_fmt(m.get('path_rms'))} | {_fmt(m.get('cone_hits'), 1, 1)} "
+                    f"| {s} | {c} | {e} | {verdict_cell(cell)} | {_fmt(m['peak_beta'], deg, 1)} "
+                    f"| {_fmt(m['phase_plane_peak'])} | {_fmt(m['yaw_tracking_rms'], deg)} "
+                    f"| {spins}/{len(cell)} | {_fmt(m.get('path_rms'))} | {_fmt(m.get('cone_hits'), 1, 1)} "
                     f"| {_fmt(m.get('swd_ratio_1000'), 100, 0)}{'%' if 'swd_ratio_1000' in m else ''} "
                     f"| {_fmt(m.get('swd_ratio_1750'), 100, 0)}{'%' if 'swd_ratio_1750' in m else ''} "
                     f"| {_fmt(m.get('swd_displacement'))} | {_fmt(m['yaw_moment_rms'], 1, 0)} |"
                 )
     lines += oracle_ratio_lines(table, scenarios, estimators, controllers)
-    lines += [
-        "",
-        "## Estimation accuracy (paper Table 2 form, open loop: controller none)"
-        if "none" in controllers
-        else "## Estimation accuracy (first controller)",
-        "",
-        "| scenario | estimator | RMSE u [m/s] | RMSE v [m/s] | RMSE beta [deg] | MAE beta [deg] "
-        "| RMSE r [deg/s] | RMSE mu | final mu error |",
-        "|---|---|---:|---:|---:|---:|---:|---:|---:|",
-    ]
+    estimated = [e for e in estimators if e != "oracle"]  # (the oracle's errors are zero by construction)
     c = "none" if "none" in controllers else controllers[0]
-    for s in scenarios:
-        for e in estimators:
-            m = table[(s, e, c)]
-            lines.append(
-                f"| {s} | {e} | {_fmt(m['rmse_u'], 1, 3)} | {_fmt(m['rmse_v'], 1, 3)} "
-                f"| {_fmt(m['rmse_beta'], deg, 3)} | {_fmt(m['mae_beta'], deg, 3)} | {_fmt(m['rmse_r'], deg, 3)} "
-                f"| {_fmt(m['rmse_mu'], 1, 3)} | {_fmt(m['final_mu_error'], 1, 3)} |"
-            )
+    if estimated:
+        lines += [
+            "",
+            "## Estimation accuracy (paper Table 2 form, open loop: controller none)"
+            if "none" in controllers
+            else f"## Estimation accuracy (controller {c})",
+            "",
+            "Means over seeds; the oracle (the truth itself, zero error) is left out.",
+            "",
+            "| scenario | estimator | RMSE u [m/s] | RMSE v [m/s] | RMSE beta [deg] | MAE beta [deg] "
+            "| RMSE r [deg/s] | RMSE mu | final mu error |",
+            "|---|---|---:|---:|---:|---:|---:|---:|---:|",
+        ]
+        for s in scenarios:
+            for e in estimated:
+                m = table[(s, e, c)]
+                lines.append(
+                    f"| {s} | {e} | {_fmt(m['rmse_u'], 1, 3)} | {_fmt(m['rmse_v'], 1, 3)} "
+                    f"| {_fmt(m['rmse_beta'], deg, 3)} | {_fmt(m['mae_beta'], deg, 3)} "
+                    f"| {_fmt(m['rmse_r'], deg, 3)} | {_fmt(m['rmse_mu'], 1, 3)} | {_fmt(m['final_mu_error'], 1, 3)} |"
+                )
     return "\n".join(lines) + "\n"
 
 
@@ -494,8 +624,14 @@ def oracle_ratio_lines(
     return lines
 
 
-def plot_report(table: dict, trajectories: dict, scenarios, estimators, controllers, out: Path) -> list[Path]:
+def plot_report(
+    table: dict, trajectories: dict, scenarios, estimators, controllers, out: Path, seeds: int
+) -> list[Path]:
+    """The comparison's PNGs in ``out``: peak sideslip (means over the ``seeds``), the pass-rate
+    map, and per scenario the time series of seed 0 (yaw rate with the reference it is judged
+    against, sideslip, mean mu, the phase portrait); each title says which seeds it draws."""
     plt = pyplot()
+    over = _seed_range(seeds)
 
     paths = []
     fig, ax = plt.subplots(figsize=(12, 5))
@@ -511,7 +647,7 @@ def plot_report(table: dict, trajectories: dict, scenarios, estimators, controll
         ax.set_yscale("log")
     ax.set_ylabel("peak |sideslip| [deg]" + " (log scale)" * (largest > 0))
     ax.legend(fontsize=8, ncol=2)
-    ax.set_title("Peak sideslip by scenario, controller and estimator (mean over seeds)")
+    ax.set_title(f"Peak sideslip by scenario, controller and estimator (mean over {over})")
     fig.tight_layout()
     paths.append(atomic_write(out / "peak_sideslip.png", lambda p: fig.savefig(p, format="png", dpi=110)))
     plt.close(fig)
@@ -533,12 +669,15 @@ def plot_report(table: dict, trajectories: dict, scenarios, estimators, controll
         ax.set_yticks(range(len(estimators)), estimators, fontsize=8)
         ax.set_title(f"controller {c}", fontsize=9)
     axes[-1, 0].set_xticks(range(len(scenarios)), scenarios, rotation=30, ha="right", fontsize=8)
-    fig.suptitle("pass rate over seeds: no spin-out, course completed, FMVSS 126 passed on sine with dwell", fontsize=9)
+    fig.suptitle(
+        f"pass rate over {over}: no spin-out, course completed, FMVSS 126 passed on sine with dwell", fontsize=9
+    )
     paths.append(atomic_write(out / "pass_rate.png", lambda p: fig.savefig(p, format="png", dpi=110)))
     plt.close(fig)
 
     for s in scenarios:
         fig, axes = plt.subplots(1, 4, figsize=(19, 4))
+        referenced = False
         for c in controllers:
             for e in estimators:
                 traj = trajectories.get((s, e, c))
@@ -549,6 +688,15 @@ def plot_report(table: dict, trajectories: dict, scenarios, estimators, controll
                     label = "no control" if c == "none" else f"{c} / {e}"
                     beta = np.degrees(traj.truth.beta)
                     color = axes[0].plot(traj.t, np.degrees(traj.state[:, S_R]), label=label)[0].get_color()
+                    axes[0].plot(
+                        traj.t,
+                        np.degrees(reference_yaw_rate_of(traj)),
+                        ":",
+                        lw=1,
+                        color=color,
+                        label=None if referenced else "dotted: its reference (2-DOF, true mu)",
+                    )
+                    referenced = True
                     axes[1].plot(traj.t, beta, label=label, color=color)
                     axes[3].plot(beta, np.gradient(beta, traj.t), lw=0.8, label=label, color=color)
                 if c == controllers[-1]:  # in the colour of that run
@@ -587,7 +735,7 @@ def plot_report(table: dict, trajectories: dict, scenarios, estimators, controll
         axes[3].set_xlabel("sideslip [deg]")
         axes[0].legend(fontsize=7)
         axes[2].legend(fontsize=7)
-        fig.suptitle(s)
+        fig.suptitle(f"{s} (seed 0)")
         fig.tight_layout()
         paths.append(
             atomic_write(out / f"{file_stem(s)}.png", lambda p, fig=fig: fig.savefig(p, format="png", dpi=100))
@@ -603,12 +751,22 @@ def compare(
     controllers: Sequence[str] = DEFAULT_CONTROLLERS,
     seeds: int = 2,
     jobs: int | None = None,
+    command: str | None = None,
 ) -> Path:
-    """Run the matrix and write report.md, runs.csv and PNG plots into ``out``; returns the report path."""
+    """Run the matrix and write report.md, runs.csv and PNG plots into ``out`` as one set
+    (:func:`training.io.staged_output`: an interrupt leaves the folder's previous set); returns
+    the report's path. ``command``: what the report's header says wrote it (default: this
+    process's command line). Bad arguments and an unwritable ``out`` raise ValueError before
+    any run."""
+    check_matrix(scenarios, estimators, controllers, seeds, jobs)
     out = check_writable(out)
     pyplot()  # (its plots need matplotlib: say so before the runs, not after them)
-    results, trajectories = run_matrix(scenarios, estimators, controllers, seeds, jobs)
-    table = aggregate(results)
-    write_csv(results, out / "runs.csv")
-    plot_report(table, trajectories, scenarios, estimators, controllers, out)
-    return atomic_write_text(out / "report.md", markdown_report(table, scenarios, estimators, controllers, seeds))
+    results, trajectories = run_matrix(scenarios, estimators, controllers, seeds, jobs, checked=True)
+    header = provenance(command)
+    with staged_output(out) as stage:
+        write_csv(results, stage / "runs.csv")
+        plot_report(aggregate(results), trajectories, scenarios, estimators, controllers, stage, seeds)
+        atomic_write_text(
+            stage / "report.md", markdown_report(results, scenarios, estimators, controllers, seeds, header)
+        )
+    return out / "report.md"

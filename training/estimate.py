@@ -33,8 +33,9 @@ from fourwis.training.compare import (
     naming_the_run,
     parse_scenario,
 )
-from fourwis.training.io import atomic_write, atomic_write_text, check_writable, pyplot
+from fourwis.training.io import atomic_write, atomic_write_text, check_writable, pyplot, staged_output
 from fourwis.training.pool import parallel_map
+from fourwis.training.provenance import Provenance, provenance
 from fourwis.training.tables import mean_over_seeds, require_distinct, write_runs_csv
 from fourwis.training.tyre_fit import plot_tyre_curves
 
@@ -51,6 +52,18 @@ METRICS = (
     "mu_convergence_time",
     "mu_estimated",
 )
+#: the unit of each metric, as estimate.csv heads its columns ("-": dimensionless, "0/1": a flag)
+METRIC_UNITS = {
+    "mae_u": "m/s",
+    "rmse_u": "m/s",
+    "mae_v": "m/s",
+    "rmse_v": "m/s",
+    "mae_beta": "rad",
+    "rmse_beta": "rad",
+    "mu_error_last_half": "-",
+    "mu_convergence_time": "s",
+    "mu_estimated": "0/1",
+}
 WHEELS = ("FL", "FR", "RL", "RR")
 
 #: The paper's Table 2 (section 3.3.3, double lane change on mu 0.5 at 35 km/h, CarSim, sampled
@@ -198,17 +211,23 @@ def aggregate(results: list[tuple[RunSpec, dict]]) -> dict[tuple[str, str], dict
 
 
 def write_csv(results: list[tuple[RunSpec, dict]], path: Path) -> Path:
+    """estimate.csv: a run per row (scenario, estimator, seed, then :data:`METRICS` headed
+    ``name [unit]``, SI units; NaN, e.g. a convergence that never came, an empty field)."""
     return write_runs_csv(
         results,
         ["scenario", "estimator", "seed"],
-        lambda spec: [spec.scenario.name, spec.estimator, spec.seed],
+        lambda spec, metrics: [spec.scenario.name, spec.estimator, spec.seed],
         METRICS,
+        METRIC_UNITS,
         path,
     )
 
 
-def _fmt(value: float, digits: int = 5) -> str:
-    return "—" if not math.isfinite(value) else f"{value:.{digits}f}"
+def _fmt(value: float, digits: int = 5, scale: float = 1.0) -> str:
+    return "—" if not math.isfinite(value) else f"{value * scale:.{digits}f}"
+
+
+DEG = 180.0 / math.pi  #: rad -> deg, for the report's tables and plots
 
 
 def _convergence(m: dict[str, float], estimator: str) -> str:
@@ -220,11 +239,20 @@ def _convergence(m: dict[str, float], estimator: str) -> str:
 
 
 def markdown_report(
-    table: dict, scenarios: Sequence[Scenario], estimators: Sequence[str], seeds: int, road_mu: bool = False
+    table: dict,
+    scenarios: Sequence[Scenario],
+    estimators: Sequence[str],
+    seeds: int,
+    road_mu: bool = False,
+    header: Provenance | None = None,
 ) -> str:
-    """estimate.md: per-scenario tables (means over seeds) and the paper's Table 2 beside ours."""
+    """estimate.md: who wrote it (``header``, default: :func:`training.provenance.provenance` of
+    now), per-scenario tables (means over seeds; sideslip in degrees) and the paper's Table 2
+    beside ours."""
     lines = [
         "# fourwis open-loop estimation accuracy (paper Table 2 form)",
+        "",
+        *(header or provenance()).markdown(),
         "",
         f"Runs: {len(scenarios)} scenarios x {len(estimators)} estimators x {seeds} seeds, no controller "
         "(scripted steering or the path-following driver; the estimator only observes). Values are "
@@ -243,15 +271,17 @@ def markdown_report(
         lines += [
             heading,
             "",
-            "| estimator | MAE u [m/s] | RMSE u [m/s] | MAE v [m/s] | RMSE v [m/s] | MAE beta [rad] "
-            "| RMSE beta [rad] | mu error, last half | mu convergence [s] |",
+            "| estimator | MAE u [m/s] | RMSE u [m/s] | MAE v [m/s] | RMSE v [m/s] | MAE beta [deg] "
+            "| RMSE beta [deg] | mu error, last half | mu convergence [s] |",
             "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
         ]
         for e in estimators:
             m = table[(s.name, e)]
             lines.append(
                 f"| {e} | "
-                + " | ".join(_fmt(m[k]) for k in METRICS[:6])
+                + " | ".join(_fmt(m[k]) for k in METRICS[:4])
+                + " | "
+                + " | ".join(_fmt(m[k], 4, DEG) for k in ("mae_beta", "rmse_beta"))
                 + f" | {_fmt(m['mu_error_last_half'], 3)} | {_convergence(m, e)} |"
             )
         lines.append("")
@@ -261,16 +291,17 @@ def markdown_report(
         "Table 2 of *Joint Estimation of Driving State and Road Surface Adhesion Coefficient of a "
         "Four-Wheel Independent and Steering-Drive Electric Vehicle* (section 3.3.3: double lane change, "
         "mu 0.5, 35 km/h, CarSim 2019 + MATLAB/Simulink, sampled every 0.002 s), transcribed as printed; "
-        f"ours: the same estimator on `{PAPER_TABLE2_SCENARIO}` (mean over seeds; u, v in m/s, beta in rad).",
+        f"ours: the same estimator on `{PAPER_TABLE2_SCENARIO}` (mean over seeds; u, v in m/s, beta in deg: "
+        "the paper's sideslip column read as rad and converted).",
         "",
-        "| statistic | estimator | u: paper | u: ours | v: paper | v: ours | beta: paper | beta: ours |",
+        "| statistic | estimator | u: paper | u: ours | v: paper | v: ours | beta [deg]: paper | beta [deg]: ours |",
         "|---|---|---:|---:|---:|---:|---:|---:|",
     ]
     for (stat, e), paper in PAPER_TABLE2.items():
         ours = table.get((PAPER_TABLE2_SCENARIO, e))
         cells = [
-            f"{p:.4f} | {_fmt(ours[f'{stat.lower()}_{q}']) if ours else 'not run'}"
-            for p, q in zip(paper, ("u", "v", "beta"))
+            f"{p * scale:.4f} | {_fmt(ours[f'{stat.lower()}_{q}'], digits, scale) if ours else 'not run'}"
+            for p, q, scale, digits in zip(paper, ("u", "v", "beta"), (1.0, 1.0, DEG), (5, 5, 4))
         ]
         lines.append(f"| {stat} | {e} | " + " | ".join(cells) + " |")
     lines += _ratio_section(table, scenarios, estimators)
@@ -283,7 +314,8 @@ def markdown_report(
     lines += [
         "",
         "Caveats: the paper states no sensor noise levels (nor biases) for its CarSim runs, "
-        "nor the units of Table 2 (the sideslip column is read as rad here), nor its filters' initial "
+        "nor the units of Table 2 (the sideslip column is read as rad here and shown in degrees), nor its "
+        "filters' initial "
         "errors; its plant is CarSim's, ours is fourwis's own model. Our runs use the default sensor "
         "model (envs.sensors.SensorParams: white noise and turn-on biases on every channel), so the "
         "numbers are comparable in form, not like for like.",
@@ -318,15 +350,20 @@ def _ratio_section(table: dict, scenarios: Sequence[Scenario], estimators: Seque
 
 
 def plot_scenario(name: str, series: dict, estimators: Sequence[str], path: Path) -> Path:
-    """PNG of seed 0 in the style of the paper's Figures 8-13: estimates vs truth of u, v, beta and mu per wheel."""
+    """PNG of seed 0 in the style of the paper's Figures 8-13: estimates vs truth of u, v, beta
+    (in degrees) and mu per wheel."""
     plt = pyplot()
 
     fig, axes = plt.subplots(2, 4, figsize=(16, 7), sharex=True)
-    panels = [("u", "longitudinal speed u [m/s]"), ("v", "lateral speed v [m/s]"), ("beta", "sideslip beta [rad]")]
+    panels = [
+        ("u", "longitudinal speed u [m/s]", 1.0),
+        ("v", "lateral speed v [m/s]", 1.0),
+        ("beta", "sideslip beta [deg]", DEG),
+    ]
     first = next(series[(name, e)] for e in estimators)
     t, truth = first[0], first[1]
-    for ax, (field_name, title) in zip(axes[0], panels):
-        ax.plot(t, getattr(truth, field_name), "k--", lw=1.5, label="truth")
+    for ax, (field_name, title, scale) in zip(axes[0], panels):
+        ax.plot(t, scale * getattr(truth, field_name), "k--", lw=1.5, label="truth")
         ax.set_title(title)
     for i, ax in enumerate(axes[1]):
         ax.plot(t, truth.mu[:, i], "k--", lw=1.5, label="truth")
@@ -334,15 +371,15 @@ def plot_scenario(name: str, series: dict, estimators: Sequence[str], path: Path
         ax.set_xlabel("t [s]")
     for e in estimators:
         _, _, est = series[(name, e)]
-        for ax, (field_name, _) in zip(axes[0], panels):
-            ax.plot(t, getattr(est, field_name), lw=1, label=e)
+        for ax, (field_name, _, scale) in zip(axes[0], panels):
+            ax.plot(t, scale * getattr(est, field_name), lw=1, label=e)
         for i, ax in enumerate(axes[1]):
             ax.plot(t, est.mu[:, i], lw=1, label=e)
     for ax in axes.flat:
         ax.grid(alpha=0.3)
     axes[0, 3].axis("off")
     axes[0, 3].legend(*axes[0, 0].get_legend_handles_labels(), loc="center", title="seed 0")
-    fig.suptitle(f"{name}: estimates vs truth (open loop)")
+    fig.suptitle(f"{name}: estimates vs truth (open loop, seed 0)")
     fig.tight_layout()
     atomic_write(path, lambda p: fig.savefig(p, format="png", dpi=100))
     plt.close(fig)
@@ -356,9 +393,12 @@ def estimate_report(
     seeds: int = 1,
     jobs: int | None = None,
     road_mu: bool = False,
+    command: str | None = None,
 ) -> Path:
     """Run the open-loop matrix; write estimate.csv, estimate.md, <scenario>.png and tyre_curves.png
-    (the plant's tyre against the estimator's fitted Dugoff, paper Figures 2-3) into ``out``.
+    (the plant's tyre against the estimator's fitted Dugoff, paper Figures 2-3) into ``out``, as
+    one set (:func:`training.io.staged_output`: an interrupt leaves the previous set).
+    ``command``: what the report's header says wrote it (default: this process's command line).
 
     ``scenarios``: Scenario objects, or names with optional overrides as in compare
     (``paper_step:mu=0.5``; the plot's file name replaces ':', ',' and '=' by '_'); returns
@@ -369,8 +409,11 @@ def estimate_report(
     results, series = run_all(scenarios, estimators, seeds, jobs, road_mu=road_mu)
     built = list({spec.scenario.name: spec.scenario for spec, _ in results}.values())
     table = aggregate(results)
-    write_csv(results, out / "estimate.csv")
-    for s in built:
-        plot_scenario(s.name, series, estimators, out / f"{file_stem(s.name)}.png")
-    plot_tyre_curves(out / "tyre_curves.png")
-    return atomic_write_text(out / "estimate.md", markdown_report(table, built, estimators, seeds, road_mu))
+    header = provenance(command)
+    with staged_output(out) as stage:
+        write_csv(results, stage / "estimate.csv")
+        for s in built:
+            plot_scenario(s.name, series, estimators, stage / f"{file_stem(s.name)}.png")
+        plot_tyre_curves(stage / "tyre_curves.png")
+        atomic_write_text(stage / "estimate.md", markdown_report(table, built, estimators, seeds, road_mu, header))
+    return out / "estimate.md"

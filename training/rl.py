@@ -54,6 +54,7 @@ from fourwis.training.io import atomic_write, atomic_write_json, atomic_write_te
 EVALUATIONS = "evaluations.npz"  #: the run's evaluation log (SB3's EvalCallback format)
 SHIPPED_POLICIES = Path(__file__).resolve().parent / "policies"  #: the trained policies shipped as package data
 
+BASELINES = ("none", "dyc-lqr")  #: the controllers ``fourwis evaluate`` runs beside a policy
 TORCH_THREADS = 1  #: 128-unit MLPs gain nothing from more threads, which would compete with the env
 
 
@@ -342,10 +343,9 @@ def train(
     if not (is_integer(timesteps) and timesteps > 0):
         raise ValueError(f"timesteps must be a positive integer, got {timesteps!r}")
     env_kwargs = _as_json(dict(env_kwargs or {}))  # as config.json records them, so resume and rl: read the same
-    out = check_writable(out)
     if resume is not None:
         seed, n_envs = _check_resumable(resume, algo, env_kwargs, seed, n_envs)
-        _check_no_abandoned_branch(resume, out)
+        _check_no_abandoned_branch(resume, Path(out))
     seed = 0 if seed is None else seed
     n_envs = 16 if n_envs is None else n_envs
     if not (is_integer(seed) and seed >= 0):
@@ -367,6 +367,7 @@ def train(
         raise ValueError(
             f"bad env_kwargs {env_kwargs!r}: {err}; known: {[f.name for f in fields(EnvConfig)]}"
         ) from None
+    out = check_writable(out)  # (after the arguments: a refused run creates no folder)
     replaces = _other_run(out, resume)
     if replaces and not overwrite:
         raise ValueError(
@@ -385,8 +386,8 @@ def train(
     )
     if resume is not None:
         model_path, normalizer_path, _ = run_files(resume)
-        normalized = VecNormalize.load(str(normalizer_path), train_env)
-        model = algo_class.load(str(model_path), env=normalized, device="cpu")
+        normalized = load_normalizer(normalizer_path, train_env)
+        model = load_model(algo, model_path, env=normalized)
         model.tensorboard_log = str(out / "tb")  # this run's logs in its own folder, not the resumed one's
         if model.num_timesteps >= timesteps:  # checked before anything is written
             raise ValueError(
@@ -481,7 +482,7 @@ def _check_resumable(
     config_path = run_files(resume)[2]
     if not config_path.exists():
         raise ValueError(f"cannot resume {resume}: {config_path} is missing (its algorithm and env are unknown)")
-    saved = json.loads(config_path.read_text())
+    saved = read_run_config(config_path)
     if saved["algo"] != algo:
         raise ValueError(f"cannot resume {resume}: it was trained with --algo {saved['algo']}, not {algo}")
     if saved["env_kwargs"] != env_kwargs:
@@ -545,11 +546,7 @@ def _check_no_abandoned_branch(resume: str | Path, out: Path) -> None:
     model_path, _, config_path = run_files(resume)
     if config_path.parent.resolve() != out.resolve():
         return
-    step = (
-        json.loads(config_path.read_text())["timesteps"]
-        if model_path.name == "model.zip"
-        else _checkpoint_step(model_path)
-    )
+    step = read_run_config(config_path)["timesteps"] if model_path.name == "model.zip" else _checkpoint_step(model_path)
     later = sorted(p.name for p in (out / "checkpoints").glob("step_*.zip") if _checkpoint_step(p) > step)
     if later:
         raise ValueError(
@@ -559,14 +556,17 @@ def _check_no_abandoned_branch(resume: str | Path, out: Path) -> None:
 
 
 def run_files(path: str | Path) -> tuple[Path, Path, Path]:
-    """(model .zip, normaliser .pkl, run config.json) of a run directory or of a checkpoint's
-    .zip (checkpoints/ inside its run directory). ``training/policies/<name>`` that is no path
-    from here is the policy shipped in the installed package (README's examples, run anywhere)."""
+    """(model .zip, normaliser .pkl, run config.json) of a run directory (or its model.zip) or of
+    a checkpoint's .zip (checkpoints/ inside its run directory). ``training/policies/<name>``
+    that is no path from here is the policy shipped in the installed package (README's
+    examples, run anywhere)."""
     given = path = Path(path)
     if not path.exists() and path.parts[:2] == ("training", "policies"):
         path = SHIPPED_POLICIES.joinpath(*path.parts[2:])
     if not path.exists():
         raise FileNotFoundError(f"no trained policy at {given}: no such run directory or checkpoint")
+    if path.is_file() and path.name == "model.zip":  # a run's final model: the run directory's files
+        path = path.parent
     files = (
         (path / "model.zip", path / "vecnormalize.pkl", path / "config.json")
         if path.is_dir()
@@ -582,6 +582,66 @@ def run_files(path: str | Path) -> tuple[Path, Path, Path]:
             hint = f" (an interrupted run? its latest checkpoint is {latest})" if latest else ""
             raise FileNotFoundError(f"no trained policy at {path}: {p} is missing{hint}")
     return files
+
+
+#: what config.json must hold, by type, for a run to be rebuilt (RunConfig's fields that are read)
+CONFIG_FIELDS = {"algo": str, "env_kwargs": dict, "seed": int, "n_envs": int, "timesteps": int}
+
+
+def read_run_config(path: str | Path) -> dict:
+    """A run directory's config.json (:class:`RunConfig`) as a dict; ValueError naming the file
+    when it is not JSON or lacks a field (:data:`CONFIG_FIELDS`) of the right type, as a damaged
+    or hand-edited file would (FileNotFoundError when it is missing)."""
+    try:
+        config = json.loads(Path(path).read_bytes())
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise ValueError(f"{path} is damaged: not the JSON run config fourwis train writes ({err})") from None
+    if not isinstance(config, dict):
+        raise ValueError(f"{path} is damaged: expected a JSON object (a run config), got {type(config).__name__}")
+    wrong = [
+        f"{name} ({kind.__name__})"
+        for name, kind in CONFIG_FIELDS.items()
+        if not isinstance(config.get(name), kind) or (kind is int and isinstance(config.get(name), bool))
+    ]
+    if wrong:
+        raise ValueError(f"{path} is damaged: it lacks a valid {', '.join(wrong)}")
+    return config
+
+
+def load_normalizer(path: Path, venv=None):
+    """The run's VecNormalize statistics from ``path`` (given ``venv``: wrapping it, to train on);
+    ValueError naming the file when it cannot be unpickled (a damaged file raises nearly anything:
+    UnpicklingError, EOFError, ValueError, ...) or does not fit ``venv``."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    try:
+        if venv is not None:
+            return VecNormalize.load(str(path), venv)
+        with open(path, "rb") as handle:
+            normalizer = pickle.load(handle)
+    except OSError:
+        raise
+    except Exception as err:  # (any unpickling failure)
+        raise ValueError(
+            f"{path} is damaged: not a VecNormalize file fourwis train writes ({type(err).__name__}: {err})"
+        ) from err
+    if not isinstance(normalizer, VecNormalize):
+        raise ValueError(f"{path} is damaged: it holds a {type(normalizer).__name__}, not the run's VecNormalize")
+    return normalizer
+
+
+def load_model(algo: str, path: Path, **kwargs):
+    """The ``algo`` model saved at ``path`` (SB3's ``load`` on the CPU, with ``kwargs``);
+    ValueError naming the file when SB3 cannot read it."""
+    algo_class = _algo_class(algo)
+    try:
+        return algo_class.load(str(path), device="cpu", **kwargs)
+    except OSError:
+        raise
+    except Exception as err:  # (a damaged zip: BadZipFile, KeyError, pickle and torch errors)
+        raise ValueError(
+            f"{path} is damaged: not a {algo} model fourwis train writes ({type(err).__name__}: {err})"
+        ) from err
 
 
 def plot_learning_curve(out: Path) -> Path | None:
@@ -624,18 +684,20 @@ class PolicyController:
 
     def __init__(self, run: str | Path, params, dt: float = 0.002):
         model_path, normalizer_path, config_path = run_files(run)
-        config = json.loads(config_path.read_text())
-        env = EnvConfig(**config["env_kwargs"])
+        config = read_run_config(config_path)
+        try:
+            env = EnvConfig(**config["env_kwargs"])
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"{config_path}: its env_kwargs {config['env_kwargs']!r} build no env: {err}") from None
         if env.observation == "sensors":
             raise ValueError("PolicyController needs a policy trained on estimated or true observations")
-        self.model = _algo_class(config["algo"]).load(str(model_path), device="cpu")
+        self.model = load_model(config["algo"], model_path)
         if env.privileged and not isinstance(self.model.policy, tuple(POLICIES.values())):
             raise ValueError(
                 f"{run} was trained on the privileged observation without an asymmetric policy: its "
                 "actor reads the truth, which a controller does not have"
             )
-        with open(normalizer_path, "rb") as handle:
-            normalizer = pickle.load(handle)
+        normalizer = load_normalizer(normalizer_path)
         self._mean, self._var = normalizer.obs_rms.mean, normalizer.obs_rms.var
         self._clip, self._epsilon = normalizer.clip_obs, normalizer.epsilon
         substeps = int(round(env.control_dt / dt)) if dt > 0 else 0
@@ -672,15 +734,22 @@ class PolicyController:
 
 
 def evaluate(
-    run: str | Path, out: str | Path, scenarios, estimator: str | None = None, seeds: int = 2, jobs: int | None = None
+    run: str | Path,
+    out: str | Path,
+    scenarios,
+    estimator: str | None = None,
+    seeds: int = 2,
+    jobs: int | None = None,
+    command: str | None = None,
 ) -> Path:
-    """``fourwis evaluate``: the policy of ``run`` as controller ``rl:<run>`` next to no control,
-    through :func:`training.compare.compare`, with ``estimator`` in the loop (None: the one the
-    run was trained with, from its config.json); returns the report path."""
+    """``fourwis evaluate``: the policy of ``run`` (its run directory, its model.zip or a
+    checkpoint's .zip) as controller ``rl:<run>`` beside no control and the DYC-LQR baseline,
+    through :func:`training.compare.compare`, with ``estimator`` in the loop for all three
+    (None: the one the run was trained with, from its config.json); returns the report path."""
     from fourwis.training.compare import compare
 
     config = run_files(run)[2]
     if estimator is None:
-        trained_on = json.loads(config.read_text())["env_kwargs"] if config.exists() else {}
+        trained_on = read_run_config(config)["env_kwargs"] if config.exists() else {}
         estimator = trained_on.get("estimator", EnvConfig.estimator)
-    return compare(out, scenarios, [estimator], ["none", f"rl:{Path(run)}"], seeds, jobs)
+    return compare(out, scenarios, [estimator], [*BASELINES, f"rl:{Path(run)}"], seeds, jobs, command)

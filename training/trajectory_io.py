@@ -1,4 +1,4 @@
-"""Trajectory output: one CSV row per sample and a PNG overview plot."""
+"""Trajectory output: one CSV row per sample (each column headed ``name [unit]``) and a PNG overview plot."""
 
 from __future__ import annotations
 
@@ -8,12 +8,50 @@ from pathlib import Path
 
 import numpy as np
 
+from fourwis.control.reference import reference_yaw_rate
 from fourwis.core.constants import GRAVITY
 from fourwis.envs.layout import A_AX, A_AY, A_FZ, A_MU, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_V, S_X, S_Y
 from fourwis.envs.simulation import Trajectory
 from fourwis.training.io import atomic_write, atomic_write_text, pyplot
+from fourwis.training.tables import MISSING
 
 WHEELS = ("fl", "fr", "rl", "rr")
+#: the unit of each column of :func:`trajectory_columns` by its quantity (an ``est_`` prefix and a
+#: ``_<wheel>`` suffix taken off): "-" dimensionless
+UNITS = {
+    "t": "s",
+    "x": "m",
+    "y": "m",
+    "psi": "rad",
+    "u": "m/s",
+    "v": "m/s",
+    "r": "rad/s",
+    "beta": "rad",
+    "ax": "m/s^2",
+    "ay": "m/s^2",
+    "steering_wheel": "rad",
+    "delta_f": "rad",
+    "delta_r": "rad",
+    "torque": "N m",
+    "mu": "-",
+    "fz": "N",
+    "beta_std": "rad",
+    "mu_std": "-",
+}
+
+
+def column_unit(name: str) -> str:
+    """The unit of the trajectory column ``name`` (``est_mu_std_fl`` -> "-"; KeyError for none)."""
+    quantity = name.removeprefix("est_")
+    stem, _, wheel = quantity.rpartition("_")
+    return UNITS[stem if wheel in WHEELS else quantity]
+
+
+def reference_yaw_rate_of(traj: Trajectory) -> np.ndarray:
+    """(T,) the yaw-rate reference [rad/s] a run's tracking is measured against: the linear 2-DOF
+    steady state of the true forward speed and front road-wheel angle, bounded by the true
+    friction (:func:`control.reference.reference_yaw_rate`), whatever the controller aims at."""
+    return reference_yaw_rate(traj.state[:, S_U], traj.state[:, S_DELTA_F], traj.truth.mu, traj.scenario.vehicle_params)
 
 
 def trajectory_columns(traj: Trajectory) -> dict[str, np.ndarray]:
@@ -56,17 +94,27 @@ def trajectory_columns(traj: Trajectory) -> dict[str, np.ndarray]:
 
 
 def write_trajectory_csv(traj: Trajectory, path: str | Path) -> Path:
-    """Write the trajectory's columns to ``path`` as CSV (atomically)."""
+    """Write the trajectory's columns to ``path`` as CSV (atomically), headed ``name [unit]``
+    (:func:`column_unit`), a NaN as the runs CSVs' empty field (:data:`training.tables.MISSING`)."""
     cols = trajectory_columns(traj)
     buf = io.StringIO()
     writer = csv.writer(buf)
-    writer.writerow(cols)
-    writer.writerows(np.column_stack(list(cols.values())).tolist())
+    writer.writerow([f"{name} [{column_unit(name)}]" for name in cols])
+    table = np.column_stack(list(cols.values()))
+    rows = table.tolist()
+    if np.isnan(table).any():
+        rows = [[MISSING if v != v else v for v in row] for row in rows]
+    writer.writerows(rows)
     return atomic_write_text(path, buf.getvalue())
 
 
-def plot_trajectory(traj: Trajectory, path: str | Path, title: str | None = None) -> Path:
-    """PNG overview: path (with cones), yaw rate, sideslip, lateral acceleration, per-wheel mu."""
+def plot_trajectory(
+    traj: Trajectory, path: str | Path, *, controller: str, estimator: str, seed: int, name: str | None = None
+) -> Path:
+    """PNG overview: path (with cones), steering, yaw rate (with the reference it is measured
+    against, :func:`reference_yaw_rate_of`), sideslip, accelerations, per-wheel mu. The title
+    names the run: ``name`` (default: the scenario's; give the entry with its overrides), speed,
+    ``controller``, ``estimator`` and the sensor-noise ``seed``."""
     plt = pyplot()
     cols = trajectory_columns(traj)
     t = cols["t"]
@@ -92,6 +140,8 @@ def plot_trajectory(traj: Trajectory, path: str | Path, title: str | None = None
         ax.plot(t, scale(cols[key]), label="truth")
         ax.plot(t, scale(cols[f"est_{key}"]), "--", label="estimate")
         ax.set(xlabel="t [s]", ylabel=label)
+    axes[1, 0].plot(t, np.degrees(reference_yaw_rate_of(traj)), ":", color="k", label="reference (2-DOF, true mu)")
+    for ax in axes[1]:
         ax.legend(loc="best")
     ax = axes[2, 0]
     ax.plot(t, cols["ay"] / GRAVITY, label="ay")
@@ -104,7 +154,10 @@ def plot_trajectory(traj: Trajectory, path: str | Path, title: str | None = None
         ax.plot(t, cols[f"est_mu_{w}"], "--", color=line.get_color())
     ax.set(xlabel="t [s]", ylabel="mu [-]", title="road friction (solid truth, dashed estimate)")
     ax.legend(loc="best", ncol=2)
-    fig.suptitle(title or f"{scenario.name}: {scenario.speed_kph:.0f} km/h")
+    fig.suptitle(
+        f"{name or scenario.name}: {scenario.speed_kph:.0f} km/h, "
+        f"controller {controller}, estimator {estimator}, seed {seed}"
+    )
     atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=100, format="png"))
     plt.close(fig)
     return Path(path)

@@ -3,8 +3,10 @@ antlion by default, or CMA-ES / random search: estimation.optimizers) searches l
 factors of (process noise, accelerometer, gyro, wheel-speed noise) for the robust federated
 CKF (``alo-fkf``) on a calibration run; each population is scored in one batched replay (a
 filter with per-member noise). The calibration run is a randomised scenario (not one of the
-paper's five, so the paper conditions stay unseen). Writes estimation/data/tuned_noise.json,
-which ``alo-fkf`` uses.
+paper's five, so the paper conditions stay unseen). Writes results/tune/tuned_noise.json
+(:data:`DEFAULT_OUT`); only on request (``replace_shipped``, ``fourwis tune --replace-shipped``)
+does it replace the shipped estimation/data/tuned_noise.json (:data:`SHIPPED`), which ``alo-fkf``
+and ``joint`` use: a smoke run must not change every later run's estimators.
 
 Criterion (``criterion``):
 
@@ -44,8 +46,11 @@ from fourwis.estimation import NoiseParams, make_estimator, tuned_noise
 from fourwis.estimation.optimizers import minimize
 from fourwis.training.io import atomic_write_json, check_writable
 from fourwis.training.pool import parallel_map
+from fourwis.training.provenance import provenance
 
-OUTPUT = Path(__file__).resolve().parent.parent / "estimation" / "data" / "tuned_noise.json"
+#: the shipped tuning, which alo-fkf and joint use (estimation.tuned_noise)
+SHIPPED = Path(__file__).resolve().parent.parent / "estimation" / "data" / "tuned_noise.json"
+DEFAULT_OUT = Path("results") / "tune" / "tuned_noise.json"  #: where a tuning goes unless told (cwd-relative)
 BOUNDS = [(-1.5, 1.5)] * 4  #: log10 factors on (process, accelerometer, gyro, wheel-speed) noise
 CALIBRATION_SEED = 1000  #: the randomised calibration scenario's seed
 
@@ -154,21 +159,30 @@ def tune(
     n_agents: int = 30,
     iterations: int = 100,
     seed: int = 0,
-    out: Path = OUTPUT,
+    out: str | Path = DEFAULT_OUT,
     optimizer: str = "alo",
     duration: float = 10.0,
     progress: bool = True,
     criterion: str = "nll",
+    replace_shipped: bool = False,
+    command: str | None = None,
 ) -> dict:
     """Tune alo-fkf's noise with ``optimizer`` (see estimation.optimizers) by ``criterion`` on a
-    ``duration`` [s] calibration run; returns (and writes atomically) the result. If the optimizer
-    does not beat the hand-set noise the result keeps it (log10 factors 0, ``improved`` false;
-    ``optimizer_best`` holds what the optimizer found). A negative ``seed`` or an ``out`` that
-    cannot be written as a file raises ValueError before any work."""
+    ``duration`` [s] calibration run; returns (and writes atomically to the JSON file ``out``)
+    the result, with who wrote it (``command``, default: this process's command line, the
+    commit, date and host). ``replace_shipped``: also write it over :data:`SHIPPED`, the tuning
+    alo-fkf and joint use. If the optimizer does not beat the hand-set noise the result keeps it
+    (log10 factors 0, ``improved`` false; ``optimizer_best`` holds what the optimizer found). A
+    negative ``seed`` or a file that cannot be written raises ValueError before any work."""
     if not (is_integer(seed) and seed >= 0):
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    if not isinstance(replace_shipped, bool):
+        raise ValueError(f"replace_shipped must be True or False, got {replace_shipped!r}")
     seed = int(seed)  # (written to the result's JSON)
-    check_writable(out, "file")
+    out = check_writable(out, "file")
+    if replace_shipped:
+        check_writable(SHIPPED, "file", "the shipped tuning")
+    header = provenance(command)
     traj = calibration_run(duration=duration)
 
     def objective(X: np.ndarray) -> np.ndarray:
@@ -199,6 +213,9 @@ def tune(
             if criterion == "nll"
             else "beta RMSE/0.1 deg + r RMSE/0.01 rad/s + u RMSE/0.05 m/s of alo-fkf"
         ),
+        "written_by": header._asdict(),
     }
     atomic_write_json(out, data)
+    if replace_shipped:
+        atomic_write_json(SHIPPED, data)
     return data

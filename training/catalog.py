@@ -1,0 +1,203 @@
+"""What fourwis offers by name (``fourwis list``): the scenarios, estimators, controllers and
+recorded logs, one line each: the name, what it is, its defaults. The defaults are read from
+the code that builds each one (the scenario builders' signatures and the scenarios they build,
+the estimators' and controllers' fields), so the list cannot drift from what runs."""
+
+from __future__ import annotations
+
+import inspect
+import json
+from dataclasses import fields
+from importlib import resources
+
+from fourwis.control import CONTROLLERS, make_controller
+from fourwis.envs import scenarios as scenario_builders
+from fourwis.envs.gym_env import EnvConfig
+from fourwis.envs.scenarios import SCENARIOS
+from fourwis.envs.vehicle import VehicleParams
+from fourwis.estimation import ESTIMATORS, TRUTH_GROUPS, StateEstimator, tuned_noise
+from fourwis.estimation.joint import ROBUST_KINDS
+from fourwis.training.compare import SWD_MU, SWD_MULTIPLE
+
+SECTIONS = ("scenarios", "estimators", "controllers", "logs")
+
+#: what each scenario is (its defaults come from its builder)
+SCENARIO_SUMMARIES = {
+    "paper_dlc": "paper 3.3.3 (1): double lane change on the ISO 3888-1 course, path-following driver",
+    "paper_step": "paper 3.3.3 (2): steering-wheel step of `angle` rad at `step_time` (default 5 s)",
+    "paper_sine": "paper 3.3.3 (3): sinusoidal steering wheel from 1 s",
+    "paper_split_dlc": "paper 4.3.1: double lane change on a left/right split road",
+    "paper_serpentine": "paper 4.3.2: slalom through `n_cones` cones `spacing` m apart",
+    "sine_with_dwell": "FMVSS 126 sine with dwell (0.7 Hz, 500 ms dwell) from `start` (default 1 s), coasting",
+    "slowly_increasing_steer": "FMVSS 126 characterisation: steering-wheel ramp at constant speed (finds A)",
+    "iso3888_2": "ISO 3888-2 obstacle-avoidance lane change, coasting from the course entry",
+    "mu_jump": "steady cornering at `lateral_g` onto a `mu_patch` surface from X = `patch_x` m",
+    "random": "domain-randomised RL training scenario (speed, road and steering drawn from `seed`)",
+}
+
+#: what each estimator is (its defaults come from StateEstimator's fields and the shipped tuning)
+ESTIMATOR_SUMMARIES = {
+    "oracle": "the truth passed through: a perfect estimator, the reference the others are judged by",
+    "ekf": "extended Kalman filter on the paper's 3-DOF + Dugoff model (a baseline)",
+    "ckf": "cubature Kalman filter (third-degree spherical-radial rule) on the same model",
+    "fkf": "federated CKF: sub-filters on [ax, ay, r] and [ay, r] fused by information sharing",
+    "alo-fkf": "paper section 3: federated CKF with Huber-robust sub-filters and ALO-tuned noise",
+    "joint": "paper section 4, the full system: state FKF and per-wheel friction FKF exchanging estimates",
+}
+
+#: what each controller is (its defaults come from the StabilityController make_controller builds)
+CONTROLLER_SUMMARIES = {
+    "none": "no stability controller: the driver alone",
+    "dyc-lqr": "direct yaw-moment control, LQR law gain-scheduled on speed, torques allocated per wheel",
+    "dyc-smc": "direct yaw-moment control, sliding-mode law, torques allocated per wheel",
+    "dyc-lqr-4ws": "dyc-lqr plus the paper's eq. 20 rear steer",
+    "dyc-smc-4ws": "dyc-smc plus the paper's eq. 20 rear steer",
+}
+
+#: the recorded logs (name -> what it is) the package ships: none in this version
+LOGS: dict[str, str] = {}
+
+#: the columns' widths: name, what it is
+_NAME, _WHAT = 32, 92
+
+
+def _line(name: str, what: str, defaults: str) -> str:
+    return f"{name:<{_NAME}} {what:<{_WHAT}} {defaults}".rstrip()
+
+
+def _mu_text(mu) -> str:
+    if mu is None:
+        return "mu drawn"
+    if isinstance(mu, tuple):
+        return f"mu {mu[0]:g} left / {mu[1]:g} right"
+    return f"mu {mu:g}"
+
+
+def _value_text(value) -> str:
+    return f"({', '.join(f'{v:g}' for v in value)})" if isinstance(value, tuple) else f"{value:g}"
+
+
+def scenario_lines() -> list[str]:
+    """One line per scenario of :data:`envs.scenarios.SCENARIOS` (and compare's ``swd_wet``):
+    name, what it is, its defaults (speed, road friction, duration, the builder's own options)."""
+    common = {"speed_kph", "mu", "duration", "steering", "rear_steer_feedforward", "params"}
+    lines = []
+    for name, scenario in SCENARIOS.items():
+        parameters = inspect.signature(getattr(scenario_builders, name)).parameters
+        if parameters["speed_kph"].default is None:  # (random: drawn)
+            low, high = parameters["speed_range_kph"].default
+            speed = f"speed drawn in {low:g}-{high:g} km/h"
+        else:
+            speed = f"{scenario.speed_kph:g} km/h"
+        options = [
+            f"{key}={_value_text(p.default)}"
+            for key, p in parameters.items()
+            if key not in common and p.default is not None
+        ]
+        duration = f"{scenario.duration:.1f} s" + (
+            " (set by the manoeuvre)" if parameters["duration"].default is None else ""
+        )
+        defaults = f"{speed}, {_mu_text(parameters['mu'].default)}, {duration}" + (
+            f"; {', '.join(options)}" if options else ""
+        )
+        lines.append(_line(name, SCENARIO_SUMMARIES[name], defaults))
+    lines.append(
+        _line(
+            "swd_wet",
+            f"compare's alias of sine_with_dwell:mu={SWD_MU:g},amplitude_A={SWD_MULTIPLE:g} (A: the car's 0.3 g angle)",
+            f"{SCENARIOS['sine_with_dwell'].speed_kph:g} km/h, mu {SWD_MU:g}, {SWD_MULTIPLE:g}A",
+        )
+    )
+    lines.append("(overrides: NAME:key=value,... ; a +faults suffix adds gyro faults in compare)")
+    return lines
+
+
+def estimator_lines() -> list[str]:
+    """One line per estimator of :data:`estimation.ESTIMATORS`: name, what it is, its defaults
+    (friction: fixed or estimated and from what, noise: hand-set or the shipped tuning, the
+    Huber threshold of the robust ones, the step)."""
+    default = {f.name: f.default for f in fields(StateEstimator) if f.init}
+    tuned = tuned_noise() is not None
+    lines = []
+    for name in ESTIMATORS:
+        if name == "oracle":
+            defaults = "no sensors read, no settings"
+        else:
+            mu = (
+                f"mu estimated from {default['nominal_mu']:g}"
+                if name == "joint"
+                else f"mu fixed at {default['nominal_mu']:g}"
+            )
+            noise = (
+                "ALO-tuned noise (estimation/data/tuned_noise.json)"
+                if name in ("alo-fkf", "joint") and tuned
+                else "hand-set noise"
+            )
+            robust = f", Huber c {default['huber_c']:g}" if name in ROBUST_KINDS else ""
+            defaults = f"{mu}, {noise}{robust}, step {1000 * default['dt']:g} ms"
+        lines.append(_line(name, ESTIMATOR_SUMMARIES[name], defaults))
+    lines.append(
+        f"(also: NAME+true-<{'|'.join(TRUTH_GROUPS)}> reports those quantities from the truth; "
+        "module:factory for your own)"
+    )
+    return lines
+
+
+def controller_lines() -> list[str]:
+    """One line per controller of :data:`control.CONTROLLERS` and per shipped policy
+    (``rl:training/policies/<name>``): name, what it is, its defaults."""
+    lines = []
+    for name in CONTROLLERS:
+        controller = make_controller(name, VehicleParams())
+        if controller is None:
+            defaults = "no settings"
+        else:
+            understeer = (
+                "the car's own" if controller.reference_understeer is None else f"{controller.reference_understeer:g}"
+            )
+            defaults = (
+                f"law {controller.law}, rear steer {'on' if controller.rear_steer else 'off'}, "
+                f"mu_margin {controller.mu_margin:g} sigma, friction_ellipse {controller.friction_ellipse}, "
+                f"reference understeer {understeer}, step {1000 * controller.dt:g} ms"
+            )
+        lines.append(_line(name, CONTROLLER_SUMMARIES[name], defaults))
+    policies = resources.files("fourwis.training").joinpath("policies")
+    for run in sorted((p for p in policies.iterdir() if p.is_dir()), key=lambda p: p.name):
+        config = json.loads(run.joinpath("config.json").read_text())
+        env = config["env_kwargs"]
+        lines.append(
+            _line(
+                f"rl:training/policies/{run.name}",
+                f"a {config['algo'].upper()} policy shipped with the package (fourwis train; needs the rl extra)",
+                f"trained {config['timesteps']:,} env steps with estimator "
+                f"{env.get('estimator', EnvConfig.estimator)}, observation "
+                f"{env.get('observation', EnvConfig.observation)}",
+            )
+        )
+    lines.append("(also: rl:<run dir> or rl:<run dir>/model.zip for your own policy; module:factory for your own law)")
+    return lines
+
+
+def log_lines() -> list[str]:
+    """One line per recorded log the package ships (:data:`LOGS`), or one saying there is none."""
+    if not LOGS:
+        return ["no recorded logs: this version of fourwis ships none (estimation on real data is not in it yet)"]
+    return [_line(name, what, "") for name, what in LOGS.items()]
+
+
+def catalog(section: str | None = None) -> str:
+    """The text of ``fourwis list [section]``: one section of :data:`SECTIONS`, or all (None)."""
+    if section is not None and section not in SECTIONS:
+        raise ValueError(f"unknown section {section!r}; known: {list(SECTIONS)}")
+    build = {
+        "scenarios": scenario_lines,
+        "estimators": estimator_lines,
+        "controllers": controller_lines,
+        "logs": log_lines,
+    }
+    chosen = SECTIONS if section is None else (section,)
+    blocks = []
+    for name in chosen:
+        heading = [f"{name}:", "  " + _line("name", "what it is", "defaults")] if name != "logs" else [f"{name}:"]
+        blocks.append("\n".join(heading + [f"  {line}" for line in build[name]()]))
+    return "\n\n".join(blocks)
