@@ -127,7 +127,7 @@ def test_tune_mu_noise_refuses_the_options_it_would_ignore(tmp_path, monkeypatch
     monkeypatch.setattr(training_tune, "mu_noise_scan", lambda: pytest.fail("scan started"))
     with pytest.raises(SystemExit, match=r"--mu-noise takes no other option, got \['--out', '--seed'\]"):
         main(["tune", "--mu-noise", "--out", str(tmp_path / "mn.json"), "--seed", "-5"])
-    monkeypatch.setattr(training_tune, "mu_noise_scan", lambda: {0.3: 0.05})
+    monkeypatch.setattr(training_tune, "mu_noise_scan", lambda **sweep: {0.3: 0.05})
     assert main(["tune", "--mu-noise"]) == 0
 
 

@@ -123,6 +123,7 @@ def _sine_with_dwell(args: argparse.Namespace) -> int:
         _check_estimator_and_seed(args)
         if args.controller != "none":
             build_controller(args.controller, VehicleParams())  # a bad name or path
+        backend = _backend(args)
     except (ValueError, FileNotFoundError) as err:
         raise SystemExit(f"fourwis swd: {err}") from None
     A = math.radians(args.A) if args.A is not None else characterise()
@@ -133,7 +134,12 @@ def _sine_with_dwell(args: argparse.Namespace) -> int:
     for mu in args.mu:
         try:
             runs = run_series(
-                A, mu=mu, controller_factory=factory, estimator=args.estimator, seed=args.seed, progress=True
+                A,
+                mu=mu,
+                controller_factory=factory,
+                estimator=args.estimator,
+                seed=args.seed,
+                map_runs=functools.partial(_map_runs, jobs=args.jobs, backend=backend),
             )
         except ValueError as err:  # a user's estimator or controller returning garbage
             raise SystemExit(f"fourwis swd: {err}") from None
@@ -147,6 +153,21 @@ def _sine_with_dwell(args: argparse.Namespace) -> int:
     if args.out:
         print(f"wrote {atomic_write_text(Path(args.out) / 'sine_with_dwell.md', text + chr(10))}")
     return 0
+
+
+def _backend(args: argparse.Namespace):
+    """The --backend and --address of a sweep as a training.pool.Backend (ValueError naming a
+    bad one; ModuleNotFoundError naming the extra if Ray is missing)."""
+    from fourwis.training.pool import Backend
+
+    return Backend(args.backend, args.address)
+
+
+def _map_runs(fn, items, desc: str, jobs: int | None, backend):
+    """A series' runs on the sweep backend, with a progress bar (envs.fmvss126.run_series's map_runs)."""
+    from fourwis.training.pool import parallel_map
+
+    return parallel_map(fn, items, jobs, desc, True, backend)
 
 
 def _report(
@@ -167,7 +188,9 @@ def _compare(args: argparse.Namespace) -> int:
 
     return _report(
         "compare",
-        lambda: compare(args.out, args.scenarios, args.estimators, args.controllers, args.seeds, args.jobs),
+        lambda: compare(
+            args.out, args.scenarios, args.estimators, args.controllers, args.seeds, args.jobs, _backend(args)
+        ),
         "runs.csv",
     )
 
@@ -177,7 +200,15 @@ def _estimate(args: argparse.Namespace) -> int:
 
     return _report(
         "estimate",
-        lambda: estimate_report(args.out, args.scenarios, args.estimators, args.seeds, args.jobs, road_mu=args.road_mu),
+        lambda: estimate_report(
+            args.out,
+            args.scenarios,
+            args.estimators,
+            args.seeds,
+            args.jobs,
+            road_mu=args.road_mu,
+            backend=_backend(args),
+        ),
         "estimate.csv",
     )
 
@@ -187,10 +218,18 @@ def _tune(args: argparse.Namespace) -> int:
 
     if args.mu_noise:
         defaults = vars(build_parser().parse_args(["tune"]))
-        given = sorted(k for k, v in vars(args).items() if k not in ("mu_noise", "func") and v != defaults[k])
+        sweep = ("jobs", "backend", "address")
+        given = sorted(k for k, v in vars(args).items() if k not in ("mu_noise", "func", *sweep) and v != defaults[k])
         if given:  # (they were accepted and ignored)
-            raise SystemExit(f"fourwis tune: --mu-noise takes no other option, got {['--' + k for k in given]}")
-        errors = mu_noise_scan()
+            raise SystemExit(
+                f"fourwis tune: --mu-noise takes no other option, got {['--' + k for k in given]} "
+                "(but --jobs, --backend and --address)"
+            )
+        try:
+            backend = _backend(args)
+        except ValueError as err:
+            raise SystemExit(f"fourwis tune: {err}") from None
+        errors = mu_noise_scan(jobs=args.jobs, backend=backend)
         print("| mu_accel_std [m/s^2] | mean abs mu error, last half |\n|---:|---:|")
         print("\n".join(f"| {g:g} | {e:.3f} |" for g, e in errors.items()))
         return 0
@@ -198,7 +237,15 @@ def _tune(args: argparse.Namespace) -> int:
     try:
         _check_seed(args)
         data = tune(
-            args.agents, args.iterations, args.seed, out, args.optimizer, args.duration, criterion=args.criterion
+            args.agents,
+            args.iterations,
+            args.seed,
+            out,
+            args.optimizer,
+            args.duration,
+            criterion=args.criterion,
+            jobs=args.jobs,
+            backend=_backend(args),
         )
     except ValueError as err:
         raise SystemExit(f"fourwis tune: {err}") from None
@@ -265,7 +312,7 @@ def _evaluate(args: argparse.Namespace) -> int:
 
     return _report(
         "evaluate",
-        lambda: evaluate(args.model, args.out, args.scenarios, args.estimator, args.seeds, args.jobs),
+        lambda: evaluate(args.model, args.out, args.scenarios, args.estimator, args.seeds, args.jobs, _backend(args)),
         "runs.csv",
         (ValueError, FileNotFoundError),
     )
@@ -327,8 +374,26 @@ def _add_matrix_arguments(
 def _add_run_arguments(parser: argparse.ArgumentParser, seeds: int, out: str) -> None:
     """--seeds, --jobs and --out of the jobs that run a matrix of simulations."""
     parser.add_argument("--seeds", type=int, default=seeds, help="sensor-noise seeds per cell")
-    parser.add_argument("--jobs", type=_positive_int, help="worker processes (default: up to 2)")
+    _add_backend_arguments(parser)
     parser.add_argument("--out", default=out, help="output directory")
+
+
+def _add_backend_arguments(parser: argparse.ArgumentParser, jobs_help: str = "worker processes (default: up to 2)"):
+    """--jobs, --backend and --address of the jobs that run sweeps (training.pool)."""
+    parser.add_argument(
+        "--jobs", type=_positive_int, help=f"{jobs_help}; with --backend ray: most tasks at once (default: all)"
+    )
+    parser.add_argument(
+        "--backend",
+        choices=("local", "ray"),
+        default="local",
+        help="where the runs execute: worker processes here, or Ray tasks (the ray extra; docs/cluster.md)",
+    )
+    parser.add_argument(
+        "--address",
+        help="the Ray cluster to join with --backend ray: auto, HOST:6379 or ray://HOST:10001 "
+        "(default: start a local Ray instance)",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -426,6 +491,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="alo: the paper's antlion optimizer; cmaes: CMA-ES; random: random search",
     )
     tune.add_argument("--out", help="output JSON file (default: estimation/data/tuned_noise.json)")
+    _add_backend_arguments(
+        tune, "split each population over this many worker processes (default: one batched replay here)"
+    )
     tune.add_argument(
         "--mu-noise",
         action="store_true",
@@ -444,6 +512,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     swd.add_argument("--seed", type=int, default=0, help="sensor noise seed (>= 0)")
     swd.add_argument("--out", help="directory for sine_with_dwell.md (default: print only)")
+    _add_backend_arguments(swd)
     swd.set_defaults(func=_sine_with_dwell)
     from fourwis.training.rl_config import ALGO_CONFIGS, ALGOS, EVAL_SCENARIO
 
@@ -518,6 +587,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from fourwis.training.pool import WorkerLostError
+
     args = build_parser().parse_args(argv)
     if "" not in sys.path and os.getcwd() not in sys.path:  # the `fourwis` script's path lacks it
         sys.path.insert(0, os.getcwd())  # your 'module:factory' estimators and controllers live here
@@ -526,6 +597,8 @@ def main(argv: list[str] | None = None) -> int:
     except ModuleNotFoundError as err:  # an optional dependency: its message names the extra
         if "fourwis[" not in str(err):
             raise
+        raise SystemExit(f"fourwis {args.command}: {err}") from None
+    except WorkerLostError as err:  # a worker died (on Ray: after its retries)
         raise SystemExit(f"fourwis {args.command}: {err}") from None
     except KeyboardInterrupt:  # (train saves its run first and exits the same way)
         print(f"fourwis {args.command}: interrupted", file=sys.stderr)

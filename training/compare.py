@@ -44,7 +44,7 @@ from fourwis.envs.simulation import Trajectory, simulate
 from fourwis.envs.vehicle import A_AY, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_X, S_Y
 from fourwis.estimation import check_estimator_name
 from fourwis.training.io import atomic_write, atomic_write_text, check_writable, pyplot
-from fourwis.training.pool import check_jobs, parallel_map
+from fourwis.training.pool import Backend, as_backend, check_jobs, parallel_map
 from fourwis.training.tables import mean_over_seeds, require_distinct, write_runs_csv
 
 #: headline scenarios: the paper's five conditions, FMVSS 126 at 5.5A on a wet road, the mu jump,
@@ -317,11 +317,14 @@ def run_matrix(
     seeds: int = 2,
     jobs: int | None = None,
     progress: bool = True,
+    backend: Backend | str | None = None,
 ) -> tuple[list[tuple[RunSpec, dict]], dict]:
-    """Run the matrix in parallel processes; returns per-run (spec, metrics) and seed-0 trajectories."""
+    """Run the matrix in parallel on ``backend`` (training.pool: local processes by default, or
+    Ray); returns per-run (spec, metrics) and seed-0 trajectories, the same on either backend."""
     if not (is_integer(seeds) and seeds >= 1):
         raise ValueError(f"seeds must be an integer >= 1, got {seeds!r}")
     check_jobs(jobs)
+    backend = as_backend(backend)
     parsed = [parse_scenario(s) for s in scenarios]
     for name in estimators:
         check_estimator_name(name)
@@ -355,7 +358,7 @@ def run_matrix(
         RunSpec(s, e, c, k, A[s]) for s in scenarios for c in controllers for e in estimators for k in range(seeds)
     ]
     results, trajectories = [], {}
-    for spec, metrics, traj in parallel_map(_run, specs, jobs, "closed-loop runs", progress):
+    for spec, metrics, traj in parallel_map(_run, specs, jobs, "closed-loop runs", progress, backend):
         results.append((spec, metrics))
         if traj is not None:
             trajectories[(spec.scenario, spec.estimator, spec.controller)] = traj
@@ -603,11 +606,13 @@ def compare(
     controllers: Sequence[str] = DEFAULT_CONTROLLERS,
     seeds: int = 2,
     jobs: int | None = None,
+    backend: Backend | str | None = None,
 ) -> Path:
-    """Run the matrix and write report.md, runs.csv and PNG plots into ``out``; returns the report path."""
+    """Run the matrix on ``backend`` (:func:`run_matrix`) and write report.md, runs.csv and PNG
+    plots into ``out``; returns the report path."""
     out = check_writable(out)
     pyplot()  # (its plots need matplotlib: say so before the runs, not after them)
-    results, trajectories = run_matrix(scenarios, estimators, controllers, seeds, jobs)
+    results, trajectories = run_matrix(scenarios, estimators, controllers, seeds, jobs, backend=backend)
     table = aggregate(results)
     write_csv(results, out / "runs.csv")
     plot_report(table, trajectories, scenarios, estimators, controllers, out)

@@ -672,15 +672,22 @@ class PolicyController:
 
 
 def evaluate(
-    run: str | Path, out: str | Path, scenarios, estimator: str | None = None, seeds: int = 2, jobs: int | None = None
+    run: str | Path,
+    out: str | Path,
+    scenarios,
+    estimator: str | None = None,
+    seeds: int = 2,
+    jobs: int | None = None,
+    backend=None,
 ) -> Path:
     """``fourwis evaluate``: the policy of ``run`` as controller ``rl:<run>`` next to no control,
-    through :func:`training.compare.compare`, with ``estimator`` in the loop (None: the one the
-    run was trained with, from its config.json); returns the report path."""
+    through :func:`training.compare.compare` on ``backend`` (training.pool), with ``estimator``
+    in the loop (None: the one the run was trained with, from its config.json); returns the
+    report path."""
     from fourwis.training.compare import compare
 
     config = run_files(run)[2]
     if estimator is None:
         trained_on = json.loads(config.read_text())["env_kwargs"] if config.exists() else {}
         estimator = trained_on.get("estimator", EnvConfig.estimator)
-    return compare(out, scenarios, [estimator], ["none", f"rl:{Path(run)}"], seeds, jobs)
+    return compare(out, scenarios, [estimator], ["none", f"rl:{Path(run)}"], seeds, jobs, backend)
