@@ -1,7 +1,8 @@
 """The fourwis command line: one console script, one subcommand per job.
 
 The main job: fourwis compare (README's first command). Extras: plots (PNGs, rendering), rl
-(train, evaluate, rl: controllers); a command names a missing one before it runs."""
+(train, evaluate, rl: controllers), ray (--backend ray sweeps, train --framework rllib); a
+command names a missing one before it runs."""
 
 from __future__ import annotations
 
@@ -280,18 +281,23 @@ def _train(args: argparse.Namespace) -> int:
     try:
         if args.seed is not None:
             _check_seed(args)
-        path = train(
-            args.algo,
-            args.out,
-            args.timesteps,
-            args.seed,
-            args.env_kwargs,
-            args.n_envs,
-            eval_every=args.eval_every,
-            checkpoint_every=args.checkpoint_every,
-            resume=args.resume,
-            overwrite=args.overwrite,
-        )
+        if args.framework == "rllib":
+            path = _train_rllib(args)
+        else:
+            if args.env_runners is not None or args.address is not None:
+                raise ValueError("--env-runners and --address are for --framework rllib")
+            path = train(
+                args.algo,
+                args.out,
+                args.timesteps,
+                args.seed,
+                args.env_kwargs,
+                args.n_envs,
+                eval_every=args.eval_every,
+                checkpoint_every=args.checkpoint_every,
+                resume=args.resume,
+                overwrite=args.overwrite,
+            )
     except (ValueError, FileNotFoundError) as err:
         raise SystemExit(f"fourwis train: {err}") from None
     except KeyboardInterrupt as err:  # train saved the model first (if it had started training)
@@ -305,6 +311,31 @@ def _train(args: argparse.Namespace) -> int:
     ]
     print(f"wrote {path}, trained {trained:,} env steps (+ {', '.join(others)} in {path.parent})")
     return 0
+
+
+def _train_rllib(args: argparse.Namespace):
+    """``fourwis train --framework rllib``: RLlib PPO (training.rllib); returns the policy's path."""
+    if args.algo != "ppo":
+        raise ValueError(f"--framework rllib trains --algo ppo, not {args.algo} (sac and td3: --framework sb3)")
+    if args.resume is not None:
+        raise ValueError(
+            "--resume continues stable-baselines3 runs; an RLlib run's checkpoints/step_N are RLlib "
+            "Algorithm checkpoints (ray.rllib Algorithm.from_checkpoint), not resumed by fourwis train"
+        )
+    from fourwis.training.rllib import train as train_rllib
+
+    return train_rllib(
+        args.out,
+        args.timesteps,
+        args.seed,
+        args.env_kwargs,
+        args.n_envs,
+        1 if args.env_runners is None else args.env_runners,
+        eval_every=args.eval_every,
+        checkpoint_every=args.checkpoint_every,
+        overwrite=args.overwrite,
+        address=args.address,
+    )
 
 
 def _evaluate(args: argparse.Namespace) -> int:
@@ -525,6 +556,23 @@ def build_parser() -> argparse.ArgumentParser:
     )
     train.add_argument(
         "--algo", choices=ALGOS, default="ppo", help="RL algorithm (settings: training.rl_config.ALGO_CONFIGS)"
+    )
+    train.add_argument(
+        "--framework",
+        choices=("sb3", "rllib"),
+        default="sb3",
+        help="stable-baselines3 in this process, or RLlib PPO on Ray (the ray extra; writes policy/, "
+        "obs_filter.pkl, progress.csv and checkpoints/step_N/ instead of SB3's files)",
+    )
+    train.add_argument(
+        "--env-runners",
+        type=int,
+        help="rllib: EnvRunner actors, each stepping --n-envs cars of one native vector env (default 1; "
+        "0: sample in this process)",
+    )
+    train.add_argument(
+        "--address",
+        help="rllib: the Ray cluster to join (auto, HOST:6379, ray://HOST:10001; default: a local instance)",
     )
     train.add_argument(
         "--env-kwargs",
