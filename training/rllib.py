@@ -138,10 +138,15 @@ def ppo_config(
     if eval_kwargs is not None:
         config = config.evaluation(
             evaluation_interval=None,  # (run when due, by train)
-            evaluation_num_env_runners=1,
+            evaluation_num_env_runners=1,  # (the driver's own EnvRunner has no env once there are remote ones)
             evaluation_duration=eval_episodes,
             evaluation_duration_unit="episodes",
-            evaluation_config={"env_config": eval_kwargs, "num_envs_per_env_runner": min(eval_episodes, 4)},
+            # no CPU of its own: it is idle while the EnvRunners sample, and does not keep them waiting for one
+            evaluation_config={
+                "env_config": eval_kwargs,
+                "num_envs_per_env_runner": min(eval_episodes, 4),
+                "num_cpus_per_env_runner": 0,
+            },
         )
     return config
 
@@ -216,7 +221,18 @@ def train(
 
     torch.set_num_threads(TORCH_THREADS)
     _init_ray(address)
-    config = ppo_config(env_kwargs, n_envs, env_runners, seed, eval_kwargs, eval_episodes, algo_overrides)
+    import ray
+
+    cpus = ray.cluster_resources().get("CPU", 0)
+    if address is None and env_runners > cpus:  # (a cluster may scale up to them; this machine does not)
+        raise ValueError(
+            f"--env-runners {env_runners} needs as many CPUs, but the local Ray instance has {cpus:g}: "
+            "give fewer, or --address of a cluster"
+        )
+    evaluated = eval_every <= timesteps  # (else no evaluation EnvRunner is built)
+    config = ppo_config(
+        env_kwargs, n_envs, env_runners, seed, eval_kwargs if evaluated else None, eval_episodes, algo_overrides
+    )
     if replaces:
         delete_run(out)
     out.mkdir(parents=True, exist_ok=True)
