@@ -182,7 +182,7 @@ def test_simulate_takes_the_comparisons_overrides_and_swd_an_a_with_a_series(tmp
 
 
 @pytest.mark.parametrize("jobs", ["0", "-1"])
-@pytest.mark.parametrize("command", [["compare"], ["estimate"], ["evaluate", "some_run"]])
+@pytest.mark.parametrize("command", [["compare"], ["estimate"], ["evaluate", "some_run"], ["swd"], ["tune"]])
 def test_every_command_refuses_fewer_than_one_job_naming_the_option(command, jobs, tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_:
         main([*command, "--jobs", jobs, "--out", str(tmp_path / "out")])

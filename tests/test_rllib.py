@@ -84,18 +84,32 @@ def test_fourwis_evaluate_runs_the_rllib_policy_in_the_comparison(rllib_run, tmp
     assert [r.split(",")[header.index("controller")] for r in rows[1:]] == ["none", f"rl:{rllib_run}"]
 
 
-@pytest.mark.parametrize(
-    "extra, message",
-    [
-        (["--algo", "sac"], "--framework rllib trains --algo ppo, not sac"),
-        (["--resume", "x"], "--resume continues stable-baselines3 runs"),
-    ],
-)
-def test_train_with_rllib_refuses_what_it_does_not_do(extra, message, tmp_path):
+def test_a_resumed_run_counts_on_from_its_steps_and_keeps_its_progress(rllib_run, tmp_path):
+    """--resume of the run (its algorithm/ checkpoint) into a new folder: one more iteration,
+    counted from 256 (RLlib's restored counters), progress.csv carrying the earlier rows."""
+    from fourwis.training.rllib import train
+
+    out = tmp_path / "resumed"
+    train(out, 384, env_kwargs={"estimator": "oracle"}, env_runners=1, eval_every=10**6, checkpoint_every=10**6,
+          progress=False, algo_overrides=TINY, resume=rllib_run)  # fmt: skip
+    config = json.loads((out / "config.json").read_text())
+    assert (config["timesteps"], config["seed"], config["n_envs"]) == (384, 0, 4)
+    rows = (out / "progress.csv").read_text().splitlines()[1:]
+    assert [r.split(",")[1] for r in rows] == ["128", "256", "384"]
+    with pytest.raises(ValueError, match="already has 256 timesteps"):
+        train(tmp_path / "again", 256, env_kwargs={"estimator": "oracle"}, resume=rllib_run, progress=False)
+    with pytest.raises(ValueError, match=r"trained with env_kwargs \{'estimator': 'oracle'\}"):
+        train(tmp_path / "other", 512, env_kwargs={"estimator": "ckf"}, resume=rllib_run, progress=False)
+    with pytest.raises(ValueError, match="later checkpoints"):  # into its own folder, from an earlier checkpoint
+        train(rllib_run, 512, env_kwargs={"estimator": "oracle"}, resume=rllib_run / "checkpoints" / "step_000000128",
+              progress=False)  # fmt: skip
+
+
+def test_train_with_rllib_refuses_what_it_does_not_do(tmp_path):
     from fourwis.training.cli import main
 
-    with pytest.raises(SystemExit, match=message):
-        main(["train", "--framework", "rllib", *extra, "--out", str(tmp_path / "run")])
+    with pytest.raises(SystemExit, match="--framework rllib trains --algo ppo, not sac"):
+        main(["train", "--framework", "rllib", "--algo", "sac", "--out", str(tmp_path / "run")])
 
 
 def test_sb3_training_refuses_the_rllib_options(tmp_path):

@@ -317,11 +317,6 @@ def _train_rllib(args: argparse.Namespace):
     """``fourwis train --framework rllib``: RLlib PPO (training.rllib); returns the policy's path."""
     if args.algo != "ppo":
         raise ValueError(f"--framework rllib trains --algo ppo, not {args.algo} (sac and td3: --framework sb3)")
-    if args.resume is not None:
-        raise ValueError(
-            "--resume continues stable-baselines3 runs; an RLlib run's checkpoints/step_N are RLlib "
-            "Algorithm checkpoints (ray.rllib Algorithm.from_checkpoint), not resumed by fourwis train"
-        )
     from fourwis.training.rllib import train as train_rllib
 
     return train_rllib(
@@ -335,6 +330,7 @@ def _train_rllib(args: argparse.Namespace):
         checkpoint_every=args.checkpoint_every,
         overwrite=args.overwrite,
         address=args.address,
+        resume=args.resume,
     )
 
 
@@ -601,7 +597,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--eval-every", type=int, default=40_000, help=f"env steps between evaluations on the held-out {EVAL_SCENARIO}"
     )
     train.add_argument("--checkpoint-every", type=int, default=50_000, help="env steps between checkpoints")
-    train.add_argument("--resume", help="run directory or checkpoint .zip to continue from")
+    train.add_argument(
+        "--resume",
+        help="run directory or checkpoint .zip to continue from (rllib: a run directory or checkpoints/step_N)",
+    )
     train.add_argument("--out", default="results/train", help="run directory")
     train.add_argument(
         "--overwrite",

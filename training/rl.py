@@ -213,7 +213,8 @@ RUN_FILES = (
     "policy",
     "obs_filter.pkl",
     "progress.csv",
-)  #: what ``train`` writes into a run directory (the last three: an RLlib run's, training.rllib)
+    "algorithm",
+)  #: what ``train`` writes into a run directory (the last four: an RLlib run's, training.rllib)
 
 
 def _vec_env(env_kwargs: dict, n_envs: int, seed: int):
@@ -347,7 +348,7 @@ def train(
     env_kwargs = as_json(dict(env_kwargs or {}))  # as config.json records them, so resume and rl: read the same
     out = check_writable(out)
     if resume is not None:
-        seed, n_envs = _check_resumable(resume, algo, env_kwargs, seed, n_envs)
+        seed, n_envs = check_resumable(resume, algo, env_kwargs, seed, n_envs)
         _check_no_abandoned_branch(resume, out)
     seed = 0 if seed is None else seed
     n_envs = 16 if n_envs is None else n_envs
@@ -474,8 +475,8 @@ def delete_run(out: Path) -> None:
             path.unlink(missing_ok=True)
 
 
-def _check_resumable(
-    resume: str | Path, algo: str, env_kwargs: dict, seed: int | None, n_envs: int | None
+def check_resumable(
+    resume: str | Path, algo: str, env_kwargs: dict, seed: int | None, n_envs: int | None, framework: str = "sb3"
 ) -> tuple[int, int]:
     """A resumed run continues the same algorithm on the same env with the same seed and cars
     (an off-policy replay buffer holds rows of n_envs cars): ValueError naming what differs from
@@ -485,6 +486,10 @@ def _check_resumable(
     if not config_path.exists():
         raise ValueError(f"cannot resume {resume}: {config_path} is missing (its algorithm and env are unknown)")
     saved = json.loads(config_path.read_text())
+    if saved.get("framework", "sb3") != framework:
+        raise ValueError(
+            f"cannot resume {resume}: it was trained with --framework {saved.get('framework', 'sb3')}, not {framework}"
+        )
     if saved["algo"] != algo:
         raise ValueError(f"cannot resume {resume}: it was trained with --algo {saved['algo']}, not {algo}")
     if saved["env_kwargs"] != env_kwargs:

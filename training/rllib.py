@@ -9,10 +9,13 @@ counterpart of SB3's VecNormalize). PPO only, on the settings of SB3's PPO
 
 A run directory holds ``config.json`` (as SB3's runs, plus ``framework: "rllib"`` and
 ``env_runners``), the exported policy ``policy/`` (the RLModule, ``RLModule.save_to_path``)
-with ``obs_filter.pkl`` (the observation filter's state), ``progress.csv`` (per training
-iteration: env steps, training and held-out evaluation returns, env steps/s) and
-``checkpoints/step_N/`` (whole Algorithm checkpoints, each with its own ``policy/`` and
-``obs_filter.pkl``, so ``rl:<run>/checkpoints/step_N`` runs too). ``fourwis evaluate`` and
+with ``obs_filter.pkl`` (the observation filter's state), ``algorithm/`` (the final Algorithm
+checkpoint: learner, optimiser, filters, counters), ``progress.csv`` (per training iteration:
+env steps, training and held-out evaluation returns, env steps/s) and ``checkpoints/step_N/``
+(Algorithm checkpoints, each with its own ``policy/`` and ``obs_filter.pkl``, so
+``rl:<run>/checkpoints/step_N`` runs too). ``resume`` continues a run or a checkpoint
+(``Algorithm.restore_from_path``) with its env, seed and cars, its cars reseeded from (seed,
+steps trained) as SB3's resumed runs are. ``fourwis evaluate`` and
 ``rl:<run>`` controllers load it as they load a stable-baselines3 run
 (:class:`training.rl.PolicyController`).
 """
@@ -21,6 +24,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 import os
 import pickle
@@ -37,6 +41,7 @@ ENV_NAME = "fourwis-yaw-stability"  #: the env's name in RLlib's registry
 POLICY = "policy"  #: the exported RLModule's folder in a run directory or checkpoint
 OBS_FILTER = "obs_filter.pkl"  #: the observation filter's state beside it
 PROGRESS = "progress.csv"
+ALGORITHM = "algorithm"  #: the final Algorithm checkpoint in a run directory (what --resume of the run restores)
 RLLIB_EXTRA_MISSING = "fourwis train --framework rllib needs RLlib: pip install 'fourwis[ray]'"
 
 
@@ -51,8 +56,15 @@ def make_env(env_config: dict):
     """RLlib's env creator: the native vector env of ``num_envs`` cars (what an EnvRunner asks
     for in VECTOR_ENTRY_POINT mode) or, without ``num_envs``, the single env; ``env_config``
     holds the env keyword arguments. Its infos keep only the per-car arrays (the batched truth
-    and estimate are NamedTuples, which RLlib's list-of-dicts infos cannot split)."""
+    and estimate are NamedTuples, which RLlib's list-of-dicts infos cannot split). It also sets
+    the EnvRunner's torch threads to training.rl.TORCH_THREADS: a remote EnvRunner came up with
+    one per core, and its policy's forward passes then competed with the env for them."""
     import gymnasium as gym
+    import torch
+
+    from fourwis.training.rl import TORCH_THREADS
+
+    torch.set_num_threads(TORCH_THREADS)
 
     from fourwis.envs.gym_env import YawStabilityEnv, YawStabilityVectorEnv
 
@@ -173,19 +185,31 @@ def train(
     algo_overrides: dict | None = None,
     overwrite: bool = False,
     address: str | None = None,
+    resume: str | Path | None = None,
 ) -> Path:
     """Train RLlib PPO until ``timesteps`` env steps (rounded up to whole training batches of
     ``n_steps`` x ``n_envs`` x ``env_runners``) on a Ray instance (``address`` as
     training.pool.Backend's: None starts a local one); writes the run directory ``out`` and
     returns its exported ``policy/``. Checkpoints every ``checkpoint_every`` env steps, a
     held-out evaluation on ``eval_scenario`` every ``eval_every``. ``seed`` and ``n_envs``
-    default to 0 and 16; an ``out`` holding another run is refused unless ``overwrite``."""
+    default to 0 and 16 (or the resumed run's); an ``out`` holding another run than the one
+    ``resume`` continues is refused unless ``overwrite``."""
     _rllib()
     from fourwis.core.checks import is_integer
     from fourwis.envs.gym_env import EnvConfig
     from fourwis.training.io import atomic_write_json, check_writable
-    from fourwis.training.rl import RunConfig, as_json, delete_run, other_run
+    from fourwis.training.rl import RunConfig, as_json, check_resumable, delete_run, other_run
 
+    env_kwargs = as_json(dict(env_kwargs or {}))
+    checkpoint, resumed_steps = None, 0
+    if resume is not None:
+        seed, n_envs = check_resumable(resume, "ppo", env_kwargs, seed, n_envs, framework="rllib")
+        checkpoint, resumed_steps = _resumed(Path(resume))
+        if resumed_steps >= timesteps:
+            raise ValueError(
+                f"cannot resume {resume}: it already has {resumed_steps} timesteps and --timesteps is the "
+                f"total to reach, so give more than {resumed_steps}, not {timesteps}"
+            )
     seed = 0 if seed is None else seed
     n_envs = 16 if n_envs is None else n_envs
     for name, value, low in (
@@ -199,7 +223,6 @@ def train(
     ):
         if not (is_integer(value) and value >= low):
             raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
-    env_kwargs = as_json(dict(env_kwargs or {}))
     try:
         env_config = EnvConfig(**env_kwargs)
     except TypeError as err:
@@ -209,9 +232,13 @@ def train(
     if env_config.privileged:
         raise ValueError("privileged (asymmetric actor-critic) training is stable-baselines3's: use --framework sb3")
     out = check_writable(out)
-    replaces = other_run(out, None)
+    replaces = other_run(out, resume)
     if replaces and not overwrite:
-        raise ValueError(f"{out} already holds a run: give a new --out (--overwrite replaces it)")
+        raise ValueError(
+            f"{out} already holds a run: continue it with --resume {out}, or give a new --out (--overwrite replaces it)"
+        )
+    if resume is not None:
+        _check_no_abandoned_branch(checkpoint, resumed_steps, out)
     eval_kwargs = {**env_kwargs, "scenario": eval_scenario}
     for name in ("speed_kph", "mu", "scenario_kwargs", "max_episode_steps"):  # the held-out scenario, run whole
         eval_kwargs.pop(name, None)
@@ -229,18 +256,23 @@ def train(
             f"--env-runners {env_runners} needs as many CPUs, but the local Ray instance has {cpus:g}: "
             "give fewer, or --address of a cluster"
         )
-    evaluated = eval_every <= timesteps  # (else no evaluation EnvRunner is built)
+    evaluated = (eval_every * (resumed_steps // eval_every + 1)) <= timesteps  # (else no evaluation EnvRunner)
+    # a resumed run's cars carry on through the training distribution rather than replay its start
+    car_seed = seed if resume is None else int(np.random.SeedSequence([seed, resumed_steps]).generate_state(1)[0])
     config = ppo_config(
-        env_kwargs, n_envs, env_runners, seed, eval_kwargs if evaluated else None, eval_episodes, algo_overrides
+        env_kwargs, n_envs, env_runners, car_seed, eval_kwargs if evaluated else None, eval_episodes, algo_overrides
     )
+    rows = _earlier_progress(Path(resume), resumed_steps) if resume is not None else []
     if replaces:
         delete_run(out)
     out.mkdir(parents=True, exist_ok=True)
     algo = config.build_algo()
-    run_config = RunConfig("ppo", env_kwargs, int(seed), int(n_envs), 0, int(timesteps))
+    if checkpoint is not None:
+        algo.restore_from_path(str(checkpoint.resolve()))
+    run_config = RunConfig("ppo", env_kwargs, int(seed), int(n_envs), resumed_steps, int(timesteps))
     record = {**asdict(run_config), "framework": "rllib", "env_runners": int(env_runners)}
     atomic_write_json(out / "config.json", record)
-    rows, steps, last_checkpoint, last_eval = [], 0, 0, 0
+    steps = last_checkpoint = last_eval = resumed_steps
     from tqdm import tqdm
 
     bar = tqdm(total=timesteps, disable=not progress, desc="rllib ppo", unit="step")
@@ -258,7 +290,7 @@ def train(
                 "timesteps": steps,
                 "episode_return_mean": runners.get("episode_return_mean", math.nan),
                 "eval_return_mean": math.nan,
-                "env_steps_per_s": steps / (time.perf_counter() - start),
+                "env_steps_per_s": (steps - resumed_steps) / (time.perf_counter() - start),
             }
             if steps // eval_every > last_eval // eval_every:
                 last_eval = steps
@@ -274,6 +306,7 @@ def train(
         bar.close()
     atomic_write_json(out / "config.json", {**record, "timesteps": steps})
     _export(algo, out)
+    _save_algorithm(algo, out / ALGORITHM)
     algo.stop()
     if interrupted:
         raise KeyboardInterrupt(f"interrupted after {steps:,} env steps; saved {out / POLICY}")
@@ -291,15 +324,63 @@ def _write_progress(out: Path, rows: list[dict]) -> None:
 
 
 def _checkpoint(algo, path: Path) -> None:
-    """The Algorithm's checkpoint (resumable by RLlib) with the exported policy inside, written
-    to a temporary folder beside ``path`` and renamed into place (whole or absent)."""
+    """The Algorithm's checkpoint (resumable) with the exported policy inside (``rl:`` runs it)."""
+    _save_algorithm(algo, path, export=True)
+
+
+def _save_algorithm(algo, path: Path, export: bool = False) -> None:
+    """``algo.save_to_path`` (and with ``export`` the policy, :func:`_export`) into a temporary
+    folder beside ``path``, renamed into place: whole or absent."""
     tmp = path.with_name(f".{path.name}.tmp")
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
     algo.save_to_path(str(tmp.resolve()))
-    _export(algo, tmp)
+    if export:
+        _export(algo, tmp)
     shutil.rmtree(path, ignore_errors=True)
     os.replace(tmp, path)
+
+
+def _checkpoint_step(path: Path) -> int:
+    return int(path.name.removeprefix("step_"))
+
+
+def _resumed(resume: Path) -> tuple[Path, int]:
+    """The Algorithm checkpoint that ``resume`` (a run directory or its checkpoints/step_N)
+    continues, and its env steps; FileNotFoundError if it has none."""
+    if (resume / "checkpoints").is_dir() or (resume / "config.json").exists():  # a run directory
+        checkpoint = resume / ALGORITHM
+        steps = json.loads((resume / "config.json").read_text())["timesteps"]
+    else:
+        checkpoint, steps = resume, _checkpoint_step(resume)
+    if not (checkpoint / "algorithm_state.pkl").exists() and not any(checkpoint.glob("*.json")):
+        raise FileNotFoundError(f"cannot resume {resume}: no RLlib Algorithm checkpoint at {checkpoint}")
+    return checkpoint, int(steps)
+
+
+def _check_no_abandoned_branch(checkpoint: Path, steps: int, out: Path) -> None:
+    """ValueError if resuming into the resumed run's own folder ``out`` would leave checkpoints
+    beyond the resumed step beside the new branch's (as training.rl refuses for SB3 runs)."""
+    run = checkpoint.parent if checkpoint.name == ALGORITHM else checkpoint.parent.parent
+    if run.resolve() != out.resolve():
+        return
+    later = sorted(p.name for p in (out / "checkpoints").glob("step_*") if _checkpoint_step(p) > steps)
+    if later:
+        raise ValueError(
+            f"resuming {checkpoint} into its own run {out} would leave the run's later checkpoints {later} "
+            "beside the new branch's: resume the latest checkpoint, or give a new --out"
+        )
+
+
+def _earlier_progress(resume: Path, steps: int) -> list[dict]:
+    """The resumed run's progress.csv rows up to ``steps`` (the new rows follow them)."""
+    run = resume if (resume / "config.json").exists() else resume.parent.parent
+    path = run / PROGRESS
+    if not path.exists():
+        return []
+    rows = list(csv.DictReader(io.StringIO(path.read_text())))
+    return [{k: (int(v) if k in ("iteration", "timesteps") else float(v)) for k, v in r.items()} for r in rows
+            if int(r["timesteps"]) <= steps]  # fmt: skip
 
 
 def _export(algo, folder: Path) -> None:
