@@ -40,6 +40,15 @@ def ray_instance():
     instance. Skipped without the ray extra."""
     ray = pytest.importorskip("ray", reason="the ray extra is not installed")
     if not ray.is_initialized():
-        ray.init(num_cpus=2, include_dashboard=False, object_store_memory=256 * 2**20, logging_level="WARNING")
+        # tests/ on the workers' path too (custom_models.py: the tests' own estimators and controllers);
+        # a local instance's workers have the driver's working directory, not pytest's sys.path
+        path = os.pathsep.join(p for p in (os.path.dirname(__file__), os.environ.get("PYTHONPATH")) if p)
+        ray.init(
+            num_cpus=2,
+            include_dashboard=False,
+            object_store_memory=256 * 2**20,
+            logging_level="WARNING",
+            runtime_env={"env_vars": {"PYTHONPATH": path}},
+        )
     yield ray
     ray.shutdown()
