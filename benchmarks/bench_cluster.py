@@ -111,6 +111,11 @@ def ppo_throughput() -> None:
 
 
 def main() -> None:
+    import importlib.util
+
+    if importlib.util.find_spec("ray") is None:  # (fourwis bench runs every benchmark)
+        print("bench_cluster needs the ray extra: pip install 'fourwis[ray]'")
+        return
     _header()
     print(f"command: {' '.join([Path(sys.executable).name, *sys.argv])}")
     compare_side_by_side()

@@ -113,6 +113,14 @@ def test_a_runs_own_error_fails_the_ray_sweep_as_itself_not_as_a_ray_traceback(r
     assert "\n" not in str(exited.value)
 
 
+def test_a_local_worker_that_dies_stops_the_sweep_with_one_line():
+    """The local pool cannot retry: a worker that exits mid-run is a WorkerLostError saying so."""
+    from fourwis.training.pool import WorkerLostError
+
+    with pytest.raises(WorkerLostError, match="a worker process died .* the local pool does not retry"):
+        list(parallel_map(os._exit, [3], 1, "test", progress=False))
+
+
 def test_parallel_map_on_ray_keeps_the_items_order(ray_instance):
     assert list(parallel_map(abs, [-3, 2, -1, 0], None, "test", progress=False, backend="ray")) == [3, 2, 1, 0]
     assert list(parallel_map(abs, [-3, 2, -1], 1, "test", progress=False, backend="ray")) == [3, 2, 1]
