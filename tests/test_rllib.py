@@ -105,6 +105,21 @@ def test_a_resumed_run_counts_on_from_its_steps_and_keeps_its_progress(rllib_run
               progress=False)  # fmt: skip
 
 
+def test_fourwis_train_framework_rllib_trains_and_checkpoints_from_the_command_line(ray_instance, tmp_path, capsys):
+    """The command line's own settings (rollouts of 256 steps per car): 2 cars, 2 iterations."""
+    from fourwis.training.cli import main
+
+    out = tmp_path / "cli"
+    argv = ["train", "--framework", "rllib", "--timesteps", "1024", "--n-envs", "2", "--env-kwargs"]
+    argv += ['{"estimator": "oracle"}', "--eval-every", "100000", "--checkpoint-every", "512", "--out", str(out)]
+    assert main(argv) == 0
+    config = json.loads((out / "config.json").read_text())
+    assert 1024 <= config["timesteps"] < 1024 + 8 and config["env_runners"] == 1  # (RLlib may take a step more)
+    assert f"wrote {out / 'policy'}, trained {config['timesteps']:,} env steps" in capsys.readouterr().out
+    steps = sorted(int(p.name.removeprefix("step_")) for p in (out / "checkpoints").iterdir())
+    assert len(steps) == 2 and 512 <= steps[0] < 1024 <= steps[1]
+
+
 def test_train_with_rllib_refuses_what_it_does_not_do(tmp_path):
     from fourwis.training.cli import main
 

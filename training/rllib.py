@@ -188,7 +188,8 @@ def train(
     resume: str | Path | None = None,
 ) -> Path:
     """Train RLlib PPO until ``timesteps`` env steps (rounded up to whole training batches of
-    ``n_steps`` x ``n_envs`` x ``env_runners``) on a Ray instance (``address`` as
+    ``n_steps`` x ``n_envs`` x ``env_runners``; RLlib's sampler may take a few steps more, which
+    config.json counts) on a Ray instance (``address`` as
     training.pool.Backend's: None starts a local one); writes the run directory ``out`` and
     returns its exported ``policy/``. Checkpoints every ``checkpoint_every`` env steps, a
     held-out evaluation on ``eval_scenario`` every ``eval_every``. ``seed`` and ``n_envs``
