@@ -79,6 +79,38 @@ class SeriesRun:
     peak_sideslip: float  #: largest |beta| [rad]
 
 
+@dataclass(frozen=True)
+class SeriesJob:
+    """One run of a series to do (what :func:`run_series` hands to ``map_runs``)."""
+
+    A: float  #: characterisation angle [rad]
+    mu: float
+    amplitude: float  #: steering-wheel amplitude [rad]
+    direction: int  #: +1 left first, -1 right first
+    controller_factory: Callable | None
+    estimator: object
+    params: VehicleParams
+    seed: int
+
+
+def run_series_job(job: SeriesJob) -> SeriesRun:
+    """Simulate one sine-with-dwell run of a series and score it."""
+    scenario = make_scenario(
+        "sine_with_dwell",
+        mu=job.mu,
+        amplitude_deg=math.degrees(job.amplitude),
+        direction=job.direction,
+        params=job.params,
+    )
+    controller = job.controller_factory() if job.controller_factory is not None else None
+    traj = simulate(scenario, controller=controller, estimator=job.estimator, seed=job.seed)
+    beta = traj.truth.beta
+    result = sine_with_dwell_metrics(
+        traj.t, traj.steering_wheel, traj.state[:, S_R], traj.aux[:, A_AY], sideslip=beta, A=job.A
+    )
+    return SeriesRun(job.mu, float(job.amplitude), job.direction, result, peak_abs(beta))
+
+
 def run_series(
     A: float,
     mu: float = 1.0,
@@ -88,23 +120,19 @@ def run_series(
     seed: int = 0,
     progress: bool = False,
     amplitude_list: np.ndarray | None = None,
+    map_runs: Callable | None = None,
 ) -> list[SeriesRun]:
     """The sine-with-dwell series at friction ``mu`` (both directions). ``controller_factory()``
-    builds a fresh controller per run (None: uncontrolled); ``estimator`` as for simulate."""
-    runs = []
+    builds a fresh controller per run (None: uncontrolled); ``estimator`` as for simulate.
+    ``map_runs(run_series_job, jobs, desc)`` runs the :class:`SeriesJob` list and returns the
+    SeriesRuns in its order (default: here, one after the other; ``fourwis swd`` hands in
+    training.pool's process pool or Ray, which need a picklable factory and estimator)."""
     todo = [(a, d) for a in (amplitudes(A) if amplitude_list is None else amplitude_list) for d in (1, -1)]
-    for amplitude, direction in tqdm(todo, disable=not progress, desc=f"sine with dwell, mu {mu}", unit="run"):
-        scenario = make_scenario(
-            "sine_with_dwell", mu=mu, amplitude_deg=math.degrees(amplitude), direction=direction, params=params
-        )
-        controller = controller_factory() if controller_factory is not None else None
-        traj = simulate(scenario, controller=controller, estimator=estimator, seed=seed)
-        beta = traj.truth.beta
-        result = sine_with_dwell_metrics(
-            traj.t, traj.steering_wheel, traj.state[:, S_R], traj.aux[:, A_AY], sideslip=beta, A=A
-        )
-        runs.append(SeriesRun(mu, float(amplitude), direction, result, peak_abs(beta)))
-    return runs
+    jobs = [SeriesJob(A, mu, float(a), d, controller_factory, estimator, params, seed) for a, d in todo]
+    desc = f"sine with dwell, mu {mu}"
+    if map_runs is not None:
+        return list(map_runs(run_series_job, jobs, desc))
+    return [run_series_job(job) for job in tqdm(jobs, disable=not progress, desc=desc, unit="run")]
 
 
 MEASURED_A = "0.3 g at 80 km/h, dry road"  #: where :func:`characterise` finds A (a table's header)

@@ -30,3 +30,25 @@ def heap_allocations():
     yield count
     if not was_on:
         _nrt_python.memsys_disable_stats()
+
+
+@pytest.fixture(scope="session")
+def ray_instance():
+    """ONE local Ray instance for the whole session (2 CPUs, no dashboard, a small object store),
+    shut down at its end. Its tests carry ``xdist_group("ray")`` and the test command runs
+    ``--dist loadgroup``, so under pytest-xdist they share one worker process, hence one
+    instance. Skipped without the ray extra."""
+    ray = pytest.importorskip("ray", reason="the ray extra is not installed")
+    if not ray.is_initialized():
+        # tests/ on the workers' path too (custom_models.py: the tests' own estimators and controllers);
+        # a local instance's workers have the driver's working directory, not pytest's sys.path
+        path = os.pathsep.join(p for p in (os.path.dirname(__file__), os.environ.get("PYTHONPATH")) if p)
+        ray.init(
+            num_cpus=2,
+            include_dashboard=False,
+            object_store_memory=256 * 2**20,
+            logging_level="WARNING",
+            runtime_env={"env_vars": {"PYTHONPATH": path}},
+        )
+    yield ray
+    ray.shutdown()

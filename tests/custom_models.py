@@ -56,6 +56,14 @@ def yaw_damper(params, dt):
     return YawDamper(params, dt)
 
 
+def bad_gain(params, dt):
+    """A factory whose own check rejects its setting (where the run is built: in the worker)."""
+    gain = -1.0
+    if gain <= 0:
+        raise ValueError(f"gain must be > 0, got {gain}")
+    return YawDamper(params, dt, gain)
+
+
 class Diverging(BiasedFriction):
     """Loses the yaw rate: NaN from the first step."""
 

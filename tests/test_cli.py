@@ -127,7 +127,7 @@ def test_tune_mu_noise_refuses_the_options_it_would_ignore(tmp_path, monkeypatch
     monkeypatch.setattr(training_tune, "mu_noise_scan", lambda: pytest.fail("scan started"))
     with pytest.raises(SystemExit, match=r"--mu-noise takes no other option, got \['--out', '--seed'\]"):
         main(["tune", "--mu-noise", "--out", str(tmp_path / "mn.json"), "--seed", "-5"])
-    monkeypatch.setattr(training_tune, "mu_noise_scan", lambda: {0.3: 0.05})
+    monkeypatch.setattr(training_tune, "mu_noise_scan", lambda **sweep: {0.3: 0.05})
     assert main(["tune", "--mu-noise"]) == 0
 
 
@@ -186,7 +186,7 @@ def test_simulate_takes_the_comparisons_overrides_and_swd_an_a_with_a_series(tmp
 
 
 @pytest.mark.parametrize("jobs", ["0", "-1"])
-@pytest.mark.parametrize("command", [["compare"], ["estimate"], ["evaluate", "some_run"]])
+@pytest.mark.parametrize("command", [["compare"], ["estimate"], ["evaluate", "some_run"], ["swd"], ["tune"]])
 def test_every_command_refuses_fewer_than_one_job_naming_the_option(command, jobs, tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_:
         main([*command, "--jobs", jobs, "--out", str(tmp_path / "out")])

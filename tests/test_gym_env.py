@@ -303,8 +303,11 @@ def test_gymnasium_stateful_vector_wrappers_take_the_next_step_native_env():
     RecordEpisodeStatistics counts the episodes the env ends."""
     from gymnasium.wrappers.vector import NormalizeObservation, RecordEpisodeStatistics
 
-    with pytest.raises(ValueError, match="NEXT_STEP"):
+    # (gymnasium >= 1.3 raises a ValueError naming NEXT_STEP; 1.2, which the ray extra's RLlib pins,
+    # a bare assertion)
+    with pytest.raises((ValueError, AssertionError)) as refused:
         NormalizeObservation(YawStabilityVectorEnv(num_envs=2, estimator="oracle", autoreset_mode="SameStep"))
+    assert refused.type is AssertionError or "NEXT_STEP" in str(refused.value)
 
     def make():
         return YawStabilityVectorEnv(

@@ -261,12 +261,12 @@ def test_reward_normalisation_discounts_as_the_algorithm_does(tmp_path):
 
 
 def test_ppo_minibatches_split_the_rollout_evenly():
-    from fourwis.training.rl import _minibatch
+    from fourwis.training.rl import minibatch
 
-    assert _minibatch(1024, 16 * 256) == 1024  # the shipped configuration
-    assert _minibatch(1024, 6 * 256) == 768
-    assert _minibatch(1024, 2 * 256) == 512
-    assert _minibatch(1024, 7 * 256) == 896
+    assert minibatch(1024, 16 * 256) == 1024  # the shipped configuration
+    assert minibatch(1024, 6 * 256) == 768
+    assert minibatch(1024, 2 * 256) == 512
+    assert minibatch(1024, 7 * 256) == 896
 
 
 def test_bad_arguments_give_clear_errors(tmp_path):

@@ -1,7 +1,8 @@
 """The fourwis command line: one console script, one subcommand per job.
 
 The main job: fourwis compare (README's first command). Extras: plots (PNGs, rendering), rl
-(train, evaluate, rl: controllers); a command names a missing one before it runs."""
+(train, evaluate, rl: controllers), ray (--backend ray sweeps, train --framework rllib); a
+command names a missing one before it runs."""
 
 from __future__ import annotations
 
@@ -132,6 +133,7 @@ def _sine_with_dwell(args: argparse.Namespace) -> int:
         _check_estimator_and_seed(args)
         if args.controller != "none":
             build_controller(args.controller, VehicleParams())  # a bad name or path
+        backend = _backend(args)
     except (ValueError, FileNotFoundError) as err:
         raise SystemExit(f"fourwis swd: {err}") from None
     A = math.radians(args.A) if args.A is not None else characterise()
@@ -142,7 +144,12 @@ def _sine_with_dwell(args: argparse.Namespace) -> int:
     for mu in args.mu:
         try:
             runs = run_series(
-                A, mu=mu, controller_factory=factory, estimator=args.estimator, seed=args.seed, progress=True
+                A,
+                mu=mu,
+                controller_factory=factory,
+                estimator=args.estimator,
+                seed=args.seed,
+                map_runs=functools.partial(_map_runs, jobs=args.jobs, backend=backend),
             )
         except ValueError as err:  # a user's estimator or controller returning garbage
             raise SystemExit(f"fourwis swd: {err}") from None
@@ -157,6 +164,21 @@ def _sine_with_dwell(args: argparse.Namespace) -> int:
         report = "\n".join(["# FMVSS 126 sine with dwell", "", *provenance(args.command_line).markdown(), "", text, ""])
         print(f"wrote {atomic_write_text(Path(args.out) / 'sine_with_dwell.md', report)}")
     return 0
+
+
+def _backend(args: argparse.Namespace):
+    """The --backend and --address of a sweep as a training.pool.Backend (ValueError naming a
+    bad one; ModuleNotFoundError naming the extra if Ray is missing)."""
+    from fourwis.training.pool import Backend
+
+    return Backend(args.backend, args.address)
+
+
+def _map_runs(fn, items, desc: str, jobs: int | None, backend):
+    """A series' runs on the sweep backend, with a progress bar (envs.fmvss126.run_series's map_runs)."""
+    from fourwis.training.pool import parallel_map
+
+    return parallel_map(fn, items, jobs, desc, True, backend)
 
 
 def _report(
@@ -178,7 +200,14 @@ def _compare(args: argparse.Namespace) -> int:
     return _report(
         "compare",
         lambda: compare(
-            args.out, args.scenarios, args.estimators, args.controllers, args.seeds, args.jobs, args.command_line
+            args.out,
+            args.scenarios,
+            args.estimators,
+            args.controllers,
+            args.seeds,
+            args.jobs,
+            args.command_line,
+            _backend(args),
         ),
         "runs.csv",
     )
@@ -197,6 +226,7 @@ def _estimate(args: argparse.Namespace) -> int:
             args.jobs,
             road_mu=args.road_mu,
             command=args.command_line,
+            backend=_backend(args),
         ),
         "estimate.csv",
     )
@@ -207,12 +237,19 @@ def _tune(args: argparse.Namespace) -> int:
 
     if args.mu_noise:
         defaults = vars(build_parser().parse_args(["tune"]))
-        ignored = ("mu_noise", "func", "command_line")
+        sweep = ("jobs", "backend", "address")
+        ignored = ("mu_noise", "func", "command_line", *sweep)
         given = sorted(k for k, v in vars(args).items() if k not in ignored and v != defaults[k])
         if given:  # (they were accepted and ignored)
             options = ["--" + k.replace("_", "-") for k in given]
-            raise SystemExit(f"fourwis tune: --mu-noise takes no other option, got {options}")
-        errors = mu_noise_scan()
+            raise SystemExit(
+                f"fourwis tune: --mu-noise takes no other option, got {options} (but --jobs, --backend and --address)"
+            )
+        try:
+            backend = _backend(args)
+        except ValueError as err:
+            raise SystemExit(f"fourwis tune: {err}") from None
+        errors = mu_noise_scan(jobs=args.jobs, backend=backend)
         print("| mu_accel_std [m/s^2] | mean abs mu error, last half |\n|---:|---:|")
         print("\n".join(f"| {g:g} | {e:.3f} |" for g, e in errors.items()))
         return 0
@@ -229,6 +266,8 @@ def _tune(args: argparse.Namespace) -> int:
             criterion=args.criterion,
             replace_shipped=args.replace_shipped,
             command=args.command_line,
+            jobs=args.jobs,
+            backend=_backend(args),
         )
     except ValueError as err:
         raise SystemExit(f"fourwis tune: {err}") from None
@@ -268,18 +307,23 @@ def _train(args: argparse.Namespace) -> int:
     try:
         if args.seed is not None:
             _check_seed(args)
-        path = train(
-            args.algo,
-            args.out,
-            args.timesteps,
-            args.seed,
-            args.env_kwargs,
-            args.n_envs,
-            eval_every=args.eval_every,
-            checkpoint_every=args.checkpoint_every,
-            resume=args.resume,
-            overwrite=args.overwrite,
-        )
+        if args.framework == "rllib":
+            path = _train_rllib(args)
+        else:
+            if args.env_runners is not None or args.address is not None:
+                raise ValueError("--env-runners and --address are for --framework rllib")
+            path = train(
+                args.algo,
+                args.out,
+                args.timesteps,
+                args.seed,
+                args.env_kwargs,
+                args.n_envs,
+                eval_every=args.eval_every,
+                checkpoint_every=args.checkpoint_every,
+                resume=args.resume,
+                overwrite=args.overwrite,
+            )
     except (ValueError, FileNotFoundError) as err:
         raise SystemExit(f"fourwis train: {err}") from None
     except KeyboardInterrupt as err:  # train saved the model first (if it had started training)
@@ -295,14 +339,42 @@ def _train(args: argparse.Namespace) -> int:
     return 0
 
 
+def _train_rllib(args: argparse.Namespace):
+    """``fourwis train --framework rllib``: RLlib PPO (training.rllib); returns the policy's path."""
+    if args.algo != "ppo":
+        raise ValueError(f"--framework rllib trains --algo ppo, not {args.algo} (sac and td3: --framework sb3)")
+    from fourwis.training.rllib import train as train_rllib
+
+    return train_rllib(
+        args.out,
+        args.timesteps,
+        args.seed,
+        args.env_kwargs,
+        args.n_envs,
+        1 if args.env_runners is None else args.env_runners,
+        eval_every=args.eval_every,
+        checkpoint_every=args.checkpoint_every,
+        overwrite=args.overwrite,
+        address=args.address,
+        resume=args.resume,
+    )
+
+
 def _evaluate(args: argparse.Namespace) -> int:
     from fourwis.training.rl import evaluate
 
     return _report(
         "evaluate",
         lambda: evaluate(
-            args.model, args.out, args.scenarios, args.estimator, args.seeds, args.jobs, args.command_line
-        ),
+            args.model,
+            args.out,
+            args.scenarios,
+            args.estimator,
+            args.seeds,
+            args.jobs,
+            args.command_line,
+            _backend(args),
+        ),  # fmt: skip
         "runs.csv",
         (ValueError, FileNotFoundError),
     )
@@ -371,8 +443,26 @@ def _add_matrix_arguments(
 def _add_run_arguments(parser: argparse.ArgumentParser, seeds: int, out: str) -> None:
     """--seeds, --jobs and --out of the jobs that run a matrix of simulations."""
     parser.add_argument("--seeds", type=int, default=seeds, help="sensor-noise seeds per cell")
-    parser.add_argument("--jobs", type=_positive_int, help="worker processes (default: up to 2)")
+    _add_backend_arguments(parser)
     parser.add_argument("--out", default=out, help="output directory")
+
+
+def _add_backend_arguments(parser: argparse.ArgumentParser, jobs_help: str = "worker processes (default: up to 2)"):
+    """--jobs, --backend and --address of the jobs that run sweeps (training.pool)."""
+    parser.add_argument(
+        "--jobs", type=_positive_int, help=f"{jobs_help}; with --backend ray: most tasks at once (default: all)"
+    )
+    parser.add_argument(
+        "--backend",
+        choices=("local", "ray"),
+        default="local",
+        help="where the runs execute: worker processes here, or Ray tasks (the ray extra; docs/cluster.md)",
+    )
+    parser.add_argument(
+        "--address",
+        help="the Ray cluster to join with --backend ray: auto, HOST:6379 or ray://HOST:10001 "
+        "(default: start a local Ray instance)",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -478,6 +568,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="also write the result over the shipped estimation/data/tuned_noise.json, which alo-fkf and "
         "joint use from then on (in an installed package: inside site-packages)",
     )
+    _add_backend_arguments(
+        tune, "split each population over this many worker processes (default: one batched replay here)"
+    )
     tune.add_argument(
         "--mu-noise",
         action="store_true",
@@ -496,6 +589,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     swd.add_argument("--seed", type=int, default=0, help="sensor noise seed (>= 0)")
     swd.add_argument("--out", help="directory for sine_with_dwell.md (default: print only)")
+    _add_backend_arguments(swd)
     swd.set_defaults(func=_sine_with_dwell)
     from fourwis.training.rl_config import ALGO_CONFIGS, ALGOS, EVAL_SCENARIO
 
@@ -508,6 +602,23 @@ def build_parser() -> argparse.ArgumentParser:
     )
     train.add_argument(
         "--algo", choices=ALGOS, default="ppo", help="RL algorithm (settings: training.rl_config.ALGO_CONFIGS)"
+    )
+    train.add_argument(
+        "--framework",
+        choices=("sb3", "rllib"),
+        default="sb3",
+        help="stable-baselines3 in this process, or RLlib PPO on Ray (the ray extra; writes policy/, "
+        "obs_filter.pkl, progress.csv and checkpoints/step_N/ instead of SB3's files)",
+    )
+    train.add_argument(
+        "--env-runners",
+        type=int,
+        help="rllib: EnvRunner actors, each stepping --n-envs cars of one native vector env (default 1; "
+        "0: sample in this process)",
+    )
+    train.add_argument(
+        "--address",
+        help="rllib: the Ray cluster to join (auto, HOST:6379, ray://HOST:10001; default: a local instance)",
     )
     train.add_argument(
         "--env-kwargs",
@@ -536,7 +647,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--eval-every", type=int, default=40_000, help=f"env steps between evaluations on the held-out {EVAL_SCENARIO}"
     )
     train.add_argument("--checkpoint-every", type=int, default=50_000, help="env steps between checkpoints")
-    train.add_argument("--resume", help="run directory or checkpoint .zip to continue from")
+    train.add_argument(
+        "--resume",
+        help="run directory or checkpoint .zip to continue from (rllib: a run directory or checkpoints/step_N)",
+    )
     train.add_argument("--out", default="results/train", help="run directory")
     train.add_argument(
         "--overwrite",
@@ -578,6 +692,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from fourwis.training.pool import WorkerLostError
     from fourwis.training.provenance import command_line
 
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -590,6 +705,8 @@ def main(argv: list[str] | None = None) -> int:
     except ModuleNotFoundError as err:  # an optional dependency: its message names the extra
         if "fourwis[" not in str(err):
             raise
+        raise SystemExit(f"fourwis {args.command}: {err}") from None
+    except WorkerLostError as err:  # a worker died (on Ray: after its retries)
         raise SystemExit(f"fourwis {args.command}: {err}") from None
     except KeyboardInterrupt:  # (train saves its run first and exits the same way)
         print(f"fourwis {args.command}: interrupted", file=sys.stderr)

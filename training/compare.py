@@ -48,7 +48,7 @@ from fourwis.envs.simulation import Trajectory, simulate
 from fourwis.envs.vehicle import VehicleParams
 from fourwis.estimation import check_estimator_name
 from fourwis.training.io import atomic_write, atomic_write_text, check_writable, pyplot, staged_output
-from fourwis.training.pool import check_jobs, parallel_map
+from fourwis.training.pool import Backend, as_backend, check_jobs, parallel_map
 from fourwis.training.provenance import Provenance, provenance
 from fourwis.training.tables import mean_over_seeds, require_distinct, write_runs_csv
 from fourwis.training.trajectory_io import reference_yaw_rate_of
@@ -439,17 +439,20 @@ def run_matrix(
     jobs: int | None = None,
     progress: bool = True,
     checked: bool = False,
+    backend: Backend | str | None = None,
 ) -> tuple[list[tuple[RunSpec, dict]], dict]:
-    """Run the matrix in parallel processes; returns per-run (spec, metrics) and seed-0
-    trajectories. ``checked``: :func:`check_matrix` has passed already (else it runs first)."""
+    """Run the matrix in parallel on ``backend`` (training.pool: local processes by default, or
+    Ray); returns per-run (spec, metrics) and seed-0 trajectories, the same on either backend.
+    ``checked``: :func:`check_matrix` has passed already (else it runs first)."""
     if not checked:
         check_matrix(scenarios, estimators, controllers, seeds, jobs)
+    backend = as_backend(backend)
     A = {s: entry_A(s) for s in scenarios}
     specs = [
         RunSpec(s, e, c, k, A[s]) for s in scenarios for c in controllers for e in estimators for k in range(seeds)
     ]
     results, trajectories = [], {}
-    for spec, metrics, traj in parallel_map(_run, specs, jobs, "closed-loop runs", progress):
+    for spec, metrics, traj in parallel_map(_run, specs, jobs, "closed-loop runs", progress, backend):
         results.append((spec, metrics))
         if traj is not None:
             trajectories[(spec.scenario, spec.estimator, spec.controller)] = traj
@@ -752,16 +755,17 @@ def compare(
     seeds: int = 2,
     jobs: int | None = None,
     command: str | None = None,
+    backend: Backend | str | None = None,
 ) -> Path:
     """Run the matrix and write report.md, runs.csv and PNG plots into ``out`` as one set
     (:func:`training.io.staged_output`: an interrupt leaves the folder's previous set); returns
     the report's path. ``command``: what the report's header says wrote it (default: this
-    process's command line). Bad arguments and an unwritable ``out`` raise ValueError before
-    any run."""
+    process's command line); ``backend``: where the runs go (:func:`run_matrix`). Bad arguments
+    and an unwritable ``out`` raise ValueError before any run."""
     check_matrix(scenarios, estimators, controllers, seeds, jobs)
     out = check_writable(out)
     pyplot()  # (its plots need matplotlib: say so before the runs, not after them)
-    results, trajectories = run_matrix(scenarios, estimators, controllers, seeds, jobs, checked=True)
+    results, trajectories = run_matrix(scenarios, estimators, controllers, seeds, jobs, checked=True, backend=backend)
     header = provenance(command)
     with staged_output(out) as stage:
         write_csv(results, stage / "runs.csv")

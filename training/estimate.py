@@ -34,7 +34,7 @@ from fourwis.training.compare import (
     parse_scenario,
 )
 from fourwis.training.io import atomic_write, atomic_write_text, check_writable, pyplot, staged_output
-from fourwis.training.pool import parallel_map
+from fourwis.training.pool import Backend, as_backend, parallel_map
 from fourwis.training.provenance import Provenance, provenance
 from fourwis.training.tables import mean_over_seeds, require_distinct, write_runs_csv
 from fourwis.training.tyre_fit import plot_tyre_curves
@@ -174,13 +174,16 @@ def run_all(
     jobs: int | None = None,
     progress: bool = True,
     road_mu: bool = False,
+    backend: Backend | str | None = None,
 ) -> tuple[list[tuple[RunSpec, dict]], dict]:
-    """Run every (scenario, estimator, seed) open loop in parallel processes. ``road_mu``: the
+    """Run every (scenario, estimator, seed) open loop in parallel on ``backend`` (training.pool:
+    local processes by default, or Ray; the same results on either). ``road_mu``: the
     fixed-mu filters (:data:`FIXED_MU`) assume the road's friction at the start
     (:func:`road_friction`) instead of 0.8, as the paper's section-3 filters presumably do.
 
     Returns per-run (spec, metrics) and the seed-0 series {(scenario name, estimator): (t, truth, estimate)}.
     """
+    backend = as_backend(backend)
     built = _scenarios(scenarios)
     if not estimators:
         raise ValueError("estimators must not be empty")
@@ -198,7 +201,7 @@ def run_all(
         for k in range(seeds)
     ]
     results, series = [], {}
-    for spec, metrics, keep in parallel_map(_run, specs, jobs, "open-loop estimation runs", progress):
+    for spec, metrics, keep in parallel_map(_run, specs, jobs, "open-loop estimation runs", progress, backend):
         results.append((spec, metrics))
         if keep is not None:
             series[(spec.scenario.name, spec.estimator)] = keep
@@ -394,6 +397,7 @@ def estimate_report(
     jobs: int | None = None,
     road_mu: bool = False,
     command: str | None = None,
+    backend: Backend | str | None = None,
 ) -> Path:
     """Run the open-loop matrix; write estimate.csv, estimate.md, <scenario>.png and tyre_curves.png
     (the plant's tyre against the estimator's fitted Dugoff, paper Figures 2-3) into ``out``, as
@@ -402,11 +406,11 @@ def estimate_report(
 
     ``scenarios``: Scenario objects, or names with optional overrides as in compare
     (``paper_step:mu=0.5``; the plot's file name replaces ':', ',' and '=' by '_'); returns
-    the path of estimate.md. ``road_mu``: see :func:`run_all`.
+    the path of estimate.md. ``road_mu``, ``backend``: see :func:`run_all`.
     """
     out = check_writable(out)
     pyplot()  # (its plots need matplotlib: say so before the runs, not after them)
-    results, series = run_all(scenarios, estimators, seeds, jobs, road_mu=road_mu)
+    results, series = run_all(scenarios, estimators, seeds, jobs, road_mu=road_mu, backend=backend)
     built = list({spec.scenario.name: spec.scenario for spec, _ in results}.values())
     table = aggregate(results)
     header = provenance(command)

@@ -211,7 +211,11 @@ RUN_FILES = (
     "checkpoints",
     "tb",
     ".evaluating",
-)  #: what ``train`` writes into a run directory
+    "policy",
+    "obs_filter.pkl",
+    "progress.csv",
+    "algorithm",
+)  #: what ``train`` writes into a run directory (the last four: an RLlib run's, training.rllib)
 
 
 def _vec_env(env_kwargs: dict, n_envs: int, seed: int):
@@ -342,9 +346,9 @@ def train(
     torch.set_num_threads(TORCH_THREADS)
     if not (is_integer(timesteps) and timesteps > 0):
         raise ValueError(f"timesteps must be a positive integer, got {timesteps!r}")
-    env_kwargs = _as_json(dict(env_kwargs or {}))  # as config.json records them, so resume and rl: read the same
+    env_kwargs = as_json(dict(env_kwargs or {}))  # as config.json records them, so resume and rl: read the same
     if resume is not None:
-        seed, n_envs = _check_resumable(resume, algo, env_kwargs, seed, n_envs)
+        seed, n_envs = check_resumable(resume, algo, env_kwargs, seed, n_envs)
         _check_no_abandoned_branch(resume, Path(out))
     seed = 0 if seed is None else seed
     n_envs = 16 if n_envs is None else n_envs
@@ -368,7 +372,7 @@ def train(
             f"bad env_kwargs {env_kwargs!r}: {err}; known: {[f.name for f in fields(EnvConfig)]}"
         ) from None
     out = check_writable(out)  # (after the arguments: a refused run creates no folder)
-    replaces = _other_run(out, resume)
+    replaces = other_run(out, resume)
     if replaces and not overwrite:
         raise ValueError(
             f"{out} already holds a run: continue it with --resume {out}, or give a new --out (--overwrite replaces it)"
@@ -411,7 +415,7 @@ def train(
             train_env, norm_obs=True, norm_reward=not off_policy, clip_obs=10.0, gamma=settings["gamma"]
         )
         if algo == "ppo" and "batch_size" not in (algo_overrides or {}):
-            settings["batch_size"] = _minibatch(settings["batch_size"], settings["n_steps"] * n_envs)
+            settings["batch_size"] = minibatch(settings["batch_size"], settings["n_steps"] * n_envs)
         noise_std = settings.pop("action_noise_std", None)
         if noise_std is not None:
             dim = train_env.action_space.shape[0]
@@ -421,7 +425,7 @@ def train(
             policy, normalized, seed=seed, device="cpu", tensorboard_log=str(out / "tb"), verbose=0, **settings
         )
     if replaces:  # no checkpoint or evaluation of the replaced run may pass for this one's
-        _delete_run(out)
+        delete_run(out)
     out.mkdir(parents=True, exist_ok=True)
     config = RunConfig(algo, env_kwargs, seed, n_envs, model.num_timesteps, timesteps)
     atomic_write_json(out / "config.json", asdict(config))
@@ -455,14 +459,14 @@ def train(
     return model_path
 
 
-def _other_run(out: Path, resume: str | Path | None) -> bool:
+def other_run(out: Path, resume: str | Path | None) -> bool:
     """True if ``out`` holds a run (config.json or model.zip) other than the one ``resume`` continues."""
     if not any((out / name).exists() for name in ("config.json", "model.zip")):
         return False
     return resume is None or run_files(resume)[2].parent.resolve() != out.resolve()
 
 
-def _delete_run(out: Path) -> None:
+def delete_run(out: Path) -> None:
     """Delete the files of the run in ``out`` (:data:`RUN_FILES`); anything else there stays."""
     for name in RUN_FILES:
         path = out / name
@@ -472,17 +476,21 @@ def _delete_run(out: Path) -> None:
             path.unlink(missing_ok=True)
 
 
-def _check_resumable(
-    resume: str | Path, algo: str, env_kwargs: dict, seed: int | None, n_envs: int | None
+def check_resumable(
+    resume: str | Path, algo: str, env_kwargs: dict, seed: int | None, n_envs: int | None, framework: str = "sb3"
 ) -> tuple[int, int]:
     """A resumed run continues the same algorithm on the same env with the same seed and cars
     (an off-policy replay buffer holds rows of n_envs cars): ValueError naming what differs from
-    the resumed run's config.json (checked before anything is written; ``env_kwargs`` as :func:`_as_json`
+    the resumed run's config.json (checked before anything is written; ``env_kwargs`` as :func:`as_json`
     gives them). Returns its (seed, n_envs)."""
     config_path = run_files(resume)[2]
     if not config_path.exists():
         raise ValueError(f"cannot resume {resume}: {config_path} is missing (its algorithm and env are unknown)")
     saved = read_run_config(config_path)
+    if saved.get("framework", "sb3") != framework:
+        raise ValueError(
+            f"cannot resume {resume}: it was trained with --framework {saved.get('framework', 'sb3')}, not {framework}"
+        )
     if saved["algo"] != algo:
         raise ValueError(f"cannot resume {resume}: it was trained with --algo {saved['algo']}, not {algo}")
     if saved["env_kwargs"] != env_kwargs:
@@ -499,7 +507,7 @@ def _check_resumable(
     return saved["seed"], saved["n_envs"]
 
 
-def _as_json(env_kwargs: dict) -> dict:
+def as_json(env_kwargs: dict) -> dict:
     """``env_kwargs`` as config.json holds them (an envs.sensors.Fault as a dict of its fields,
     numpy scalars and arrays as numbers and lists), which EnvConfig takes back: a run is built,
     resumed and evaluated from the same values. Any other object (a FrictionMap, VehicleParams,
@@ -521,7 +529,7 @@ def _as_json(env_kwargs: dict) -> dict:
         raise ValueError(f"bad env_kwargs {env_kwargs!r}: {err}") from None
 
 
-def _minibatch(largest: int, rollout: int) -> int:
+def minibatch(largest: int, rollout: int) -> int:
     """PPO's minibatch: the largest divisor of the rollout (steps x cars) not above ``largest``,
     so that every epoch splits the rollout into equal minibatches (1024 of 16 x 256 steps)."""
     return max(d for d in range(1, min(largest, rollout) + 1) if rollout % d == 0)
@@ -572,6 +580,9 @@ def run_files(path: str | Path) -> tuple[Path, Path, Path]:
         if path.is_dir()
         else (path, path.with_suffix(".pkl"), path.parent.parent / "config.json")
     )
+    if path.is_dir() and (path / "policy").is_dir():  # an RLlib run or checkpoint (training.rllib)
+        config = path / "config.json" if (path / "config.json").exists() else path.parent.parent / "config.json"
+        files = (path / "policy", path / "obs_filter.pkl", config)
     for p in files[:2]:  # the config is read only where a policy is rebuilt (PolicyController)
         if not p.exists():
             latest = (
@@ -672,7 +683,8 @@ def plot_learning_curve(out: Path) -> Path | None:
 class PolicyController:
     """A trained policy as a :class:`envs.simulation.Controller`: every ``control_dt`` it builds
     the env's observation from the *estimate* (normalised with the run's VecNormalize
-    statistics), asks the policy for a deterministic action and holds it, turned into wheel
+    statistics, or for an RLlib run its MeanStdFilter's: training.rllib), asks the policy for
+    a deterministic action and holds it, turned into wheel
     torques and rear steer exactly as the env does. A policy trained on ``observation="true"``
     sees whatever estimate the loop runs (the truth only with the oracle: choose the estimator
     accordingly, as README's truth-trained comparison does on purpose); ``"sensors"`` policies
@@ -691,15 +703,22 @@ class PolicyController:
             raise ValueError(f"{config_path}: its env_kwargs {config['env_kwargs']!r} build no env: {err}") from None
         if env.observation == "sensors":
             raise ValueError("PolicyController needs a policy trained on estimated or true observations")
-        self.model = load_model(config["algo"], model_path)
-        if env.privileged and not isinstance(self.model.policy, tuple(POLICIES.values())):
-            raise ValueError(
-                f"{run} was trained on the privileged observation without an asymmetric policy: its "
-                "actor reads the truth, which a controller does not have"
-            )
-        normalizer = load_normalizer(normalizer_path)
-        self._mean, self._var = normalizer.obs_rms.mean, normalizer.obs_rms.var
-        self._clip, self._epsilon = normalizer.clip_obs, normalizer.epsilon
+        self.framework = config.get("framework", "sb3")
+        if self.framework == "rllib":  # an RLModule and RLlib's observation filter (training.rllib)
+            from fourwis.training.rllib import RLlibPolicy
+
+            self.model = RLlibPolicy(model_path.parent)
+            self.normalise = self.model.normalise
+        else:
+            self.model = load_model(config["algo"], model_path)
+            if env.privileged and not isinstance(self.model.policy, tuple(POLICIES.values())):
+                raise ValueError(
+                    f"{run} was trained on the privileged observation without an asymmetric policy: its "
+                    "actor reads the truth, which a controller does not have"
+                )
+            normalizer = load_normalizer(normalizer_path)
+            self._mean, self._var = normalizer.obs_rms.mean, normalizer.obs_rms.var
+            self._clip, self._epsilon = normalizer.clip_obs, normalizer.epsilon
         substeps = int(round(env.control_dt / dt)) if dt > 0 else 0
         if substeps < 1 or abs(env.control_dt - substeps * dt) > 1e-6 * env.control_dt:
             raise ValueError(
@@ -727,7 +746,10 @@ class PolicyController:
             obs = state_observation(estimate, front_steer, self.params).astype(np.float32)
             if self.env_config.privileged:  # the actor does not read the truth's slots
                 obs = np.concatenate([obs, np.broadcast_to(self._mean[N_OBS:], obs.shape)], axis=1)
-            action, _ = self.model.predict(self.normalise(obs), deterministic=True)
+            if self.framework == "rllib":
+                action = self.model.predict(obs)
+            else:
+                action, _ = self.model.predict(self.normalise(obs), deterministic=True)
             self._agent.action[:] = np.clip(action, -1.0, 1.0)
         self._k += 1
         return self._agent(t, estimate, front_steer, base_torques)
@@ -741,15 +763,19 @@ def evaluate(
     seeds: int = 2,
     jobs: int | None = None,
     command: str | None = None,
+    backend=None,
 ) -> Path:
     """``fourwis evaluate``: the policy of ``run`` (its run directory, its model.zip or a
     checkpoint's .zip) as controller ``rl:<run>`` beside no control and the DYC-LQR baseline,
-    through :func:`training.compare.compare`, with ``estimator`` in the loop for all three
-    (None: the one the run was trained with, from its config.json); returns the report path."""
+    through :func:`training.compare.compare` on ``backend`` (training.pool), with ``estimator``
+    in the loop for all three (None: the one the run was trained with, from its config.json);
+    returns the report path."""
     from fourwis.training.compare import compare
 
     config = run_files(run)[2]
     if estimator is None:
         trained_on = read_run_config(config)["env_kwargs"] if config.exists() else {}
         estimator = trained_on.get("estimator", EnvConfig.estimator)
-    return compare(out, scenarios, [estimator], [*BASELINES, f"rl:{Path(run)}"], seeds, jobs, command)
+    return compare(
+        out, scenarios, [estimator], [*BASELINES, f"rl:{Path(run)}"], seeds, jobs, command=command, backend=backend
+    )

@@ -45,7 +45,7 @@ from fourwis.envs.simulation import Trajectory, simulate
 from fourwis.estimation import NoiseParams, make_estimator, tuned_noise
 from fourwis.estimation.optimizers import minimize
 from fourwis.training.io import atomic_write_json, check_writable
-from fourwis.training.pool import parallel_map
+from fourwis.training.pool import Backend, as_backend, open_pool, parallel_map, shared
 from fourwis.training.provenance import provenance
 
 #: the shipped tuning, which alo-fkf and joint use (estimation.tuned_noise)
@@ -128,6 +128,13 @@ MU_NOISE_SEEDS = tuple(range(2000, 2024))  #: random scenarios of the mu-noise s
 MU_NOISE_GRID = (0.15, 0.3, 0.45, 0.6, 0.9, 1.2)  #: candidate mu_accel_std [m/s^2]
 
 
+def _population_cost(job: tuple) -> np.ndarray:
+    """A task of :func:`tune`'s population: (N,) costs of a part (N, 4) of it, replayed on the
+    calibration run (shared once with every worker: training.pool.shared)."""
+    traj, factors, criterion = job
+    return replay_cost(factors, shared(traj), criterion=criterion)
+
+
 def _mu_error(job: tuple[int, float]) -> float:
     seed, mu_accel_std = job
     scenario = make_scenario("random", seed=seed, duration=10.0)
@@ -142,6 +149,7 @@ def mu_noise_scan(
     seeds: Sequence[int] = MU_NOISE_SEEDS,
     jobs: int | None = None,
     progress: bool = True,
+    backend: Backend | str | None = None,
 ) -> dict[float, float]:
     """The joint estimator's mean |mu_hat - mu| over the last half of open-loop random scenarios
     ``seeds`` (10 s, sensor noise seeded alike) for each mu_accel_std of ``grid`` (the rest of
@@ -151,7 +159,7 @@ def mu_noise_scan(
     if not seeds or not all(is_integer(s) and s >= 0 for s in seeds) or len(set(seeds)) != len(seeds):
         raise ValueError(f"seeds must be distinct integers >= 0 (at least one), got {list(seeds)!r}")
     jobs_list = [(seed, float(g)) for g in grid for seed in seeds]
-    errors = list(parallel_map(_mu_error, jobs_list, jobs, "mu-noise scan", progress))
+    errors = list(parallel_map(_mu_error, jobs_list, jobs, "mu-noise scan", progress, backend))
     return {float(g): float(np.mean(errors[i * len(seeds) : (i + 1) * len(seeds)])) for i, g in enumerate(grid)}
 
 
@@ -166,6 +174,8 @@ def tune(
     criterion: str = "nll",
     replace_shipped: bool = False,
     command: str | None = None,
+    jobs: int | None = None,
+    backend: Backend | str | None = None,
 ) -> dict:
     """Tune alo-fkf's noise with ``optimizer`` (see estimation.optimizers) by ``criterion`` on a
     ``duration`` [s] calibration run; returns (and writes atomically to the JSON file ``out``)
@@ -173,7 +183,13 @@ def tune(
     commit, date and host). ``replace_shipped``: also write it over :data:`SHIPPED`, the tuning
     alo-fkf and joint use. If the optimizer does not beat the hand-set noise the result keeps it
     (log10 factors 0, ``improved`` false; ``optimizer_best`` holds what the optimizer found). A
-    negative ``seed`` or a file that cannot be written raises ValueError before any work."""
+    negative ``seed`` or a file that cannot be written raises ValueError before any work.
+
+    ``backend`` and ``jobs`` (training.pool): by default each population is replayed in one
+    batched filter in this process; on Ray (or with ``jobs``, in that many local processes)
+    it is split into that many parts (default on Ray: one per cluster CPU) replayed as tasks.
+    Every member's filter is its own in the batch, so the costs, hence the result, are the
+    same however the population is split."""
     if not (is_integer(seed) and seed >= 0):
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     if not isinstance(replace_shipped, bool):
@@ -183,15 +199,22 @@ def tune(
     if replace_shipped:
         check_writable(SHIPPED, "file", "the shipped tuning")
     header = provenance(command)
-    traj = calibration_run(duration=duration)
+    backend = as_backend(backend)
+    split = backend.name == "ray" or jobs is not None  # else the whole population in one replay here
+    with open_pool(backend, jobs) as pool:
+        traj = calibration_run(duration=duration)
+        handle = pool.share(traj) if split else traj
 
-    def objective(X: np.ndarray) -> np.ndarray:
-        return replay_cost(X, traj, criterion=criterion)
+        def objective(X: np.ndarray) -> np.ndarray:
+            if not split:
+                return replay_cost(X, traj, criterion=criterion)
+            parts = [(handle, part, criterion) for part in np.array_split(X, min(len(X), pool.slots))]
+            return np.concatenate(list(pool.map(_population_cost, parts, "population", progress=False)))
 
-    default = float(objective(np.zeros((1, 4)))[0])
-    result = minimize(
-        objective, BOUNDS, optimizer, n_agents=n_agents, iterations=iterations, seed=seed, progress=progress
-    )
+        default = float(objective(np.zeros((1, 4)))[0])
+        result = minimize(
+            objective, BOUNDS, optimizer, n_agents=n_agents, iterations=iterations, seed=seed, progress=progress
+        )
     improved = bool(result.fun < default)  # else the hand-set noise (factors 0) is kept, not a worse tuning
     data = {
         "log10_factors": [float(v) for v in result.x] if improved else [0.0] * 4,
