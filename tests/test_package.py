@@ -2,6 +2,7 @@
 beside python-control (which installs the top-level package ``control``)."""
 
 import os
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -14,24 +15,17 @@ ROOT = Path(__file__).resolve().parent.parent
 
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory) -> Path:
-    """fourwis's wheel, built from this checkout (no network: the build backend of the venv)."""
-    out = tmp_path_factory.mktemp("wheel")
-    subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "pip",
-            "wheel",
-            "--no-deps",
-            "--no-build-isolation",
-            "--quiet",
-            "-w",
-            str(out),
-            str(ROOT),
-        ],
-        check=True,
-        capture_output=True,
-    )
+    """fourwis's wheel, built from a copy of this checkout's sources (setuptools writes build/
+    beside them; no network: the build backend of the venv)."""
+    source, out = tmp_path_factory.mktemp("source"), tmp_path_factory.mktemp("wheel")
+    for name in ("pyproject.toml", "README.md", "fourwis", "envs", "estimation", "control", "training"):
+        path = ROOT / name
+        if path.is_dir():
+            shutil.copytree(path, source / name, ignore=shutil.ignore_patterns("__pycache__"))
+        else:
+            shutil.copy(path, source / name)
+    build = [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "--quiet", "-w", str(out)]
+    subprocess.run([*build, str(source)], check=True, capture_output=True)
     (path,) = out.glob("fourwis-*.whl")
     return path
 

@@ -138,7 +138,8 @@ def test_an_off_policy_resume_keeps_its_replay_buffer_and_an_earlier_checkpoint_
     the run's own folder past later checkpoints, or with another seed or car count, is refused."""
     from stable_baselines3 import SAC
 
-    from fourwis.training.rl import ALGO_CONFIGS, REPLAY_BUFFER
+    from fourwis.training.rl import ALGO_CONFIGS
+    from fourwis.training.runs import REPLAY_BUFFER
 
     out = tmp_path / "run"
     _train("sac", out, 512)
@@ -261,7 +262,7 @@ def test_reward_normalisation_discounts_as_the_algorithm_does(tmp_path):
 
 
 def test_ppo_minibatches_split_the_rollout_evenly():
-    from fourwis.training.rl import minibatch
+    from fourwis.training.runs import minibatch
 
     assert minibatch(1024, 16 * 256) == 1024  # the shipped configuration
     assert minibatch(1024, 6 * 256) == 768
@@ -369,7 +370,7 @@ def test_sb3_video_recorder_records_car_0_and_the_adapter_refuses_a_later_reset(
 def test_evaluate_runs_the_policy_beside_no_control_and_dyc_lqr_from_its_run_or_its_model_zip(tmp_path):
     import csv
 
-    from fourwis.training.rl import evaluate
+    from fourwis.training.compare import evaluate
 
     run = tmp_path / "run"
     _train("ppo", run, 512)
@@ -477,7 +478,7 @@ def test_training_is_deterministic_for_a_seed(tmp_path):
 def test_the_shipped_policy_is_found_from_any_directory(tmp_path, monkeypatch):
     """README's rl:training/policies/ppo_joint names the package's own policy: it resolves from a
     directory that holds no such path (an installed package), and a run of that name there wins."""
-    from fourwis.training.rl import SHIPPED_POLICIES, run_files
+    from fourwis.training.runs import SHIPPED_POLICIES, run_files
 
     monkeypatch.chdir(tmp_path)
     assert run_files("training/policies/ppo_joint")[0] == SHIPPED_POLICIES / "ppo_joint" / "model.zip"

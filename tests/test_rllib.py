@@ -81,7 +81,7 @@ def test_fourwis_evaluate_runs_the_rllib_policy_in_the_comparison(rllib_run, tmp
     )
     rows = (out / "runs.csv").read_text().splitlines()
     header = rows[0].split(",")
-    assert [r.split(",")[header.index("controller")] for r in rows[1:]] == ["none", f"rl:{rllib_run}"]
+    assert [r.split(",")[header.index("controller")] for r in rows[1:]] == ["none", "dyc-lqr", f"rl:{rllib_run}"]
 
 
 def test_a_resumed_run_counts_on_from_its_steps_and_keeps_its_progress(rllib_run, tmp_path):

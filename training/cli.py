@@ -302,7 +302,8 @@ def _json_object(text: str) -> dict:
 
 
 def _train(args: argparse.Namespace) -> int:
-    from fourwis.training.rl import RUN_FILES, train
+    from fourwis.training.rl import train
+    from fourwis.training.runs import RUN_FILES
 
     try:
         if args.seed is not None:
@@ -361,7 +362,7 @@ def _train_rllib(args: argparse.Namespace):
 
 
 def _evaluate(args: argparse.Namespace) -> int:
-    from fourwis.training.rl import evaluate
+    from fourwis.training.compare import evaluate
 
     return _report(
         "evaluate",

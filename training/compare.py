@@ -774,3 +774,33 @@ def compare(
             stage / "report.md", markdown_report(results, scenarios, estimators, controllers, seeds, header)
         )
     return out / "report.md"
+
+
+BASELINES = ("none", "dyc-lqr")  #: the controllers ``fourwis evaluate`` runs beside a policy
+
+
+def evaluate(
+    run: str | Path,
+    out: str | Path,
+    scenarios,
+    estimator: str | None = None,
+    seeds: int = 2,
+    jobs: int | None = None,
+    command: str | None = None,
+    backend=None,
+) -> Path:
+    """``fourwis evaluate``: the policy of ``run`` (its run directory, its model.zip or a
+    checkpoint's .zip) as controller ``rl:<run>`` beside no control and the DYC-LQR baseline,
+    through :func:`compare` on ``backend`` (training.pool), with ``estimator``
+    in the loop for all three (None: the one the run was trained with, from its config.json);
+    returns the report path."""
+    from fourwis.envs.gym_env import EnvConfig
+    from fourwis.training.runs import read_run_config, run_files
+
+    config = run_files(run)[2]
+    if estimator is None:
+        trained_on = read_run_config(config)["env_kwargs"] if config.exists() else {}
+        estimator = trained_on.get("estimator", EnvConfig.estimator)
+    return compare(
+        out, scenarios, [estimator], [*BASELINES, f"rl:{Path(run)}"], seeds, jobs, command=command, backend=backend
+    )

@@ -36,6 +36,16 @@ from pathlib import Path
 import numpy as np
 
 from fourwis.training.rl_config import ALGO_CONFIGS, EVAL_SCENARIO
+from fourwis.training.runs import (
+    TORCH_THREADS,
+    RunConfig,
+    as_json,
+    check_resumable,
+    checkpoint_step,
+    delete_run,
+    minibatch,
+    other_run,
+)  # fmt: skip
 
 ENV_NAME = "fourwis-yaw-stability"  #: the env's name in RLlib's registry
 POLICY = "policy"  #: the exported RLModule's folder in a run directory or checkpoint
@@ -57,12 +67,10 @@ def make_env(env_config: dict):
     for in VECTOR_ENTRY_POINT mode) or, without ``num_envs``, the single env; ``env_config``
     holds the env keyword arguments. Its infos keep only the per-car arrays (the batched truth
     and estimate are NamedTuples, which RLlib's list-of-dicts infos cannot split). It also sets
-    the EnvRunner's torch threads to training.rl.TORCH_THREADS: a remote EnvRunner came up with
+    the EnvRunner's torch threads to training.runs.TORCH_THREADS: a remote EnvRunner came up with
     one per core, and its policy's forward passes then competed with the env for them."""
     import gymnasium as gym
     import torch
-
-    from fourwis.training.rl import TORCH_THREADS
 
     torch.set_num_threads(TORCH_THREADS)
 
@@ -108,8 +116,6 @@ def ppo_config(
     from ray.rllib.connectors.env_to_module import MeanStdFilter
     from ray.rllib.core.rl_module.default_model_config import DefaultModelConfig
     from ray.tune.registry import register_env
-
-    from fourwis.training.rl import minibatch
 
     register_env(ENV_NAME, make_env)
     settings = {**ALGO_CONFIGS["ppo"], **(overrides or {})}
@@ -199,7 +205,6 @@ def train(
     from fourwis.core.checks import is_integer
     from fourwis.envs.gym_env import EnvConfig
     from fourwis.training.io import atomic_write_json, check_writable
-    from fourwis.training.rl import RunConfig, as_json, check_resumable, delete_run, other_run
 
     env_kwargs = as_json(dict(env_kwargs or {}))
     checkpoint, resumed_steps = None, 0
@@ -244,8 +249,6 @@ def train(
     for name in ("speed_kph", "mu", "scenario_kwargs", "max_episode_steps"):  # the held-out scenario, run whole
         eval_kwargs.pop(name, None)
     import torch
-
-    from fourwis.training.rl import TORCH_THREADS
 
     torch.set_num_threads(TORCH_THREADS)
     _init_ray(address)
@@ -342,10 +345,6 @@ def _save_algorithm(algo, path: Path, export: bool = False) -> None:
     os.replace(tmp, path)
 
 
-def _checkpoint_step(path: Path) -> int:
-    return int(path.name.removeprefix("step_"))
-
-
 def _resumed(resume: Path) -> tuple[Path, int]:
     """The Algorithm checkpoint that ``resume`` (a run directory or its checkpoints/step_N)
     continues, and its env steps; FileNotFoundError if it has none."""
@@ -353,7 +352,7 @@ def _resumed(resume: Path) -> tuple[Path, int]:
         checkpoint = resume / ALGORITHM
         steps = json.loads((resume / "config.json").read_text())["timesteps"]
     else:
-        checkpoint, steps = resume, _checkpoint_step(resume)
+        checkpoint, steps = resume, checkpoint_step(resume)
     if not (checkpoint / "algorithm_state.pkl").exists() and not any(checkpoint.glob("*.json")):
         raise FileNotFoundError(f"cannot resume {resume}: no RLlib Algorithm checkpoint at {checkpoint}")
     return checkpoint, int(steps)
@@ -365,7 +364,7 @@ def _check_no_abandoned_branch(checkpoint: Path, steps: int, out: Path) -> None:
     run = checkpoint.parent if checkpoint.name == ALGORITHM else checkpoint.parent.parent
     if run.resolve() != out.resolve():
         return
-    later = sorted(p.name for p in (out / "checkpoints").glob("step_*") if _checkpoint_step(p) > steps)
+    later = sorted(p.name for p in (out / "checkpoints").glob("step_*") if checkpoint_step(p) > steps)
     if later:
         raise ValueError(
             f"resuming {checkpoint} into its own run {out} would leave the run's later checkpoints {later} "
