@@ -334,6 +334,7 @@ class FilterSettings(NamedTuple):
     friction: bool  #: the friction filter runs (else mu is held at its nominal value)
     yaw_balance: bool  #: state sub-filter 2 measures Gamma = 0 in steady driving (yaw_balance_std)
     slide_detection: bool  #: a slide in a steady turn opens the friction gate (slide_rate)
+    friction_gate: bool  #: mu is updated only while a tyre's lateral demand makes it observable
     dt: float  #: [s]
     huber_c: float
     zero_point_time_constant: float  #: [s] (inf: no learning)
@@ -791,7 +792,7 @@ def _step_vehicle(f: FilterKernel, i: int, reading, valid_in, out: Estimate, j: 
         # the covariance keeps the update (see the module docstring)
         lam = scratch((4,))
         dugoff_lambdas(x_new[I_U], x_new[I_V], x_new[I_R], x_new[I_AX], x_new[I_AY], mu, steer, omega, pk, lam)
-        if lam.min() < EXCITATION_LAMBDA or unseen_slide:
+        if lam.min() < EXCITATION_LAMBDA or unseen_slide or not settings.friction_gate:
             for w in range(4):
                 mu_new[w] = min(max(mu_fused[w], MU_BOUNDS[0]), MU_BOUNDS[1])
                 if unseen_slide:  # (a slide tells only that the road is slipperier than mu_hat)
@@ -880,6 +881,10 @@ class StateEstimator:
     #: the joint estimator's yaw-balance pseudo-measurement in steady driving, its standard
     #: deviation [N m] (YAW_BALANCE_STD); math.inf switches it off (the paper's sub-filter 2)
     yaw_balance_std: float = YAW_BALANCE_STD
+    #: the joint estimator's friction gate: mu is updated only while a wheel's lateral Dugoff
+    #: lambda is below EXCITATION_LAMBDA (the module docstring); False updates it every step, as
+    #: the paper's joint estimator does, so that mu follows model error where it is unobservable
+    friction_gate: bool = True
     needs_truth: bool = False
 
     def __post_init__(self) -> None:
@@ -906,6 +911,10 @@ class StateEstimator:
                 f"yaw_balance_std applies to the joint estimator; {self.kind!r} has no friction "
                 f"filter to balance, got yaw_balance_std={self.yaw_balance_std!r}"
             )
+        if not isinstance(self.friction_gate, bool):
+            raise ValueError(f"friction_gate must be True or False, got {self.friction_gate!r}")
+        if not self.friction_gate and self.kind != "joint":
+            raise ValueError(f"friction_gate applies to the joint estimator; {self.kind!r} holds a nominal mu")
         if not (is_number(self.zero_point_time_constant) and self.zero_point_time_constant > 0):
             raise ValueError(f"zero_point_time_constant must be > 0 [s], got {self.zero_point_time_constant!r}")
         friction = self.kind == "joint"
@@ -916,6 +925,7 @@ class StateEstimator:
             friction=friction,
             yaw_balance=friction and self.yaw_balance_std < math.inf,
             slide_detection=friction and self.slide_rate < math.inf,
+            friction_gate=bool(self.friction_gate),
             dt=float(self.dt),
             huber_c=float(self.huber_c),
             zero_point_time_constant=float(self.zero_point_time_constant),

@@ -1102,6 +1102,25 @@ def test_a_sustained_differential_torque_on_a_straight_does_not_move_mu():
     np.testing.assert_allclose(traj.estimate.mu[late], 0.8, atol=1e-3)
 
 
+def test_without_its_friction_gate_the_joint_estimator_reads_model_error_as_friction():
+    """On the straight before paper_step's steer (4.5 s, tyres far from half their grip: Dugoff's
+    lambda >= 1, so dF/dmu = 0) the gated estimator holds its nominal mu exactly; with
+    ``friction_gate=False`` (the paper's joint estimator, which updates mu every step) mu leaves
+    it by more than 0.05, driven by nothing but the model's error."""
+    scenario = make_scenario("paper_step", duration=4.5)
+    held, moved = (
+        simulate(scenario, None, make_estimator("joint", scenario.vehicle_params, friction_gate=gate), seed=0)
+        for gate in (True, False)
+    )
+    assert held.aux[:, A_USAGE : A_USAGE + 4].max() < 0.5
+    np.testing.assert_array_equal(held.estimate.mu, 0.8)
+    assert np.abs(moved.estimate.mu - 0.8).max() > 0.05
+    with pytest.raises(ValueError, match="friction_gate must be True or False, got 1"):
+        make_estimator("joint", scenario.vehicle_params, friction_gate=1)
+    with pytest.raises(ValueError, match="friction_gate applies to the joint estimator; 'ckf'"):
+        make_estimator("ckf", scenario.vehicle_params, friction_gate=False)
+
+
 def test_estimator_input_errors_name_the_bad_value():
     from dataclasses import replace
 
