@@ -1,16 +1,17 @@
 """Benchmarks of two versions of fourwis side by side, in one run on one machine.
 
-    .venv/bin/python benchmarks/side_by_side.py --before REF [--only plant env ...] [--repeats 2]
+    .venv/bin/python benchmarks/side_by_side.py --before REF [--after REF] [--only plant env ...]
 
-Each version runs its own ``benchmarks/bench_<name>.py`` scripts: the checkout this script is in
-(installed in the venv) and ``REF`` (a git commit, branch or tag of this repository), built into
-a wheel and unpacked into a temporary folder that goes first on its PYTHONPATH, whatever its
-layout. Each script runs once per version untimed (numba compiles and caches its kernels), then
-``--repeats`` times per version, the versions alternating, so that a busy host slows both alike.
-A script's numbers are read from the JSON object it prints (benchmarks/_common.report) or from
-its Markdown table rows (``| label | number ... |``); the table gives each measurement's best
-value per version (highest: the scripts report rates or ratios where higher is better, unless the
-label names a time) and their ratio. Writes the table to ``--out`` (Markdown) if given.
+Each version runs its own ``benchmarks/bench_<name>.py`` scripts: ``--before REF`` and ``--after
+REF`` (git commits, branches or tags of this repository), each built into a wheel and unpacked into
+a temporary folder that goes first on its PYTHONPATH, whatever its layout; without ``--after``, the
+checkout this script is in, as installed in the venv. Each script runs once per version untimed
+(numba compiles and caches its kernels), then ``--repeats`` times per version, the versions
+alternating, so that a busy host slows both alike. A script's numbers are read from the JSON object
+it prints (benchmarks/_common.report) or from its Markdown table rows (``| label | number ... |``);
+the table gives each measurement's best value per version (highest: the scripts report rates or
+ratios where higher is better, unless the label names a time) and their ratio. Writes the table to
+``--out`` if given (a Markdown page: docs/results/side-by-side.md).
 """
 
 from __future__ import annotations
@@ -26,6 +27,9 @@ import sys
 import tempfile
 import zipfile
 from pathlib import Path
+
+from fourwis.training.io import atomic_write_text
+from fourwis.training.provenance import cpu_model
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -91,24 +95,27 @@ def best(values: list[float], label: str) -> float:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--before", required=True, help="git commit, branch or tag to compare with")
+    parser.add_argument("--after", help="git commit, branch or tag to measure (default: this checkout as it is)")
     parser.add_argument("--only", nargs="*", help="benchmark names (default: every bench_*.py both versions have)")
     parser.add_argument("--repeats", type=int, default=2, help="timed runs per version (alternating)")
     parser.add_argument("--out", type=Path, help="also write the table here (Markdown)")
     args = parser.parse_args(argv)
-    with tempfile.TemporaryDirectory(prefix="fourwis-before-") as tmp:
-        tree, site = build(args.before, Path(tmp))
+    load = os.getloadavg()[0]
+    refs = {"before": args.before, "after": args.after}
+    with tempfile.TemporaryDirectory(prefix="fourwis-side-by-side-") as tmp:
+        versions = {v: build(ref, Path(tmp) / v) if ref else (ROOT, None) for v, ref in refs.items()}
         try:
-            names = args.only or sorted(
+            common = sorted(
                 p.stem.removeprefix("bench_")
                 for p in HERE.glob("bench_*.py")
-                if (tree / "benchmarks" / p.name).exists() and p.stem != "bench_cluster"
+                if all((tree / "benchmarks" / p.name).exists() for tree, _ in versions.values())
             )
+            names = args.only or [name for name in common if name != "cluster"]
+            if set(names) - set(common):
+                raise SystemExit(f"benchmarks not in both versions: {sorted(set(names) - set(common))}; both: {common}")
             rows = []
             for name in names:
-                scripts = {
-                    "before": (tree / "benchmarks" / f"bench_{name}.py", site),
-                    "after": (HERE / f"bench_{name}.py", None),
-                }
+                scripts = {v: (tree / "benchmarks" / f"bench_{name}.py", site) for v, (tree, site) in versions.items()}
                 for script, path in scripts.values():  # untimed: compile and cache
                     run(script, path)
                 seen: dict[str, dict[str, list[float]]] = {"before": {}, "after": {}}
@@ -122,23 +129,36 @@ def main(argv: list[str] | None = None) -> int:
                         rows.append((name, label, b, a))
                 print(f"{name}: done", file=sys.stderr)
         finally:
-            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(tree)], capture_output=True)
-    commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+            for tree, _ in versions.values():
+                if tree != ROOT:
+                    subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(tree)],
+                                   capture_output=True)  # fmt: skip
+    head = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+    after = f"`{args.after}`" if args.after else f"`{head.stdout.strip()}` (this checkout)"
     lines = [
-        f"Command: `{' '.join(['.venv/bin/python', 'benchmarks/side_by_side.py', *(argv or sys.argv[1:])])}`  ",
-        f"Before: `{args.before}`; after: `{commit.stdout.strip()}` (this checkout). "
-        f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}; "
-        f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC; load average {os.getloadavg()[0]:.1f}.",
+        "# Two versions side by side",
         "",
-        "| benchmark | measurement | before | after | after / before |",
-        "|---|---|---:|---:|---:|",
-        *(f"| {n} | {label} | {b:,.4g} | {a:,.4g} | {a / b:.2f} |" for n, label, b, a in rows if b),
+        f"*Written by `{' '.join(['.venv/bin/python', 'benchmarks/side_by_side.py', *(argv or sys.argv[1:])])}` "
+        "(`make side-by-side BEFORE=REF`); to re-measure, rerun it, do not edit this page.*",
+        "",
+        f"- before: `{args.before}`; after: {after}",
+        f"- date: {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC; load average before {load:.1f}",
+        f"- machine: {cpu_model()}, {os.cpu_count()} cores, Python {platform.python_version()}",
+        f"- each value: the best of {args.repeats} runs per version, the versions alternating",
+        "",
+        "| benchmark | measurement | better | before | after | after / before |",
+        "|---|---|---|---:|---:|---:|",
+        *(
+            f"| {n} | {label} | {'lower' if LOWER_IS_BETTER.search(label) else 'higher'} | {b:,.4g} | {a:,.4g} "
+            f"| {a / b:.2f} |"
+            for n, label, b, a in rows
+            if b
+        ),
     ]
     text = "\n".join(lines) + "\n"
     print(text)
     if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(text)
+        atomic_write_text(args.out, text)
     return 0
 
 
