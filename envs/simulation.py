@@ -58,8 +58,8 @@ from fourwis.estimation.oracle import Oracle
 DT = 0.002  #: physics, sensor and estimator step [s] (the paper samples at 2 ms)
 SIMULATE_CHUNK = 250  #: steps :func:`simulate` advances per call (its progress bar moves by as many)
 #: largest batch whose plant steps car by car inside the compiled loop; beyond it the plant steps
-#: the whole batch at once between the loop's other stages, in SIMD lanes of cars (BENCHMARKS:
-#: the two are even at about this size)
+#: the whole batch at once between the loop's other stages, in SIMD lanes of cars (the two are even
+#: at about this size: docs/decisions/0008-compiled-closed-loop-and-dyc.md)
 PER_CAR_PLANT_MAX = 32
 
 
