@@ -105,8 +105,8 @@ def headline(runs_csv: Path) -> list[str]:
     """The headline table: one row per (controller, estimator) of the comparison (no control
     once: the estimator does not act there), scenarios passed on every seed, peak sideslip mean
     and worst, spin-outs and yaw-rate tracking error over the whole matrix."""
-    with open(runs_csv, newline="") as f:
-        rows = list(csv.DictReader(f))
+    with open(runs_csv, newline="") as f:  # (the header names carry their units: "peak_beta [rad]")
+        rows = [{k.split(" [")[0]: v for k, v in row.items()} for row in csv.DictReader(f)]
     groups: dict[tuple[str, str], list[dict]] = {}
     for row in rows:
         estimator = "(any)" if row["controller"] == "none" else row["estimator"]
