@@ -484,3 +484,26 @@ def test_the_shipped_policy_is_found_from_any_directory(tmp_path, monkeypatch):
     assert run_files("training/policies/ppo_joint")[0] == SHIPPED_POLICIES / "ppo_joint" / "model.zip"
     with pytest.raises(FileNotFoundError, match="no trained policy at training/policies/absent"):
         run_files("training/policies/absent")
+
+
+def test_a_process_that_loaded_a_policy_forks_workers_that_load_it_too():
+    """``fourwis evaluate`` loads the policy to check it, then forks its pool, whose workers load
+    it again: that must not hang (libgomp's threads do not survive a fork). A fresh interpreter,
+    so that no earlier test has set torch's threads."""
+    import subprocess
+    import sys
+
+    code = (
+        "import multiprocessing as mp\n"
+        "from fourwis.envs.vehicle import VehicleParams\n"
+        "from fourwis.training.rl import PolicyController\n"
+        "from fourwis.training.runs import SHIPPED_POLICIES\n"
+        "run = str(SHIPPED_POLICIES / 'ppo_joint')\n"
+        "PolicyController(run, VehicleParams())\n"
+        "child = mp.get_context('fork').Process(target=PolicyController, args=(run, VehicleParams()))\n"
+        "child.start(); child.join(90)\n"
+        "if child.exitcode is None: child.kill(); raise SystemExit('the forked worker hangs')\n"
+        "raise SystemExit(0 if child.exitcode == 0 else f'child: {child.exitcode}')\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=200)
+    assert done.returncode == 0, done.stderr[-2000:]

@@ -478,7 +478,13 @@ def load_normalizer(path: Path, venv=None):
 
 def load_model(algo: str, path: Path, **kwargs):
     """The ``algo`` model saved at ``path`` (SB3's ``load`` on the CPU, with ``kwargs``);
-    ValueError naming the file when SB3 cannot read it."""
+    ValueError naming the file when SB3 cannot read it. Torch runs on TORCH_THREADS threads, as
+    in training: a process whose torch has run a multi-threaded region cannot fork workers that
+    use torch (libgomp's threads do not survive a fork; the child's first parallel op hangs), and
+    ``fourwis evaluate`` loads the policy to check it before its pool forks."""
+    import torch
+
+    torch.set_num_threads(TORCH_THREADS)
     algo_class = _algo_class(algo)
     try:
         return algo_class.load(str(path), device="cpu", **kwargs)
