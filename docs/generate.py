@@ -20,6 +20,7 @@ import argparse
 import csv
 import json
 import math
+import os
 import re
 import shutil
 import subprocess
@@ -240,7 +241,7 @@ def bench_section(name: str, reuse: bool) -> list[str]:
     saved = WORK / "benchmarks" / f"{name}.md"
     if not (reuse and saved.exists()):
         print(f"running: {script.name}", file=sys.stderr)
-        started = time.time()
+        started, load = time.time(), os.getloadavg()[0]
         result = subprocess.run([sys.executable, str(script)], cwd=ROOT, capture_output=True, text=True)
         if result.returncode:
             raise SystemExit(f"{script.name} failed:\n{result.stderr[-3000:]}")
@@ -250,7 +251,7 @@ def bench_section(name: str, reuse: bool) -> list[str]:
             output = output[:json_start]
         header = provenance(command_line([f"benchmarks/{script.name}"], program=".venv/bin/python"))
         saved.parent.mkdir(parents=True, exist_ok=True)
-        took = f"- took: {time.time() - started:.0f} s"
+        took = f"- took: {time.time() - started:.0f} s; load average at its start: {load:.2f} ({os.cpu_count()} cores)"
         atomic_write_text(saved, "\n".join([*header.markdown(), took, "", output.strip()]) + "\n")
     doc = script.read_text().split('"""')[1].strip().split("\n\n")[0]
     body = []
@@ -267,8 +268,9 @@ def benchmarks(reuse: bool) -> str:
             "",
             GENERATED,
             "",
-            "Each section is one script of benchmarks/, run once here in turn on an otherwise idle "
-            "machine, with its own command, commit, date and machine; `fourwis bench --only NAME` runs "
+            "Each section is one script of benchmarks/, run once here in turn, with its own command, "
+            "commit, date, machine and the host's load average when it started (near 0: an idle host; "
+            "a loaded host gives lower rates than the machine can); `fourwis bench --only NAME` runs "
             "one. Numbers from different days of a shared host are not comparable; ratios measured "
             "side by side in one run are ([two versions side by side](side-by-side.md)).",
             "",
