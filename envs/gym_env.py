@@ -40,7 +40,7 @@ from fourwis.envs.metrics import (
 )
 from fourwis.envs.render import close_window, show_frame
 from fourwis.envs.scenarios import SCENARIOS, Scenario, make_scenario
-from fourwis.envs.sensors import Fault
+from fourwis.envs.sensors import CHANNEL_OF_SENSOR, Fault
 from fourwis.envs.simulation import DT, ClosedLoop
 from fourwis.estimation import check_estimator_name
 
@@ -274,7 +274,7 @@ class YawStabilityCore:
         s = self.loop.sample()
         delta_f = s.front_steer
         if self.config.observation == "sensors":
-            values = s.reading.values
+            values = s.reading.values[:, CHANNEL_OF_SENSOR]  # the car's 13 sensors
             r_ref = reference_yaw_rate(
                 values[:, 3:7].mean(axis=1) * self.params.wheel_radius,
                 values[:, 7],
@@ -514,7 +514,7 @@ class YawStabilityEnv(gym.Env):
     first second (slot 9 ~0.002-0.06) and up to 5 mrad at a reset (0.1; a review, 8 cars on
     ``random`` with random actions, 2026-12-01).
 
-    ``observation="sensors"``: the 13 raw channels (ax, ay, r, 4 wheel speeds, 2 steer angles,
+    ``observation="sensors"``: the car's 13 raw sensors (ax, ay, r, 4 wheel speeds, 2 steer angles,
     4 torques) scaled by (10, 10, 1, 100 x4, 0.3 x2, 600 x4), then r_ref / 1 (from the raw
     readings and a nominal mu of 0.8).
 

@@ -54,8 +54,6 @@ CONTROLLER_SUMMARIES = {
     "dyc-smc-4ws": "dyc-smc plus the paper's eq. 20 rear steer",
 }
 
-#: the recorded logs (name -> what it is) the package ships: none in this version
-LOGS: dict[str, str] = {}
 
 #: the columns' widths: name, what it is
 _NAME, _WHAT = 32, 92
@@ -179,10 +177,23 @@ def controller_lines() -> list[str]:
 
 
 def log_lines() -> list[str]:
-    """One line per recorded log the package ships (:data:`LOGS`), or one saying there is none."""
-    if not LOGS:
-        return ["no recorded logs: this version of fourwis ships none (estimation on real data is not in it yet)"]
-    return [_line(name, what, "") for name, what in LOGS.items()]
+    """One line per recorded log the package ships (training.logs.shipped_logs): its name, its
+    description, its length, rate and vehicle; or one saying there is none."""
+    from fourwis.training.logs import read_log, shipped_logs
+
+    logs = shipped_logs()
+    if not logs:
+        return ["no recorded logs shipped"]
+    lines = []
+    for name in logs:
+        log = read_log(name)
+        rate = (len(log.t) - 1) / log.duration
+        what = log.metadata.get("description", "").split(":")[0]
+        lines.append(
+            _line(name, what, f"{log.duration:.0f} s at {rate:.0f} Hz, vehicle {log.metadata.get('vehicle', '?')}")
+        )
+    lines.append("(fourwis estimate --log NAME, or --log FILE --vehicle FILE for your own: docs/logs.md)")
+    return lines
 
 
 def catalog(section: str | None = None) -> str:
