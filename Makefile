@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 OUT ?= results
 
-.PHONY: venv compare lint test bench clean
+.PHONY: venv compare lint test bench docs serve-docs side-by-side clean
 
 venv: $(STAMP)
 
@@ -18,7 +18,7 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet torch==2.13.0 $(if $(TORCH_INDEX),--index-url $(TORCH_INDEX))
-	$(BIN)/pip install --quiet -e '.[rl,ray,plots,video,bench,logs,dev]'
+	$(BIN)/pip install --quiet -e '.[rl,ray,plots,video,bench,docs,logs,dev]'
 	touch $(STAMP)
 
 compare: $(STAMP)
@@ -34,6 +34,19 @@ test: lint
 
 bench: $(STAMP)
 	$(BIN)/fourwis bench
+
+# the results pages (docs/results/) from measured runs, then the site (build/site/); REUSE=1 reads
+# the jobs' saved outputs in build/results/ where they exist
+docs: $(STAMP)
+	$(BIN)/python docs/generate.py $(if $(REUSE),--reuse)
+	$(BIN)/mkdocs build --strict
+
+serve-docs: $(STAMP)
+	$(BIN)/mkdocs serve
+
+# two versions' benchmarks in one run: make side-by-side BEFORE=<commit, branch or tag>
+side-by-side: $(STAMP)
+	$(BIN)/python benchmarks/side_by_side.py --before $(BEFORE) --out docs/results/side-by-side.md
 
 clean:
 	rm -rf $(VENV) $(OUT) build *.egg-info .numba_cache

@@ -37,13 +37,10 @@ from fourwis.core.checks import check_controller, check_step, check_vehicle_para
 from fourwis.core.types import Command, Estimate
 
 CONTROLLERS = ("none", "dyc-lqr", "dyc-smc", "dyc-lqr-4ws", "dyc-smc-4ws")
-#: default StabilityController.mu_margin. Measured on the headline matrix before the yaw
-#: reference took the weaker axle's friction (DYC-LQR + joint,
-#: 2 seeds, peak sideslip [deg] on paper_step / swd_wet / mu_jump / ISO 3888-2 at 70 km/h):
-#: margin 0: 0.6 / 2.1 / 1.8 / 3.7; 1: 0.5 / 1.8 / 1.5 / 3.4; 2: 0.5 / 1.7 / 1.4 / 3.1 (ISO
-#: 3888-2 cones 4 / 5 / 6; README, "Control"). On the earlier design and plant margin 2 had
-#: let the planning friction sink towards MIN_PLANNING_MU after the mu jump (11.4 deg); the
-#: default stays 1, chosen then and not re-tuned on the evaluation matrix.
+#: default StabilityController.mu_margin [standard deviations]: the controller plans with
+#: mu_hat - MU_MARGIN mu_std, so a friction the estimator has not confirmed is not taken for granted;
+#: chosen on an earlier design and not re-tuned on the evaluation matrix
+#: (docs/decisions/0026-cautious-friction-margin.md)
 MU_MARGIN = 1.0
 
 
@@ -51,37 +48,33 @@ MU_MARGIN = 1.0
 class StabilityController:
     """Reference + yaw-moment law + allocation (+ optional eq. 20 rear steer).
 
+    ``law``: ``"lqr"`` or ``"smc"``; ``mu_margin`` finite and >= 0; ``reference_understeer`` None or
+    >= 0; ``dt`` [s] finite and > 0; anything else raises ValueError.
+
     The yaw-rate reference is the 2-DOF steady state, bounded by the weaker axle's friction
-    (:func:`control.reference.weaker_axle_friction`: with the four wheels' mean, a car whose front
-    axle had reached an icy patch was turned further in by its rear wheels), passed through a
-    first-order lag of the car's natural yaw response (:func:`control.reference.yaw_time_constant`:
-    0.036 s at 20 km/h, 0.14 s at 80 km/h), so the controller corrects deviations from how a
-    stable car responds rather than the response delay itself. (A fixed 0.15 s, right at
-    80-90 km/h, made the controller brake the car's own, faster response at low speed.)
-    With the eq. 20 rear steer the controller's rear angle moves at most at the rear servo's
-    rate (``params.rear_steer_rate``), so the reference is built on an angle the car has.
+    (:func:`control.reference.weaker_axle_friction`) and lagged like the car's natural yaw response
+    (:func:`control.reference.yaw_time_constant`), so the controller corrects deviations from how a
+    stable car responds, not the response delay itself (docs/decisions/0023-yaw-reference.md). With
+    the eq. 20 rear steer the controller's rear angle moves at most at ``params.rear_steer_rate``,
+    so the reference is built on an angle the car has.
 
-    The LQR law is told the moment the allocation delivered (the update of
-    :meth:`LQRYawController.note_delivered`, :func:`control.dyc.delivered_next`), which reaches
-    the car through the actuator lag (:func:`control.dyc.actuator_lag`) it was designed with.
+    The LQR law is told the moment the allocation delivered (:func:`control.dyc.delivered_next`),
+    which reaches the car through the actuator lag (:func:`control.dyc.actuator_lag`) it was
+    designed with (docs/decisions/0024-lag-aware-lqr.md).
 
-    The law acts on the yaw-rate error outside a deadband of 0.02 rad/s (smoothly: the error
-    is shrunk by the deadband) and on sideslip beyond half the mu-dependent bound, so that
-    it does not fight sensor noise in normal driving, as production ESC does. Moments that
-    turn the car further into the bend (understeer correction) fade out linearly as |beta|
-    approaches the mu-dependent sideslip bound. Both laws see the shrunk state, the sliding
-    mode's model terms included: inside the deadbands its equivalent control is that of a car
-    on its reference, so it does not answer the linear model's mismatch with saturating tyres
-    where no correction is asked (a review measured a steady 0.48 g turn at 80 km/h: -128 N m,
-    against -293 N m with the model terms on the estimate itself).
+    As in production ESC, the law acts on the yaw-rate error outside a deadband of 0.02 rad/s
+    (smoothly: the error is shrunk by the deadband) and on sideslip beyond half the mu-dependent
+    bound, so that it does not fight sensor noise; moments that turn the car further into the bend
+    (understeer correction) fade out linearly as |beta| approaches that bound. Both laws see the
+    shrunk state, the sliding mode's model terms included: inside the deadbands its equivalent
+    control is that of a car on its reference, so it does not answer the linear model's mismatch
+    with saturating tyres where no correction is asked (docs/decisions/0025-sliding-mode-guards.md).
 
-    The law's moment is the whole yaw moment the four longitudinal tyre forces make: the
-    allocator meets it with the steered wheels' lever arms, so a zero moment also cancels the
-    small moment that equal drive forces make on steered front wheels (the 2-DOF model the laws
-    are designed on has no drive forces). The allocator works with the commanded road-wheel
-    angles (the driver's front angle, the controller's own rear angle), not the servos' lagged
-    positions, and does not see a rear angle that the plant adds itself
-    (``VehicleParams.rear_steer_feedforward``).
+    The law's moment is the whole yaw moment of the four longitudinal tyre forces: the allocator
+    meets it with the steered wheels' lever arms (a zero moment also cancels the small moment of
+    equal drive forces on steered front wheels), at the commanded road-wheel angles (not the servos'
+    lagged positions; a rear angle the plant adds itself, ``VehicleParams.rear_steer_feedforward``,
+    is not seen; docs/decisions/0027-torque-allocation.md).
 
     ``last_allocation`` holds the latest :class:`control.allocation.Allocation`: the yaw moment
     and drive force the wheels delivered and whether the demand was feasible (None before the
@@ -89,20 +82,16 @@ class StabilityController:
     changed copy): the compiled step reads them as its settings.
 
     Cautious friction: the controller plans (reference, sideslip bound, the sliding mode's axle
-    saturation, allocation; the LQR's gains depend on speed only) with the lower confidence
-    bound ``mu - mu_margin * mu_std`` of the estimate (the margin stops at MIN_PLANNING_MU; an
-    estimate already below it, ice, is kept), so a friction the estimator has not yet
-    confirmed is not taken for granted. An estimate without
-    ``mu_std``, or with zero (the oracle, fixed-mu filters), is used as it is. ``mu_margin=0``
-    plans with the point estimate.
+    saturation, allocation; the LQR's gains depend on speed only) with ``mu - mu_margin * mu_std``
+    (the margin stops at MIN_PLANNING_MU; an estimate already below it, ice, is kept). An estimate
+    without ``mu_std``, or with zero (the oracle, fixed-mu filters), is used as it is; ``mu_margin=0``
+    plans with the point estimate (docs/decisions/0026-cautious-friction-margin.md).
 
-    Each call runs :func:`control.dyc.stability_command` per vehicle, a compiled kernel that
-    the compiled closed loop (:mod:`fourwis.envs.loop`) runs too, on the controller's own
-    per-vehicle memory (reference, rear angle, delivered moment, latest allocation), so the
-    two loops hand the controller over to each other mid-run. Written with the laws' and the
-    reference's functions (:mod:`control.dyc`, :mod:`control.reference`), which the numpy
-    functions of the same names evaluate too; it equals the numpy controller it replaced bit
-    for bit (2026-12-01: four scenarios, both laws, with and without 4WS)."""
+    Each call runs the compiled kernel :func:`control.dyc.stability_command` per vehicle, as the
+    compiled closed loop (:mod:`fourwis.envs.loop`) does, on the controller's own per-vehicle memory
+    (reference, rear angle, delivered moment, latest allocation), so the two loops can hand the
+    controller over mid-run; the numpy functions of :mod:`control.dyc` and :mod:`control.reference`
+    evaluate the same code (docs/decisions/0008-compiled-closed-loop-and-dyc.md)."""
 
     params: object
     law: str = "lqr"

@@ -20,9 +20,9 @@ is active this is the closed-form weighted least squares Fx = W^-1 A^T (A W^-1 A
 a bound binds, the small bounded QP is solved exactly: the optimum lies on one face of the box
 (each force free, at its lower or at its upper bound, 3^4 = 81 faces), on each face the
 equality-constrained least squares is closed form, and the cheapest feasible face solution is
-the optimum (strict convexity). It is compiled and batched: ~0.2 us per vehicle-step when no
-bound is active, ~1.5 us when the QP is needed, ~2,000x less than scipy's SLSQP on the same
-feasible QPs (benchmarks/bench_allocation.py, BENCHMARKS.md), which serves as the tests' reference.
+the optimum (strict convexity). It is compiled and batched (timings: benchmarks/bench_allocation.py,
+BENCHMARKS.md); scipy's SLSQP on the same QPs serves as the tests' reference
+(docs/decisions/0027-torque-allocation.md).
 
 Infeasible demands degrade in a fixed priority: the drive force is clipped to what the bounds
 allow, then the yaw moment to the largest one feasible with that drive force (an exact
@@ -349,14 +349,11 @@ def allocate_for_estimate(
 
     ``friction_ellipse``: bound each tyre's Fx by what its lateral force leaves, with the
     quasi-static lateral forces Fy_i = Fz_i a_y / g (each tyre carries lateral force in
-    proportion to its load, as in steady cornering). Off by default, measured: where mu_hat is
-    too low, a tyre the estimate sees as laterally saturated gets no longitudinal force, which
-    removes the authority stability control needs most (braking a saturated tyre trades its
-    lateral force for yaw moment). DYC-LQR with the fixed-0.8 ckf on ISO 3888-2 at 70 km/h on a
-    1.0 road: peak sideslip 2.1 deg with the circle, 6.4 with the ellipse (2 seeds); an earlier
-    joint estimator whose wheels' mu scattered down to 0.1 spun the car on the wet sine with
-    dwell with it (26 against 4 deg). With good estimates the two differ little (headline
-    matrix: within 0.15 deg elsewhere). Off, the bound is the friction circle |Fx_i| <= mu_i Fz_i.
+    proportion to its load, as in steady cornering). Off by default: where mu_hat is too low, a
+    tyre the estimate sees as laterally saturated gets no longitudinal force, which removes the
+    authority stability control needs most (braking a saturated tyre trades its lateral force
+    for yaw moment); with good estimates the two differ little. Off, the bound is the friction
+    circle |Fx_i| <= mu_i Fz_i (docs/decisions/0027-torque-allocation.md).
     """
     lateral = estimate.fz * (estimate.ay / GRAVITY)[:, None] if friction_ellipse else None
     mu = estimate.mu if mu is None else mu

@@ -120,7 +120,8 @@ class LQRYawController:
     augmented with that lag, M_dot = (Mz - M) / tau(u), on a speed grid (3-45 m/s), interpolated
     linearly in u. The lag is in the design because without it the gains that suit 80 km/h leave
     the loop poorly damped and command, at low speed, moments the tyres cannot build up in time.
-    The law is stateless: M is its caller's (:class:`fourwis.control.StabilityController`'s memory)."""
+    The law is stateless: M is its caller's (:class:`fourwis.control.StabilityController`'s memory)
+    (docs/decisions/0024-lag-aware-lqr.md)."""
 
     params: object
     weights: LQRWeights = field(default_factory=LQRWeights)
@@ -187,7 +188,9 @@ class SlidingModeYawController:
     ``phi`` [rad/s] removes chattering (Slotine & Li 1991, ch. 7). ``lam`` weights sideslip
     into the surface with the sign of this car's LQR gain on beta (tested; a strongly
     understeering car's optimal gain can have the other sign): a car sliding out of a left turn
-    (beta < 0) needs a clockwise moment, as a yaw rate above the reference does.
+    (beta < 0) needs a clockwise moment, as a yaw rate above the reference does. ``lam`` >= 0
+    [1/s], ``eta`` > 0 (the reaching rate) [rad/s^2], ``phi`` > 0, ``max_moment`` > 0 (the bound
+    of |Mz|) [N m]; other values raise ValueError.
 
     The linear model's tyre forces grow without bound with slip; beyond the friction limit
     that would command large moments of the wrong sign. f_r therefore uses axle forces
@@ -196,7 +199,8 @@ class SlidingModeYawController:
     layer the equivalent control is dropped where it points away from the surface: the
     moment then always has the sign of -s there (reaching holds; Slotine & Li's condition
     needs eta above the model error, which this keeps from mattering). The law is stateless:
-    the reference's previous value (for its rate) is its caller's."""
+    the reference's previous value (for its rate) is its caller's
+    (docs/decisions/0025-sliding-mode-guards.md)."""
 
     params: object
     lam: float = 0.5
@@ -256,7 +260,7 @@ def smc_moment(u, beta, r, r_ref, delta_f, delta_r, mu_mean, previous_ref, dt, l
     # outside the boundary layer the model's equivalent control may only help reach the surface:
     # the linear axle model (clipped at mu Fz) over-predicts a saturated axle's force (beyond the
     # tyre's peak, under combined slip) by far more than the reaching rate eta, and cancelling
-    # that phantom yaw acceleration would turn the moment against s
+    # that phantom yaw acceleration would turn the moment against s (docs/decisions/0025-sliding-mode-guards.md)
     if abs(s) > phi and equivalent * s > 0.0:
         equivalent = 0.0
     mz = iz * (equivalent - eta * min(max(s / phi, -1.0), 1.0))

@@ -112,7 +112,7 @@ def weaker_axle_friction(mu: np.ndarray) -> np.ndarray:
     saturates first sets the limit (Milliken & Milliken, Race Car Vehicle Dynamics, 1995, ch. 5);
     the mean of the four wheels overstates it where the axles stand on different surfaces (a
     car's front axle on a patch its rear axle has not reached), and equals it on a uniform road
-    or one split left / right."""
+    or one split left / right (docs/decisions/0023-yaw-reference.md)."""
     mu = np.asarray(mu, dtype=float)
     return axle_friction(mu[..., 0], mu[..., 1], mu[..., 2], mu[..., 3])
 

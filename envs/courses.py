@@ -12,8 +12,8 @@ Layouts (w = vehicle width [m]):
   figure dimensions the cone rows); lane 5 shares lane 1's right-hand row.
 * ISO 3888-2:2011 (obstacle avoidance): sections 12 / 13.5 / 11 / 12.5 / 12 m; lane 1 is
   1.1w+0.25 wide, lane 3 is w+1 wide with its right-hand row 1 m to the left of lane 1's
-  left-hand row, lane 5 is 1.3w+0.25 but at least 3 m wide (Table 1; for this car 3 m: before
-  2026-11-30 we capped it at 3 m instead, 2.33 m) and shares lane 1's right-hand row.
+  left-hand row, lane 5 is 1.3w+0.25 but at least 3 m wide (Table 1; for this car 3 m) and shares
+  lane 1's right-hand row (docs/decisions/0009-courses-and-path-following-driver.md).
 
 Cones stand along the lane edges (their bases' inner edges on the edge line) at each end of a
 lane and every ~3 m in between (the standards prescribe cone spacing per section; the count

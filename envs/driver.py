@@ -288,10 +288,9 @@ class PathFollower:
     Beyond the path's end the driver follows the last segment's line. The path must not turn
     back on itself: the driver aims at the first stretch ahead of the car counting from the
     path's start, so on a U-turn's return leg it would find the outbound leg (every course of
-    envs.courses runs forward along X). The default 0.4 s
-    preview (MacAdam: 0.5-1.5 s for normal drivers; shorter previews track tighter) clears
-    ISO 3888-2 at 60 km/h on mu 1.0 and 50 km/h on mu 0.6 (tests; measured 0.2-0.4 s clean,
-    0.5 s one cone, longer previews cut the corners).
+    envs.courses runs forward along X). The default 0.4 s preview (MacAdam: 0.5-1.5 s for
+    normal drivers; shorter previews track tighter, longer ones cut the corners) clears ISO 3888-2
+    at 60 km/h on mu 1.0 and 50 km/h on mu 0.6 (tested; docs/decisions/0009-courses-and-path-following-driver.md).
     """
 
     path: np.ndarray

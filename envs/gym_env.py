@@ -50,8 +50,54 @@ TERMINATION_PENALTY = 100.0
 OBSERVATIONS = ("estimated", "true", "sensors")
 ACTIONS = ("yaw_moment", "wheel_torques")
 RENDER_MODES = ("rgb_array", "human")
-N_OBS = 14
-SENSOR_SCALE = np.array([10, 10, 1, 100, 100, 100, 100, 0.3, 0.3, 600, 600, 600, 600], dtype=float)
+
+
+class Slot(NamedTuple):
+    """One observation slot: ``quantity`` / ``scale`` [``unit``]."""
+
+    quantity: str
+    scale: float
+    unit: str
+
+
+#: the observation from an estimate (``observation="estimated"``) or the truth (``"true"``)
+STATE_SLOTS = (
+    Slot("longitudinal speed u", 30.0, "m/s"),
+    Slot("sideslip beta", 0.2, "rad"),
+    Slot("yaw rate r", 1.0, "rad/s"),
+    Slot("longitudinal acceleration ax", 10.0, "m/s²"),
+    Slot("lateral acceleration ay", 10.0, "m/s²"),
+    *(
+        Slot(f"road friction mu, {wheel} wheel", 1.0, "-")
+        for wheel in ("front-left", "front-right", "rear-left", "rear-right")
+    ),
+    Slot("sideslip standard deviation", 0.05, "rad"),
+    Slot("mean road-friction standard deviation", 0.3, "-"),
+    Slot("reference yaw rate r_ref (2-DOF steady state, friction-bounded)", 1.0, "rad/s"),
+    Slot("the driver's front road-wheel angle", 0.3, "rad"),
+    Slot("yaw-rate error r - r_ref", 1.0, "rad/s"),
+)
+#: the observation from the raw sensors (``observation="sensors"``): the simulated car's 13 sensors
+#: (envs.sensors.SENSORS, not the 16 channels of a log), then r_ref
+SENSOR_SLOTS = (
+    Slot("longitudinal acceleration ax", 10.0, "m/s²"),
+    Slot("lateral acceleration ay", 10.0, "m/s²"),
+    Slot("yaw rate r", 1.0, "rad/s"),
+    *(
+        Slot(f"wheel speed, {wheel}", 100.0, "rad/s")
+        for wheel in ("front-left", "front-right", "rear-left", "rear-right")
+    ),
+    Slot("front road-wheel angle", 0.3, "rad"),
+    Slot("rear road-wheel angle", 0.3, "rad"),
+    *(
+        Slot(f"motor torque, {wheel}", 600.0, "N m")
+        for wheel in ("front-left", "front-right", "rear-left", "rear-right")
+    ),
+    Slot("reference yaw rate r_ref from the readings and friction 0.8", 1.0, "rad/s"),
+)
+N_OBS = len(STATE_SLOTS)
+STATE_SCALE = np.array([slot.scale for slot in STATE_SLOTS])
+SENSOR_SCALE = np.array([slot.scale for slot in SENSOR_SLOTS[:-1]])
 NOMINAL_MU = 0.8  #: friction assumed for r_ref in the sensors observation
 MAX_CONTROL_DT = 1.0  #: longest control step [s] (render_fps, 1 / control_dt, stays >= 1)
 
@@ -160,24 +206,13 @@ class EnvConfig:
 
 
 def state_observation(e: Estimate, delta_f: np.ndarray, params) -> np.ndarray:
-    """The 14 observation slots (B, 14) of the module docstring from an estimate (or the truth)
-    and the driver's front road-wheel steer ``delta_f`` (B,) [rad]."""
+    """The observation (B, N_OBS) of STATE_SLOTS from an estimate (or the truth) and the
+    driver's front road-wheel angle ``delta_f`` (B,) [rad]."""
     r_ref = reference_yaw_rate(e.u, delta_f, e.mu, params)
-    return np.column_stack(
-        [
-            e.u / 30,
-            e.beta / 0.2,
-            e.r,
-            e.ax / 10,
-            e.ay / 10,
-            e.mu,
-            e.beta_std / 0.05,
-            e.mu_std.mean(axis=1) / 0.3,
-            r_ref,
-            delta_f / 0.3,
-            e.r - r_ref,
-        ]
+    values = np.column_stack(
+        [e.u, e.beta, e.r, e.ax, e.ay, e.mu, e.beta_std, e.mu_std.mean(axis=1), r_ref, delta_f, e.r - r_ref]
     )
+    return values / STATE_SCALE
 
 
 class AgentController:
@@ -488,83 +523,36 @@ def _check_render_mode(render_mode: str | None) -> None:
 
 
 class YawStabilityEnv(gym.Env):
-    """One car (the batched core with B = 1).
+    """One car (the batched core with B = 1): keep it stable from the estimated state.
 
-    Observation (float32, ``observation="estimated"`` default; ``"true"`` fills the same slots
-    from the truth with zero uncertainty):
+    **Observation** (float32, ``N_OBS`` slots): :data:`STATE_SLOTS` from the estimate
+    (``observation="estimated"``, the default) or from the truth with zero uncertainty
+    (``"true"``); ``"sensors"``: :data:`SENSOR_SLOTS`, the car's 13 raw sensors and r_ref. The
+    fixed-friction estimators report their nominal 0.8 in the friction slots and zero friction
+    uncertainty. ``privileged=True`` appends the truth's ``N_OBS`` slots (asymmetric
+    actor-critic: ``training.asymmetric``).
 
-    ==== ============================================ ============
-    idx  quantity                                     scale
-    ==== ============================================ ============
-    0    longitudinal speed u                         / 30 m/s
-    1    sideslip beta                                / 0.2 rad
-    2    yaw rate r                                   / 1 rad/s
-    3    longitudinal acceleration ax                 / 10 m/s^2
-    4    lateral acceleration ay                      / 10 m/s^2
-    5-8  road friction mu per wheel (FL, FR, RL, RR)  / 1
-    9    sideslip standard deviation                  / 0.05 rad
-    10   mean mu standard deviation                   / 0.3
-    11   reference yaw rate r_ref                     / 1 rad/s
-    12   front road-wheel steer of the driver         / 0.3 rad
-    13   yaw-rate error r - r_ref                     / 1 rad/s
-    ==== ============================================ ============
+    **Action** (float32 in [-1, 1]): ``action="yaw_moment"``: [corrective yaw moment x
+    MAX_YAW_MOMENT N m, rear road-wheel angle x the rear servo's range] (``rear_steer=False``:
+    the moment alone), allocated to the wheels within the motors' and tyres' limits from the
+    estimate; ``"wheel_torques"``: four corrective torques x the motors' peak torque, added to
+    the driver's. Out-of-range actions are clipped (``info["action_clipped"]``); NaN raises.
 
-    With the fixed-mu estimators (``ekf``, ``ckf``, ``fkf``, ``alo-fkf``) slots 5-8 hold their
-    nominal 0.8 and slot 10 is 0 on every road; their sideslip sigma is ~0.1-3 mrad after the
-    first second (slot 9 ~0.002-0.06) and up to 5 mrad at a reset (0.1; a review, 8 cars on
-    ``random`` with random actions, 2026-12-01).
+    **Reward** per step: -(e_r / 0.1)^2 - (beta / 0.05)^2 - 0.1 |a|^2 - (d / 1 m)^2, times
+    ``control_dt`` (e_r the true yaw rate less the reference [rad/s], beta the true sideslip
+    [rad], d the distance from the scenario's path [m] while the car is alongside it);
+    -TERMINATION_PENALTY on termination.
 
-    ``observation="sensors"``: the car's 13 raw sensors (ax, ay, r, 4 wheel speeds, 2 steer angles,
-    4 torques) scaled by (10, 10, 1, 100 x4, 0.3 x2, 600 x4), then r_ref / 1 (from the raw
-    readings and a nominal mu of 0.8).
+    **Episode end**: terminated on a spin-out (:func:`envs.metrics.spun_sideslip`) or more than
+    MAX_PATH_DEVIATION from the path; truncated at the scenario's end (``gym.make`` adds a
+    TimeLimit of ``MAX_EPISODE_STEPS``). The last step's ``info["episode_metrics"]`` holds the
+    episode's length, return, tracking and sideslip peaks (and FMVSS 126's verdict on
+    ``sine_with_dwell``).
 
-    ``privileged=True`` appends the truth's 14 slots (as ``observation="true"`` fills them:
-    slots 14-27) to any observation mode, for asymmetric actor-critic training, where the
-    critic learns from the true state and the actor reads the agent's first 14 slots only
-    (``training.asymmetric``; ``fourwis train --env-kwargs '{"privileged": true}'``). The
-    deployed actor then needs no truth.
-
-    Actions (float32 in [-1, 1]): ``action="yaw_moment"`` (default): [corrective yaw moment x
-    3000 N m, rear steer x max rear steer] (``rear_steer=False``: the moment alone, a 4WID car
-    without 4WS), allocated to the wheels by control/ (least tyre workload for the driver's
-    drive force plus the moment, within motor and friction limits from the estimate; the moment
-    is the whole yaw moment of the longitudinal tyre forces, with the commanded wheel angles'
-    lever arms; an infeasible moment is cut to the largest feasible one); ``"wheel_torques"``: four corrective
-    torques x the motor peak torque added to the driver's speed-holding torques. Out-of-range
-    actions are clipped and flagged in ``info["action_clipped"]``; NaN/inf actions raise
-    ValueError. Unknown keyword arguments and bad values raise ValueError naming them.
-
-    Reward per step: -(e_r / 0.1)^2 - (beta / 0.05)^2 - 0.1 |a|^2 - (d / 1.0)^2 (e_r: true yaw
-    rate minus the reference from the true state; d: lateral deviation from the scenario's path,
-    if it has one, while the car is alongside it: 0 before its start and on the straight run-out
-    past its end) times control_dt; -100 on termination. Terminated: |beta| > 20 deg (spin-out;
-    not where a slow full-lock turn's geometry explains it: :func:`envs.metrics.spun_sideslip`)
-    or more than 5 m from the path (scenarios with a course: the lane changes, the slalom and
-    ISO 3888-2; the others are open-road manoeuvres without road edges and end by spin-out or
-    time). Truncated: the scenario's end. ``gym.make`` adds gymnasium's TimeLimit at 1,500 steps
-    (30 s at the default 20 ms, beyond every scenario's default duration; a smaller
-    ``control_dt``, a slow ``speed_kph`` on a course or ``random``'s drawn lane changes
-    (``course_share`` > 0: up to ~36 s at 30 km/h) can need more: pass
-    ``max_episode_steps`` to ``gym.make``); an episode it cuts carries no
-    ``episode_metrics`` in ``info`` (:meth:`YawStabilityEnv.episode_metrics` gives them at any
-    time). The native vector env takes ``max_episode_steps`` itself and reports the metrics.
-
-    Other scenario arguments (e.g. ``amplitude_deg`` of ``sine_with_dwell``) go in
-    ``scenario_kwargs``.
-
-    ``info``: ``truth`` and ``estimate`` (:class:`estimation.types.Estimate` of the car), ``action_clipped``,
-    ``beta``, ``yaw_rate_error``, ``path_deviation``, ``spin_out``, ``phase_plane_index`` (the
-    true state's :meth:`control.reference.PhasePlaneRegion.state_index`: above 1 the car is
-    outside the sideslip region it recovers from by itself); when an episode ends,
-    ``episode_metrics`` (length, return, yaw-rate tracking RMS, peak |beta|, peak phase-plane
-    index at the control steps, largest path deviation, spin-out; on ``sine_with_dwell`` the
-    FMVSS 126 ratios, displacement and verdict). The yaw-rate tracking RMS here is the
-    reward's: sampled every control step against the reference of the driver's steer command;
-    ``fourwis compare``'s ``yaw_tracking_rms`` samples every 2 ms against the road-wheel angle
-    the servo reached (not the same number: they part most where the steer changes fast). The
-    comparison's ``swd_wet`` and ``amplitude_A=`` are its own names: here ``scenario="sine_with_dwell"``
-    with ``mu=0.5`` and ``scenario_kwargs={"amplitude_deg": 5.5 A}`` (A in degrees, from
-    :func:`envs.fmvss126.characterise`).
+    ``info``: ``truth`` and ``estimate`` (:class:`fourwis.core.types.Estimate`), ``action_clipped``,
+    ``beta``, ``yaw_rate_error``, ``path_deviation``, ``spin_out``, ``phase_plane_index``.
+    Unknown keywords and bad values raise ValueError naming them. The docs' environment page has
+    the tables.
     """
 
     metadata = {"render_modes": list(RENDER_MODES), "render_fps": 50}

@@ -42,20 +42,17 @@ C_TORQUE, C_DELTA_F, C_DELTA_R = 0, 4, 5
 
 #: Diagnostic outputs, shape (..., NAUX), evaluated at the returned state:
 #:
-#: ========  ============================================================================
-#: ax, ay    body specific forces [m/s^2] (what an accelerometer reads: du/dt - r v and
-#:           dv/dt + r u, not du/dt), before the load-transfer lag
-#: fz        normal loads [N] (with the lagged load transfer)
-#: fx, fy    tyre forces [N] in each wheel's own frame (rotate by its steer angle for body
-#:           axes), including the low-speed damping
-#: kappa     relaxed (transient) longitudinal slip [-], as the tyre sees it
-#: alpha     relaxed (transient) slip angle [rad]
-#: mu        road friction under each wheel [-]
-#: usage     friction used, |F| / (mu Fz) [-]; can exceed 1 where the Magic Formula's peak
-#:           rises above mu at light loads (load sensitivity), and in combined slip, whose
-#:           MF 5.2 weights of Fx and Fy are independent (1.04 at the reference load at
-#:           kappa -0.13 and 4.1 deg)
-#: ========  ============================================================================
+#: - ax, ay: body specific forces [m/s^2] (what an accelerometer reads: du/dt - r v and dv/dt + r u,
+#:   not du/dt), before the load-transfer lag
+#: - fz: normal loads [N] (with the lagged load transfer)
+#: - fx, fy: tyre forces [N] in each wheel's own frame (rotate by its steer angle for body axes),
+#:   including the low-speed damping
+#: - kappa: relaxed (transient) longitudinal slip [-], as the tyre sees it
+#: - alpha: relaxed (transient) slip angle [rad]
+#: - mu: road friction under each wheel [-]
+#: - usage: friction used, |F| / (mu Fz) [-]; can exceed 1 where the Magic Formula's peak rises above
+#:   mu at light loads (load sensitivity), and in combined slip, whose MF 5.2 weights of Fx and Fy are
+#:   independent (1.04 at the reference load at kappa -0.13 and 4.1 deg)
 AUX_NAMES = (
     "ax",
     "ay",

@@ -27,7 +27,8 @@ Faults (:class:`Fault`) act on one channel over a time window: ``spike`` outlier
 arrivals at ``rate`` [1/s], +/-``magnitude``; each spike fault draws its own arrivals and
 signs, so spikes on two channels are independent), ``dropout`` (no data: ``valid`` is False and
 the last valid value is held so no NaN ever leaves the sensor), ``stuck`` (the value freezes
-at the window start; the sensor still reports valid), ``bias_step`` (``magnitude`` added).
+at the window start; the sensor still reports valid), ``bias_step`` (``magnitude`` added)
+(docs/decisions/0019-frozen-sensor-check.md).
 """
 
 from __future__ import annotations

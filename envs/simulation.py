@@ -58,8 +58,8 @@ from fourwis.estimation.oracle import Oracle
 DT = 0.002  #: physics, sensor and estimator step [s] (the paper samples at 2 ms)
 SIMULATE_CHUNK = 250  #: steps :func:`simulate` advances per call (its progress bar moves by as many)
 #: largest batch whose plant steps car by car inside the compiled loop; beyond it the plant steps
-#: the whole batch at once between the loop's other stages, in SIMD lanes of cars (BENCHMARKS:
-#: the two are even at about this size)
+#: the whole batch at once between the loop's other stages, in SIMD lanes of cars (the two are even
+#: at about this size: docs/decisions/0008-compiled-closed-loop-and-dyc.md)
 PER_CAR_PLANT_MAX = 32
 
 
@@ -367,7 +367,7 @@ class ClosedLoop:
         records = new_records(n + final if keep else 0, B)
         while len(cars):
             compiled.run(cars, call, self.cars, self._sample, kernel_parts(self), self._timing, records)
-            cars = cars[call.status[cars] != Status.DONE]
+            cars = cars[call.status[cars] != 0]  # (Status.DONE)
             self._serve(cars, call)
         return records
 
@@ -375,25 +375,26 @@ class ClosedLoop:
         """What Python does for the stopped vehicles ``cars``: refill noise, add preview responses,
         reset estimators and serve the Python stages, in the stages' order; or raise a failure."""
         status = call.status[cars]
-        failed = cars[status >= Status.BAD_TRUTH]
-        if len(failed):
-            raise self._failure(int(failed.min()), call)
-        for b in cars[status == Status.NEEDS_NOISE]:
+        if (status >= _BAD_TRUTH).any():
+            raise self._failure(int(cars[status >= _BAD_TRUTH].min()), call)
+        for b in cars[status == _NEEDS_NOISE]:
             self.sensors.refill(b)
-        for b in cars[status == Status.NEEDS_PREVIEW]:
+        for b in cars[status == _NEEDS_PREVIEW]:
             drivers = self.steering_drivers if self.cars.stage[b] == Stage.STEER else self.speed_drivers
             follower = drivers.follower_lacking(b, int(call.value[b]))
             if follower is not None:  # (None: added for another vehicle just now)
                 follower.add_responses(int(call.value[b]))
-        resets = cars[status == Status.NEEDS_RESET]
-        if len(resets):
-            self._reset_estimator(resets)
-        waiting = cars[status == Status.WAITING]
-        for stage in compiled.STAGES:
-            rows = waiting[self.cars.stage[waiting] == stage]
-            if len(rows):
-                _SERVERS[stage](self, rows)
-                self.python_stages[stage].served[rows] = True
+        resets = status == _NEEDS_RESET
+        if resets.any():
+            self._reset_estimator(cars[resets])
+        waiting = cars[status == _WAITING]
+        if not len(waiting):
+            return
+        stages = self.cars.stage[waiting]
+        for stage in np.unique(stages):  # (in the stages' order: Stage values are their places in STAGES)
+            rows = waiting[stages == stage]
+            _SERVERS[stage](self, rows)
+            self.python_stages[stage].served[rows] = True
 
     def _reading(self) -> SensorReading:
         return SensorReading(*(field.copy() for field in self._sample.reading))
@@ -465,6 +466,10 @@ class ClosedLoop:
         return RuntimeError(f"vehicle {b}: closed-loop status {code!r} ({value})")
 
 
+#: the statuses :meth:`ClosedLoop._serve` reads, as plain integers (an enum's lookups cost on every step)
+_WAITING, _NEEDS_NOISE, _NEEDS_PREVIEW, _NEEDS_RESET, _BAD_TRUTH = (
+    int(s) for s in (Status.WAITING, Status.NEEDS_NOISE, Status.NEEDS_PREVIEW, Status.NEEDS_RESET, Status.BAD_TRUTH)
+)
 #: the Python server of each stage
 _SERVERS = {
     Stage.CONTROL: ClosedLoop._serve_control,

@@ -21,10 +21,9 @@ Deviations from the full MF 5.2, all deliberate:
 * The combined-slip weights take the slips normalised by the friction scales, kappa / LMUX
   and alpha / LMUY (the similarity method, Pacejka 2012, sec. 4.2: on a slippery road the
   slip stiffness stays and the peaks come at slips LMU times the dry road's). MF 5.2 weighs
-  the raw slips, whose weights are near 1 where a low-friction tyre already slides: the
-  resultant reached 1.29 mu Fz on mu 0.3 and 1.39 on mu 0.1 (at kappa 0.04, 2 deg), against
-  1.05 on a dry road. With the normalisation it stays within 1.04 mu Fz on every road
-  (``tests/test_vehicle.py``; changed 2026-11-30 after a mutation audit's test found it).
+  the raw slips, whose weights stay near 1 where a low-friction tyre already slides, so its
+  resultant exceeds the road's friction; with the normalisation it stays within 1.04 mu Fz on
+  every road (``tests/test_vehicle.py``; docs/decisions/0004-plant-tyre-similarity-combined-slip.md).
 * Slip angle enters as ``atan(tan_alpha)``; ``tan_alpha`` is the relaxed lateral slip of
   the transient model in :mod:`envs.vehicle`, so the formula never sees a division by
   the wheel's forward speed.
@@ -148,9 +147,9 @@ def combined_forces(
 
     ``tp``: :attr:`TyreParams.kernel`; ``fz`` > 0 [N]; ``kappa`` longitudinal slip [-];
     ``tan_alpha`` lateral slip (tangent of the slip angle) [-]; ``scale_x/y``: LMUX, LMUY; all (n,).
-    One branch-free loop over the wheels (:mod:`envs.vecmath`) that LLVM vectorises. The
-    formula is written in the loop body on purpose: moved into an inlined per-wheel
-    function, the loop was no longer vectorised (measured 3.5x slower, numba 0.68).
+    One branch-free loop over the wheels (:mod:`fourwis.core.vecmath`) that LLVM vectorises. The
+    formula is written in the loop body on purpose: in an inlined per-wheel function the loop is
+    not vectorised (docs/decisions/0005-plant-polynomial-math-in-simd-lanes.md).
     """
     fz0 = tp.nominal_load
     for i in range(fz.size):

@@ -4,7 +4,7 @@ One implementation of the physics, a numba kernel over a leading batch axis; the
 vehicle is a batch of one. The kernel integrates blocks of up to :data:`BLOCK` cars (blocks on
 both cores for batches of :data:`PARALLEL_MIN_BATCH` or more); inside a block the per-wheel
 work (loads, slips, Magic Formula, wheel and motor dynamics) runs in loops over wheel lanes
-that LLVM vectorises, using the polynomial elementary functions of :mod:`envs.vecmath`.
+that LLVM vectorises, using the polynomial elementary functions of :mod:`fourwis.core.vecmath`.
 Each lane's arithmetic depends only on its own car, so a car's trajectory is the same in
 any batch (tested to 1e-12). Higher fidelity than, and different from, the
 estimator's 3-DOF Dugoff model (no "inverse crime"):
@@ -15,13 +15,12 @@ estimator's 3-DOF Dugoff model (no "inverse crime"):
   friction of the road under each wheel (:mod:`envs.tyre`);
 * tyre transient slip (relaxation lengths, Pacejka, *Tire and Vehicle Dynamics*, 3rd ed.,
   sec. 7.2): the slips are states, ``sigma dkappa'/dt = (R omega - v_cx) - |v_cx| kappa'``
-  and likewise laterally. This is the physics of a tyre carcass, and it is also how the
-  stiffness of wheel spin at low speed is handled: the textbook quasi-static slip
-  ``(R omega - u)/u`` puts an eigenvalue ``-Kx R^2 / (J u)`` (about -3,000 1/s at 1 m/s) in
-  the wheel dynamics, beyond any explicit step of 2 ms; with relaxation the wheel mode is
-  a ~14 Hz oscillation whose damping grows with speed, plus MF-Tyre's low-speed damping
-  (``VXLOW``), so fixed-step RK4 at 2 ms is stable from standstill to 45 m/s
-  (tests/test_vehicle.py checks the eigenvalues against RK4's stability region);
+  and likewise laterally. This is the physics of a tyre carcass, and it also handles the
+  stiff wheel spin at low speed: the textbook quasi-static slip ``(R omega - u)/u`` puts an
+  eigenvalue ``-Kx R^2 / (J u)`` in the wheel dynamics, beyond any explicit step of 2 ms; with
+  relaxation and MF-Tyre's low-speed damping (``VXLOW``) fixed-step RK4 at 2 ms is stable from
+  standstill to 45 m/s (tests/test_vehicle.py checks the eigenvalues against RK4's stability
+  region; docs/decisions/0003-fixed-2ms-rk4-and-step-limits.md);
 * normal loads with longitudinal and lateral load transfer (h = 0.54 m) driven by the
   body accelerations through a first-order lag that stands for pitch/roll dynamics
   (and removes the algebraic loop between loads and forces); the lateral transfer is
@@ -326,7 +325,7 @@ class Plant(NamedTuple):
 
 # Lane rows of the wheel-lane scratch arrays. Lane ``4 c + i`` is wheel ``i`` of car ``c`` of a
 # block; inputs are gathered per car, the tyre work runs in one branch-free loop over lanes
-# that LLVM vectorises (:mod:`envs.vecmath`), outputs are summed back per car.
+# that LLVM vectorises (:mod:`fourwis.core.vecmath`), outputs are summed back per car.
 # The scratch is one flat array of rows of LANES doubles, row k at [k LANES, (k + 1) LANES):
 # with a compile-time row stride LLVM proves the rows independent and vectorises the loop.
 BLOCK = 16  #: cars per block
@@ -683,13 +682,9 @@ def _derivatives_batch(x, ctrl, mu, plant: Plant, dx, aux):
 
 
 PARALLEL_MIN_BATCH = 64  #: batches at least this large run on all cores (:func:`step`)
-#: largest RK4 step [s] :func:`step` takes. Closed loops run at 2 ms. The shipped car's
-#: fastest linearised mode (100 1/s; 127 1/s at 45 m/s) leaves RK4's stability region at 28 ms
-#: (22 ms at 45 m/s); against 2 ms (simulate, no control, sensors at the same step) peak
-#: sideslip stays within 0.2% on paper_sine and mu_jump at 10 and 20 ms, 1.3% / 3% on ISO
-#: 3888-2 (whose driver also steers at that step), and at 30 ms the runs diverge (1.6-90
-#: deg). Half the 20 ms leaves room for stiffer parameters (faster lags: :func:`check_lag_step`;
-#: lighter wheels).
+#: largest RK4 step [s] :func:`step` takes; closed loops run at 2 ms. It is half the 20 ms at which
+#: runs still match those at 2 ms, leaving room for stiffer parameters (faster lags:
+#: :func:`check_lag_step`; lighter wheels) (docs/decisions/0003-fixed-2ms-rk4-and-step-limits.md)
 MAX_DT = 0.01
 
 
@@ -728,9 +723,9 @@ RK4_REAL_LIMIT = 2.78
 def check_lag_step(params: VehicleParams, dt: float) -> None:
     """ValueError naming ``dt`` and the lag if a first-order lag (:data:`LAG_FIELDS`; eigenvalue
     -1 / tau) is too fast for RK4 at this step: past dt = RK4_REAL_LIMIT tau the lag's state
-    grows without bound (a 3 ms motor lag at dt = 10 ms reached 1e18 N m in 0.5 s before any
-    error). Near the limit RK4 is stable but the lag barely decays per step: keep dt <= tau
-    for its response (the shipped 10 ms lags at the 10 ms MAX_DT)."""
+    grows without bound, with no other error. Near the limit RK4 is stable but the lag barely
+    decays per step: keep dt <= tau for its response (the shipped 10 ms lags at the 10 ms
+    MAX_DT; docs/decisions/0003-fixed-2ms-rk4-and-step-limits.md)."""
     name, tau = params.fastest_lag
     if dt > RK4_REAL_LIMIT * tau:
         raise ValueError(
@@ -744,9 +739,9 @@ def check_relaxation_step(state: np.ndarray, params: VehicleParams, dt: float) -
 
     The relaxed slips decay at rate |v_cx| / sigma, and sigma falls with the load down to
     ``min_relaxation_length``: a lightly loaded wheel at 70 m/s relaxes at ~700 1/s, and at
-    dt = 10 ms RK4 then amplifies the tyre deflections every step (to 1e60 m within seconds,
-    finite, so nothing else stops the run). Bounded with the fastest contact point's speed,
-    at most sqrt(u^2 + v^2) + |r| times the farthest contact point's distance from the CG."""
+    dt = 10 ms RK4 then amplifies the tyre deflections every step (finite, so nothing else stops
+    the run). Bounded with the fastest contact point's speed, at most sqrt(u^2 + v^2) + |r| times
+    the farthest contact point's distance from the CG (docs/decisions/0003-fixed-2ms-rk4-and-step-limits.md)."""
     arm = params.contact_point_reach
     if len(state) == 1:  # one car (the single env's every substep): scalar arithmetic, ~1 us
         x = state[0]

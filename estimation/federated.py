@@ -16,8 +16,9 @@ Sharing coefficients: a replacement for the paper's adaptive rule (eq. 58), whos
 form does not define its quantities: beta_i proportional to trace(P_i^-1) after sub-filter
 i's last update (its confidence), floored at BETA_FLOOR before normalising (so ~4.8% at
 least: no sub-filter is switched off). The trace adds inverse variances of unlike units, so
-the best-known states dominate it; in the mu filter the strongly correlated prior dominates
-and the coefficients stay near 1/2.
+the best-known states dominate it; in the mu filter the strongly correlated prior dominates.
+The coefficients stay near 1/2, so the rule is nearly inert
+(docs/decisions/0010-estimation-model-and-paper-deviations.md).
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 Every estimator here takes a sensor reading (values and valid (B, N_CHANNELS) in the layout of
 :data:`fourwis.core.types.CHANNELS`: ax, ay, yaw rate, four wheel speeds, four road-wheel steer
-angles, four net wheel torques, a measured forward speed; times t (B,)) and returns an
+angles, four net wheel torques, a measured forward speed; times t (B,) [s]) and returns a
 :class:`fourwis.core.types.Estimate`. Variants (``StateEstimator(kind=...)``):
 
 * ``ekf``: extended Kalman filter (finite-difference Jacobians of the same model), all
@@ -12,63 +12,48 @@ angles, four net wheel torques, a measured forward speed; times t (B,)) and retu
 * ``alo-fkf``: the paper's section 3: robust (Huber, :data:`HUBER_C`) sub-filters, nominal mu;
 * ``joint``: the paper's section 4: the robust state FKF plus a mu FKF (random-walk mu per
   wheel, measured [ax, ay, r] / [ay, r] predicted from the tyre forces) exchanging estimates
-  every step; in steady driving its state sub-filter 2 also measures the yaw balance
-  (YAW_BALANCE_STD).
+  every step.
 
 ``estimation.make_estimator`` gives ``alo-fkf`` and ``joint`` the ALO-tuned noise
 (estimation/data/tuned_noise.json, written by ``fourwis tune``); a StateEstimator built
 directly uses ``noise`` (default: the hand-set :class:`NoiseParams`).
 
-Every estimator checks its measured channels (ax, ay, yaw rate, forward speed, wheel speeds)
-first: a reading identical to the previous one is a held sample (a slower sensor's sample and hold, an
-upsampled log, a frozen sensor) and brings no new information, so from the STUCK_SAMPLES-th
-repeat on it counts as invalid until it changes (``stuck_samples=math.inf`` switches this off
-for noise-free or quantised readings).
-
 Time: each step advances by the time since the previous sample (the reading's ``t``; a step
-within CLOCK_TOLERANCE of the nominal ``dt`` takes ``dt`` itself, so a fixed-rate clock steps
-exactly alike, and so does a reading without a time, or at the previous one's, as a caller
-without a clock gives; a time before the previous one is refused), and the model integrates it in substeps of at most MODEL_STEP (2 ms): a log
-at 50-1000 Hz, its jitter and its gaps are coasted through on the model, the process noise
-growing with the elapsed time. A measured forward speed (the ``speed`` channel, where valid)
-updates u after the filters' own measurements (a scalar update with SPEED noise).
+within CLOCK_TOLERANCE of the nominal ``dt``, a reading without a time, or one at the previous
+one's time takes ``dt`` itself, so a fixed-rate clock keeps the arithmetic of a fixed step; a
+time before the previous one is refused). The model integrates it in substeps of at most
+MODEL_STEP (2 ms), and the process noise grows with the elapsed time, so a log at 50-1000 Hz,
+its jitter and its gaps are coasted through (docs/decisions/0033-recorded-logs.md). A measured
+forward speed (the ``speed`` channel, where valid) updates u after the filters' own
+measurements (a scalar update with ``speed_std`` noise).
 
-Deviation from the paper, on purpose: its measurement sets [ax, ay, r] leave u unobservable
-(it is only integrated from ax and drifts); sub-filter 1 also measures the four wheel-centre
-speeds R*omega (zero-slip model, variance allowing 2% slip) as production ESC speed observers do.
-And in steady driving the joint estimator's state sub-filter 2 also measures the yaw balance
-(the net yaw moment is zero while the yaw rate holds still: YAW_BALANCE_STD), which the paper's
-[ay, r] see only through the gyro, too weakly to keep friction and sideslip from drifting
-together in a long turn at the limit.
+Deviations from the paper, on purpose (where a :class:`StateEstimator` option is named, it restores
+the paper's filter):
 
-mu is held, not drifting, when it is unobservable: with Dugoff's lambda >= 1 (force demand
-below mu*Fz/2) dF/dmu = 0. The cubature points of a wide mu prior still straddle lambda = 1,
-so model mismatch would leak into mu: a wheel's mu is therefore updated only while its
-lambda at the current estimate is below 1 (all four while any wheel is), and its random-walk
-variance growth is capped. The gate's lambda leaves out the longitudinal slip: Fx is measured
-(torque balance), so a wheel that is only driven or braked tells the model about mu through
-nothing but Dugoff's combined-slip cut of its lateral force, where Dugoff and the plant's
-Magic Formula disagree most (at slip 0.023 on mu 0.5, -18% against -1%). Gated on the
-combined lambda, a sustained differential torque on a straight (a DYC's or an RL agent's yaw
-moment, ~75% of the grip) drove mu from 0.8 to its 1.2 bound in 1.5 s on a 0.5 road.
-While mu is held its covariance still takes the update, so the reported mu sigma shrinks
-slowly in stretches without excitation (the covariance's trace 0.090 -> 0.081 over a
-straight; sigma 0.036 per wheel after the sine's held stretches).
-Discarding the update whole (only the random walk acting) was tried: after a friction drop mu
-then stayed at its old, high value, because lambda evaluated at a too-high mu keeps the gate
-closed, and the narrower covariance is what let the gate open again. Below MU_MIN_SPEED the
-friction filter does not run at all (slip angles are not defined at rest). A gate on mu's lower
-confidence bound was tried too (README, "Known limitations"): mu then moves after a jump but
-wanders on the lane changes. Because the gate judges observability from mu_hat itself, a
-mu_hat that is already high can keep it shut after a friction drop in a moderate turn (mu_jump
-started from nominal_mu 0.9 instead of 0.8: mu_hat stays 0.9); the slide detection (SLIDE_*)
-opens it where the sensors alone show the car sliding in a steady turn. The four mu share a
-correlated prior and random walk (MU_CORRELATION): a saturating outer wheel informs the lightly
-loaded inner one, while a split road still separates left from right over time.
-
-Every estimator learns the lateral accelerometer's zero point in steady driving
-(ZERO_POINT_*), as production ESC units do, and subtracts it before filtering;
-``zero_point_time_constant=math.inf`` gives the paper's filters on the raw sensors.
+* wheel speeds: sub-filter 1 also measures the four wheel-centre speeds R*omega (zero-slip model,
+  variance allowing 2% slip), as production ESC speed observers do; the paper's [ax, ay, r] leave u
+  unobservable (docs/decisions/0010-estimation-model-and-paper-deviations.md);
+* held and frozen samples: every estimator first counts a measured channel's reading repeated
+  exactly STUCK_SAMPLES times as invalid until it changes (``stuck_samples=math.inf``: off;
+  docs/decisions/0019-frozen-sensor-check.md);
+* zero point: every estimator learns the lateral accelerometer's offset in steady driving
+  (ZERO_POINT_*), as production ESC units do, and subtracts it before filtering
+  (``zero_point_time_constant=math.inf``: the raw sensors; docs/decisions/0017-zero-point-learning.md);
+* friction gate (``joint``): with Dugoff's lambda >= 1 dF/dmu = 0, so mu is unobservable; a
+  wheel's mu is updated only while its lateral lambda at the current estimate is below
+  EXCITATION_LAMBDA (all four while any wheel is; the longitudinal slip is left out because Fx is
+  measured), not below MU_MIN_SPEED, and its random-walk growth is capped at ``mu_max_std``. The
+  covariance still takes the update, so a held mu's reported sigma shrinks slowly without
+  excitation. Judged from mu_hat itself, a high mu_hat can keep the gate shut after a friction drop
+  (``friction_gate=False``: the paper's update; docs/decisions/0015-friction-gate.md);
+* slide detection (``joint``): an outward slide in a steady turn that the sensors alone show
+  (SLIDE_*) reopens the gate, mu then only allowed to fall (``slide_rate=math.inf``: off;
+  docs/decisions/0016-slide-detection.md);
+* correlated friction (``joint``): the four mu share a prior and random walk correlated at
+  MU_CORRELATION (docs/decisions/0012-friction-correlation.md);
+* yaw balance (``joint``): in steady driving state sub-filter 2 also measures the net yaw moment
+  Gamma = 0 (YAW_BALANCE_STD), which keeps friction and sideslip from drifting together in a long
+  turn at the limit (``yaw_balance_std=math.inf``: off; docs/decisions/0018-yaw-balance.md).
 """
 
 from __future__ import annotations
@@ -132,27 +117,20 @@ ROBUST_KINDS = ("alo-fkf", "joint")  #: the kinds that update with Huber weights
 MU_BOUNDS = (0.1, 1.2)  #: estimated mu stays inside these bounds
 EXCITATION_LAMBDA = 1.0  #: a wheel's mu is updated only while its lateral Dugoff lambda is below this
 #: below this estimated forward speed [m/s] the friction filter does not run (mu and its
-#: covariance are held): slip angles tan(alpha) = vy / max(|vx|, MIN_SPEED) of a car at rest are
-#: sensor noise over a floored speed, which pushed Dugoff's lambda below 1 and let mu collapse
-#: to its lower bound with a confident covariance in a few seconds of standing still
+#: covariance are held): slip angles vy / max(|vx|, MIN_SPEED) of a car at rest are sensor noise
+#: over a floored speed, which opens the gate and lets mu collapse (docs/decisions/0015-friction-gate.md)
 MU_MIN_SPEED = 3.0
 
 
-#: prior and random-walk correlation of the four wheels' mu. The contact patches lie within
-#: 2.3 m x 1.4 m and nearly always share one surface, and the split between wheels is barely
-#: observable (a turn unloads the inner wheels, so their mu hardly shows in [ax, ay, r]); a
-#: weak correlation let the four drift apart (e.g. 0.1-1.2 on a uniform 0.5 road). At 0.99 the
-#: differential modes keep 1% of the variance, so a real split is learnt only where it is
-#: excited, slowly. Measured (README, "Friction correlation"): 0.8 -> 0.99 cuts the open-loop
-#: sideslip RMSE on paper_step 0.39 -> 0.07 deg and the mu error after unseen mu jumps
-#: (0.25 / 0.35) 0.65 / 0.55 -> 0.07 / 0.11; results plateau from 0.98 to 0.995.
+#: prior and random-walk correlation of the four wheels' mu (0-1). The contact patches nearly
+#: always share one surface and the split between wheels is barely observable (a turn unloads the
+#: inner wheels), so a saturating outer wheel informs the inner one; the differential modes keep
+#: 1% of the variance, so a real split is learnt where it is excited, slowly
+#: (docs/decisions/0012-friction-correlation.md)
 MU_CORRELATION = 0.99
-#: Huber threshold c of the robust filters (alo-fkf, joint; eq. 27) in standardised innovations.
-#: Huber's 95%-efficiency value 1.5 also down-weights the persistent innovations a change of
-#: road friction causes, and the joint estimator then cannot follow it (measured on mu_jump
-#: with DYC-LQR in the loop: sideslip RMSE 4.9 deg at c = 1.5, 0.19 at c = 3, 0.16 plain).
-#: c = 3 still rejects sensor outliers: under 0.5 rad/s gyro spikes at 20/s on paper_sine,
-#: yaw-rate RMSE 0.0040 rad/s at c = 3, 0.0051 at 1.5, 0.0135 plain.
+#: Huber threshold c of the robust filters (alo-fkf, joint; eq. 27) in standardised innovations:
+#: above Huber's 95%-efficiency 1.5, which also down-weights the persistent innovations of a
+#: friction change, and still rejecting sensor outliers (docs/decisions/0014-huber-threshold.md)
 HUBER_C = 3.0
 
 
@@ -200,14 +178,9 @@ class NoiseParams:
     speed_std: float = 0.05
     mu_walk_std: float = 2e-3
     #: the mu filter's ax, ay "noise" [m/s^2]: the error of the Dugoff-predicted body
-    #: accelerations (model error, far above the accelerometer's). Chosen from the grid
-    #: 0.15-1.2 by ``fourwis tune --mu-noise`` on 24 random scenarios that no report uses
-    #: (mean |mu_hat - mu| over the last half: 0.144 at the earlier hand-set 0.3, 0.137 at 0.6,
-    #: the grid's best; a shallow optimum). It was first noticed on the paper's scenarios,
-    #: where 0.3 -> 0.6 cut the mu error on the sine / slalom from 0.09 / 0.10 to 0.02 / 0.04
-    #: (last half, sensor seed 0):
-    #: with the smaller value the filter over-trusts a model whose error is correlated in time
-    #: and reads mu high (README, "Friction model error").
+    #: accelerations (model error, correlated in time, far above the accelerometer's); smaller,
+    #: the filter over-trusts the model and reads mu high. Chosen by ``fourwis tune --mu-noise``
+    #: (docs/decisions/0013-friction-model-error-noise.md)
     mu_accel_std: float = 0.6
     #: each wheel's mu prior sigma (at reset and when a slide restarts the friction filter) and the
     #: cap of its random walk's growth where mu is unobservable
@@ -296,18 +269,14 @@ def tuned_noise(path=None) -> NoiseParams | None:
 PARALLEL_MIN_BATCH = 2
 #: low-pass of the differentiated wheel speed [s]. The estimators' low-passes (this one, ZERO_POINT_*,
 #: SLIDE_TAU) take Euler steps with their gain dt / tau capped at 1, so a step longer than a time
-#: constant (a 20 Hz log) follows the input instead of diverging (at dt = 50 ms the wheel
-#: acceleration grew to 4e21 rad/s^2 and the friction error to 0.65 before the cap)
+#: constant (a 20 Hz log) follows the input instead of diverging (docs/decisions/0017-zero-point-learning.md)
 OMEGA_DOT_TIME_CONSTANT = 0.02
-#: plausibility check of the measured channels (HELD_CHANNELS: ax, ay, yaw rate, forward speed, and the
-#: wheel speeds as sub-filter 1 measures them): a reading
-#: identical to the previous one this many times in a row is a held sample and counts as
-#: invalid until it changes. A MEMS sensor's white noise (0.02 m/s^2, 0.004 rad/s at 500 Hz)
-#: never repeats a value exactly; a frozen output does (envs.sensors fault "stuck"), and so do
-#: a slower sensor's samples held in a faster log (the revs log repeats 12% of its IMU
-#: samples, 1-4 times in a row) and a log upsampled by hold: each repeat would count the same
-#: sample again, an overconfident filter. From the first repeat on, then (until 0.3 this was
-#: 5, 10 ms at 500 Hz, which such logs never reach).
+#: plausibility check of the measured channels (HELD_CHANNELS: ax, ay, yaw rate, forward speed
+#: and the wheel speeds sub-filter 1 measures): a reading identical to the previous one this
+#: many times in a row counts as invalid until it changes. A MEMS sensor's white noise never
+#: repeats a value exactly; a frozen output does, and so does a slower sensor's sample held in a
+#: faster log: counted again it would make the filter overconfident, so from the first repeat
+#: on (docs/decisions/0019-frozen-sensor-check.md, docs/decisions/0033-recorded-logs.md)
 STUCK_SAMPLES = 1
 #: Zero-point learning of the lateral accelerometer, as production ESC units learn sensor
 #: offsets in steady driving (van Zanten, "Bosch ESP systems: 5 years of experience", SAE
@@ -315,52 +284,39 @@ STUCK_SAMPLES = 1
 #: more than ZERO_POINT_STEER_TOL [rad] and the yaw rate has stayed within ZERO_POINT_YAW_TOL
 #: [rad/s] of its ZERO_POINT_YAW_LOWPASS [s] low-pass for ZERO_POINT_SETTLE [s], above
 #: ZERO_POINT_MIN_SPEED [m/s], the residual ay - u r low-passes (ZERO_POINT_TIME_CONSTANT [s])
-#: into an offset that every filter subtracts from ay. The residual holds the combination
-#: b_ay - u b_r of the two sensors' biases, which is exactly what drives the drift of the
-#: sideslip integrated from v_dot = ay - u r once the tyres saturate. Measured on paper_step
-#: (mu 0.3, seeds 0-4): joint sideslip RMSE 0.27 -> 0.14 deg (README, "Zero-point learning").
+#: into an offset that every filter subtracts from ay. The residual holds b_ay - u b_r of the two
+#: sensors' biases, exactly what makes the sideslip integrated from v_dot = ay - u r drift once the
+#: tyres saturate (docs/decisions/0017-zero-point-learning.md).
 ZERO_POINT_STEER_TOL = 0.002
 ZERO_POINT_YAW_TOL = 0.02
 ZERO_POINT_YAW_LOWPASS = 0.5
 ZERO_POINT_SETTLE = 1.5
 ZERO_POINT_MIN_SPEED = 3.0
 ZERO_POINT_TIME_CONSTANT = 2.0
-#: Slide detection of the joint estimator (the friction gate's blind spot, README "Known
-#: limitations"). In a steady turn (steering held, yaw rate steady: ZP_STEADY) a gripping car
-#: keeps its sideslip, so the kinematic sideslip rate ay / u - r that the sensors give without
-#: any tyre model stays near zero; the data-sheet turn-on biases (3 sigma: 0.09 m/s^2, 0.006
-#: rad/s; envs.sensors) fake at most 1.4 deg/s of it above SLIDE_MIN_SPEED, 0.7 deg/s at 15 m/s.
-#: Its SLIDE_TAU [s] low-pass beyond SLIDE_RATE [rad/s], outwards (ay short of u r: the tyres
-#: give less lateral force than the turn takes), after SLIDE_TAU of steady driving, while the
-#: friction gate is shut, means the car slides on a road slipperier than mu_hat: the state
-#: filter then follows the accelerometer (ax, ay process noise at least SLIDE_ACCEL_STD [m/s^2]
-#: per NOISE_STEP, above the accelerometer's 0.17), and the friction filter restarts from its
-#: prior covariance with the gate open, mu only allowed to fall. SLIDE_TAU is shorter than
+#: Slide detection of the joint estimator (the friction gate's blind spot). In a steady turn
+#: (steering held, yaw rate steady: ZP_STEADY) a gripping car keeps its sideslip, so the kinematic
+#: sideslip rate ay / u - r that the sensors give without any tyre model stays near zero (the
+#: sensors' 3-sigma turn-on biases fake at most 1.4 deg/s of it above SLIDE_MIN_SPEED [m/s]). Its
+#: SLIDE_TAU [s] low-pass beyond SLIDE_RATE [rad/s], outwards (ay short of u r), after SLIDE_TAU of
+#: steady driving, while the friction gate is shut, means the car slides on a road slipperier than
+#: mu_hat: the state filter then follows the accelerometer (ax, ay process noise at least
+#: SLIDE_ACCEL_STD [m/s^2] per NOISE_STEP, above the accelerometer's 0.17), and the friction filter
+#: restarts from its prior covariance with the gate open, mu only allowed to fall. SLIDE_TAU <
 #: ZERO_POINT_SETTLE, so a slide from the start of a steady turn is caught before the zero-point
-#: learning starts (a drop later in the turn meets that learning under way, at its 2 s time
-#: constant). False alarm: an accelerometer offset fault of about -1 m/s^2 appearing in a
-#: steady turn reads as a slide (mu_hat then falls on a gripping road; README). Measured
-#: (README): mu_jump started from mu 0.9, DYC-LQR: peak sideslip 13.9 -> 2.6 deg; make compare's
-#: runs.csv unchanged (it never fires there).
+#: learning starts. False alarm: an accelerometer offset fault of about -1 m/s^2 appearing in a
+#: steady turn reads as a slide (docs/decisions/0016-slide-detection.md).
 SLIDE_RATE = math.radians(2.0)
 SLIDE_TAU = 0.25
 SLIDE_ACCEL_STD = 1.0
 SLIDE_MIN_SPEED = 5.0
 #: Yaw balance in steady driving (the joint estimator's state sub-filter 2). In the steady state
-#: the zero-point learning detects (ZERO_POINT_*: steering held and yaw rate steady for
-#: ZERO_POINT_SETTLE s, above ZERO_POINT_MIN_SPEED) the yaw rate does not change, so the tyre
-#: forces' net yaw moment is zero: sub-filter 2 then also measures the model's Gamma = 0, with
-#: this standard deviation [N m], the yaw acceleration the steady window still allows (|r - its
-#: 0.5 s low-pass| < 0.02 rad/s: |r_dot| up to 0.04 rad/s^2) times I_z (1110 kg m^2). Otherwise
-#: the yaw balance reaches the filters only through the gyro (dt Gamma / I_z per step: 1e-4 rad/s
-#: for a 60 N m imbalance, far under the gyro's noise), and in a long turn at the limit they drift
-#: towards a car with linear tyres, more friction and less slip that explains ay and r as well:
-#: paper_step held for 30 s (mu 0.3, sensor seeds 0-2) read mu_hat 0.45-0.46 and a sideslip of
-#: +0.55 against the true -0.57 deg at 30 s (RMSE after 10 s 0.87-0.95 deg; found by a review,
-#: 2026-12-01); with it 0.32-0.33 and -0.37 to -0.49 deg (0.12-0.20). math.inf: off (the paper's
-#: sub-filter 2, [ay, r]). Only the joint estimator measures it: it pins the friction-sideslip
-#: ridge, and a filter holding a wrong nominal friction cannot meet the balance and ay together
-#: (fkf on paper_step, mu 0.8 on a 0.3 road: forward-speed RMSE 0.012 -> 0.031 m/s with it).
+#: the zero-point learning detects (ZERO_POINT_*) the yaw rate does not change, so the tyre forces'
+#: net yaw moment is zero: sub-filter 2 then also measures the model's Gamma = 0, with this standard
+#: deviation [N m], the yaw acceleration the steady window still allows (|r_dot| up to 0.04 rad/s^2)
+#: times I_z (1110 kg m^2). Without it the balance reaches the filters only through the gyro, far
+#: under its noise, and in a long turn at the limit friction and sideslip drift together. math.inf:
+#: off (the paper's sub-filter 2, [ay, r]). Only the joint estimator measures it: a filter holding a
+#: wrong nominal friction cannot meet the balance and ay together (docs/decisions/0018-yaw-balance.md).
 YAW_BALANCE_STD = 45.0
 #: columns of the zero-point state: learnt ay offset [m/s^2], steady time [s], steering angle
 #: the steady time counts from [rad], low-passed yaw rate [rad/s], low-passed kinematic
@@ -1086,7 +1042,7 @@ class StateEstimator:
 
     def set_noise(self, noise: NoiseParams) -> None:
         """Use ``noise`` from the next step on (shared, or per member: see NoiseParams.scaled).
-        The rescaling to the filter's rate (docs/decisions/0001-estimators-on-recorded-logs.md):
+        The rescaling to the filter's rate (docs/decisions/0033-recorded-logs.md):
         the process noise and mu random walk are per NOISE_STEP (2 ms), so at another ``dt``
         their variances scale by dt / NOISE_STEP, and each step by its own elapsed time (noise
         of a process that runs continuously); the measurement noise is per sample and stays

@@ -24,17 +24,16 @@ the paper (standard textbook forms, Rajamani 2012 ch. 13; Dugoff, Fancher & Sege
   the wheel's torque balance subtracts its rolling resistance f_r Fz (J omega_dot = T - R Fx -
   R f_r Fz) and the body's longitudinal balance the aerodynamic drag (1/2) rho Cd A u|u|
   (Kiencke & Nielsen 2005, ch. 7). Without them the model reads a car cruising at 20 m/s as
-  accelerating at 0.27 m/s^2; the shipped estimators keep the paper's model all the same
-  (README, "Known limitations": the friction gate);
+  accelerating; the shipped estimators keep the paper's model all the same, since the
+  resistances make the friction gate miss drops (docs/decisions/0020-tyre-relaxation-and-resistances-off.md);
 * the paper's tyre has no transient: its force follows the slip angle at once. With
   ``ModelParams.from_vehicle(..., relaxation=True)`` each wheel's slip angle instead relaxes
   towards the kinematic one over the tyre's lateral relaxation length sigma (first-order lag in
   travelled distance, d tan(alpha)/dt = (|u_w| / sigma)(tan(alpha_kin) - tan(alpha)); Pacejka,
   *Tire and Vehicle Dynamics*, 3rd ed., sec. 7.2). The estimator carries the lag as a known
   offset of tan(alpha) from its previous estimate (:func:`wheel_kinematics`), so the state
-  vector stays the paper's. Off in the shipped estimators (README, "Tyre relaxation in the
-  estimator": the sideslip estimate improves; the friction estimate improves on the slalom
-  and worsens on the sine);
+  vector stays the paper's. Off in the shipped estimators: the sideslip estimate improves, the
+  friction estimate worsens on the sine (docs/decisions/0020-tyre-relaxation-and-resistances-off.md);
 * eq. 10: Dugoff's speed reduction of friction is mu (1 - eps u sqrt(s^2 + tan^2 alpha))
   (Dugoff, Fancher & Segel 1970: the sliding speed; the paper's form puts the stiffnesses
   inside the root, which makes eps carry newtons).
@@ -156,12 +155,12 @@ class ModelParams:
         axles the eq. 17 fit of fourwis's own simulated tyre, estimation/data/dugoff_fit.json, or
         ``fit``). ``resistances``: also the car's rolling resistance and drag, which the paper's
         model (and the shipped estimators) leave out: with them u and beta are more accurate, but
-        the joint estimator's friction gate misses more friction drops (README, "Known
-        limitations"). ``relaxation``: the slip angles lag by the tyres' lateral relaxation
-        lengths: those of ``tyres`` (each must have one), or, for fourwis's own tyre, its length
-        at the mean static wheel load m g / 4 (``vehicle.static_relaxation_lengths``, 0.36 m for
-        the paper's car; the plant's grows with load, 0.48 m at 3 kN, which this constant leaves
-        out); without it the tyres have none (the paper's model)."""
+        the joint estimator's friction gate misses more friction drops.
+        ``relaxation``: the slip angles lag by the tyres' lateral relaxation lengths: those of
+        ``tyres`` (each must have one), or, for fourwis's own tyre, its length at the mean static
+        wheel load m g / 4 (``vehicle.static_relaxation_lengths``, 0.36 m for the paper's car; the
+        plant's grows with load, which this constant leaves out). Both off by default
+        (docs/decisions/0020-tyre-relaxation-and-resistances-off.md)."""
         if tyres is None:
             shipped = AxleTyre.shipped(fit)
             sigma = float(vehicle.static_relaxation_lengths[1]) if relaxation else 0.0
@@ -404,7 +403,7 @@ def body_forces(
 
     Wheel by wheel over all K evaluations (the K loop innermost and branch-free, so the
     compiler runs it in SIMD lanes), each evaluation summing its wheels in order FL, FR, RL,
-    RR. Callers pass stack arrays (:func:`estimation.jit.scratch`): the compiler then knows
+    RR. Callers pass stack arrays (:func:`fourwis.core.kernels.scratch`): the compiler then knows
     they do not overlap, which it needs before it vectorises."""
     K = state.shape[1]
     out[:, :] = 0.0

@@ -75,11 +75,11 @@ def _value_text(value) -> str:
     return f"({', '.join(f'{v:g}' for v in value)})" if isinstance(value, tuple) else f"{value:g}"
 
 
-def scenario_lines() -> list[str]:
-    """One line per scenario of :data:`envs.scenarios.SCENARIOS` (and compare's ``swd_wet``):
+def scenario_rows() -> list[tuple[str, str, str]]:
+    """One row per scenario of :data:`envs.scenarios.SCENARIOS` (and compare's ``swd_wet``):
     name, what it is, its defaults (speed, road friction, duration, the builder's own options)."""
     common = {"speed_kph", "mu", "duration", "steering", "rear_steer_feedforward", "params"}
-    lines = []
+    rows = []
     for name, scenario in SCENARIOS.items():
         parameters = inspect.signature(getattr(scenario_builders, name)).parameters
         if parameters["speed_kph"].default is None:  # (random: drawn)
@@ -98,25 +98,24 @@ def scenario_lines() -> list[str]:
         defaults = f"{speed}, {_mu_text(parameters['mu'].default)}, {duration}" + (
             f"; {', '.join(options)}" if options else ""
         )
-        lines.append(_line(name, SCENARIO_SUMMARIES[name], defaults))
-    lines.append(
-        _line(
+        rows.append((name, SCENARIO_SUMMARIES[name], defaults))
+    rows.append(
+        (
             "swd_wet",
             f"compare's alias of sine_with_dwell:mu={SWD_MU:g},amplitude_A={SWD_MULTIPLE:g} (A: the car's 0.3 g angle)",
             f"{SCENARIOS['sine_with_dwell'].speed_kph:g} km/h, mu {SWD_MU:g}, {SWD_MULTIPLE:g}A",
         )
     )
-    lines.append("(overrides: NAME:key=value,... ; a +faults suffix adds gyro faults in compare)")
-    return lines
+    return rows
 
 
-def estimator_lines() -> list[str]:
-    """One line per estimator of :data:`estimation.ESTIMATORS`: name, what it is, its defaults
+def estimator_rows() -> list[tuple[str, str, str]]:
+    """One row per estimator of :data:`estimation.ESTIMATORS`: name, what it is, its defaults
     (friction: fixed or estimated and from what, noise: hand-set or the shipped tuning, the
     Huber threshold of the robust ones, the step)."""
     default = {f.name: f.default for f in fields(StateEstimator) if f.init}
     tuned = tuned_noise() is not None
-    lines = []
+    rows = []
     for name in ESTIMATORS:
         if name == "oracle":
             defaults = "no sensors read, no settings"
@@ -133,18 +132,14 @@ def estimator_lines() -> list[str]:
             )
             robust = f", Huber c {default['huber_c']:g}" if name in ROBUST_KINDS else ""
             defaults = f"{mu}, {noise}{robust}, step {1000 * default['dt']:g} ms"
-        lines.append(_line(name, ESTIMATOR_SUMMARIES[name], defaults))
-    lines.append(
-        f"(also: NAME+true-<{'|'.join(TRUTH_GROUPS)}> reports those quantities from the truth; "
-        "module:factory for your own)"
-    )
-    return lines
+        rows.append((name, ESTIMATOR_SUMMARIES[name], defaults))
+    return rows
 
 
-def controller_lines() -> list[str]:
-    """One line per controller of :data:`control.CONTROLLERS` and per shipped policy
+def controller_rows() -> list[tuple[str, str, str]]:
+    """One row per controller of :data:`control.CONTROLLERS` and per shipped policy
     (``rl:training/policies/<name>``): name, what it is, its defaults."""
-    lines = []
+    rows = []
     for name in CONTROLLERS:
         controller = make_controller(name, VehicleParams())
         if controller is None:
@@ -158,13 +153,13 @@ def controller_lines() -> list[str]:
                 f"mu_margin {controller.mu_margin:g} sigma, friction_ellipse {controller.friction_ellipse}, "
                 f"reference understeer {understeer}, step {1000 * controller.dt:g} ms"
             )
-        lines.append(_line(name, CONTROLLER_SUMMARIES[name], defaults))
+        rows.append((name, CONTROLLER_SUMMARIES[name], defaults))
     policies = resources.files("fourwis.training").joinpath("policies")
     for run in sorted((p for p in policies.iterdir() if p.is_dir()), key=lambda p: p.name):
         config = json.loads(run.joinpath("config.json").read_text())
         env = config["env_kwargs"]
-        lines.append(
-            _line(
+        rows.append(
+            (
                 f"rl:training/policies/{run.name}",
                 f"a {config['algo'].upper()} policy shipped with the package (fourwis train; needs the rl extra)",
                 f"trained {config['timesteps']:,} env steps with estimator "
@@ -172,43 +167,54 @@ def controller_lines() -> list[str]:
                 f"{env.get('observation', EnvConfig.observation)}",
             )
         )
-    lines.append("(also: rl:<run dir> or rl:<run dir>/model.zip for your own policy; module:factory for your own law)")
-    return lines
+    return rows
 
 
-def log_lines() -> list[str]:
-    """One line per recorded log the package ships (training.logs.shipped_logs): its name, its
-    description, its length, rate and vehicle; or one saying there is none."""
+def log_rows() -> list[tuple[str, str, str]]:
+    """One row per recorded log the package ships (:func:`training.logs.shipped_logs`): name,
+    what it is, its length, rate and vehicle file."""
     from fourwis.training.logs import read_log, shipped_logs
 
-    logs = shipped_logs()
-    if not logs:
-        return ["no recorded logs shipped"]
-    lines = []
-    for name in logs:
+    rows = []
+    for name in shipped_logs():
         log = read_log(name)
         rate = (len(log.t) - 1) / log.duration
         what = log.metadata.get("description", "").split(":")[0]
-        lines.append(
-            _line(name, what, f"{log.duration:.0f} s at {rate:.0f} Hz, vehicle {log.metadata.get('vehicle', '?')}")
-        )
-    lines.append("(fourwis estimate --log NAME, or --log FILE --vehicle FILE for your own: docs/logs.md)")
-    return lines
+        rows.append((name, what, f"{log.duration:.0f} s at {rate:.0f} Hz, vehicle {log.metadata.get('vehicle', '?')}"))
+    return rows
+
+
+#: the rows of each section, and what the list adds below them
+ROWS = {"scenarios": scenario_rows, "estimators": estimator_rows, "controllers": controller_rows, "logs": log_rows}
+FOOTNOTES = {
+    "scenarios": "(overrides: NAME:key=value,... ; a +faults suffix adds gyro faults in compare)",
+    "estimators": f"(also: NAME+true-<{'|'.join(TRUTH_GROUPS)}> reports those quantities from the truth; "
+    "module:factory for your own)",
+    "controllers": "(also: rl:<run dir> or rl:<run dir>/model.zip for your own policy; "
+    "module:factory for your own law)",
+    "logs": "(fourwis estimate --log NAME, or --log FILE --vehicle FILE for your own: docs/logs.md)",
+}
+NO_LOGS = "no recorded logs shipped"
+
+
+def rows(section: str) -> list[tuple[str, str, str]]:
+    """(name, what it is, its defaults) of each entry of ``section`` (:data:`SECTIONS`)."""
+    if section not in SECTIONS:
+        raise ValueError(f"unknown section {section!r}; known: {list(SECTIONS)}")
+    return ROWS[section]()
 
 
 def catalog(section: str | None = None) -> str:
     """The text of ``fourwis list [section]``: one section of :data:`SECTIONS`, or all (None)."""
     if section is not None and section not in SECTIONS:
         raise ValueError(f"unknown section {section!r}; known: {list(SECTIONS)}")
-    build = {
-        "scenarios": scenario_lines,
-        "estimators": estimator_lines,
-        "controllers": controller_lines,
-        "logs": log_lines,
-    }
-    chosen = SECTIONS if section is None else (section,)
     blocks = []
-    for name in chosen:
-        heading = [f"{name}:", "  " + _line("name", "what it is", "defaults")] if name != "logs" else [f"{name}:"]
-        blocks.append("\n".join(heading + [f"  {line}" for line in build[name]()]))
+    for name in SECTIONS if section is None else (section,):
+        entries = rows(name)
+        if name == "logs" and not entries:
+            blocks.append(f"{name}:\n  {NO_LOGS}")
+            continue
+        lines = [f"{name}:", "  " + _line("name", "what it is", "defaults")]
+        lines += [f"  {_line(*entry)}" for entry in entries] + ([f"  {FOOTNOTES[name]}"] if FOOTNOTES[name] else [])
+        blocks.append("\n".join(lines))
     return "\n\n".join(blocks)

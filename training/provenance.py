@@ -18,7 +18,7 @@ SOURCE = Path(__file__).resolve().parent.parent  #: the checkout (or site-packag
 
 class Provenance(NamedTuple):
     """Who wrote a report: ``command`` as typed (shell-quoted), ``commit`` of the source tree,
-    ``date`` (UTC, ISO 8601, seconds) and ``host`` (name, CPUs, platform)."""
+    ``date`` (UTC, ISO 8601, seconds) and ``host`` (name, processor, CPUs, platform)."""
 
     command: str
     commit: str
@@ -65,11 +65,22 @@ def source_commit(root: Path = SOURCE) -> str:
     return commit + (" + uncommitted changes" if dirty else "")
 
 
+def cpu_model() -> str:
+    """The processor's model name (Linux: /proc/cpuinfo), else the machine type."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
 def provenance(command: str | None = None) -> Provenance:
     """The header of a report written now by ``command`` (default: this process's command line)."""
     return Provenance(
         command if command is not None else command_line(),
         source_commit(),
         datetime.now(UTC).isoformat(timespec="seconds"),
-        f"{socket.gethostname()} ({os.cpu_count()} CPUs, {platform.platform()})",
+        f"{socket.gethostname()} ({cpu_model()}, {os.cpu_count()} CPUs, {platform.platform()})",
     )

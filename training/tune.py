@@ -21,11 +21,9 @@ Criterion (``criterion``):
   simulation-only criterion kept for comparison.
 
 Deviation from the project's design notes and its tuning issue (not part of this repository), on
-purpose: they describe the offline tuning as "against truth". Measured (README, "Noise tuning"): the
-truth-error optimum is a badly
-calibrated filter (alo-fkf's innovation NLL +10.7 against -10.7 hand-set on the slalom) and
-did not transfer to ``joint``; the likelihood optimum beats the hand-set noise on both the
-sideslip error and the NLL on every unseen paper scenario, so it is the default.
+purpose: they describe the offline tuning as "against truth"; the truth-error optimum is a badly
+calibrated filter and does not transfer to ``joint``, so the likelihood is the default
+(docs/decisions/0022-noise-tuning-likelihood.md).
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ numba's cache at ``<checkout>/.numba_cache/<fingerprint>`` (an installed package
 stays as pip left it), the fingerprint hashing the source of every fourwis module that uses
 numba: after an edit to any of them everything compiles afresh once, and switching back to an
 earlier version finds its cache again. A ``NUMBA_CACHE_DIR`` set by the user is left as it is
-(and with it numba's own invalidation rule).
+(and with it numba's own invalidation rule) (docs/decisions/0007-numba-cache-fingerprint.md).
 
 Every kernel module imports :data:`JIT` from here, so the cache directory is set before its
 first decorator runs (numba's process-wide ``config.CACHE_DIR``).
@@ -18,7 +18,8 @@ first decorator runs (numba's process-wide ``config.CACHE_DIR``).
 :func:`scratch` gives kernels small work arrays on the stack instead of the heap: numba
 allocates each heap array with malloc and an atomically reference-counted header, which costs
 a sizeable share of a filter step made of ~140 small arrays; stack arrays also let the compiler
-prove that a loop's arrays do not overlap, which it needs before it runs the loop in SIMD lanes.
+prove that a loop's arrays do not overlap, which it needs before it runs the loop in SIMD lanes
+(docs/decisions/0006-estimator-kernel-scratch-and-simd.md).
 """
 
 from __future__ import annotations
@@ -84,6 +85,7 @@ if not numba.config.CACHE_DIR:
 
 #: bytes of stack reserved by each compiled :func:`scratch` call site (larger requests go to
 #: the heap); the estimator's largest work array is 13 x 7 doubles (728 bytes)
+#: (docs/decisions/0006-estimator-kernel-scratch-and-simd.md)
 SCRATCH_BYTES = 1024
 
 

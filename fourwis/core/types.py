@@ -73,18 +73,14 @@ class Estimate(NamedTuple):
     u, v: body velocities [m/s] (B,); beta = atan2(v, |u|) [rad] (B,) (the filters floor |u| at
     1 m/s: a car at rest has no defined sideslip); r: yaw rate [rad/s] (B,); ax, ay: body
     specific forces [m/s^2] (B,) (the joint estimator's are its model's, whose lack of rolling
-    resistance and drag reads ~0.1 m/s^2 high on the paper's sine); mu: road friction per wheel (B, 4); fz: normal
-    loads per
-    wheel [N] (B, 4); beta_std [rad] (B,) and mu_std (B, 4): the filter's own one-sigma
-    uncertainty, from its covariance (zero for the oracle; mu_std also zero for the filters that
-    assume a nominal mu). The state filters' covariance does not model the estimation model's
-    error, so beta_std is far too confident where the tyres work (RMS of error / beta_std on the
-    paper's step, sine and slalom: joint 10 / 36 / 22, ekf, ckf and fkf 37 / 7 / 10, alo-fkf
-    200 / 38 / 52 and 320 on mu_jump, its ALO-tuned noise being smaller); the joint
-    estimator's mu_std matches its mu error on the paper's scenarios (0.64-1.5; README,
-    "Estimators") but not in the second after a friction change (mu_jump: RMS 2.2, single
-    samples 10-12 sigma off). The DYC plans with mu - k mu_std (control.MU_MARGIN), so an
-    estimator's mu_std moves the closed loop.
+    resistance and drag reads ~0.1 m/s^2 high on the paper's sine); mu: road friction per wheel
+    (B, 4); fz: normal loads per wheel [N] (B, 4); beta_std [rad] (B,) and mu_std (B, 4): the
+    filter's own one-sigma uncertainty, from its covariance (zero for the oracle; mu_std also zero
+    for the filters that assume a nominal mu). The covariance leaves out the estimation model's
+    error, so beta_std is far too confident where the tyres work; the joint estimator's mu_std
+    matches its mu error open loop but not just after a friction change nor where the DYC works
+    (docs/limitations.md). The DYC plans with mu - k mu_std (control.MU_MARGIN), so an
+    estimator's mu_std moves the closed loop (docs/decisions/0026-cautious-friction-margin.md).
     """
 
     u: np.ndarray

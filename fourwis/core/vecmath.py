@@ -5,13 +5,12 @@ wheels on PyPI are built without Intel's SVML, so a loop that calls them is neve
 vectorised. The tyre model evaluates nine arctangents, two sines and two cosines per wheel
 and RK4 stage, so the plant spent most of its time in those calls. These replacements are
 plain arithmetic with selects (no calls, no data-dependent branches), so a loop over wheel
-lanes compiles to AVX2/AVX-512 code: measured 33 ns per combined-slip tyre evaluation in a
-long vectorised loop against 117 ns with the library functions (2-core EPYC with AVX-512,
-2026-11-25). In scalar code they are slower than the library (~270 ns), so they belong in
-loops over lanes only; :mod:`envs.vehicle` pads its lanes to a multiple of
-:data:`LANE_MULTIPLE`, so even one car's four wheels run as one vector. Keep such loops free
-of calls (``math.sqrt`` is one: use :func:`sqrt`), inner loops, ``**`` and ``math.floor``
-(an integer in numba): any of them stopped the vectoriser here.
+lanes compiles to AVX2/AVX-512 code (a tyre evaluation ~3.5x faster than with the library); in
+scalar code they are slower than the library, so they belong in loops over lanes only
+(docs/decisions/0005-plant-polynomial-math-in-simd-lanes.md). :mod:`envs.vehicle` pads its
+lanes to a multiple of :data:`LANE_MULTIPLE`, so even one car's four wheels run as one vector.
+Keep such loops free of calls (``math.sqrt`` is one: use :func:`sqrt`), inner loops, ``**`` and
+``math.floor`` (an integer in numba): any of them stopped the vectoriser here.
 
 Accuracy, checked against the C library by ``tests/test_vecmath.py`` over dense grids:
 
