@@ -21,7 +21,7 @@ a bound binds, the small bounded QP is solved exactly: the optimum lies on one f
 (each force free, at its lower or at its upper bound, 3^4 = 81 faces), on each face the
 equality-constrained least squares is closed form, and the cheapest feasible face solution is
 the optimum (strict convexity). It is compiled and batched (timings: benchmarks/bench_allocation.py,
-BENCHMARKS.md); scipy's SLSQP on the same QPs serves as the tests' reference
+docs/results/benchmarks.md); scipy's SLSQP on the same QPs serves as the tests' reference
 (docs/decisions/0027-torque-allocation.md).
 
 Infeasible demands degrade in a fixed priority: the drive force is clipped to what the bounds

@@ -15,12 +15,12 @@ from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
-from tqdm import tqdm
 
 from fourwis.control import StabilityController
 from fourwis.control.allocation import allocation_error
 from fourwis.control.dyc import inputs_row
 from fourwis.core.checks import check_command, check_controller, check_estimate, check_estimator, is_integer
+from fourwis.core.progress import progress as progress_bar
 from fourwis.core.types import Controller, Estimate, Estimator, SensorReading
 from fourwis.envs import loop as compiled
 from fourwis.envs.driver import DriverBatch, bad_follower_state
@@ -563,7 +563,7 @@ def simulate(
     loop = ClosedLoop(scenario, controller, estimator, np.random.default_rng(seed), sensor_params, faults, dt)
     n = int(math.ceil(scenario.duration / dt - 1e-9))
     chunks = []
-    with tqdm(total=n + 1, disable=not progress, desc=scenario.name, unit="step", mininterval=0.5) as bar:
+    with progress_bar(n + 1, scenario.name, "step", disable=not progress, mininterval=0.5) as bar:
         for start in range(0, n, SIMULATE_CHUNK):
             chunks.append(loop.advance_steps(min(SIMULATE_CHUNK, n - start)))
             bar.update(len(chunks[-1].t))

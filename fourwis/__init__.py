@@ -16,6 +16,7 @@ __version__ = "0.2.0"
 _EXPORTS = {
     "fourwis.core.types": ("CHANNELS", "Command", "Controller", "Estimate", "Estimator", "SensorReading"),
     "fourwis.core.constants": ("GRAVITY",),
+    "fourwis.core.kernels": ("set_threads",),
     "fourwis.envs.scenarios": ("PAPER_SCENARIOS", "SCENARIOS", "Scenario", "make_scenario"),
     "fourwis.envs.simulation": ("ClosedLoop", "Trajectory", "simulate"),
     "fourwis.envs.vehicle": ("VehicleParams",),

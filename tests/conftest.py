@@ -2,15 +2,15 @@
 
 import os
 
-import numba
 import pytest
 
+from fourwis.core.kernels import set_threads
+
 if os.environ.get("PYTEST_XDIST_WORKER"):
-    # `pytest -n 2` runs a worker process per core: one numba thread each. With numba's default
-    # (a thread per core in every worker) the cores are oversubscribed, and the waiting OpenMP
-    # threads spin: estimator steps of small batches ran 3-18x slower. tests/test_threads.py
-    # raises the count again to exercise the parallel kernels on two threads.
-    numba.set_num_threads(1)
+    # `pytest -n 2` runs a worker process per core: one kernel thread each, so the workers do
+    # not oversubscribe the cores. tests/test_threads.py raises the count again to exercise the
+    # parallel kernels on two threads.
+    set_threads(1)
 
 
 @pytest.fixture

@@ -4,6 +4,7 @@ before any work (naming the option), the same --jobs rule everywhere, help for e
 import argparse
 import json
 import math
+import os
 import shutil
 
 import numpy as np
@@ -193,6 +194,28 @@ def test_every_command_refuses_fewer_than_one_job_naming_the_option(command, job
     assert exit_.value.code == 2
     assert f"argument --jobs: must be >= 1, got {jobs}" in capsys.readouterr().err
     assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("threads", ["0", "3000"])
+def test_a_thread_count_outside_the_cores_is_refused_before_any_work(threads, tmp_path, monkeypatch):
+    monkeypatch.delenv("FOURWIS_THREADS", raising=False)
+    with pytest.raises(SystemExit, match=rf"fourwis compare: --threads must be an integer from 1 to \d+ .*{threads}"):
+        main(["compare", "--threads", threads, "--out", str(tmp_path / "out")])
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_thread_count_reaches_the_kernels_and_the_workers(tmp_path, monkeypatch):
+    """``--threads 1`` sets this process's count and exports it to the worker processes."""
+    from fourwis.core import kernels
+
+    monkeypatch.setenv("FOURWIS_THREADS", "1")
+    monkeypatch.delenv("FOURWIS_THREADS")  # (recorded: restored as unset after the test)
+    monkeypatch.setattr(kernels, "_threads", None)
+    main(["list", "scenarios"])  # (no --threads there: nothing set)
+    assert "FOURWIS_THREADS" not in os.environ
+    main(["estimate", "--threads", "1", "--scenarios", "paper_dlc", "--estimators", "ekf", "--seeds", "1",
+          "--out", str(tmp_path / "est")])  # fmt: skip
+    assert kernels.kernel_threads() == 1 and os.environ["FOURWIS_THREADS"] == "1"
 
 
 @pytest.mark.parametrize("jobs", [0, -1])

@@ -3,10 +3,10 @@ the one-car serial kernels: no shared scratch, no race, no order dependence. The
 suite runs one numba thread per pytest-xdist worker (tests/conftest.py), so this is where the
 threads meet."""
 
-import numba
 import numpy as np
 import pytest
 
+from fourwis.core.kernels import kernel_threads, max_threads, set_threads, share_cores
 from fourwis.envs.layout import NU
 from fourwis.envs.road import uniform
 from fourwis.envs.sensors import SensorModel, SensorParams
@@ -19,12 +19,12 @@ P = VehicleParams()
 
 @pytest.fixture
 def two_threads():
-    if numba.config.NUMBA_NUM_THREADS < 2:
-        pytest.skip("numba has a single thread here")
-    before = numba.get_num_threads()
-    numba.set_num_threads(2)
+    if max_threads() < 2:
+        pytest.skip("a single core here")
+    before = kernel_threads()
+    set_threads(2)
     yield
-    numba.set_num_threads(before)
+    set_threads(before)
 
 
 def test_parallel_plant_and_estimator_on_two_threads_equal_the_serial_kernels(two_threads):
@@ -65,7 +65,7 @@ def _row(reading, i):
 
 
 def test_compiled_closed_loop_on_two_threads_equals_one_thread(two_threads):
-    """The compiled loop shares a batch's cars among numba's thread count of Python threads."""
+    """The compiled loop shares a batch's cars among the kernel thread count of Python threads."""
     from fourwis.envs.gym_env import YawStabilityVectorEnv
 
     def run() -> list:
@@ -78,6 +78,43 @@ def test_compiled_closed_loop_on_two_threads_equals_one_thread(two_threads):
         return seen
 
     threaded = run()
-    numba.set_num_threads(1)
+    set_threads(1)
     for a, b in zip(threaded, run()):
         np.testing.assert_array_equal(a, b)
+
+
+def test_the_thread_count_is_checked_and_read_from_the_environment(monkeypatch):
+    monkeypatch.setattr("fourwis.core.kernels._threads", None)
+    monkeypatch.setenv("FOURWIS_THREADS", "1")
+    assert kernel_threads() == 1
+    monkeypatch.setenv("FOURWIS_THREADS", "many")
+    with pytest.raises(ValueError, match="FOURWIS_THREADS must be an integer from 1 to .*'many'"):
+        kernel_threads()
+    set_threads(1)  # the setting wins over the environment
+    assert kernel_threads() == 1
+    for bad in (0, max_threads() + 1, 1.5, "2"):
+        with pytest.raises(ValueError, match="threads must be an integer from 1"):
+            set_threads(bad)
+
+
+def test_worker_processes_share_the_cores_unless_a_count_was_set(monkeypatch):
+    """A pool's worker takes cores // workers threads (at least 1); a set count or
+    FOURWIS_THREADS is kept."""
+    monkeypatch.setattr("fourwis.core.kernels._threads", None)
+    monkeypatch.delenv("FOURWIS_THREADS", raising=False)
+    share_cores(2)
+    assert kernel_threads() == max(1, max_threads() // 2)
+    monkeypatch.setattr("fourwis.core.kernels._threads", None)
+    share_cores(max_threads() + 3)
+    assert kernel_threads() == 1
+    monkeypatch.setattr("fourwis.core.kernels._threads", None)
+    share_cores(1)
+    assert kernel_threads() == max_threads()
+    set_threads(1)
+    share_cores(1)
+    assert kernel_threads() == 1
+    monkeypatch.setattr("fourwis.core.kernels._threads", None)
+    monkeypatch.setenv("FOURWIS_THREADS", "1")
+    share_cores(1)
+    assert kernel_threads() == 1
+    set_threads(1)

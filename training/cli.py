@@ -544,7 +544,15 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     def command(name: str, summary: str) -> argparse.ArgumentParser:
-        return sub.add_parser(name, help=summary, description=summary, formatter_class=_HelpFormatter)
+        parser = sub.add_parser(name, help=summary, description=summary, formatter_class=_HelpFormatter)
+        if name not in ("list", "bench"):
+            parser.add_argument(
+                "--threads",
+                type=int,
+                help="threads of the batched kernels in this process and its workers, from 1 to the cores "
+                "(default: FOURWIS_THREADS, else every core)",
+            )
+        return parser
 
     sim = command("simulate", "run one scenario (open loop, or with --controller); writes OUT/<scenario>.csv and .png")
     sim.add_argument(
@@ -796,6 +804,14 @@ def main(argv: list[str] | None = None) -> int:
     args.command_line = command_line(argv, "fourwis")  # (what the reports' headers say wrote them)
     if "" not in sys.path and os.getcwd() not in sys.path:  # the `fourwis` script's path lacks it
         sys.path.insert(0, os.getcwd())  # your 'module:factory' estimators and controllers live here
+    if getattr(args, "threads", None) is not None:
+        from fourwis.core.kernels import THREADS_VARIABLE, set_threads
+
+        try:
+            set_threads(args.threads)
+        except ValueError as err:
+            raise SystemExit(f"fourwis {args.command}: --{err}") from None
+        os.environ[THREADS_VARIABLE] = str(args.threads)  # (worker processes and Ray workers inherit it)
     try:
         return args.func(args)
     except ModuleNotFoundError as err:  # an optional dependency: its message names the extra

@@ -24,9 +24,9 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
-from tqdm import tqdm
-
 from fourwis.core.checks import is_integer
+from fourwis.core.kernels import max_threads, share_cores
+from fourwis.core.progress import progress as progress_bar
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -142,7 +142,7 @@ class Pool:
         pending: dict[Future, int] = {}
         done: dict[int, Any] = {}
         submitted = yielded = 0
-        with tqdm(total=len(items), disable=not progress, desc=desc, unit="run") as bar:
+        with progress_bar(len(items), desc, "run", disable=not progress) as bar:
             try:
                 while yielded < len(items):
                     while submitted < len(items) and len(pending) < limit:
@@ -179,7 +179,7 @@ class LocalPool(Pool):
 
     def submit(self, fn: Callable, item) -> Future:
         if self._executor is None:  # (lazily: a pool opened for in-process work starts no process)
-            self._executor = ProcessPoolExecutor(max_workers=self.slots)
+            self._executor = ProcessPoolExecutor(self.slots, initializer=share_cores, initargs=(self.slots,))
         return self._executor.submit(fn, item)
 
     def result(self, future: Future):
@@ -237,7 +237,9 @@ class RayPool(Pool):
 
 def _apply(fn: Callable, item):
     """The Ray task: ``fn(item)`` (one remote function for every sweep, so that any picklable
-    callable, a functools.partial too, runs as a task)."""
+    callable, a functools.partial too, runs as a task). A task holds one of Ray's CPUs: its
+    kernels run on one thread unless a count was set."""
+    share_cores(max_threads())
     return fn(item)
 
 

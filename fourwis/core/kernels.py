@@ -42,6 +42,8 @@ from numba.np import numpy_support
 from numba.np.arrayobj import make_array, populate_array
 from numba.np.unsafe.ndarray import to_fixed_tuple
 
+from fourwis.core.checks import is_integer
+
 #: options of every fourwis kernel: cached on disk, NumPy's floating-point error semantics
 #: (division by zero gives inf/nan instead of raising, as in vectorised NumPy code)
 JIT = dict(cache=True, error_model="numpy")
@@ -251,13 +253,58 @@ def _thread_pool(threads: int) -> ThreadPoolExecutor:
 os.register_at_fork(after_in_child=_thread_pool.cache_clear)  # (a forked child has none of the parent's threads)
 
 
+#: the environment variable that sets the batched kernels' thread count (as ``--threads`` does)
+THREADS_VARIABLE = "FOURWIS_THREADS"
+_threads: int | None = None
+
+
+def max_threads() -> int:
+    """The most threads the kernels take: the machine's cores (as many as numba's
+    NUMBA_NUM_THREADS, if that is set lower)."""
+    return max(1, min(os.cpu_count() or 1, numba.config.NUMBA_NUM_THREADS))
+
+
+def set_threads(threads: int | None) -> None:
+    """Run the batched kernels (:func:`run_parallel`) on ``threads`` threads, 1 to
+    :func:`max_threads`; ``None``: back to the default (FOURWIS_THREADS, else every core)."""
+    global _threads
+    if threads is not None and (not is_integer(threads) or not 1 <= threads <= max_threads()):
+        raise ValueError(f"threads must be an integer from 1 to {max_threads()} (the cores here), got {threads!r}")
+    _threads = None if threads is None else int(threads)
+
+
+def share_cores(workers: int) -> None:
+    """In one of ``workers`` processes that run at once on this machine: its share of the cores
+    (at least 1) unless a count was set (:func:`set_threads`, FOURWIS_THREADS), so that the
+    workers' kernel threads do not outnumber the cores (docs/decisions/0032-kernel-threads.md)."""
+    if _threads is None and THREADS_VARIABLE not in os.environ:
+        set_threads(max(1, max_threads() // max(1, workers)))
+
+
+def kernel_threads() -> int:
+    """The batched kernels' thread count: :func:`set_threads`'s, else FOURWIS_THREADS, else every
+    core (the faster default for one process on 2 cores: docs/decisions/0032-kernel-threads.md)."""
+    if _threads is not None:
+        return _threads
+    value = os.environ.get(THREADS_VARIABLE)
+    if value is None:
+        return max_threads()
+    try:
+        threads = int(value)
+    except ValueError:
+        threads = None
+    if threads is None or not 1 <= threads <= max_threads():
+        raise ValueError(f"{THREADS_VARIABLE} must be an integer from 1 to {max_threads()}, got {value!r}")
+    return threads
+
+
 def run_parallel(kernel, items: np.ndarray, *args, min_items: int = 2) -> None:
     """``kernel(part, *args)`` over the parts of ``items`` (int64 (N,)), one part per thread of
-    numba's thread count (``numba.get_num_threads()``, NUMBA_NUM_THREADS) when there are at least
-    ``min_items``, else ``kernel(items, *args)`` on this thread. ``kernel`` must be compiled with
-    ``nogil=True`` and write only to its own items' rows. Python threads rather than numba's
-    ``prange``: a parallel loop cannot take the NamedTuple bundles the kernels are given."""
-    threads = min(numba.get_num_threads(), len(items))
+    :func:`kernel_threads` when there are at least ``min_items``, else ``kernel(items, *args)``
+    on this thread. ``kernel`` must be compiled with ``nogil=True`` and write only to its own
+    items' rows. Python threads rather than numba's ``prange``: a parallel loop cannot take the
+    NamedTuple bundles the kernels are given."""
+    threads = min(kernel_threads(), len(items))
     if threads < 2 or len(items) < min_items:
         kernel(items, *args)
         return
