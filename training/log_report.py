@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from fourwis.core.checks import is_integer
-from fourwis.core.types import CH_AX, CH_AY, CH_SPEED, CH_YAW_RATE
+from fourwis.core.types import CH_AX, CH_AY, CH_OMEGA, CH_SPEED, CH_YAW_RATE
 from fourwis.estimation import BASELINES, NoiseParams, check_estimator_name, make_estimator, parse_estimator_name
 from fourwis.estimation.joint import KINDS
 from fourwis.estimation.optimizers import METHODS, minimize
@@ -378,7 +378,7 @@ def _active_factors(inputs: LogInputs) -> list[int]:
     """The factors a log can inform: the process and inertial noise, and the wheel-speed and
     speed noise only where those channels are measured."""
     active = [0, 1, 2, 3]
-    if inputs.valid[:, 3:7].any():
+    if inputs.valid[:, CH_OMEGA : CH_OMEGA + 4].any():
         active.append(4)
     if inputs.valid[:, CH_SPEED].any():
         active.append(5)
