@@ -544,3 +544,21 @@ def test_tune_on_a_logs_first_part_scores_on_the_rest(sine, tmp_path):
     assert float(rows["alo-fkf (tuned on the first 50%)"]["beta_rmse_deg"]) == pytest.approx(
         again["beta_rmse_deg"], rel=1e-5
     )
+
+
+def test_the_logs_page_documents_every_channel_and_unit_of_the_format():
+    """docs/logs.md's tables name each channel of SCHEMA (a wheel group by its FL member) and
+    every unit UNITS accepts, so the page cannot fall behind the reader."""
+    from pathlib import Path
+
+    from fourwis.training.logs import SCHEMA, UNITS
+
+    page = (Path(__file__).resolve().parent.parent / "docs" / "logs.md").read_text()
+    missing = [
+        name
+        for name in SCHEMA
+        if f"`{name}`" not in page and not (name.endswith(("_fr", "_rl", "_rr")) and f"`{name[:-3]}_fl`" in page)
+    ]
+    assert not missing, missing
+    units = [unit for kind in UNITS.values() for unit in kind if f"`{unit}`" not in page]
+    assert not units, units
