@@ -18,7 +18,7 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet torch==2.13.0 $(if $(TORCH_INDEX),--index-url $(TORCH_INDEX))
-	$(BIN)/pip install --quiet -e '.[rl,ray,plots,video,bench,docs,dev]'
+	$(BIN)/pip install --quiet -e '.[rl,ray,plots,video,bench,docs,logs,dev]'
 	touch $(STAMP)
 
 compare: $(STAMP)

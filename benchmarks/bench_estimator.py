@@ -14,6 +14,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from fourwis.core.types import CH_DELTA, CH_TORQUE
 from fourwis.envs.layout import NU
 from fourwis.envs.scenarios import make_scenario
 from fourwis.envs.sensors import SensorModel, SensorParams
@@ -37,14 +38,16 @@ def _per_call(fn: Callable[[], None], seconds: float = 3.0) -> float:
 def _started(name: str, batch: int, **options):
     """Estimator ``name`` for ``batch`` vehicles reset on one noisy reading of paper_sine's
     initial state (40 km/h, straight); returns (estimator, reading). The benchmark repeats that
-    reading, so the frozen-sensor check is off (``stuck_samples`` inf): otherwise ax, ay and r
-    count as stuck after STUCK_SAMPLES steps and every timed step would run with them invalid.
+    reading without its time (each step then takes the nominal dt), so the frozen-sensor check is
+    off (``stuck_samples`` inf): otherwise ax, ay and r count as held samples from the second
+    step on and every timed step would run with them invalid.
     ``options``: more keyword arguments for make_estimator."""
     params = VehicleParams()
     scenario = make_scenario("paper_sine")
     state = scenario.initial_state(batch)
     aux = derivatives(state, np.zeros((batch, NU)), np.full((batch, 4), 0.8), params)[1]
     reading = SensorModel(SensorParams(), (), batch, np.random.default_rng(0)).measure(truth_of(state, aux)[0], 0.0)
+    reading = reading._replace(t=np.zeros(0))  # (a repeated time would be refused: readings come in time order)
     estimator = make_estimator(name, params, DT, stuck_samples=math.inf, **options)
     estimator.reset(reading, np.full(batch, scenario.speed))
     return estimator, reading
@@ -66,14 +69,20 @@ def ckf_versus_filterpy() -> tuple[float, float]:
     estimator, reading = _started("ckf", 1)
     p = estimator.params
     values = reading.values[0]
-    delta = np.array([values[7], values[7], values[8], values[8]])
+    delta = values[CH_DELTA : CH_DELTA + 4].copy()
     trig = steer_trig(delta)
     h_args = MeasurementInputs(trig, p.kernel)
     # the compiled transition with its arguments built once, as hx has them (not the checked
     # convenience wrapper estimation.model.state_transition, whose argument checks and
     # conversions cost ~5 us per sigma point: filterpy would be timed with our Python overhead)
     f_args = ModelInputs(
-        np.full(4, 0.8), trig, values[3:7].copy(), values[9:13].copy(), np.zeros(4), p.kernel, float(DT)
+        np.full(4, 0.8),
+        trig,
+        values[3:7].copy(),
+        values[CH_TORQUE : CH_TORQUE + 4].copy(),
+        np.zeros(4),
+        p.kernel,
+        float(DT),
     )
 
     def fx(x: np.ndarray, dt: float) -> np.ndarray:
@@ -91,7 +100,7 @@ def ckf_versus_filterpy() -> tuple[float, float]:
     ukf = UnscentedKalmanFilter(6, 7, DT, hx, fx, MerweScaledSigmaPoints(6, alpha=1.0, beta=0.0, kappa=0.0))
     ukf.x, ukf.P = estimator.state.x[0].copy(), estimator.state.P[0].copy()
     ukf.Q = np.diag(np.square(noise.process_std))
-    ukf.R = np.diag([noise.accel_std**2] * 2 + [noise.gyro_std**2] + [noise.wheel_speed_std**2] * 4)
+    ukf.R = np.diag([noise.ax_std**2, noise.ay_std**2, noise.gyro_std**2] + [noise.wheel_speed_std**2] * 4)
     z = np.concatenate([values[:3], values[3:7] * p.wheel_radius])
 
     def filterpy_step() -> None:

@@ -40,7 +40,7 @@ from fourwis.envs.metrics import (
 )
 from fourwis.envs.render import close_window, show_frame
 from fourwis.envs.scenarios import SCENARIOS, Scenario, make_scenario
-from fourwis.envs.sensors import Fault
+from fourwis.envs.sensors import CHANNEL_OF_SENSOR, Fault
 from fourwis.envs.simulation import DT, ClosedLoop
 from fourwis.estimation import check_estimator_name
 
@@ -77,7 +77,8 @@ STATE_SLOTS = (
     Slot("the driver's front road-wheel angle", 0.3, "rad"),
     Slot("yaw-rate error r - r_ref", 1.0, "rad/s"),
 )
-#: the observation from the raw sensors (``observation="sensors"``): the channels, then r_ref
+#: the observation from the raw sensors (``observation="sensors"``): the simulated car's 13 sensors
+#: (envs.sensors.SENSORS, not the 16 channels of a log), then r_ref
 SENSOR_SLOTS = (
     Slot("longitudinal acceleration ax", 10.0, "m/s²"),
     Slot("lateral acceleration ay", 10.0, "m/s²"),
@@ -308,7 +309,7 @@ class YawStabilityCore:
         s = self.loop.sample()
         delta_f = s.front_steer
         if self.config.observation == "sensors":
-            values = s.reading.values
+            values = s.reading.values[:, CHANNEL_OF_SENSOR]  # the car's 13 sensors
             r_ref = reference_yaw_rate(
                 values[:, 3:7].mean(axis=1) * self.params.wheel_radius,
                 values[:, 7],
@@ -526,7 +527,7 @@ class YawStabilityEnv(gym.Env):
 
     **Observation** (float32, ``N_OBS`` slots): :data:`STATE_SLOTS` from the estimate
     (``observation="estimated"``, the default) or from the truth with zero uncertainty
-    (``"true"``); ``"sensors"``: :data:`SENSOR_SLOTS`, the raw channels and r_ref. The
+    (``"true"``); ``"sensors"``: :data:`SENSOR_SLOTS`, the car's 13 raw sensors and r_ref. The
     fixed-friction estimators report their nominal 0.8 in the friction slots and zero friction
     uncertainty. ``privileged=True`` appends the truth's ``N_OBS`` slots (asymmetric
     actor-critic: ``training.asymmetric``).

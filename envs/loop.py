@@ -36,11 +36,19 @@ import numpy as np
 from fourwis.control.allocation import Allocation, AllocationInputs, AllocatorLimits, allocation_kernel
 from fourwis.control.dyc import DycKernel, stability_command
 from fourwis.core.kernels import JIT, bundle_dispatch, run_parallel, scratch
-from fourwis.core.types import Estimate, SensorReading
+from fourwis.core.types import N_CHANNELS, Estimate, SensorReading
 from fourwis.envs.driver import DRIVEN, NEEDS_PREVIEW, DriverTables, drive
 from fourwis.envs.layout import A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NAUX, NU, NX, S_R, S_U, S_V
 from fourwis.envs.road import RoadTables
-from fourwis.envs.sensors import BLOCK_USED_UP, TRUE_AUX_COLUMNS, TRUE_STATE_COLUMNS, SensorKernel, noisy_readings
+from fourwis.envs.sensors import (
+    BLOCK_USED_UP,
+    N_SENSORS,
+    TRUE_AUX_COLUMNS,
+    TRUE_STATE_COLUMNS,
+    SensorKernel,
+    noisy_readings,
+    to_channels,
+)
 from fourwis.envs.vehicle import Plant, advance_block, sideslip
 from fourwis.estimation.joint import OK, FilterKernel, step_vehicle
 from fourwis.estimation.oracle import TruthKernel
@@ -145,7 +153,8 @@ class Cars(NamedTuple):
     """Each vehicle's place in the loop (B rows): plant state (B, NX), diagnostics at it (B, NAUX)
     and the controls last applied (B, NU); steps since its start k (B,); the stage it runs next
     (B,) (:class:`Stage`); whether its estimator is to be reset (B,) bool; its true measured
-    quantities (B, 13) in the sensor channels' order and its speed driver's wheel torque (B,)."""
+    quantities (B, N_SENSORS) in the order of its sensors (:data:`fourwis.envs.sensors.SENSORS`)
+    and its speed driver's wheel torque (B,)."""
 
     state: np.ndarray
     aux: np.ndarray
@@ -313,14 +322,15 @@ def _plant_step(plant, b, cars, call, dt):
 
 @sense.register(SensorKernel)
 def _sensors(sensors, b, cars, sample, call):
-    rows = scratch((1,), np.int64)
+    rows, sensed = scratch((1,), np.int64), scratch((1, N_SENSORS))
     rows[0] = b
-    found = noisy_readings(sensors, cars.sensed[b : b + 1], rows, sample.reading.values[b : b + 1])
+    found = noisy_readings(sensors, cars.sensed[b : b + 1], rows, sensed)
     if found == BLOCK_USED_UP:
         return Status.NEEDS_NOISE
     if found >= 0:
         call.value[b] = found
         return Status.BAD_TRUTH
+    to_channels(sensed[0], sample.reading.values[b], sample.reading.valid[b])
     return Status.DONE
 
 
@@ -369,7 +379,7 @@ def copy_estimate_row(source: Estimate, i: int, target: Estimate, j: int) -> Non
 
 @numba.njit(inline="always", **JIT)
 def measure_truth(b: int, state: np.ndarray, aux: np.ndarray, sensed: np.ndarray, truth: Estimate) -> None:
-    """Vehicle b's true measured quantities (13,) into ``sensed[b]`` (the sensor channels' order)
+    """Vehicle b's true measured quantities (N_SENSORS,) into ``sensed[b]`` (its sensors' order)
     and its true state in estimator form into row b of ``truth`` (zero sigmas)."""
     for c in range(2):
         sensed[b, c] = aux[b, TRUE_AUX_COLUMNS[c]]
@@ -441,6 +451,7 @@ def _run_car(b, call: Call, cars: Cars, sample: Sample, parts: Parts, timing: Ti
                 sample.t[b] = cars.k[b] * timing.dt
                 call.progress[b] += 1
         elif stage == Stage.SENSE:
+            sample.reading.t[b] = sample.t[b]
             measure_truth(b, cars.state, cars.aux, cars.sensed, sample.truth)
             for c in range(cars.sensed.shape[1]):
                 if not math.isfinite(cars.sensed[b, c]):
@@ -499,5 +510,5 @@ def _records(n: int, batch: int) -> StepRecord:
     def estimate() -> Estimate:
         return Estimate(*(nan(4) if name in ("mu", "fz", "mu_std") else nan() for name in Estimate._fields))
 
-    reading = SensorReading(nan(13), np.ones((n, batch, 13), dtype=bool), nan())
+    reading = SensorReading(nan(N_CHANNELS), np.ones((n, batch, N_CHANNELS), dtype=bool), nan())
     return StepRecord(nan(), nan(NX), nan(NAUX), nan(NU), nan(), reading, estimate(), estimate())

@@ -1,7 +1,11 @@
 """Vehicle sensors: IMU, wheel speeds, steering angles and motor torques, with seeded noise,
 turn-on bias and injectable faults.
 
-All channels are sampled at 500 Hz (every 2 ms plant step). Noise is white Gaussian; each
+The simulated car has 13 sensors (:data:`SENSORS`); their readings fill the estimators' channel
+layout (:data:`fourwis.core.types.CHANNELS`, 16 channels): each axle's one steering sensor
+feeds the steer channels of both its wheels (the plant steers an axle's wheels in parallel),
+and the forward-speed channel, for which the car has no sensor, is invalid (NaN).
+All sensors are sampled at 500 Hz (every 2 ms plant step). Noise is white Gaussian; each
 run draws a constant turn-on bias per channel from N(0, bias_std). Default magnitudes:
 
 * accelerometers: noise 0.02 m/s^2 std at 500 Hz, bias 0.03 m/s^2 std. Automotive ESC-grade
@@ -43,15 +47,57 @@ from fourwis.core.types import CHANNELS, SensorReading
 from fourwis.envs.layout import A_AX, A_AY, S_DELTA_F, S_DELTA_R, S_OMEGA, S_R, S_TORQUE
 
 FAULT_KINDS = ("spike", "dropout", "stuck", "bias_step")
+#: the simulated car's sensors (noise, biases and faults are per sensor): accelerometers [m/s^2],
+#: gyro [rad/s], wheel speeds [rad/s], the front and rear axles' road-wheel steer angles [rad],
+#: motor torques [N m]
+SENSORS = (
+    "ax",
+    "ay",
+    "yaw_rate",
+    "omega_fl",
+    "omega_fr",
+    "omega_rl",
+    "omega_rr",
+    "delta_f",
+    "delta_r",
+    "torque_fl",
+    "torque_fr",
+    "torque_rl",
+    "torque_rr",
+)
+N_SENSORS = len(SENSORS)
+#: the sensor (index into SENSORS) whose reading fills each channel of CHANNELS, -1 for none
+SENSOR_OF_CHANNEL = np.array(
+    [SENSORS.index(c) if c in SENSORS else SENSORS.index(f"delta_{c[-2]}") if c.startswith("delta_") else -1
+     for c in CHANNELS],
+    dtype=np.int64,
+)  # fmt: skip
+CHANNEL_PRESENT = SENSOR_OF_CHANNEL >= 0  #: the channels the simulated car has a sensor for (N_CHANNELS,) bool
+#: the channel each sensor's reading appears in first (for the steer sensors: their axle's left wheel)
+CHANNEL_OF_SENSOR = np.array([int(np.flatnonzero(SENSOR_OF_CHANNEL == s)[0]) for s in range(N_SENSORS)])
 
 
 def _per_channel(accel: float, gyro: float, wheel: float, steer_f: float, steer_r: float, torque: float) -> tuple:
     return (accel, accel, gyro, wheel, wheel, wheel, wheel, steer_f, steer_r, torque, torque, torque, torque)
 
 
+@numba.njit(inline="always", **JIT)
+def to_channels(sensed: np.ndarray, values: np.ndarray, valid: np.ndarray) -> None:
+    """One car's valid sensor readings ``sensed`` (N_SENSORS,) into its channel row ``values``
+    and ``valid`` (N_CHANNELS,) (the :data:`SENSOR_OF_CHANNEL` map; a channel without a sensor:
+    NaN, invalid)."""
+    for c in range(values.shape[0]):
+        s = SENSOR_OF_CHANNEL[c]
+        if s < 0:
+            values[c], valid[c] = math.nan, False
+        else:
+            values[c], valid[c] = sensed[s], True
+
+
 @dataclass(frozen=True)
 class SensorParams:
-    """Noise std and turn-on bias std per channel (units of each channel: m/s^2, rad/s, rad, N m)."""
+    """Noise std and turn-on bias std per sensor of :data:`SENSORS` (units of each: m/s^2, rad/s,
+    rad, N m)."""
 
     noise_std: tuple[float, ...] = field(
         default=_per_channel(accel=0.02, gyro=0.004, wheel=0.05, steer_f=1.1e-4, steer_r=1e-4, torque=2.0)
@@ -64,8 +110,8 @@ class SensorParams:
     def __post_init__(self) -> None:
         for name in ("noise_std", "bias_std"):
             values = np.asarray(getattr(self, name), dtype=float)
-            if values.shape != (len(CHANNELS),) or not np.all(np.isfinite(values)) or np.any(values < 0):
-                raise ValueError(f"SensorParams.{name} must be {len(CHANNELS)} finite values >= 0, got {values}")
+            if values.shape != (N_SENSORS,) or not np.all(np.isfinite(values)) or np.any(values < 0):
+                raise ValueError(f"SensorParams.{name} must be {N_SENSORS} finite values >= 0, got {values}")
         if not (math.isfinite(self.sample_time) and self.sample_time > 0):
             raise ValueError(f"SensorParams.sample_time must be > 0, got {self.sample_time!r}")
 
@@ -80,7 +126,8 @@ class SensorParams:
 
 @dataclass(frozen=True)
 class Fault:
-    """A fault of ``kind`` on ``channel`` during ``start`` <= t < ``end`` [s].
+    """A fault of ``kind`` on the sensor ``channel`` (a name of :data:`SENSORS`) during
+    ``start`` <= t < ``end`` [s].
 
     ``magnitude``: spike size or bias step (channel units); ``rate``: spike arrivals [1/s]."""
 
@@ -92,8 +139,8 @@ class Fault:
     rate: float = 0.0
 
     def __post_init__(self) -> None:
-        if self.channel not in CHANNELS:
-            raise ValueError(f"unknown sensor channel {self.channel!r}; known: {list(CHANNELS)}")
+        if self.channel not in SENSORS:
+            raise ValueError(f"unknown sensor channel {self.channel!r}; known: {list(SENSORS)}")
         if self.kind not in FAULT_KINDS:
             raise ValueError(f"unknown fault kind {self.kind!r}; known: {list(FAULT_KINDS)}")
         if not (math.isfinite(self.start) and self.start >= 0 and self.end > self.start):
@@ -107,11 +154,12 @@ class Fault:
 
     @property
     def index(self) -> int:
-        return CHANNELS.index(self.channel)
+        """The sensor's index in :data:`SENSORS`."""
+        return SENSORS.index(self.channel)
 
 
-#: where each channel's true value sits in the plant's diagnostics (channels 0-1: ax, ay) and
-#: state (channels 2-12)
+#: where each sensor's true value sits in the plant's diagnostics (sensors 0-1: ax, ay) and
+#: state (sensors 2-12)
 TRUE_AUX_COLUMNS = (A_AX, A_AY)
 TRUE_STATE_COLUMNS = (
     S_R,
@@ -133,9 +181,9 @@ SENSED, BLOCK_USED_UP = -1, -2  #: statuses of noisy_readings (>= 0: a non-finit
 
 class SensorKernel(NamedTuple):
     """A :class:`SensorModel` as its compiled kernel takes it (the arrays themselves, updated in
-    place): each vehicle's turn-on bias (B, 13), its block of standard normal draws (B,
-    NOISE_BLOCK, 13), the noise standard deviation per channel (13,) and each vehicle's cursor
-    into its block (B,) int64."""
+    place): each vehicle's turn-on bias (B, N_SENSORS), its block of standard normal draws (B,
+    NOISE_BLOCK, N_SENSORS), the noise standard deviation per sensor (N_SENSORS,) and each
+    vehicle's cursor into its block (B,) int64."""
 
     bias: np.ndarray
     normal: np.ndarray
@@ -146,9 +194,9 @@ class SensorKernel(NamedTuple):
 @numba.njit(**JIT)
 def noisy_readings(sensors: SensorKernel, truth: np.ndarray, rows: np.ndarray, values: np.ndarray) -> int:
     """values[i] = truth[i] + bias[rows[i]] + normal[rows[i], cursor[rows[i]]] * noise_std, advancing
-    each row's cursor: truth, values (M, 13). Returns SENSED; or, writing nothing, the first
-    channel of a non-finite truth value, or BLOCK_USED_UP when a row's noise block is exhausted
-    (refill and call again)."""
+    each row's cursor: truth, values (M, N_SENSORS), per sensor. Returns SENSED; or, writing
+    nothing, the first sensor of a non-finite truth value, or BLOCK_USED_UP when a row's noise
+    block is exhausted (refill and call again)."""
     bias, normal, noise, cursor = sensors
     for i in range(truth.shape[0]):
         for c in range(truth.shape[1]):
@@ -192,7 +240,7 @@ class SensorModel:
         self.batch_size = batch_size
         self._noise = np.asarray(params.noise_std, dtype=float)
         self._bias_std = np.asarray(params.bias_std, dtype=float)
-        n = len(CHANNELS)
+        n = N_SENSORS
         self.bias = np.zeros((batch_size, n))
         self._normal = np.zeros((batch_size, NOISE_BLOCK, n))
         # per sample, an (arrival, sign) draw for each spike fault (one pair with none, so that
@@ -216,7 +264,7 @@ class SensorModel:
             raise ValueError(f"need one generator per reset vehicle ({len(members)}), got {len(rngs)}")
         for b, rng in zip(members, rngs):
             self.rngs[b] = rng
-            self.bias[b] = rng.standard_normal(len(CHANNELS)) * self._bias_std
+            self.bias[b] = rng.standard_normal(N_SENSORS) * self._bias_std
             self.refill(b)
         self._held[members] = 0.0
         self._is_frozen[:, members] = False
@@ -228,18 +276,19 @@ class SensorModel:
     def refill(self, b: int) -> None:
         """Draw vehicle b's next block of NOISE_BLOCK samples from its generator."""
         rng = self.rngs[b]
-        self._normal[b] = rng.standard_normal((NOISE_BLOCK, len(CHANNELS)))
+        self._normal[b] = rng.standard_normal((NOISE_BLOCK, N_SENSORS))
         self._uniform[b] = rng.random(self._uniform.shape[1:])
         self._cursor[b] = 0
 
     def measure(self, truth: np.ndarray, t: float | np.ndarray, members: np.ndarray | None = None) -> SensorReading:
-        """Readings of the true quantities ``truth`` (M, 13) in :data:`CHANNELS` order at time ``t``
-        [s] (scalar, or (M,) when the vehicles' clocks differ) for the vehicles ``members`` (M,)
-        indices (all B vehicles if None). Each vehicle's stream advances by one sample."""
+        """Readings (M, N_CHANNELS) in :data:`CHANNELS` order of the true quantities ``truth``
+        (M, N_SENSORS) in :data:`SENSORS` order at time ``t`` [s] (scalar, or (M,) when the
+        vehicles' clocks differ) for the vehicles ``members`` (M,) indices (all B vehicles if
+        None). Each vehicle's stream advances by one sample."""
         rows = member_rows(members, self.batch_size)
         truth = np.ascontiguousarray(truth, dtype=np.float64)
-        if truth.shape != (len(rows), len(CHANNELS)):
-            raise ValueError(f"sensor truth must have shape {(len(rows), len(CHANNELS))}, got {truth.shape}")
+        if truth.shape != (len(rows), N_SENSORS):
+            raise ValueError(f"sensor truth must have shape {(len(rows), N_SENSORS)}, got {truth.shape}")
         t = np.full(len(rows), t, dtype=float) if np.ndim(t) == 0 else np.asarray(t, dtype=float)
         if t.shape != (len(rows),):
             raise ValueError(f"time must be a scalar or have shape ({len(rows)},), got {t.shape}")
@@ -250,11 +299,12 @@ class SensorModel:
                 self.refill(b)
             status = noisy_readings(self.kernel(), truth, rows, values)
         if status >= 0:
-            raise ValueError(f"non-finite true value on sensor channel {CHANNELS[status]!r}")
+            raise ValueError(f"non-finite true value on sensor channel {SENSORS[status]!r}")
         valid = np.ones(truth.shape, dtype=bool)
         if self.faults:  # the fault draws of the sample just taken (the cursor has moved past it)
             self._inject_faults(rows, t, values, valid, self._uniform[rows, self._cursor[rows] - 1])
-        return SensorReading(values, valid, t)
+        channels = np.where(CHANNEL_PRESENT, values[:, np.maximum(SENSOR_OF_CHANNEL, 0)], np.nan)
+        return SensorReading(channels, valid[:, np.maximum(SENSOR_OF_CHANNEL, 0)] & CHANNEL_PRESENT, t)
 
     def _inject_faults(
         self, rows: np.ndarray, t: np.ndarray, values: np.ndarray, valid: np.ndarray, uniform: np.ndarray

@@ -21,7 +21,7 @@ from fourwis.control.allocation import allocation_error
 from fourwis.control.dyc import inputs_row
 from fourwis.core.checks import check_command, check_controller, check_estimate, check_estimator, is_integer
 from fourwis.core.progress import progress as progress_bar
-from fourwis.core.types import CHANNELS, Controller, Estimate, Estimator, SensorReading
+from fourwis.core.types import Controller, Estimate, Estimator, SensorReading
 from fourwis.envs import loop as compiled
 from fourwis.envs.driver import DriverBatch, bad_follower_state
 from fourwis.envs.layout import C_DELTA_F, C_DELTA_R, C_TORQUE, NAUX, NU, NX
@@ -42,7 +42,7 @@ from fourwis.envs.loop import (
 )
 from fourwis.envs.road import RoadTables, contact_points
 from fourwis.envs.scenarios import Scenario, make_scenario
-from fourwis.envs.sensors import Fault, SensorModel, SensorParams
+from fourwis.envs.sensors import CHANNEL_PRESENT, N_SENSORS, SENSORS, Fault, SensorModel, SensorParams
 from fourwis.envs.vehicle import (
     RK4_REAL_LIMIT,
     check_lag_step,
@@ -64,11 +64,12 @@ PER_CAR_PLANT_MAX = 32
 
 
 def truth_of(state: np.ndarray, aux: np.ndarray) -> tuple[np.ndarray, Estimate]:
-    """The true measured quantities (B, 13) in the sensor channels' order and the truth in
-    estimator form (what a perfect estimator would report) of plant states (B, NX) and their
-    diagnostics (B, NAUX): the loop's own computation (:func:`fourwis.envs.loop.measure_truth`)."""
+    """The true measured quantities (B, N_SENSORS) in the order of the car's sensors
+    (:data:`fourwis.envs.sensors.SENSORS`) and the truth in estimator form (what a perfect
+    estimator would report) of plant states (B, NX) and their diagnostics (B, NAUX): the loop's
+    own computation (:func:`fourwis.envs.loop.measure_truth`)."""
     state, aux = np.ascontiguousarray(state, dtype=float), np.ascontiguousarray(aux, dtype=float)
-    sensed, truth = np.empty((len(state), len(CHANNELS))), empty_estimate(len(state))
+    sensed, truth = np.empty((len(state), N_SENSORS)), empty_estimate(len(state))
     measure_truths(state, aux, sensed, truth)
     return sensed, truth
 
@@ -78,7 +79,8 @@ class Trajectory(NamedTuple):
 
     t (T,) [s]; state (T, NX) and aux (T, NAUX) of the plant (:mod:`fourwis.envs.layout`);
     controls (T, NU) applied commands; steering_wheel (T,) driver's angle [rad];
-    sensors (T, 13) and sensor_valid (T, 13) readings; truth and estimate: Estimate of (T,...)
+    sensors (T, N_CHANNELS) and sensor_valid (T, N_CHANNELS) readings in the estimators' channel
+    layout (:data:`fourwis.core.types.CHANNELS`); truth and estimate: Estimate of (T,...)
     arrays; scenario: the Scenario run.
     """
 
@@ -220,9 +222,11 @@ class ClosedLoop:
         state = np.concatenate([s.initial_state() for s in self.scenarios])
         self.cars = Cars(
             state, np.zeros((B, NAUX)), np.zeros((B, NU)), np.zeros(B, dtype=np.int64), np.full(B, Stage.SENSE),
-            np.ones(B, dtype=bool), np.zeros((B, len(CHANNELS))), np.zeros(B),
+            np.ones(B, dtype=bool), np.zeros((B, N_SENSORS)), np.zeros(B),
         )  # fmt: skip
-        reading = SensorReading(np.zeros((B, len(CHANNELS))), np.ones((B, len(CHANNELS)), dtype=bool), np.zeros(B))
+        reading = SensorReading(
+            np.where(CHANNEL_PRESENT, 0.0, np.nan) * np.ones((B, 1)), np.tile(CHANNEL_PRESENT, (B, 1)), np.zeros(B)
+        )
         self._sample = Sample(
             np.zeros(B), reading, empty_estimate(B), empty_estimate(B), np.zeros(B), np.zeros(B), np.zeros((B, 4))
         )
@@ -446,7 +450,7 @@ class ClosedLoop:
         """The error of vehicle b's failed stage (its status and value in ``call``)."""
         code, value = Status(call.status[b]), int(call.value[b])
         if code == Status.BAD_TRUTH:
-            return ValueError(f"non-finite true value on sensor channel {CHANNELS[value]!r}")
+            return ValueError(f"non-finite true value on sensor channel {SENSORS[value]!r}")
         if code == Status.ESTIMATOR_FAILED:
             return self.estimator.step_error(b, value, self._sample.reading.values[b])
         if code == Status.ALLOCATION_FAILED and isinstance(self.controller, StabilityController):

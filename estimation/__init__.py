@@ -7,12 +7,15 @@ from dataclasses import fields
 
 from fourwis.core.checks import check_estimator, check_step, check_vehicle_params, import_factory
 from fourwis.core.types import Estimate
+from fourwis.estimation.baselines import BASELINES, make_baseline
 from fourwis.estimation.joint import KINDS, NoiseParams, StateEstimator, tuned_noise
-from fourwis.estimation.model import ModelParams
+from fourwis.estimation.model import AxleTyre, ModelParams
 from fourwis.estimation.online import OnlineTuner
 from fourwis.estimation.oracle import TRUE_SUFFIX, TRUTH_GROUPS, Oracle, PartialOracle, parse_truth_groups
 
-ESTIMATORS = ("oracle",) + KINDS  #: names accepted by make_estimator; "joint" is the paper's full system
+ESTIMATORS = ("oracle",) + KINDS  #: the estimators' names (make_estimator); "joint" is the paper's full system
+#: make_estimator also builds the BASELINES (estimation.baselines): a linear single-track Kalman
+#: observer, the steady-state single-track sideslip and beta = 0
 
 
 def parse_estimator_name(name: str) -> tuple[str, tuple[str, ...]]:
@@ -25,16 +28,16 @@ def parse_estimator_name(name: str) -> tuple[str, tuple[str, ...]]:
     base, sep, groups = name.partition(TRUE_SUFFIX)
     if ":" in base:
         import_factory(base, "estimator")
-    elif base not in ESTIMATORS:
+    elif base not in ESTIMATORS + BASELINES:
         raise ValueError(
-            f"unknown estimator {name!r}; known: {list(ESTIMATORS)} or 'module:factory' for your own, "
+            f"unknown estimator {name!r}; known: {list(ESTIMATORS + BASELINES)} or 'module:factory' for your own, "
             f"each optionally with '{TRUE_SUFFIX}<group>[-<group>...]', groups {list(TRUTH_GROUPS)}"
         )
     return base, parse_truth_groups(groups) if sep else ()
 
 
 def check_estimator_name(name: str) -> str:
-    """``name`` if make_estimator accepts it: one of :data:`ESTIMATORS` or ``module:factory``,
+    """``name`` if make_estimator accepts it: one of :data:`ESTIMATORS` or :data:`BASELINES` or ``module:factory``,
     optionally followed by ``+true-<group>[-<group>...]`` (:data:`TRUTH_GROUPS`); else
     ValueError naming it."""
     parse_estimator_name(name)
@@ -42,16 +45,26 @@ def check_estimator_name(name: str) -> str:
 
 
 def make_estimator(
-    name: str, params, dt: float = 0.002, noise: NoiseParams | None = None, tyre_relaxation: bool = False, **kwargs
+    name: str,
+    params,
+    dt: float = 0.002,
+    noise: NoiseParams | None = None,
+    tyre_relaxation: bool = False,
+    tyres: tuple[AxleTyre, AxleTyre] | None = None,
+    **kwargs,
 ):
-    """Build the estimator ``name`` (see :data:`ESTIMATORS`) for vehicle ``params`` (duck-typed
-    VehicleParams) at step ``dt`` [s]. ``alo-fkf`` and ``joint`` (the paper's antlion-tuned
-    filters) use the ALO-tuned noise shipped in estimation/data/tuned_noise.json (``fourwis
-    tune`` rewrites it; without the file they run the hand-set noise); ``noise`` overrides it.
-    ``<name>+true-<group>[-<group>...]`` (e.g. ``joint+true-mu``) reports the truth for those
-    groups (:class:`PartialOracle`, :data:`TRUTH_GROUPS`): which estimated quantity a
-    closed-loop loss comes from. ``tyre_relaxation``: the model's slip angles lag by the tyre's
-    relaxation length (:meth:`ModelParams.from_vehicle`; off: the paper's model).
+    """Build the estimator ``name`` (see :data:`ESTIMATORS` and :data:`BASELINES`) for vehicle
+    ``params`` (duck-typed VehicleParams) at step ``dt`` [s] (its nominal step: fourwis's
+    estimators step by the readings' times). ``alo-fkf`` and ``joint`` (the paper's
+    antlion-tuned filters) use the ALO-tuned noise shipped in estimation/data/tuned_noise.json
+    (``fourwis tune`` rewrites it; without the file they run the hand-set noise); ``noise``
+    overrides it. ``<name>+true-<group>[-<group>...]`` (e.g. ``joint+true-mu``) reports the
+    truth for those groups (:class:`PartialOracle`, :data:`TRUTH_GROUPS`): which estimated
+    quantity a closed-loop loss comes from. ``tyre_relaxation``: the model's slip angles lag by
+    the tyres' relaxation length (:meth:`ModelParams.from_vehicle`; off: the paper's model).
+    ``tyres``: the model's (front, rear) :class:`AxleTyre` (another car's, e.g. from a vehicle
+    file: fourwis.training.vehicle_file); default: both axles the fit of fourwis's own tyre.
+    The baselines take ``nominal_mu`` (and ``baseline-kf`` the ``noise``) only.
 
     Your own estimator: ``module:factory`` (e.g. ``my_filters:BiasedCKF``) imports ``factory``
     and returns ``factory(params, dt)``, an object with the step interface of
@@ -65,8 +78,9 @@ def make_estimator(
     if not isinstance(tyre_relaxation, bool):
         raise ValueError(f"tyre_relaxation must be True or False, got {tyre_relaxation!r}")
     if groups:
-        return PartialOracle(make_estimator(base, params, dt, noise, tyre_relaxation, **kwargs), groups)
-    extra = sorted(kwargs) + ["tyre_relaxation"] * tyre_relaxation  # (options only the model filters take)
+        return PartialOracle(make_estimator(base, params, dt, noise, tyre_relaxation, tyres, **kwargs), groups)
+    # (options only the model filters take)
+    extra = sorted(kwargs) + ["tyre_relaxation"] * tyre_relaxation + ["tyres"] * (tyres is not None)
     if ":" in base:
         if noise is not None or extra:
             raise ValueError(
@@ -81,6 +95,12 @@ def make_estimator(
         if noise is not None or extra:
             raise ValueError(f"the oracle takes no noise or keyword arguments, got {extra or ['noise']}")
         return Oracle()
+    if base in BASELINES:
+        unknown = sorted(set(kwargs) - {"nominal_mu"}) + ["tyre_relaxation"] * tyre_relaxation
+        if unknown:
+            raise ValueError(f"the baseline {name!r} takes nominal_mu (and tyres) only, got {unknown}")
+        model = ModelParams.from_vehicle(params, tyres=tyres)
+        return make_baseline(base, model, check_step(dt), noise, **kwargs)
     options = {f.name for f in fields(StateEstimator) if f.init} - {"params", "kind", "dt", "noise", "needs_truth"}
     if set(kwargs) - options:
         raise ValueError(
@@ -90,7 +110,11 @@ def make_estimator(
     if noise is None:
         noise = (tuned_noise() if name in ("alo-fkf", "joint") else None) or NoiseParams()
     return StateEstimator(
-        ModelParams.from_vehicle(params, relaxation=tyre_relaxation), kind=name, dt=dt, noise=noise, **kwargs
+        ModelParams.from_vehicle(params, relaxation=tyre_relaxation, tyres=tyres),
+        kind=name,
+        dt=dt,
+        noise=noise,
+        **kwargs,
     )
 
 
@@ -103,8 +127,10 @@ def relaxed_joint(params, dt: float = 0.002):
 
 
 __all__ = [
+    "BASELINES",
     "ESTIMATORS",
     "TRUTH_GROUPS",
+    "AxleTyre",
     "Estimate",
     "ModelParams",
     "NoiseParams",

@@ -1,7 +1,8 @@
 """State and road-friction estimators on the estimation model, one step interface.
 
-Every estimator here takes a sensor reading (values (B, 13), valid (B, 13): ax, ay, yaw rate,
-four wheel speeds, front and rear road-wheel steer, four motor torques) and returns a
+Every estimator here takes a sensor reading (values and valid (B, N_CHANNELS) in the layout of
+:data:`fourwis.core.types.CHANNELS`: ax, ay, yaw rate, four wheel speeds, four road-wheel steer
+angles, four net wheel torques, a measured forward speed; times t (B,) [s]) and returns a
 :class:`fourwis.core.types.Estimate`. Variants (``StateEstimator(kind=...)``):
 
 * ``ekf``: extended Kalman filter (finite-difference Jacobians of the same model), all
@@ -17,14 +18,23 @@ four wheel speeds, front and rear road-wheel steer, four motor torques) and retu
 (estimation/data/tuned_noise.json, written by ``fourwis tune``); a StateEstimator built
 directly uses ``noise`` (default: the hand-set :class:`NoiseParams`).
 
+Time: each step advances by the time since the previous sample (the reading's ``t``; a step
+within CLOCK_TOLERANCE of the nominal ``dt``, a reading without a time, or one at the previous
+one's time takes ``dt`` itself, so a fixed-rate clock keeps the arithmetic of a fixed step; a
+time before the previous one is refused). The model integrates it in substeps of at most
+MODEL_STEP (2 ms), and the process noise grows with the elapsed time, so a log at 50-1000 Hz,
+its jitter and its gaps are coasted through (docs/decisions/0033-recorded-logs.md). A measured
+forward speed (the ``speed`` channel, where valid) updates u after the filters' own
+measurements (a scalar update with ``speed_std`` noise).
+
 Deviations from the paper, on purpose (where a :class:`StateEstimator` option is named, it restores
 the paper's filter):
 
 * wheel speeds: sub-filter 1 also measures the four wheel-centre speeds R*omega (zero-slip model,
   variance allowing 2% slip), as production ESC speed observers do; the paper's [ax, ay, r] leave u
   unobservable (docs/decisions/0010-estimation-model-and-paper-deviations.md);
-* frozen sensors: every estimator first counts an inertial reading repeated exactly STUCK_SAMPLES
-  times as invalid until it changes (``stuck_samples=math.inf``: off;
+* held and frozen samples: every estimator first counts a measured channel's reading repeated
+  exactly STUCK_SAMPLES times as invalid until it changes (``stuck_samples=math.inf``: off;
   docs/decisions/0019-frozen-sensor-check.md);
 * zero point: every estimator learns the lateral accelerometer's offset in steady driving
   (ZERO_POINT_*), as production ESC units do, and subtracts it before filtering
@@ -60,7 +70,20 @@ import numpy as np
 
 from fourwis.core.checks import check_step, is_number, member_rows
 from fourwis.core.kernels import JIT, dot, matmul, run_parallel, scratch
-from fourwis.core.types import CHANNELS, Estimate, SensorReading
+from fourwis.core.types import (
+    CH_AX,
+    CH_AY,
+    CH_DELTA,
+    CH_OMEGA,
+    CH_SPEED,
+    CH_TORQUE,
+    CH_YAW_RATE,
+    CHANNELS,
+    MEASUREMENT_CHANNELS,
+    N_CHANNELS,
+    Estimate,
+    SensorReading,
+)
 from fourwis.estimation.ckf import (
     NO_HUBER,
     cholesky,
@@ -77,6 +100,7 @@ from fourwis.estimation.model import (
     ModelInputs,
     ModelKernel,
     ModelParams,
+    axle_tyre,
     body_forces,
     dugoff_lambdas,
     fill_steer_trig,
@@ -126,19 +150,32 @@ def _correlated(variance: float) -> np.ndarray:
 
 
 NOISE_STEP = 0.002  #: [s] the step NoiseParams' process noise and mu random walk are given per
+#: a step whose time since the previous sample is within this fraction of the nominal dt takes
+#: the nominal dt (a fixed-rate clock's rounding does not move the results)
+CLOCK_TOLERANCE = 1e-6
+
+
+#: NoiseParams' per-sample sensor noise fields, in the filters' order (FilterNoise.sensor_var)
+SENSOR_NOISE = ("ax_std", "ay_std", "gyro_std", "wheel_speed_std", "speed_std")
 
 
 @dataclass(frozen=True)
 class NoiseParams:
     """Filter noise (standard deviations, SI). Process: per 2 ms step (NOISE_STEP; a filter at
     another step scales the variances, StateEstimator.set_noise) on u, v, ax, ay, r, Gamma;
-    measurement: accelerometer, gyro (sensor noise plus model error), wheel-speed pseudo
-    measurement; mu random walk per step. ALO tuning rescales these."""
+    measurement, per sample: the longitudinal and lateral accelerometers ax_std, ay_std
+    [m/s^2] and the gyro gyro_std [rad/s] (sensor noise plus model error), the wheel-speed
+    pseudo measurement wheel_speed_std [m/s], a measured forward speed speed_std [m/s]; mu
+    random walk per step. ALO tuning rescales these (:meth:`scaled`)."""
 
     process_std: tuple[float, ...] = (0.01, 0.001, 0.3, 0.3, 0.002, 80.0)
-    accel_std: float = 0.15
+    ax_std: float = 0.15
+    ay_std: float = 0.15
     gyro_std: float = 0.005
     wheel_speed_std: float = 0.15
+    #: a forward-speed sensor's error [m/s] (hand-set: GNSS Doppler and optical speed sensors
+    #: are good to a few cm/s; the simulated car has none)
+    speed_std: float = 0.05
     mu_walk_std: float = 2e-3
     #: the mu filter's ax, ay "noise" [m/s^2]: the error of the Dugoff-predicted body
     #: accelerations (model error, correlated in time, far above the accelerometer's); smaller,
@@ -156,7 +193,7 @@ class NoiseParams:
                 f"process_std needs {N_STATE} values (u, v, ax, ay, r, Gamma), or (B, {N_STATE}), "
                 f"got shape {process.shape}: {self.process_std!r}"
             )
-        per_member = ("accel_std", "gyro_std", "wheel_speed_std")  # (B,) allowed: one per batch member
+        per_member = SENSOR_NOISE  # (B,) allowed: one per batch member
         # field: (may it be 0, largest ndim); process_std's shape is checked above
         rules = {
             "process_std": (True, 2),
@@ -182,26 +219,28 @@ class NoiseParams:
             raise ValueError(f"per-member noise fields disagree on the number of members: {sorted(sizes)}")
 
     def scaled(self, log10_factors: np.ndarray) -> NoiseParams:
-        """Scale (process_std, accel_std, gyro_std, wheel_speed_std) by 10**factors: (4,) for
-        one filter, or (B, 4) for a batch whose members each get their own noise (the scaled
-        fields become arrays: process_std (B, 6), the others (B,))."""
+        """Scale the noise by 10**factors: (4,) on (process_std, ax_std and ay_std together,
+        gyro_std, wheel_speed_std), as ``fourwis tune`` finds them, or (6,) on (process_std,
+        ax_std, ay_std, gyro_std, wheel_speed_std, speed_std); (B, 4) or (B, 6) for a batch whose
+        members each get their own noise (the scaled fields become arrays: process_std (B, 6),
+        the others (B,))."""
         f = 10.0 ** np.asarray(log10_factors, dtype=float)
-        if f.shape[-1:] != (4,) or f.ndim > 2 or not np.all(np.isfinite(f)):
-            raise ValueError(f"log10 noise factors must be finite with shape (4,) or (B, 4), got {log10_factors!r}")
+        if f.shape[-1:] not in ((4,), (6,)) or f.ndim > 2 or not np.all(np.isfinite(f)):
+            raise ValueError(
+                f"log10 noise factors must be finite with shape (4,), (6,), (B, 4) or (B, 6), got {log10_factors!r}"
+            )
+        if f.shape[-1] == 4:  # (process, accelerometers, gyro, wheel speed; the speed sensor as it is)
+            f = np.concatenate([f[..., :2], f[..., 1:], np.ones(f.shape[:-1] + (1,))], axis=-1)
         if f.ndim == 1:
             return replace(
                 self,
                 process_std=tuple(float(s * f[0]) for s in self.process_std),
-                accel_std=self.accel_std * f[1],
-                gyro_std=self.gyro_std * f[2],
-                wheel_speed_std=self.wheel_speed_std * f[3],
+                **{name: getattr(self, name) * f[1 + k] for k, name in enumerate(SENSOR_NOISE)},
             )
         return replace(
             self,
             process_std=np.asarray(self.process_std) * f[:, :1],
-            accel_std=self.accel_std * f[:, 1],
-            gyro_std=self.gyro_std * f[:, 2],
-            wheel_speed_std=self.wheel_speed_std * f[:, 3],
+            **{name: getattr(self, name) * f[:, 1 + k] for k, name in enumerate(SENSOR_NOISE)},
         )
 
 
@@ -232,11 +271,13 @@ PARALLEL_MIN_BATCH = 2
 #: SLIDE_TAU) take Euler steps with their gain dt / tau capped at 1, so a step longer than a time
 #: constant (a 20 Hz log) follows the input instead of diverging (docs/decisions/0017-zero-point-learning.md)
 OMEGA_DOT_TIME_CONSTANT = 0.02
-#: plausibility check of the inertial channels (ax, ay, yaw rate): a reading identical to the
-#: previous one this many times in a row (5 samples = 10 ms) is treated as stuck (invalid) until it
-#: changes. A MEMS sensor's white noise never repeats a value exactly; a frozen output does
-#: (envs.sensors fault "stuck"; docs/decisions/0019-frozen-sensor-check.md)
-STUCK_SAMPLES = 5
+#: plausibility check of the measured channels (HELD_CHANNELS: ax, ay, yaw rate, forward speed
+#: and the wheel speeds sub-filter 1 measures): a reading identical to the previous one this
+#: many times in a row counts as invalid until it changes. A MEMS sensor's white noise never
+#: repeats a value exactly; a frozen output does, and so does a slower sensor's sample held in a
+#: faster log: counted again it would make the filter overconfident, so from the first repeat
+#: on (docs/decisions/0019-frozen-sensor-check.md, docs/decisions/0033-recorded-logs.md)
+STUCK_SAMPLES = 1
 #: Zero-point learning of the lateral accelerometer, as production ESC units learn sensor
 #: offsets in steady driving (van Zanten, "Bosch ESP systems: 5 years of experience", SAE
 #: 2000-01-1633). In steady state v_dot = 0, so ay = u r: while the steering has not moved by
@@ -299,14 +340,16 @@ class FilterSettings(NamedTuple):
     huber_c: float
     zero_point_time_constant: float  #: [s] (inf: no learning)
     stuck_samples: float  #: (inf: no check)
+    #: which channel of the reading is the measured forward speed (CH_SPEED), a scalar update of u
+    speed_channel: int
     slide_rate: float  #: [rad/s]
     yaw_balance_std: float  #: [N m]
 
 
 class FilterNoise(NamedTuple):
-    """The filters' noise variances per step: process (M, 6) and sensor (M, 3: accelerometer,
-    gyro, wheel speed) for one member (M = 1) or each (M = B), the friction filter's (3,):
-    random walk, acceleration model error, prior."""
+    """The filters' noise variances per step (at the nominal dt): process (M, 6) and sensor (M,
+    5: ax, ay, gyro, wheel speed, forward speed) for one member (M = 1) or each (M = B), the
+    friction filter's (3,): random walk, acceleration model error, prior."""
 
     process_var: np.ndarray
     sensor_var: np.ndarray
@@ -317,9 +360,10 @@ class FilterState(NamedTuple):
     """Each vehicle's filter state (leading axis B, float64), which the compiled step updates in
     place: the state x (B, 6) and its covariance P (B, 6, 6), friction mu (B, 4) and P_mu
     (B, 4, 4), the federated sharing coefficients of the state and friction filters (B, 2) each,
-    the previous wheel speeds and their low-passed derivative (B, 4), the previous inertial
-    readings and how often each repeated (B, 3), the zero-point state (B, 5: ZP_*), the latest
-    innovation NLL (B,) and the relaxed slip of each tyre (B, 4; NaN: not started)."""
+    the previous wheel speeds and their low-passed derivative (B, 4), the previous readings of
+    the measured channels (HELD_CHANNELS) and how often each repeated (B, 8), the
+    zero-point state (B, 5: ZP_*), the latest innovation NLL (B,), the relaxed slip of each tyre
+    (B, 4; NaN: not started) and the time of the previous reading (B,) [s] (NaN: none)."""
 
     x: np.ndarray
     P: np.ndarray
@@ -334,6 +378,7 @@ class FilterState(NamedTuple):
     zero_point: np.ndarray
     last_nll: np.ndarray
     slip_relaxed: np.ndarray
+    t_prev: np.ndarray
 
 
 class FilterKernel(NamedTuple):
@@ -376,8 +421,11 @@ class ModelArgs(NamedTuple):
 
 
 #: status codes of the compiled step
-OK, BAD_MEASUREMENT, FILTER_FAILED = 0, 1, 2
-N_MEASURED = 3  #: sensor channels 0-2 (ax, ay, yaw rate) are measurements, the rest the model's inputs
+OK, BAD_MEASUREMENT, FILTER_FAILED, BAD_TIME = 0, 1, 2, 3
+#: the channels the held-sample check watches: the measurement channels and the wheel speeds
+#: (measured by sub-filter 1; as the model's inputs they are used all the same)
+HELD_CHANNELS = (*MEASUREMENT_CHANNELS, CH_OMEGA, CH_OMEGA + 1, CH_OMEGA + 2, CH_OMEGA + 3)
+N_HELD = len(HELD_CHANNELS)
 
 
 # ---- measurement models (compiled, from the points (K, n) into out (K, m), row by row) -------------
@@ -596,23 +644,29 @@ def _settled(zero_point, speed: float) -> bool:
     return zero_point[ZP_STEADY] > ZERO_POINT_SETTLE and speed > ZERO_POINT_MIN_SPEED
 
 
+@numba.njit(inline="always", **JIT)
+def front_steer(reading) -> float:
+    """The mean of the front wheels' road-wheel steer angles [rad] of a reading row (N_CHANNELS,)."""
+    return 0.5 * (reading[CH_DELTA] + reading[CH_DELTA + 1])
+
+
 @numba.njit(**JIT)
 def _learn_zero_point(zero_point, reading, valid, speed, dt, time_constant) -> None:
     """Advance the zero-point state (5,) by one reading (see ZERO_POINT_*, SLIDE_*); ``speed`` [m/s];
     ``time_constant`` [s] of the offset's low-pass (inf: no learning)."""
-    steer, yaw_rate = reading[7], reading[2]
-    moved = not valid[7] or abs(steer - zero_point[ZP_STEER]) > ZERO_POINT_STEER_TOL
+    steer, yaw_rate = front_steer(reading), reading[CH_YAW_RATE]
+    moved = not (valid[CH_DELTA] and valid[CH_DELTA + 1]) or abs(steer - zero_point[ZP_STEER]) > ZERO_POINT_STEER_TOL
     if moved:
         zero_point[ZP_STEER] = steer
-    if valid[2]:
+    if valid[CH_YAW_RATE]:
         zero_point[ZP_YAW] = _low_pass(zero_point[ZP_YAW], yaw_rate, dt, ZERO_POINT_YAW_LOWPASS)
-    steady = not moved and valid[2] and abs(yaw_rate - zero_point[ZP_YAW]) < ZERO_POINT_YAW_TOL
+    steady = not moved and valid[CH_YAW_RATE] and abs(yaw_rate - zero_point[ZP_YAW]) < ZERO_POINT_YAW_TOL
     zero_point[ZP_STEADY] = zero_point[ZP_STEADY] + dt if steady else 0.0
-    if _settled(zero_point, speed) and valid[1]:
-        residual = reading[1] - speed * yaw_rate
+    if _settled(zero_point, speed) and valid[CH_AY]:
+        residual = reading[CH_AY] - speed * yaw_rate
         zero_point[ZP_OFFSET] = _low_pass(zero_point[ZP_OFFSET], residual, dt, time_constant)
-    if speed > SLIDE_MIN_SPEED and valid[1] and valid[2]:
-        rate = (reading[1] - zero_point[ZP_OFFSET]) / speed - yaw_rate
+    if speed > SLIDE_MIN_SPEED and valid[CH_AY] and valid[CH_YAW_RATE]:
+        rate = (reading[CH_AY] - zero_point[ZP_OFFSET]) / speed - yaw_rate
         zero_point[ZP_SLIDE] = _low_pass(zero_point[ZP_SLIDE], rate, dt, SLIDE_TAU)
     else:  # (no stale value: the rate restarts from zero once it can be measured again)
         zero_point[ZP_SLIDE] = 0.0
@@ -621,7 +675,7 @@ def _learn_zero_point(zero_point, reading, valid, speed, dt, time_constant) -> N
 @numba.njit(inline="always", **JIT)
 def _relax_slip(x, steer, slip_relaxed, pk, dt, relaxed_new) -> None:
     """Advance each wheel's relaxed tan(slip angle) (4,) one step towards the kinematic one at
-    the previous estimate x, over the model's relaxation length (estimation.model), into
+    the previous estimate x, over its axle's relaxation length (estimation.model), into
     relaxed_new, and write the lag (kinematic less relaxed) into row 3 of the wheel table
     ``steer`` (4, 4). The lag is then held for the whole step: at the filters' predicted state
     and cubature points the slip still moves with v and r one for one, as the instantaneous
@@ -629,64 +683,112 @@ def _relax_slip(x, steer, slip_relaxed, pk, dt, relaxed_new) -> None:
     relaxation length no lag (row 3 keeps :func:`estimation.model.fill_steer_trig`'s zeros, and
     NaN is kept); on the first step (NaN) the relaxed slip starts at the kinematic one, which
     that zero row lets :func:`wheel_kinematics` give."""
-    if pk.relaxation_length <= 0.0:
-        relaxed_new[:] = math.nan
-        return
     for w in range(4):
+        sigma = axle_tyre(pk, w).relaxation_length
+        if sigma <= 0.0:
+            relaxed_new[w] = math.nan
+            continue
         tan_kin, along = wheel_kinematics(x[I_U], x[I_V], x[I_R], wheel_trig(steer, w), pk, w)
         relaxed_new[w] = (
-            _low_pass(slip_relaxed[w], tan_kin, dt, pk.relaxation_length / max(abs(along), MIN_SPEED))
+            _low_pass(slip_relaxed[w], tan_kin, dt, sigma / max(abs(along), MIN_SPEED))
             if math.isfinite(slip_relaxed[w])
             else tan_kin
         )
         steer[3, w] = tan_kin - relaxed_new[w]
 
 
+@numba.njit(inline="always", **JIT)
+def _is_input(c: int) -> bool:
+    """Whether channel c of CHANNELS drives the model (not one of MEASUREMENT_CHANNELS)."""
+    return c != CH_AX and c != CH_AY and c != CH_YAW_RATE and c != CH_SPEED
+
+
+@numba.njit(inline="always", **JIT)
+def _speed_update(x, P, z: float, variance: float, huber_c: float) -> float:
+    """Scalar measurement update of u by a measured forward speed ``z`` [m/s] with noise
+    ``variance`` [m^2/s^2], in place on x (6,) and P (6, 6) (linear: the Kalman update itself;
+    Huber-weighted beyond ``huber_c`` standardised innovations, inf: plain); returns its
+    innovation negative log-likelihood (NaN if the innovation variance is not positive)."""
+    nu = z - x[I_U]
+    s = P[I_U, I_U] + variance
+    if not s > 0.0:
+        return math.nan
+    a = abs(nu) / math.sqrt(s)
+    if huber_c < math.inf and a > huber_c:
+        s = P[I_U, I_U] + variance * a / huber_c
+    gain = scratch((N_STATE,))
+    for k in range(N_STATE):
+        gain[k] = P[k, I_U] / s
+    for k in range(N_STATE):
+        x[k] += gain[k] * nu
+    for a_ in range(N_STATE):
+        for b in range(N_STATE):
+            P[a_, b] -= gain[a_] * gain[b] * s
+    for a_ in range(N_STATE):  # (symmetric to the last bit)
+        for b in range(a_ + 1, N_STATE):
+            P[b, a_] = P[a_, b]
+    return 0.5 * (nu * nu / s + math.log(s) + math.log(2.0 * math.pi))
+
+
 @numba.njit(**JIT)
-def _step_vehicle(f: FilterKernel, i: int, reading, valid_in, out: Estimate, j: int) -> tuple[int, float]:
+def _step_vehicle(f: FilterKernel, i: int, reading, valid_in, t: float, out: Estimate, j: int) -> tuple[int, float]:
     """One step of vehicle i's filters (:class:`FilterKernel` ``f``) on its raw sensor ``reading``
-    and ``valid_in`` (13,); its state rows are updated in place only on success. Returns (status,
-    innovation NLL) and writes the estimate into row j of ``out``."""
+    and ``valid_in`` (N_CHANNELS,) taken at time ``t`` [s] (NaN: unknown, a step of the nominal
+    dt); its state rows are updated in place only on success. Returns (status, innovation NLL)
+    and writes the estimate into row j of ``out``."""
     settings, pk = f.settings, f.model
-    dt = settings.dt
     q = i if f.noise.process_var.shape[0] > 1 else 0
     process_var, sensor_var, mu_var = f.noise.process_var[q], f.noise.sensor_var[q], f.noise.mu_var
     state = f.state
     x, P, mu, P_mu, beta, beta_mu = state.x[i], state.P[i], state.mu[i], state.P_mu[i], state.beta[i], state.beta_mu[i]
     omega_prev, omega_dot, inertial_prev = state.omega_prev[i], state.omega_dot[i], state.inertial_prev[i]
     inertial_repeats, zero_point, slip_relaxed = state.inertial_repeats[i], state.zero_point[i], state.slip_relaxed[i]
-    for c in range(reading.shape[0]):  # the inputs (channels 3-12) drive the model, valid or not
-        if (valid_in[c] or c >= N_MEASURED) and not math.isfinite(reading[c]):
+    # the step: the time since the previous reading (the nominal dt where a clock's rounding is all
+    # that differs); the noise given per nominal step scales with it
+    dt = settings.dt
+    if math.isfinite(t) and math.isfinite(state.t_prev[i]):
+        elapsed = t - state.t_prev[i]
+        if elapsed < 0.0:
+            return BAD_TIME, math.nan
+        if elapsed > 0.0 and abs(elapsed - dt) > CLOCK_TOLERANCE * dt:  # (0: a caller without a clock)
+            dt = elapsed
+    elapsed_steps = dt / settings.dt  # (1.0 exactly on a fixed-rate clock)
+    for c in range(reading.shape[0]):  # the inputs drive the model, valid or not
+        if (valid_in[c] or _is_input(c)) and not math.isfinite(reading[c]):
             return BAD_MEASUREMENT, math.nan
     channels = reading.shape[0]
-    valid, repeats = scratch((channels,), np.bool_), scratch((3,))
+    valid, repeats = scratch((channels,), np.bool_), scratch((N_HELD,))
     valid[:], repeats[:] = valid_in, inertial_repeats
-    for c in range(3):  # stuck inertial sensors (StateEstimator.stuck_samples)
-        repeats[c] = repeats[c] + 1.0 if valid_in[c] and reading[c] == inertial_prev[c] else 0.0
-        if repeats[c] >= settings.stuck_samples:
+    for m in range(N_HELD):  # held samples and stuck sensors (StateEstimator.stuck_samples)
+        c = HELD_CHANNELS[m]
+        repeats[m] = repeats[m] + 1.0 if valid_in[c] and reading[c] == inertial_prev[m] else 0.0
+        if repeats[m] >= settings.stuck_samples:
             valid[c] = False
     zero_point_new = scratch((5,))
     zero_point_new[:] = zero_point
     _learn_zero_point(zero_point_new, reading, valid, x[I_U], dt, settings.zero_point_time_constant)
     values = scratch((channels,))
     values[:] = reading
-    values[1] -= zero_point_new[ZP_OFFSET]
+    values[CH_AY] -= zero_point_new[ZP_OFFSET]
     # inputs; wheel angular acceleration for eq. 7: differentiated wheel speed, low-passed
-    omega, torque, od = values[3:7], values[9:13], scratch((4,))
+    omega, torque, od = values[CH_OMEGA : CH_OMEGA + 4], values[CH_TORQUE : CH_TORQUE + 4], scratch((4,))
     for w in range(4):
         od[w] = _low_pass(omega_dot[w], (omega[w] - omega_prev[w]) / dt, dt, OMEGA_DOT_TIME_CONSTANT)
     steer, relaxed_new = scratch((4, 4)), scratch((4,))
-    fill_steer_trig((values[7], values[7], values[8], values[8]), steer)
+    fill_steer_trig(
+        (values[CH_DELTA], values[CH_DELTA + 1], values[CH_DELTA + 2], values[CH_DELTA + 3]), steer
+    )  # fmt: skip
     _relax_slip(x, steer, slip_relaxed, pk, dt, relaxed_new)
-    accel_var, gyro_var, wheel_var = sensor_var[0], sensor_var[1], sensor_var[2]
+    ax_var, ay_var, gyro_var, wheel_var = sensor_var[0], sensor_var[1], sensor_var[2], sensor_var[3]
+    # sub-filter 1: [ax, ay, r, the wheel-centre speeds R omega] (channels 0-6), sub-filter 2: [ay, r]
     z1 = scratch((7,))
     z1[:3] = values[:3]
     for w in range(4):
-        z1[3 + w] = values[3 + w] * pk.wheel_radius
-    valid1, z2, valid2 = valid[:7], values[1:3], valid[1:3]
+        z1[3 + w] = values[CH_OMEGA + w] * pk.wheel_radius
+    valid1, z2, valid2 = valid[:7], values[CH_AY : CH_YAW_RATE + 1], valid[CH_AY : CH_YAW_RATE + 1]
     R1, R2, Q = scratch((7, 7)), scratch((2, 2)), scratch((6, 6))
-    _fill_diagonal((accel_var, accel_var, gyro_var, wheel_var, wheel_var, wheel_var, wheel_var), R1)
-    _fill_diagonal((accel_var, gyro_var), R2)
+    _fill_diagonal((ax_var, ay_var, gyro_var, wheel_var, wheel_var, wheel_var, wheel_var), R1)
+    _fill_diagonal((ay_var, gyro_var), R2)
     # the state's sub-filter 2: [ay, r], and with the yaw balance Gamma = 0, measured in steady
     # driving (a third channel, invalid otherwise)
     m2 = 3 if settings.yaw_balance else 2
@@ -697,6 +799,8 @@ def _step_vehicle(f: FilterKernel, i: int, reading, valid_in, out: Estimate, j: 
         R2_state[2, 2] = settings.yaw_balance_std**2
         valid2_state[2] = _settled(zero_point_new, x[I_U])
     _fill_diagonal(process_var, Q)
+    for k in range(N_STATE):  # (the process noise is per nominal step)
+        Q[k, k] *= elapsed_steps
     unseen_slide = False  # (SLIDE_*: sliding in a steady turn while the friction gate is shut)
     outward = -zero_point_new[ZP_SLIDE] * math.copysign(1.0, zero_point_new[ZP_YAW])
     if settings.slide_detection and outward > settings.slide_rate and zero_point_new[ZP_STEADY] > SLIDE_TAU:
@@ -730,11 +834,16 @@ def _step_vehicle(f: FilterKernel, i: int, reading, valid_in, out: Estimate, j: 
         nll = _ckf_update(x_pred, P_pred, z1, valid1, R1, NO_HUBER, STATE_1, args, x_new, P_new)
     if not math.isfinite(nll):
         return FILTER_FAILED, math.nan
+    if valid[settings.speed_channel]:  # a measured forward speed
+        huber_c = settings.huber_c if settings.robust else NO_HUBER
+        nll += _speed_update(x_new, P_new, values[settings.speed_channel], sensor_var[4], huber_c)
+        if not math.isfinite(nll):
+            return FILTER_FAILED, math.nan
     mu_new, P_mu_new, beta_mu_new = scratch((4,)), scratch((4, 4)), scratch((2,))
     mu_new[:], P_mu_new[:, :], beta_mu_new[:] = mu, P_mu, beta_mu
     if settings.friction and x_new[I_U] > MU_MIN_SPEED:
         walk, R1_mu, R2_mu = scratch((4, 4)), scratch((3, 3)), scratch((2, 2))
-        _fill_correlated(mu_var[0], walk)
+        _fill_correlated(mu_var[0] * elapsed_steps, walk)
         _fill_diagonal((mu_var[1], mu_var[1], gyro_var), R1_mu)
         _fill_diagonal((mu_var[1], gyro_var), R2_mu)
         args = ModelArgs(args.process, measurement, FrictionInputs(x_new, steer, omega, torque, od, pk, dt))
@@ -743,7 +852,8 @@ def _step_vehicle(f: FilterKernel, i: int, reading, valid_in, out: Estimate, j: 
         if unseen_slide:  # restart from the prior covariance (mu_max_std)
             _fill_correlated(mu_var[2], P_mu_in)
         nll_mu = _federated(
-            mu, P_mu_in, walk, beta_mu, RANDOM_WALK, values[:3], valid[:3], R1_mu, MU_1, z2, valid2, R2_mu, MU_2,
+            mu, P_mu_in, walk, beta_mu, RANDOM_WALK, values[:CH_YAW_RATE + 1], valid[:CH_YAW_RATE + 1], R1_mu, MU_1,
+            z2, valid2, R2_mu, MU_2,
             settings.huber_c, args, mu_fused, P_fused, beta_mu_new,
         )  # fmt: skip
         if not math.isfinite(nll_mu):
@@ -771,9 +881,11 @@ def _step_vehicle(f: FilterKernel, i: int, reading, valid_in, out: Estimate, j: 
     inertial_repeats[:] = repeats
     zero_point[:] = zero_point_new
     slip_relaxed[:] = relaxed_new
-    for c in range(3):
-        if valid_in[c]:
-            inertial_prev[c] = reading[c]
+    for m in range(N_HELD):
+        if valid_in[HELD_CHANNELS[m]]:
+            inertial_prev[m] = reading[HELD_CHANNELS[m]]
+    if math.isfinite(t):
+        state.t_prev[i] = t
     # the estimate
     u, v = x[I_U], x[I_V]
     out.u[j], out.v[j], out.r[j], out.ax[j], out.ay[j] = u, v, x[I_R], x[I_AX], x[I_AY]
@@ -793,10 +905,12 @@ def _step_vehicle(f: FilterKernel, i: int, reading, valid_in, out: Estimate, j: 
 
 @numba.njit(**JIT)
 def step_vehicle(f: FilterKernel, i: int, reading: SensorReading, out: Estimate, j: int) -> int:
-    """Vehicle i's filter step on row i of ``reading`` (values and valid (B, 13)), its estimate
-    into row j of ``out``; returns the status (OK, BAD_MEASUREMENT, FILTER_FAILED). Its
-    ``last_nll`` turns NaN on a failure (the state rows stay as they were)."""
-    status, nll = _step_vehicle(f, i, reading.values[i], reading.valid[i], out, j)
+    """Vehicle i's filter step on row i of ``reading`` (values and valid (B, N_CHANNELS), times
+    (B,), or none: an empty t steps by the nominal dt), its estimate into row j of ``out``;
+    returns the status (OK, BAD_MEASUREMENT, FILTER_FAILED, BAD_TIME). Its ``last_nll`` turns
+    NaN on a failure (the state rows stay as they were)."""
+    t = reading.t[i] if reading.t.shape[0] > 0 else math.nan
+    status, nll = _step_vehicle(f, i, reading.values[i], reading.valid[i], t, out, j)
     f.state.last_nll[i] = nll if status == OK else math.nan
     return status
 
@@ -806,6 +920,35 @@ def _step_rows(positions, rows, f: FilterKernel, reading: SensorReading, out: Es
     """:func:`step_vehicle` of vehicle rows[j] into row j of ``out`` and ``status``, for j in ``positions``."""
     for j in positions:
         status[j] = step_vehicle(f, rows[j], reading, out, j)
+
+
+@numba.njit(nogil=True, **JIT)
+def _replay_members(members, f: FilterKernel, values, valid, t, out: Estimate, record: bool, nll, status, at) -> None:
+    """Each vehicle b of ``members`` through every sample k of a log (values, valid (T,
+    N_CHANNELS), t (T,)), from its state as it stands: the estimate of step k into row k B + b of
+    ``out`` if ``record`` (else row b), the summed innovation NLL into nll[b]; a failure stops b
+    at its step at[b] with its status[b]."""
+    B = f.state.x.shape[0]
+    for b in members:
+        for k in range(values.shape[0]):
+            code, step_nll = _step_vehicle(f, b, values[k], valid[k], t[k], out, k * B + b if record else b)
+            f.state.last_nll[b] = step_nll if code == OK else math.nan
+            if code != OK:
+                status[b], at[b] = code, k
+                break
+            nll[b] += step_nll
+
+
+class Replay(NamedTuple):
+    """A log replayed through a batch of B filters (:meth:`StateEstimator.replay`): the estimate
+    of every step (fields (T, B), per wheel (T, B, 4); None unless recorded), each member's summed
+    innovation NLL (B,), and where a member's filter failed: its status (B,) (OK: it did not) and
+    the step (B,) (-1: none)."""
+
+    estimate: Estimate | None
+    nll: np.ndarray
+    status: np.ndarray
+    failed_at: np.ndarray
 
 
 def empty_estimate(batch: int) -> Estimate:
@@ -892,23 +1035,24 @@ class StateEstimator:
             stuck_samples=float(self.stuck_samples),
             slide_rate=float(self.slide_rate),
             yaw_balance_std=float(self.yaw_balance_std),
+            speed_channel=CH_SPEED,
         )
         self.state: FilterState | None = None
         self.set_noise(self.noise)
 
     def set_noise(self, noise: NoiseParams) -> None:
         """Use ``noise`` from the next step on (shared, or per member: see NoiseParams.scaled).
-        Its process noise and mu random walk are per NOISE_STEP (2 ms): at another ``dt`` their
-        variances scale by dt / NOISE_STEP (noise of a process that runs continuously; the
-        measurement noise is per sample and stays)."""
+        The rescaling to the filter's rate (docs/decisions/0033-recorded-logs.md):
+        the process noise and mu random walk are per NOISE_STEP (2 ms), so at another ``dt``
+        their variances scale by dt / NOISE_STEP, and each step by its own elapsed time (noise
+        of a process that runs continuously); the measurement noise is per sample and stays
+        (it is mostly the model's error, which changes slowly: per sample the same at any rate;
+        a recorded log's own sensor noise is added per channel by the replay)."""
         self.noise = noise
         per_step = self.dt / NOISE_STEP
         process_var = np.atleast_2d(np.square(np.asarray(noise.process_std, float)) * per_step)
         sensor_std = np.broadcast_arrays(
-            *(
-                np.atleast_1d(np.asarray(s, dtype=float))
-                for s in (noise.accel_std, noise.gyro_std, noise.wheel_speed_std)
-            )
+            *(np.atleast_1d(np.asarray(getattr(noise, name), dtype=float)) for name in SENSOR_NOISE)
         )
         sensor_var = np.square(np.stack(sensor_std, axis=1))
         members = max(len(process_var), len(sensor_var))  # the kernel reads both at one member's row
@@ -916,7 +1060,7 @@ class StateEstimator:
         mu_var[0] *= per_step
         self.noise_variances = FilterNoise(  # (writable arrays: one kernel type)
             np.array(np.broadcast_to(process_var, (members, N_STATE))),
-            np.array(np.broadcast_to(sensor_var, (members, 3))),
+            np.array(np.broadcast_to(sensor_var, (members, len(SENSOR_NOISE)))),
             mu_var,
         )
 
@@ -930,11 +1074,12 @@ class StateEstimator:
     # ---- set-up -------------------------------------------------------------------------
     def reset(self, reading, initial_speed: np.ndarray, mask: np.ndarray | None = None) -> None:
         """Start (or, with ``mask`` (B,) bool, restart those rows of) the batch from a first
-        ``reading`` (values and valid (B, 13)) and the forward speed [m/s] (scalar or (B,)):
-        nominal mu, the inertial states from the reading."""
+        ``reading`` (values and valid (B, N_CHANNELS)) and the forward speed [m/s] (scalar or
+        (B,)): nominal mu, the inertial states from the reading (0 where a channel is invalid)."""
         values = np.asarray(reading.values, dtype=float)
-        if values.ndim != 2 or values.shape[1] != 13:
-            raise ValueError(f"sensor reading must have shape (B, 13), got {values.shape}")
+        if values.ndim != 2 or values.shape[1] != N_CHANNELS:
+            raise ValueError(f"sensor reading must have shape (B, {N_CHANNELS}), got {values.shape}")
+        valid = np.broadcast_to(np.asarray(getattr(reading, "valid", True), dtype=bool), values.shape)
         B = values.shape[0]
         started = self.state is not None
         if mask is not None and started and self.state.x.shape[0] != B:
@@ -953,16 +1098,24 @@ class StateEstimator:
         rows = slice(None) if mask is None or not started else mask
         if not np.all(np.isfinite(initial_speed[rows])):
             raise ValueError(f"initial_speed must be finite [m/s], got {initial_speed!r}")
-        if not np.all(np.isfinite(values[rows])):
+        inputs = [c for c in range(N_CHANNELS) if c not in MEASUREMENT_CHANNELS]
+        needed = np.zeros(values.shape, dtype=bool)
+        needed[:, inputs] = True
+        bad = (needed | valid) & ~np.isfinite(values)
+        if np.any(bad[rows]):
+            b, c = np.argwhere(bad[rows])[0]
             raise ValueError(
-                "the first reading must be finite in every channel (it sets the inertial states, the "
-                f"wheel speeds and the steering): got {values[rows]!r}"
+                f"the first reading's channel {CHANNELS[c]!r} of vehicle {b} is {values[rows][b, c]!r}: the first "
+                "reading must be finite in every input channel (wheel speeds, steering, torques: they start the "
+                "model) and in every valid measurement"
             )
+        measured = np.where(valid & np.isfinite(values), values, 0.0)
         x0 = np.zeros((B, N_STATE))
         x0[:, I_U] = initial_speed
-        x0[:, I_AX], x0[:, I_AY], x0[:, I_R] = values[:, 0], values[:, 1], values[:, 2]
+        x0[:, I_AX], x0[:, I_AY], x0[:, I_R] = measured[:, CH_AX], measured[:, CH_AY], measured[:, CH_YAW_RATE]
         zero_point0 = np.zeros((B, 5))
-        zero_point0[:, ZP_STEER], zero_point0[:, ZP_YAW] = values[:, 7], values[:, 2]
+        zero_point0[:, ZP_STEER] = 0.5 * (values[:, CH_DELTA] + values[:, CH_DELTA + 1])
+        zero_point0[:, ZP_YAW] = measured[:, CH_YAW_RATE]
         fresh = FilterState(
             x=x0,
             P=np.broadcast_to(np.diag([0.5, 0.3, 1.0, 1.0, 0.02, 500.0]) ** 2, (B, N_STATE, N_STATE)).copy(),
@@ -970,13 +1123,14 @@ class StateEstimator:
             P_mu=np.broadcast_to(_correlated(self.noise_variances.mu_var[2]), (B, 4, 4)).copy(),  # mu_max_std
             beta=np.full((B, 2), 0.5),
             beta_mu=np.full((B, 2), 0.5),
-            omega_prev=values[:, 3:7].copy(),
+            omega_prev=values[:, CH_OMEGA : CH_OMEGA + 4].copy(),
             omega_dot=np.zeros((B, 4)),
-            inertial_prev=np.full((B, 3), np.nan),
-            inertial_repeats=np.zeros((B, 3)),
+            inertial_prev=np.full((B, N_HELD), np.nan),
+            inertial_repeats=np.zeros((B, N_HELD)),
             zero_point=zero_point0,
             last_nll=np.zeros(B),
             slip_relaxed=np.full((B, 4), np.nan),  # (NaN: the first step starts it without lag)
+            t_prev=np.full(B, np.nan),  # (NaN: the first step is one of the nominal dt)
         )
         if mask is None or not started:
             self.state = fresh
@@ -984,14 +1138,67 @@ class StateEstimator:
         for old, new in zip(self.state, fresh):
             old[mask] = new[mask]
 
+    def replay(self, values, valid, t, initial_speed, record: bool = True) -> Replay:
+        """Run a whole log through the batch in one compiled loop: readings ``values`` and
+        ``valid`` (T, N_CHANNELS), times ``t`` (T,) [s], every member reading the same samples
+        (the batch: one member, or one per member of a per-member noise); reset from the first
+        reading and ``initial_speed`` [m/s]. The same steps as :meth:`step` sample by sample,
+        at a fraction of the cost. ``record``: keep every step's estimate (else only the NLL,
+        for a tuning population). A member whose filter fails stops there (:class:`Replay`);
+        :meth:`replay_error` gives its error."""
+        values = np.ascontiguousarray(values, dtype=np.float64)
+        valid = np.ascontiguousarray(valid, dtype=np.bool_)
+        t = np.ascontiguousarray(t, dtype=np.float64)
+        if (
+            values.ndim != 2
+            or values.shape[1] != N_CHANNELS
+            or valid.shape != values.shape
+            or t.shape != values.shape[:1]
+        ):
+            raise ValueError(
+                f"a log replay takes values and valid (T, {N_CHANNELS}) and t (T,), got {values.shape}, "
+                f"{valid.shape} and {t.shape}"
+            )
+        if len(t) == 0:
+            raise ValueError("the log has no samples")
+        B = self.noise_variances.process_var.shape[0]
+        first = SensorReading(np.repeat(values[:1], B, 0), np.repeat(valid[:1], B, 0), np.repeat(t[:1], B))
+        self.reset(first, np.broadcast_to(np.asarray(initial_speed, dtype=float), (B,)))
+        T = len(t)
+        out = empty_estimate(T * B if record else B)
+        nll, status, at = np.zeros(B), np.zeros(B, dtype=np.int64), np.full(B, -1, dtype=np.int64)
+        run_parallel(
+            _replay_members, np.arange(B), self.kernel(), values, valid, t, out, bool(record), nll, status, at,
+            min_items=PARALLEL_MIN_BATCH,
+        )  # fmt: skip
+        estimate = None
+        if record:
+            estimate = Estimate(*(field.reshape((T, B) + field.shape[1:]) for field in out))
+        return Replay(estimate, nll, status, at)
+
+    def replay_error(self, result: Replay, values, t, member: int = 0) -> ValueError:
+        """The error of ``member``'s failed replay (``result``) of the log ``values`` (T,
+        N_CHANNELS), ``t`` (T,), naming the sample."""
+        k = int(result.failed_at[member])
+        error = self.step_error(member, int(result.status[member]), np.asarray(values)[k], float(np.asarray(t)[k]))
+        return ValueError(f"at sample {k} (t = {float(np.asarray(t)[k])!r} s): {error}")
+
     # ---- one step -----------------------------------------------------------------------
-    def step_error(self, i: int, status: int, values: np.ndarray) -> ValueError:
-        """The error of vehicle i's failed step (compiled status ``status``) on the reading ``values`` (13,)."""
+    def step_error(self, i: int, status: int, values: np.ndarray, t: float = math.nan) -> ValueError:
+        """The error of vehicle i's failed step (compiled status ``status``) on the reading
+        ``values`` (N_CHANNELS,) at time ``t`` [s]."""
         if status == FILTER_FAILED:
             return ValueError(
                 f"the {self.kind} filter of vehicle {i} failed: a covariance is not finite or not positive definite"
             )
-        bad_inputs = [CHANNELS[c] for c in range(N_MEASURED, 13) if not np.isfinite(values[c])]
+        if status == BAD_TIME:
+            return ValueError(
+                f"the time of vehicle {i}'s reading, {t!r} s, is before its previous one, "
+                f"{float(self.state.t_prev[i])!r} s: readings must come in time order"
+            )
+        bad_inputs = [
+            CHANNELS[c] for c in range(N_CHANNELS) if c not in MEASUREMENT_CHANNELS and not np.isfinite(values[c])
+        ]
         if bad_inputs:  # the model needs its inputs every step, valid or not
             return ValueError(
                 f"inputs {bad_inputs} of vehicle {i} are NaN or inf: wheel speeds, steer angles and "
@@ -1001,27 +1208,32 @@ class StateEstimator:
         return ValueError(f"a valid measurement of vehicle {i} is NaN or inf: {values!r}")
 
     def step(self, reading, truth: Estimate | None = None, members: np.ndarray | None = None) -> Estimate:
-        """One filter step on ``reading`` (values and valid (B, 13)); with ``members`` (M,) indices
-        only those rows step (the others keep their state) and the estimate has M rows. A
-        ValueError (a bad reading, a failed filter) names the first failing vehicle; every failing
-        row's state stays as it was but for ``last_nll``, which turns NaN; the other rows have
-        stepped (snapshot :attr:`state` to retry a batch)."""
+        """One filter step on ``reading`` (values and valid (B, N_CHANNELS), times t (B,); a
+        reading without times, or with an empty t, steps by the nominal dt); with ``members``
+        (M,) indices only those rows step (the others keep their state) and the estimate has M
+        rows. A ValueError (a bad reading, a failed filter) names the first failing vehicle; every
+        failing row's state stays as it was but for ``last_nll``, which turns NaN; the other rows
+        have stepped (snapshot :attr:`state` to retry a batch)."""
         f = self.kernel()
         B = f.state.x.shape[0]
         values = np.ascontiguousarray(reading.values, dtype=np.float64)
         valid = np.ascontiguousarray(reading.valid, dtype=np.bool_)
-        if values.shape != (B, 13) or valid.shape != (B, 13):
-            raise ValueError(f"sensor reading must have shape {(B, 13)}, got {values.shape} / {valid.shape}")
+        if values.shape != (B, N_CHANNELS) or valid.shape != (B, N_CHANNELS):
+            raise ValueError(f"sensor reading must have shape {(B, N_CHANNELS)}, got {values.shape} / {valid.shape}")
         if f.noise.process_var.shape[0] not in (1, B):
             raise ValueError(f"per-member noise for {f.noise.process_var.shape[0]} members, the batch has {B}")
         rows = member_rows(members, B)
         out, status = empty_estimate(len(rows)), np.zeros(len(rows), dtype=np.int64)
-        t = np.zeros(0)  # (the filters do not read the time: each step is dt)
+        t = np.ascontiguousarray(getattr(reading, "t", None) if getattr(reading, "t", None) is not None else [], float)
+        if t.size and t.shape != (B,):
+            raise ValueError(f"reading times must have shape ({B},) (or be empty), got {t.shape}")
         run_parallel(
             _step_rows, np.arange(len(rows)), rows, f, SensorReading(values, valid, t), out, status,
             min_items=PARALLEL_MIN_BATCH,
         )  # fmt: skip
         if np.count_nonzero(status):
             j = int(np.flatnonzero(status)[0])
-            raise self.step_error(int(rows[j]), int(status[j]), values[rows[j]])
+            raise self.step_error(
+                int(rows[j]), int(status[j]), values[rows[j]], float(t[rows[j]]) if t.size else math.nan
+            )
         return out

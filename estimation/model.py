@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from functools import cached_property
 from importlib import resources
 from typing import NamedTuple
@@ -51,6 +51,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
+from fourwis.core.checks import is_number
 from fourwis.core.constants import GRAVITY
 from fourwis.core.kernels import JIT, scratch
 
@@ -61,16 +62,63 @@ def _load_fit() -> dict:
     return json.loads(resources.files("fourwis.estimation").joinpath("data/dugoff_fit.json").read_text())
 
 
+MODEL_STEP = 0.002  #: [s] the model's longest integration step: a longer filter step integrates in substeps
+
+
+@dataclass(frozen=True)
+class AxleTyre:
+    """One axle's tyres in the estimator's model (both wheels alike; paper eq. 8-10 and 17).
+    Stiffness C(Fz) = m Fz - n Fz^2 at wheel load Fz [N]: m1 [1/unit slip], n1 [1/(unit slip N)]
+    longitudinal, m2 [1/rad], n2 [1/(rad N)] lateral (so C is in N/unit slip and N/rad);
+    mu_scale: Dugoff's friction scale k, the tyre using k mu on a road of friction mu [-];
+    relaxation_length: the lateral relaxation length sigma [m] its slip angle lags by (0: the
+    paper's tyre, without transient)."""
+
+    m1: float
+    n1: float
+    m2: float
+    n2: float
+    mu_scale: float = 1.0
+    relaxation_length: float = 0.0
+
+    def __post_init__(self) -> None:
+        rules = {"m1": "> 0", "m2": "> 0", "mu_scale": "> 0", "n1": "", "n2": "", "relaxation_length": ">= 0"}
+        for name, rule in rules.items():
+            value = getattr(self, name)
+            ok = is_number(value) and math.isfinite(value)
+            ok = ok and (value > 0 if rule == "> 0" else value >= 0 if rule else True)
+            if not ok:
+                raise ValueError(f"AxleTyre.{name} must be a finite number {rule}".rstrip() + f", got {value!r}")
+
+    @classmethod
+    def shipped(cls, fit: dict | None = None) -> AxleTyre:
+        """The eq. 17 fit of fourwis's own simulated tyre (estimation/data/dugoff_fit.json, or ``fit``)."""
+        fit = fit or _load_fit()
+        return cls(fit["m1"], fit["n1"], fit["m2"], fit["n2"], fit["mu_scale"])
+
+    def stiffness(self, fz) -> tuple[np.ndarray, np.ndarray]:
+        """(Cx [N/unit slip], Cy [N/rad]) at wheel load(s) ``fz`` [N]."""
+        fz = np.asarray(fz, dtype=float)
+        return self.m1 * fz - self.n1 * fz**2, self.m2 * fz - self.n2 * fz**2
+
+    @property
+    def kernel(self) -> TyreKernel:
+        """These coefficients as the compiled model reads them."""
+        return TyreKernel(*(float(getattr(self, f.name)) for f in fields(self)))
+
+
+#: :class:`AxleTyre` as the compiled model takes it: a NamedTuple of the same fields (floats)
+TyreKernel = NamedTuple("TyreKernel", [(f.name, float) for f in fields(AxleTyre)])
+
+
 @dataclass(frozen=True)
 class ModelParams:
-    """Estimator model parameters (SI). Stiffness C(Fz) = m Fz - n Fz^2 (eq. 17): m1, n1
-    longitudinal [N/unit slip per N], m2, n2 lateral [N/rad per N]; eps: Dugoff's speed
-    reduction of friction [s/m]; mu_scale: Dugoff's friction scale k, the tyre model using
-    k mu on a road of friction mu (fitted to the plant tyre, training/tyre_fit.py: Dugoff
-    saturates more gently than the Magic Formula, so with k = 1 the estimated mu reads high);
-    rolling_resistance: f_r [-]; drag_factor: (1/2) rho Cd A [kg/m], drag = drag_factor u|u|;
-    relaxation_length: the tyres' lateral relaxation length sigma [m] the slip angles lag by
-    (0: the paper's tyre, without transient)."""
+    """Estimator model parameters (SI): the body (mass [kg], yaw inertia [kg m^2], CG to the
+    axles [m], tracks [m], wheel radius [m], CG height [m], wheel spin inertia [kg m^2]), the
+    tyres of each axle (:class:`AxleTyre`; their friction scale k is fitted to the plant tyre by
+    training/tyre_fit.py: Dugoff saturates more gently than the Magic Formula, so with k = 1 the
+    estimated mu reads high), eps: Dugoff's speed reduction of friction [s/m];
+    rolling_resistance: f_r [-]; drag_factor: (1/2) rho Cd A [kg/m], drag = drag_factor u|u|."""
 
     mass: float
     yaw_inertia: float
@@ -81,29 +129,51 @@ class ModelParams:
     wheel_radius: float
     cg_height: float
     wheel_inertia: float
-    m1: float
-    n1: float
-    m2: float
-    n2: float
+    front: AxleTyre
+    rear: AxleTyre
     eps: float = 0.0
-    mu_scale: float = 1.0
     rolling_resistance: float = 0.0
     drag_factor: float = 0.0
-    relaxation_length: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("front", "rear"):
+            if not isinstance(getattr(self, name), AxleTyre):
+                raise ValueError(
+                    f"ModelParams.{name} must be an estimation.model.AxleTyre, got {getattr(self, name)!r}"
+                )
 
     @classmethod
     def from_vehicle(
-        cls, vehicle, fit: dict | None = None, resistances: bool = False, relaxation: bool = False
+        cls,
+        vehicle,
+        fit: dict | None = None,
+        resistances: bool = False,
+        relaxation: bool = False,
+        tyres: tuple[AxleTyre, AxleTyre] | None = None,
     ) -> ModelParams:
-        """From a duck-typed VehicleParams and the eq. 17 fit (estimation/data/dugoff_fit.json).
-        ``resistances``: also the car's rolling resistance and drag, which the paper's model
-        (and the shipped estimators) leave out: with them u and beta are more accurate, but the
-        joint estimator's friction gate misses more friction drops.
-        ``relaxation``: the slip angles lag by the tyre's lateral relaxation length at the mean
-        static wheel load m g / 4 (``vehicle.static_relaxation_lengths``, 0.36 m for the paper's
-        car; the plant's grows with load, which this constant leaves out). Both off by default
+        """From a duck-typed VehicleParams and the tyres (front, rear) ``tyres`` (default: both
+        axles the eq. 17 fit of fourwis's own simulated tyre, estimation/data/dugoff_fit.json, or
+        ``fit``). ``resistances``: also the car's rolling resistance and drag, which the paper's
+        model (and the shipped estimators) leave out: with them u and beta are more accurate, but
+        the joint estimator's friction gate misses more friction drops.
+        ``relaxation``: the slip angles lag by the tyres' lateral relaxation lengths: those of
+        ``tyres`` (each must have one), or, for fourwis's own tyre, its length at the mean static
+        wheel load m g / 4 (``vehicle.static_relaxation_lengths``, 0.36 m for the paper's car; the
+        plant's grows with load, which this constant leaves out). Both off by default
         (docs/decisions/0020-tyre-relaxation-and-resistances-off.md)."""
-        fit = fit or _load_fit()
+        if tyres is None:
+            shipped = AxleTyre.shipped(fit)
+            sigma = float(vehicle.static_relaxation_lengths[1]) if relaxation else 0.0
+            front = rear = replace(shipped, relaxation_length=sigma)
+        else:
+            if fit is not None:
+                raise ValueError("give the tyres or a fit of fourwis's tyre, not both")
+            if len(tyres) != 2 or not all(isinstance(t, AxleTyre) for t in tyres):
+                raise ValueError(f"tyres must be (front, rear) estimation.model.AxleTyre, got {tyres!r}")
+            for axle, tyre in zip(("front", "rear"), tyres):
+                if relaxation and tyre.relaxation_length <= 0:
+                    raise ValueError(f"relaxation needs the {axle} tyres' relaxation length; it is not given")
+            front, rear = (t if relaxation else replace(t, relaxation_length=0.0) for t in tyres)
         return cls(
             vehicle.mass,
             vehicle.yaw_inertia,
@@ -114,28 +184,51 @@ class ModelParams:
             vehicle.wheel_radius,
             vehicle.cg_height,
             vehicle.wheel_inertia,
-            fit["m1"],
-            fit["n1"],
-            fit["m2"],
-            fit["n2"],
-            mu_scale=fit["mu_scale"],
+            front,
+            rear,
             rolling_resistance=vehicle.rolling_resistance if resistances else 0.0,
             drag_factor=0.5 * vehicle.air_density * vehicle.drag_area if resistances else 0.0,
-            relaxation_length=float(vehicle.static_relaxation_lengths[1]) if relaxation else 0.0,
         )
 
     @property
     def wheelbase(self) -> float:
         return self.cg_to_front + self.cg_to_rear
 
+    @property
+    def static_wheel_loads(self) -> np.ndarray:
+        """Static normal loads (4,) [N], FL, FR, RL, RR."""
+        front = self.mass * GRAVITY * self.cg_to_rear / (2.0 * self.wheelbase)
+        rear = self.mass * GRAVITY * self.cg_to_front / (2.0 * self.wheelbase)
+        return np.array([front, front, rear, rear])
+
+    @property
+    def axle_cornering_stiffness(self) -> tuple[float, float]:
+        """(C_f, C_r): each axle's linear cornering stiffness at its static load [N/rad] (two tyres)."""
+        fz = self.static_wheel_loads
+        return 2.0 * float(self.front.stiffness(fz[0])[1]), 2.0 * float(self.rear.stiffness(fz[2])[1])
+
     @cached_property
     def kernel(self) -> ModelKernel:
         """These parameters as the compiled model reads them (a value: numba keeps it in registers)."""
-        return ModelKernel(*(float(getattr(self, f.name)) for f in fields(self)))
+        return ModelKernel(
+            *(
+                getattr(self, f.name).kernel if f.name in ("front", "rear") else float(getattr(self, f.name))
+                for f in fields(self)
+            )
+        )
 
 
-#: :class:`ModelParams` as the compiled model takes it: a NamedTuple of the same fields (floats)
-ModelKernel = NamedTuple("ModelKernel", [(f.name, float) for f in fields(ModelParams)])
+#: :class:`ModelParams` as the compiled model takes it: a NamedTuple of the same fields (floats,
+#: and the axles' :data:`TyreKernel`)
+ModelKernel = NamedTuple(
+    "ModelKernel", [(f.name, TyreKernel if f.name in ("front", "rear") else float) for f in fields(ModelParams)]
+)
+
+
+@numba.njit(inline="always", **JIT)
+def axle_tyre(pk, w: int):
+    """Wheel w's (FL, FR, RL, RR) axle tyres, a :data:`TyreKernel`, of the model ``pk``."""
+    return pk.front if w < 2 else pk.rear
 
 
 class ModelInputs(NamedTuple):
@@ -270,10 +363,11 @@ def dugoff(
 
 
 @numba.njit(inline="always", **JIT)
-def stiffness(fz: float, pk) -> tuple[float, float]:
+def stiffness(fz: float, tyre) -> tuple[float, float]:
     """Eq. 17's load-dependent stiffnesses Cx(Fz) = m1 Fz - n1 Fz^2 [N/unit slip] and
-    Cy(Fz) = m2 Fz - n2 Fz^2 [N/rad] at wheel load ``fz`` [N]; ``pk``: :attr:`ModelParams.kernel`."""
-    return pk.m1 * fz - pk.n1 * fz * fz, pk.m2 * fz - pk.n2 * fz * fz
+    Cy(Fz) = m2 Fz - n2 Fz^2 [N/rad] at wheel load ``fz`` [N]; ``tyre``: :attr:`AxleTyre.kernel`
+    (a wheel's: :func:`axle_tyre`)."""
+    return tyre.m1 * fz - tyre.n1 * fz * fz, tyre.m2 * fz - tyre.n2 * fz * fz
 
 
 @numba.njit(inline="always", **JIT)
@@ -283,7 +377,7 @@ def tyre_operating_point(u, v, r, fz, trig, omega, pk, w) -> tuple[float, float,
     tan_alpha, along = wheel_kinematics(u, v, r, trig, pk, w)
     wheel_speed = omega * pk.wheel_radius
     slip = (wheel_speed - along) / max(abs(wheel_speed), abs(along), MIN_SPEED)
-    cx, cy = stiffness(fz, pk)
+    cx, cy = stiffness(fz, axle_tyre(pk, w))
     return tan_alpha, slip, cx, cy
 
 
@@ -316,7 +410,7 @@ def body_forces(
     for w in range(4):
         x_w, y_w = wheel_position(pk, w)
         drive = (torque[w] - pk.wheel_inertia * omega_dot[w]) / pk.wheel_radius
-        trig, spin = wheel_trig(steer, w), omega[w]
+        trig, spin, mu_scale = wheel_trig(steer, w), omega[w], axle_tyre(pk, w).mu_scale
         c, s = trig[0], trig[1]
         wheel_speed = spin * pk.wheel_radius
         rolling = pk.rolling_resistance * wheel_speed / math.sqrt(wheel_speed * wheel_speed + 0.0025)
@@ -324,7 +418,7 @@ def body_forces(
             u, v, r = state[0, k], state[1, k], state[2, k]
             fz = wheel_load(state[3, k], state[4, k], pk, w)
             tan_alpha, slip, cx, cy = tyre_operating_point(u, v, r, fz, trig, spin, pk, w)
-            tyre_mu = pk.mu_scale * mu[w, k]
+            tyre_mu = mu_scale * mu[w, k]
             _, fy, _ = dugoff(fz, slip, tan_alpha, tyre_mu, cx, cy, u, pk.eps)
             limit = tyre_mu * fz
             fx = min(max(drive - rolling * fz, -limit), limit)
@@ -345,30 +439,44 @@ def dugoff_lambdas(u, v, r, ax, ay, mu, steer, omega, pk, out) -> None:
     fz = load_tuple(ax, ay, pk)
     for w in range(4):
         tan_alpha, _, cx, cy = tyre_operating_point(u, v, r, fz[w], wheel_trig(steer, w), omega[w], pk, w)
-        out[w] = dugoff(fz[w], 0.0, tan_alpha, pk.mu_scale * mu[w], cx, cy, u, 0.0)[2]
+        out[w] = dugoff(fz[w], 0.0, tan_alpha, axle_tyre(pk, w).mu_scale * mu[w], cx, cy, u, 0.0)[2]
+
+
+@numba.njit(inline="always", **JIT)
+def substeps(dt: float) -> int:
+    """How many model steps of at most MODEL_STEP a filter step of ``dt`` [s] integrates in."""
+    return max(1, math.ceil(dt / MODEL_STEP - 1e-9))
 
 
 @numba.njit(inline="always", **JIT)
 def transition(points: np.ndarray, out: np.ndarray, args: tuple) -> None:
     """Discrete process model for x_s = [u, v, ax, ay, r, Gamma], paper eq. 1-3, from each row
-    of points (K, 6) into the same row of out (K, 6): u+ = u + dt (ax + v r),
-    v+ = v + dt (ay - u r), r+ = r + dt Gamma / Iz (Euler at the 2 ms step); ax, ay, Gamma are
-    algebraic: recomputed from the tyre model at the new state. ax, ay here are the body's
-    specific forces (what an accelerometer reads without roll/pitch).
-    ``args``: :class:`ModelInputs` (mu: the state filter's friction (4,))."""
+    of points (K, 6) into the same row of out (K, 6): u+ = u + h (ax + v r),
+    v+ = v + h (ay - u r), r+ = r + h Gamma / Iz (Euler at the 2 ms step); ax, ay, Gamma are
+    algebraic: recomputed from the tyre model at the new state. A step dt longer than MODEL_STEP
+    takes :func:`substeps` of h = dt / n each (the inputs held), so that the model integrates
+    alike at every sample rate. ax, ay here are the body's specific forces (what an
+    accelerometer reads without roll/pitch). ``args``: :class:`ModelInputs` (mu: the state
+    filter's friction (4,))."""
     mu, steer, omega, torque, omega_dot, pk, dt = args
     K = points.shape[0]
+    n = substeps(dt)
+    h = dt / n
     state, mu_lanes, forces = scratch((5, K)), scratch((4, K)), scratch((3, K))
     for k in range(K):
-        u, v, ax, ay, r, gamma = points[k, 0], points[k, 1], points[k, 2], points[k, 3], points[k, 4], points[k, 5]
-        u_new, v_new, r_new = u + dt * (ax + v * r), v + dt * (ay - u * r), r + dt * gamma / pk.yaw_inertia
-        out[k, 0], out[k, 1], out[k, 4] = u_new, v_new, r_new
-        state[0, k], state[1, k], state[2, k], state[3, k], state[4, k] = u_new, v_new, r_new, ax, ay
+        for i in range(6):
+            out[k, i] = points[k, i]
         for w in range(4):
             mu_lanes[w, k] = mu[w]
-    body_forces(state, mu_lanes, steer, omega, torque, omega_dot, pk, forces)
-    for k in range(K):
-        out[k, 2], out[k, 3], out[k, 5] = forces[0, k], forces[1, k], forces[2, k]
+    for _ in range(n):
+        for k in range(K):
+            u, v, ax, ay, r, gamma = out[k, 0], out[k, 1], out[k, 2], out[k, 3], out[k, 4], out[k, 5]
+            u_new, v_new, r_new = u + h * (ax + v * r), v + h * (ay - u * r), r + h * gamma / pk.yaw_inertia
+            out[k, 0], out[k, 1], out[k, 4] = u_new, v_new, r_new
+            state[0, k], state[1, k], state[2, k], state[3, k], state[4, k] = u_new, v_new, r_new, ax, ay
+        body_forces(state, mu_lanes, steer, omega, torque, omega_dot, pk, forces)
+        for k in range(K):
+            out[k, 2], out[k, 3], out[k, 5] = forces[0, k], forces[1, k], forces[2, k]
 
 
 # ---- Python entry points -------------------------------------------------------------------
@@ -389,7 +497,7 @@ def normal_loads(ax, ay, p: ModelParams) -> np.ndarray:
 def state_transition(x: np.ndarray, mu: np.ndarray, inputs: Inputs, p: ModelParams, dt: float) -> np.ndarray:
     """:func:`transition` of one state x (6,) with mu (4,) and ``inputs``; returns the new state.
     Without tyre relaxation: the lag is the joint estimator's running state (its step), which a
-    single transition does not have, so ``p.relaxation_length`` is not used here."""
+    single transition does not have, so the tyres' ``relaxation_length`` is not used here."""
     out = np.empty((1, 6))
     x = np.ascontiguousarray(x, dtype=np.float64)
     mu, delta, omega, torque, omega_dot = (np.ascontiguousarray(q, dtype=np.float64) for q in (mu, *inputs))

@@ -44,7 +44,7 @@ class _Abort(Exception):
 
 
 class WindowReplay:
-    """Scores noise candidates on a window: replays readings ``values``/``valid`` (W, 13) from
+    """Scores noise candidates on a window: replays readings ``values``/``valid`` (W, N_CHANNELS) from
     filter state ``snapshot`` (a single vehicle's :class:`FilterState`) with one batched filter whose
     members use ``template``'s base noise scaled by ``factors`` (N, 4); ``cost`` (N,) sums
     each member's innovation NLL (inf for a member whose filter failed; the others replay on).

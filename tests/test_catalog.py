@@ -1,5 +1,5 @@
 """`fourwis list`: every scenario, estimator and controller by name, one line each with what it
-is and its defaults (read from the code that builds it), and the recorded logs (none yet)."""
+is and its defaults (read from the code that builds it), and the recorded logs it ships."""
 
 import pytest
 
@@ -51,9 +51,10 @@ def test_list_estimators_and_controllers_give_each_name_its_line(capsys):
     assert "estimator joint" in controllers["rl:training/policies/ppo_joint"]
 
 
-def test_list_logs_says_there_are_none_and_a_bare_list_shows_every_section(capsys):
+def test_list_logs_names_the_shipped_log_and_a_bare_list_shows_every_section(capsys):
     assert main(["list", "logs"]) == 0
-    assert "no recorded logs" in capsys.readouterr().out
+    text = capsys.readouterr().out
+    assert "revs " in text and "Ferrari 250 LM" in text and "550 s at 100 Hz, vehicle vehicle.toml" in text
     assert main(["list"]) == 0
     text = capsys.readouterr().out
     assert all(f"\n{section}:\n" in f"\n{text}" for section in ("scenarios", "estimators", "controllers", "logs"))

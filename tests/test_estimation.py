@@ -338,10 +338,10 @@ def test_dugoff_is_linear_at_small_slip_and_follows_its_closed_form_in_saturatio
     D = sqrt(Cx^2 s^2 + Cy^2 tan^2 a); for lambda >= 1 the force is linear, for lambda < 1 its
     magnitude D / (1 + s) lambda (2 - lambda) reduces to exactly mu Fz (1 - lambda / 2), in pure
     cornering and in combined slip alike; driving slip lowers the lateral force. mu
-    is the friction the tyre sees: the estimator passes k mu (ModelParams.mu_scale), as here."""
+    is the friction the tyre sees: the estimator passes k mu (AxleTyre.mu_scale), as here."""
     fx, fy, lam = dugoff(2000.0, 0.0, math.tan(1e-3), 0.8, 3e4, 4e4, 20.0, 0.0)
     assert fy == pytest.approx(4e4 * math.tan(1e-3)) and fx == 0.0 and lam > 1.0
-    mu, fz, cx, cy = PARAMS.mu_scale * 0.8, 2000.0, 3e4, 4e4
+    mu, fz, cx, cy = PARAMS.front.mu_scale * 0.8, 2000.0, 3e4, 4e4
     for slip, alpha in ((0.0, 0.05), (0.0, 0.3), (0.05, 0.3), (-0.1, 0.1)):
         fx, fy, lam = dugoff(fz, slip, math.tan(alpha), mu, cx, cy, 20.0, 0.0)
         demand = math.hypot(cx * slip, cy * math.tan(alpha))
@@ -527,13 +527,15 @@ def test_dugoff_at_the_true_state_matches_the_plant_force_near_saturation(scenar
                 tan_alpha, slip, cx, cy = tyre_operating_point(
                     S[k, S_U], S[k, S_V], S[k, S_R], fz[w], tuple(steer[:, w]), S[k, S_OMEGA + w], pk, w
                 )
-                fy = dugoff(fz[w], slip, tan_alpha, params.mu_scale * A[k, A_MU + w], cx, cy, S[k, S_U], 0.0)[1]
+                k_mu = params.front.mu_scale * A[k, A_MU + w]
+                fy = dugoff(fz[w], slip, tan_alpha, k_mu, cx, cy, S[k, S_U], 0.0)[1]
                 plant = A[k, A_FY + w]
                 out.append(math.copysign(1.0, plant) * (fy - plant) / (A[k, A_MU + w] * A[k, A_FZ + w]))
         return np.array(out)
 
-    fitted, unscaled = errors(PARAMS), errors(dataclasses.replace(PARAMS, mu_scale=1.0))
-    assert PARAMS.mu_scale > 1.0 and len(fitted) > 500
+    unit = dataclasses.replace(PARAMS.front, mu_scale=1.0)
+    fitted, unscaled = errors(PARAMS), errors(dataclasses.replace(PARAMS, front=unit, rear=unit))
+    assert PARAMS.front.mu_scale > 1.0 and len(fitted) > 500
     assert np.mean(np.abs(fitted)) < 0.07
     assert np.mean(np.abs(fitted)) < np.mean(np.abs(unscaled))  # the fitted k beats k = 1
     if stays_below:
@@ -612,7 +614,8 @@ def test_tyre_relaxation_follows_the_plants_lateral_force_build_up():
         return np.array(out)
 
     relaxing = ModelParams.from_vehicle(VehicleParams(), relaxation=True)
-    assert PARAMS.relaxation_length == 0.0 and 0.3 < relaxing.relaxation_length < 0.4
+    assert PARAMS.front.relaxation_length == 0.0 and 0.3 < relaxing.front.relaxation_length < 0.4
+    assert relaxing.rear == relaxing.front
     plant = T.ay[list(window)]
     error_relaxed = rmse(model_ay(relaxing, window), plant)
     error_instant = rmse(model_ay(PARAMS, window), plant)
@@ -632,8 +635,8 @@ def test_tyre_relaxation_cuts_the_joint_estimators_sideslip_error_in_the_sine():
         for traj in (simulate(scenario, estimator=name) for name in ("joint", "fourwis.estimation:relaxed_joint"))
     ]
     assert errors[1] < 0.6 * errors[0]
-    assert make_estimator("fourwis.estimation:relaxed_joint", scenario.params).params.relaxation_length > 0.3
-    assert make_estimator("joint", scenario.params).params.relaxation_length == 0.0
+    assert make_estimator("fourwis.estimation:relaxed_joint", scenario.params).params.rear.relaxation_length > 0.3
+    assert make_estimator("joint", scenario.params).params.rear.relaxation_length == 0.0
     for name in ("oracle", "fourwis.estimation:relaxed_joint"):
         with pytest.raises(ValueError, match="tyre_relaxation"):
             make_estimator(name, scenario.params, tyre_relaxation=True)
@@ -699,7 +702,7 @@ def test_the_dugoff_fit_reproduces_the_plant_tyre():
             assert value == fit[key], key
         else:
             np.testing.assert_allclose(value, fit[key], rtol=1e-6, atol=0, err_msg=key)
-    assert PARAMS.mu_scale == pytest.approx(fit["mu_scale"], rel=1e-6)
+    assert PARAMS.front.mu_scale == PARAMS.rear.mu_scale == pytest.approx(fit["mu_scale"], rel=1e-6)
 
 
 @pytest.mark.parametrize("load", [2000.0, 5000.0])
@@ -714,7 +717,7 @@ def test_tyre_curves_of_the_papers_figures_2_and_3(load, tmp_path):
 
     mu = 0.5
     c = tyre_curves(load, mu)
-    k = PARAMS.mu_scale
+    k = PARAMS.front.mu_scale
     small_x, small_y = np.searchsorted(c.kappa, 0.01), np.searchsorted(c.alpha, np.radians(0.5))
     assert c.fx_dugoff[small_x] == pytest.approx(c.fx_plant[small_x], rel=0.10)
     assert c.fy_dugoff[small_y] == pytest.approx(c.fy_plant[small_y], rel=0.10)
@@ -986,7 +989,7 @@ def test_zero_point_learning_finds_an_accelerometer_offset_in_steady_driving_onl
     """A 0.2 m/s^2 lateral accelerometer offset (perfect gyro): learnt on a 10 s straight to
     within 0.01, never while the steering moves, and it cuts the sideslip error once
     the tyres saturate on mu 0.3, where the filter without learning drifts."""
-    sensors = SensorParams(bias_std=(0.0,) * len(CHANNELS))
+    sensors = SensorParams(bias_std=(0.0,) * 13)  # (per sensor of the simulated car)
     offset = (Fault("ay", "bias_step", magnitude=0.2),)
     straight = make_estimator("joint", VehicleParams())
     simulate(
@@ -1035,10 +1038,10 @@ def test_a_nan_input_is_named_even_on_an_invalid_channel():
     values[:, 3:7] = 20.0 / VehicleParams().wheel_radius
     valid = np.ones_like(values, dtype=bool)
     est.reset(SensorReading(values, valid, np.zeros(2)), np.full(2, 20.0))
-    values[1, CHANNELS.index("delta_r")], valid[1, CHANNELS.index("delta_r")] = np.nan, False
-    with pytest.raises(ValueError, match=r"\['delta_r'\] of vehicle 1"):
+    values[1, CHANNELS.index("delta_rl")], valid[1, CHANNELS.index("delta_rl")] = np.nan, False
+    with pytest.raises(ValueError, match=r"\['delta_rl'\] of vehicle 1"):
         est.step(SensorReading(values, valid, np.zeros(2)))
-    values[1, CHANNELS.index("delta_r")] = 0.0  # an inf is refused as well (it had been clipped to a force)
+    values[1, CHANNELS.index("delta_rl")] = 0.0  # an inf is refused as well (it had been clipped to a force)
     values[0, CHANNELS.index("torque_fl")], valid[0, CHANNELS.index("torque_fl")] = np.inf, False
     with pytest.raises(ValueError, match=r"\['torque_fl'\] of vehicle 0"):
         est.step(SensorReading(values, valid, np.zeros(2)))
@@ -1059,12 +1062,14 @@ def test_a_standing_or_creeping_car_keeps_its_friction_and_a_bounded_sideslip(sp
     params = VehicleParams()
     est = make_estimator("joint", params)
     rng = np.random.default_rng(3)
+    from fourwis.envs.sensors import CHANNEL_PRESENT, SENSOR_OF_CHANNEL
+
     noise_std = np.asarray(SensorParams().noise_std)
     values = np.zeros((1, len(CHANNELS)))
-    valid = np.ones_like(values, dtype=bool)
+    valid = CHANNEL_PRESENT[None].copy()  # (the car's sensors fill the channels: no forward-speed sensor)
     mu0, std0 = None, None
     for k in range(5000):
-        values[0] = rng.normal(0.0, noise_std)
+        values[0] = np.where(CHANNEL_PRESENT, rng.normal(0.0, noise_std)[np.maximum(SENSOR_OF_CHANNEL, 0)], np.nan)
         values[0, 3:7] += speed / params.wheel_radius
         reading = SensorReading(values.copy(), valid, np.full(1, k * 0.002))
         if k == 0:
@@ -1136,8 +1141,8 @@ def test_estimator_input_errors_name_the_bad_value():
         est.step(reading)
     with pytest.raises(ValueError, match="initial_speed"):
         est.reset(reading, np.full(1, np.nan))
-    with pytest.raises(ValueError, match=r"\(B, 13\)"):
-        est.reset(SensorReading(values[:, :12], reading.valid[:, :12], np.zeros(1)), 20.0)
+    with pytest.raises(ValueError, match=r"\(B, 16\)"):
+        est.reset(SensorReading(values[:, :15], reading.valid[:, :15], np.zeros(1)), 20.0)
     with pytest.raises(ValueError, match=r"initial_speed must be .* \(1,\), got \[20.0, 20.0\]"):
         est.reset(reading, [20.0, 20.0])
     three = SensorReading(np.repeat(values, 3, axis=0), np.ones((3, len(CHANNELS)), dtype=bool), np.zeros(3))
@@ -1164,24 +1169,24 @@ def test_estimator_input_errors_name_the_bad_value():
         make_estimator("oracle", params, foo=1)
     with pytest.raises(ValueError, match=r"process_std needs 6 values.*shape \(7,\)"):
         NoiseParams(process_std=(0.01,) * 7)
-    with pytest.raises(ValueError, match="accel_std must be .*, got -0.1"):
-        replace(NoiseParams(), accel_std=-0.1)
+    with pytest.raises(ValueError, match="ax_std must be .*, got -0.1"):
+        replace(NoiseParams(), ax_std=-0.1)
     with pytest.raises(ValueError, match="gyro_std must be .*, got nan"):
         NoiseParams(gyro_std=math.nan)
     with pytest.raises(ValueError, match=r"mu_accel_std must be .*, got array\(\[0.3, 0.6\]\)"):  # shared by the batch
         NoiseParams(mu_accel_std=np.array([0.3, 0.6]))
     with pytest.raises(ValueError, match="number of members"):
-        NoiseParams(accel_std=np.array([0.1, 0.2]), gyro_std=np.array([0.01, 0.02, 0.03]))
+        NoiseParams(ax_std=np.array([0.1, 0.2]), gyro_std=np.array([0.01, 0.02, 0.03]))
     with pytest.raises(ValueError, match=r"mu_walk_std must be .*\(a scalar\), got \(0.001, 0.001\)"):
         NoiseParams(mu_walk_std=(1e-3, 1e-3))
-    with pytest.raises(ValueError, match="accel_std must be .*, got 1e\\+200"):  # its variance overflows
-        NoiseParams(accel_std=1e200)
+    with pytest.raises(ValueError, match="ax_std must be .*, got 1e\\+200"):  # its variance overflows
+        NoiseParams(ax_std=1e200)
     for kind in ("ekf", "ckf", "fkf"):  # plain updates: a Huber threshold would be ignored
         with pytest.raises(ValueError, match=f"huber_c applies to the robust estimators.*'{kind}'"):
             make_estimator(kind, params, huber_c=0.5)
     make_estimator("alo-fkf", params, huber_c=0.5)
     # per-member sensor noise with a shared process noise reaches every member's row
-    two = make_estimator("ckf", params, noise=NoiseParams(accel_std=np.array([0.1, 10.0])))
+    two = make_estimator("ckf", params, noise=NoiseParams(ax_std=np.array([0.1, 10.0])))
     np.testing.assert_allclose(two.noise_variances.sensor_var[:, 0], [0.01, 100.0], rtol=1e-12)
     assert two.noise_variances.process_var.shape == (2, 6)
     with pytest.raises(ValueError, match="dt = 0.01"):

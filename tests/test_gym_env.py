@@ -14,6 +14,7 @@ from gymnasium.vector import AutoresetMode
 
 import fourwis  # noqa: F401  (registers the environment)
 from fourwis.control.reference import reference_yaw_rate
+from fourwis.core.types import CHANNELS
 from fourwis.envs.gym_env import YawStabilityEnv, YawStabilityVectorEnv
 from fourwis.envs.layout import S_DELTA_R
 from fourwis.envs.render import FRAME_HEIGHT, FRAME_WIDTH
@@ -109,6 +110,11 @@ def test_true_observation_fills_every_slot_as_the_docstring_table_scales_it():
     assert max(np.abs(steers)) == params.max_front_steer  # the steering wheel passed the lock
 
 
+#: the channels of the simulated car's 13 sensors, in the sensors observation's order
+SENSOR_CHANNELS = ("ax", "ay", "yaw_rate", "omega_fl", "omega_fr", "omega_rl", "omega_rr", "delta_fl", "delta_rl")
+SENSOR_CHANNELS += ("torque_fl", "torque_fr", "torque_rl", "torque_rr")
+
+
 def test_estimated_and_sensor_observations_fill_their_slots_as_documented():
     """observation="estimated" (joint): the estimate's u/30, beta/0.2, r, ax/10, ay/10, mu x4,
     beta_std/0.05 and the wheels' mean mu_std/0.3 (not 0: the joint estimator's uncertainty),
@@ -142,7 +148,9 @@ def test_estimated_and_sensor_observations_fill_their_slots_as_documented():
                 ]
                 assert e.beta_std > 0 and np.all(e.mu_std > 0)
             else:
-                raw = sample.reading.values[0]
+                row = sample.reading.values[0]  # (the 16 channels: each axle's steer twice, no speed)
+                raw = row[[CHANNELS.index(name) for name in SENSOR_CHANNELS]]
+                assert row[CHANNELS.index("delta_fr")] == raw[7] and np.isnan(row[CHANNELS.index("speed")])
                 scale = [10, 10, 1, 100, 100, 100, 100, 0.3, 0.3, 600, 600, 600, 600]
                 speed = np.mean(raw[3:7]) * params.wheel_radius
                 r_ref = reference_yaw_rate(np.array([speed]), raw[7:8], np.full((1, 4), 0.8), params)[0]

@@ -49,7 +49,12 @@ def test_work_per_step_is_bounded_and_results_arrive_when_runs_finish(replay_per
         )
 
     def noise_stds(noise):
-        return np.concatenate([np.ravel(noise.process_std), [noise.accel_std, noise.gyro_std, noise.wheel_speed_std]])
+        return np.concatenate(
+            [
+                np.ravel(noise.process_std),
+                [noise.ax_std, noise.ay_std, noise.gyro_std, noise.wheel_speed_std, noise.speed_std],
+            ]
+        )
 
     def check(k):
         eigen_min.append(np.linalg.eigvalsh(tuner.estimator.state.P).min())

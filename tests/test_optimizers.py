@@ -105,7 +105,7 @@ def test_tuning_file_missing_means_hand_set_noise_a_named_one_missing_or_corrupt
         patch.setattr(estimation_joint, "TUNED_NOISE_FILE", "data/absent.json")
         assert tuned_noise() is None
     shipped = tuned_noise()
-    assert shipped is not None and shipped.accel_std != NoiseParams().accel_std
+    assert shipped is not None and shipped.ax_std != NoiseParams().ax_std
     for text in ("{not json", '{"cost": 1.0}', '{"log10_factors": [1, 2]}'):
         bad = tmp_path / "tuned.json"
         bad.write_text(text)

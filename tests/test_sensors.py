@@ -7,17 +7,37 @@ import numpy as np
 import pytest
 
 from fourwis.core.types import CHANNELS
-from fourwis.envs.sensors import Fault, SensorModel, SensorParams
+from fourwis.envs.sensors import CHANNEL_OF_SENSOR, SENSORS, Fault, SensorModel, SensorParams
 from fourwis.envs.simulation import DT
 
 
 def run(faults=(), seed=0, n=2000, batch=2, params=SensorParams()):
+    """n readings of a constant truth: values and valid (n, batch, 13) per sensor (the channel
+    each sensor fills first), the truth, the model."""
     model = SensorModel(params, tuple(faults), batch, np.random.default_rng(seed))
-    truth = np.tile(np.linspace(1.0, 13.0, len(CHANNELS)), (batch, 1))
+    truth = np.tile(np.linspace(1.0, 13.0, len(SENSORS)), (batch, 1))
     readings = [model.measure(truth, k * DT) for k in range(n)]
-    values = np.stack([r.values for r in readings])
-    valid = np.stack([r.valid for r in readings])
+    values = np.stack([r.values[:, CHANNEL_OF_SENSOR] for r in readings])
+    valid = np.stack([r.valid[:, CHANNEL_OF_SENSOR] for r in readings])
     return values, valid, truth, model
+
+
+def test_the_cars_sensors_fill_the_channel_layout():
+    """Each axle's one steer sensor fills both its wheels' channels; the car has no forward-speed
+    sensor, whose channel is NaN and invalid; every other channel is its sensor's reading."""
+    faults = (Fault("delta_f", "dropout", start=0.0, end=1.0),)
+    model = SensorModel(SensorParams().scaled(0.0), faults, 1, np.random.default_rng(0))
+    reading = model.measure(np.linspace(1.0, 13.0, len(SENSORS))[None], 0.0)
+    assert reading.values.shape == reading.valid.shape == (1, len(CHANNELS)) == (1, 16)
+    row, ok = reading.values[0], reading.valid[0]
+    for name in SENSORS:
+        if not name.startswith("delta_"):
+            assert row[CHANNELS.index(name)] == 1.0 + SENSORS.index(name), name
+    assert row[CHANNELS.index("delta_fl")] == row[CHANNELS.index("delta_fr")] == 0.0  # (held: never valid yet)
+    assert row[CHANNELS.index("delta_rl")] == row[CHANNELS.index("delta_rr")] == 9.0
+    assert np.isnan(row[CHANNELS.index("speed")]) and not ok[CHANNELS.index("speed")]
+    assert not ok[CHANNELS.index("delta_fl")] and not ok[CHANNELS.index("delta_fr")]  # (the front sensor is out)
+    assert ok[CHANNELS.index("delta_rl")] and ok[CHANNELS.index("ax")]
 
 
 def test_same_seed_same_stream_different_seed_different_stream():
@@ -37,10 +57,10 @@ def test_a_reading_is_truth_plus_bias_plus_the_vehicles_own_draws_across_block_r
     n = 2 * NOISE_BLOCK + 10
     values, _, truth, _ = run(seed=11, n=n, batch=1, params=params)
     rng = np.random.default_rng(11)
-    bias = rng.standard_normal(len(CHANNELS)) * np.array(params.bias_std)
+    bias = rng.standard_normal(len(SENSORS)) * np.array(params.bias_std)
     normal = []
     for _ in range(3):
-        normal.append(rng.standard_normal((NOISE_BLOCK, len(CHANNELS))))
+        normal.append(rng.standard_normal((NOISE_BLOCK, len(SENSORS))))
         rng.random((NOISE_BLOCK, 2))
     expected = truth[0] + bias + np.concatenate(normal)[:n] * np.array(params.noise_std)
     np.testing.assert_array_equal(values[:, 0], expected)
@@ -81,11 +101,11 @@ def test_faults_appear_exactly_where_configured():
     )
     values, valid, truth, _ = run(faults, params=SensorParams().scaled(0.0), n=2000)
     t = np.arange(2000) * DT
-    r = values[:, :, CHANNELS.index("yaw_rate")] - truth[0, CHANNELS.index("yaw_rate")]
+    r = values[:, :, SENSORS.index("yaw_rate")] - truth[0, SENSORS.index("yaw_rate")]
     spikes = np.abs(r) > 0.5
     assert spikes.any() and np.all((t[spikes.any(axis=1)] >= 1.0) & (t[spikes.any(axis=1)] < 2.0))
     assert spikes.sum() == pytest.approx(50.0 * 1.0 * 2, rel=0.4)  # Poisson, 50/s over 1 s, 2 cars
-    iy = CHANNELS.index("ay")
+    iy = SENSORS.index("ay")
     window = (t >= 0.5) & (t < 0.8)
     assert not valid[window, :, iy].any() and valid[~window, :, iy].all()
     assert np.isfinite(values).all()
@@ -99,8 +119,8 @@ def test_spike_faults_on_two_channels_arrive_independently():
     (p = 0.04 per sample) about p^2 of the samples carry both, not every spike of either."""
     faults = (Fault("ax", "spike", magnitude=5.0, rate=20.0), Fault("yaw_rate", "spike", magnitude=1.0, rate=20.0))
     values, _, truth, _ = run(faults, params=SensorParams().scaled(0.0), n=5000)
-    ax = np.abs(values[..., CHANNELS.index("ax")] - truth[:, CHANNELS.index("ax")]) > 1.0
-    gyro = np.abs(values[..., CHANNELS.index("yaw_rate")] - truth[:, CHANNELS.index("yaw_rate")]) > 0.5
+    ax = np.abs(values[..., SENSORS.index("ax")] - truth[:, SENSORS.index("ax")]) > 1.0
+    gyro = np.abs(values[..., SENSORS.index("yaw_rate")] - truth[:, SENSORS.index("yaw_rate")]) > 0.5
     assert ax.sum() == pytest.approx(0.04 * ax.size, rel=0.2) and gyro.sum() == pytest.approx(0.04 * gyro.size, rel=0.2)
     assert (ax & gyro).sum() < 4 * 0.04**2 * ax.size  # ~16 expected in 10,000 samples; 400 if they were shared
 
@@ -110,7 +130,7 @@ def test_a_dropout_holds_the_last_valid_reading_and_ends_with_a_fresh_one():
     before it (flagged invalid), and the first sample after it reads the truth again."""
     model = SensorModel(SensorParams(), (Fault("ay", "dropout", start=0.1, end=0.2),), 1, np.random.default_rng(0))
     i = CHANNELS.index("ay")
-    readings = [model.measure(np.full((1, len(CHANNELS)), float(k)), k * DT) for k in range(150)]
+    readings = [model.measure(np.full((1, len(SENSORS)), float(k)), k * DT) for k in range(150)]
     values = np.array([r.values[0, i] for r in readings])
     valid = np.array([r.valid[0, i] for r in readings])
     assert not valid[50:100].any() and valid[:50].all() and valid[100:].all()
@@ -123,12 +143,14 @@ def test_stuck_sensor_freezes_while_the_truth_moves():
     i = CHANNELS.index("omega_fl")
     out = []
     for k in range(150):
-        truth = np.full((1, len(CHANNELS)), float(k))
+        truth = np.full((1, len(SENSORS)), float(k))
         out.append(model.measure(truth, k * DT).values[0, i])
     out = np.array(out)
     frozen = out[50:100]
     assert np.all(frozen == frozen[0])
-    assert frozen[0] == pytest.approx(50.0, abs=4 * SensorParams().noise_std[i])  # the reading at the window start
+    assert frozen[0] == pytest.approx(
+        50.0, abs=4 * SensorParams().noise_std[SENSORS.index("omega_fl")]
+    )  # the reading at the window start
     assert abs(out[120] - 120.0) < 1.0
 
 
@@ -153,12 +175,12 @@ def test_faults_other_than_fault_objects_are_refused():
 
 def test_bad_truth_raises_naming_the_channel():
     model = SensorModel(SensorParams(), (), 1, np.random.default_rng(0))
-    truth = np.zeros((1, len(CHANNELS)))
+    truth = np.zeros((1, len(SENSORS)))
     truth[0, 2] = np.nan
     with pytest.raises(ValueError, match="yaw_rate"):
         model.measure(truth, 0.0)
     with pytest.raises(ValueError, match="shape"):
-        model.measure(np.zeros((2, len(CHANNELS))), 0.0)
+        model.measure(np.zeros((2, len(SENSORS))), 0.0)
     with pytest.raises(ValueError, match=r"noise_std must be 13 .*, got \[1. 1. 1. 1. 1. 1. 1. 1. 1. 1. 1. 1.\]"):
         SensorParams(noise_std=(1.0,) * 12)
 
@@ -168,5 +190,5 @@ def test_bad_members_raise_instead_of_reading_outside_the_batch(members):
     model = SensorModel(SensorParams(), (), 2, np.random.default_rng(0))
     before = model._cursor.copy()
     with pytest.raises(ValueError, match=f"members must be .*, got {re.escape(str(members))}"):
-        model.measure(np.zeros((len(members), len(CHANNELS))), 0.0, members)
+        model.measure(np.zeros((len(members), len(SENSORS))), 0.0, members)
     np.testing.assert_array_equal(model._cursor, before)  # no stream advanced

@@ -54,8 +54,6 @@ CONTROLLER_SUMMARIES = {
     "dyc-smc-4ws": "dyc-smc plus the paper's eq. 20 rear steer",
 }
 
-#: the recorded logs (name -> what it is) the package ships: none in this version
-LOGS: dict[str, str] = {}
 
 #: the columns' widths: name, what it is
 _NAME, _WHAT = 32, 92
@@ -173,8 +171,17 @@ def controller_rows() -> list[tuple[str, str, str]]:
 
 
 def log_rows() -> list[tuple[str, str, str]]:
-    """One row per recorded log the package ships (:data:`LOGS`)."""
-    return [(name, what, "") for name, what in LOGS.items()]
+    """One row per recorded log the package ships (:func:`training.logs.shipped_logs`): name,
+    what it is, its length, rate and vehicle file."""
+    from fourwis.training.logs import read_log, shipped_logs
+
+    rows = []
+    for name in shipped_logs():
+        log = read_log(name)
+        rate = (len(log.t) - 1) / log.duration
+        what = log.metadata.get("description", "").split(":")[0]
+        rows.append((name, what, f"{log.duration:.0f} s at {rate:.0f} Hz, vehicle {log.metadata.get('vehicle', '?')}"))
+    return rows
 
 
 #: the rows of each section, and what the list adds below them
@@ -185,9 +192,9 @@ FOOTNOTES = {
     "module:factory for your own)",
     "controllers": "(also: rl:<run dir> or rl:<run dir>/model.zip for your own policy; "
     "module:factory for your own law)",
-    "logs": "",
+    "logs": "(fourwis estimate --log NAME, or --log FILE --vehicle FILE for your own: docs/logs.md)",
 }
-NO_LOGS = "no recorded logs: this version of fourwis ships none (estimation on real data is not in it yet)"
+NO_LOGS = "no recorded logs shipped"
 
 
 def rows(section: str) -> list[tuple[str, str, str]]:

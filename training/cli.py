@@ -76,7 +76,7 @@ def _simulate(args: argparse.Namespace) -> int:
         file_stem,
         parse_scenario,
     )
-    from fourwis.training.io import check_writable, pyplot, staged_output
+    from fourwis.training.io import atomic_write_text, check_writable, pyplot, staged_output
     from fourwis.training.trajectory_io import plot_trajectory, write_trajectory_csv
 
     try:
@@ -95,9 +95,14 @@ def _simulate(args: argparse.Namespace) -> int:
         traj = simulate(scenario, controller, args.estimator, seed=args.seed, progress=True)
     except (ValueError, FileNotFoundError) as err:  # a bad argument or run, a user's estimator returning garbage
         raise SystemExit(f"fourwis simulate: {err}") from None
+    from fourwis.training.logs import simulated_log, write_log
+    from fourwis.training.vehicle_file import fourwis_vehicle, vehicle_toml
+
     stem = file_stem(args.scenario)
-    with staged_output(out) as stage:  # the CSV and its plot as one set
+    with staged_output(out) as stage:  # the CSVs, the vehicle file and the plot as one set
         write_trajectory_csv(traj, stage / f"{stem}.csv")
+        write_log(stage / f"{stem}.log.csv", *simulated_log(traj, stem, f"{stem}.vehicle.toml"))
+        atomic_write_text(stage / f"{stem}.vehicle.toml", vehicle_toml(fourwis_vehicle(scenario.vehicle_params)))
         plot_trajectory(
             traj,
             stage / f"{stem}.png",
@@ -106,7 +111,10 @@ def _simulate(args: argparse.Namespace) -> int:
             seed=args.seed,
             name=args.scenario,
         )
-    print(f"wrote {out / f'{stem}.csv'} and {out / f'{stem}.png'}")
+    print(
+        f"wrote {out / f'{stem}.csv'}, {out / f'{stem}.png'} and the run as a log, {out / f'{stem}.log.csv'} "
+        f"(with {stem}.vehicle.toml: fourwis estimate --log {out / f'{stem}.log.csv'})"
+    )
     return 0
 
 
@@ -182,7 +190,11 @@ def _map_runs(fn, items, desc: str, jobs: int | None, backend):
 
 
 def _report(
-    command: str, make_report: Callable[[], Path], table: str, errors: tuple[type[Exception], ...] = (ValueError,)
+    command: str,
+    make_report: Callable[[], Path],
+    table: str,
+    errors: tuple[type[Exception], ...] = (ValueError,),
+    plots: bool = True,
 ) -> int:
     """Run a report job, print the report; bad input exits with the command's name."""
     try:
@@ -190,7 +202,7 @@ def _report(
     except errors as err:
         raise SystemExit(f"fourwis {command}: {err}") from None
     print(report.read_text())
-    print(f"wrote {report} (+ {table} and PNG plots in {report.parent})")
+    print(f"wrote {report} (+ {table}{' and PNG plots' if plots else ''} in {report.parent})")
     return 0
 
 
@@ -213,9 +225,36 @@ def _compare(args: argparse.Namespace) -> int:
     )
 
 
+def _given(args: argparse.Namespace, command: str, names: tuple[str, ...]) -> list[str]:
+    """The options of ``names`` given on the command line (not at their defaults), as --names."""
+    defaults = vars(build_parser().parse_args([command]))
+    return ["--" + k.replace("_", "-") for k in names if getattr(args, k) != defaults[k]]
+
+
+def _estimate_log(args: argparse.Namespace) -> int:
+    from fourwis.training.log_report import LOG_ESTIMATORS, estimate_log_report
+
+    others = _given(args, "estimate", ("scenarios", "seeds", "road_mu", "jobs", "backend", "address"))
+    if others:
+        raise SystemExit(f"fourwis estimate: --log runs the estimators on the log; {others} are for scenarios")
+    estimators = args.estimators if _given(args, "estimate", ("estimators",)) else list(LOG_ESTIMATORS)
+    return _report(
+        "estimate",
+        lambda: estimate_log_report(
+            args.out, args.log, args.vehicle, estimators, command=args.command_line, progress=True
+        ),
+        "scores.csv",
+        (ValueError, FileNotFoundError),
+    )
+
+
 def _estimate(args: argparse.Namespace) -> int:
     from fourwis.training.estimate import estimate_report
 
+    if args.log is not None:
+        return _estimate_log(args)
+    if args.vehicle is not None:
+        raise SystemExit("fourwis estimate: --vehicle is the car of a --log")
     return _report(
         "estimate",
         lambda: estimate_report(
@@ -232,9 +271,43 @@ def _estimate(args: argparse.Namespace) -> int:
     )
 
 
+def _tune_log(args: argparse.Namespace) -> int:
+    from fourwis.training.log_report import tune_log_report
+
+    others = _given(
+        args, "tune", ("duration", "criterion", "replace_shipped", "mu_noise", "jobs", "backend", "address")
+    )
+    if others:
+        raise SystemExit(f"fourwis tune: --log tunes on the log's first part; {others} are for the calibration run")
+    given = _given(args, "tune", ("agents", "iterations", "out"))
+    return _report(
+        "tune",
+        lambda: tune_log_report(
+            args.out if "--out" in given else "results/tune_log",
+            args.log,
+            args.vehicle,
+            args.estimator,
+            args.split,
+            args.agents if "--agents" in given else 12,
+            args.iterations if "--iterations" in given else 20,
+            args.seed,
+            args.optimizer,
+            command=args.command_line,
+        ),
+        "scores.csv and tuned_noise.json",
+        (ValueError, FileNotFoundError),
+        plots=False,
+    )
+
+
 def _tune(args: argparse.Namespace) -> int:
     from fourwis.training.tune import SHIPPED, mu_noise_scan, tune
 
+    if args.log is not None:
+        return _tune_log(args)
+    unused = _given(args, "tune", ("vehicle", "estimator", "split"))
+    if unused:
+        raise SystemExit(f"fourwis tune: {unused} are for --log")
     if args.mu_noise:
         defaults = vars(build_parser().parse_args(["tune"]))
         sweep = ("jobs", "backend", "address")
@@ -545,6 +618,19 @@ def build_parser() -> argparse.ArgumentParser:
         help="the fixed-mu filters (ekf, ckf, fkf, alo-fkf) assume the road's friction at the start "
         "instead of 0.8 (the paper's section-3 reading)",
     )
+    from fourwis.training.logs import shipped_logs
+
+    est.add_argument(
+        "--log",
+        help="instead of scenarios: run the estimators and the baselines on a recorded log, a file (.csv, "
+        f".csv.gz, .parquet, .mat; docs/logs.md) or a shipped log ({', '.join(shipped_logs()) or 'none'}); "
+        "writes OUT/report.md, scores.csv, sideslip.png, friction.png, errors.png",
+    )
+    est.add_argument(
+        "--vehicle",
+        help="the car of --log: a vehicle file (TOML; docs/logs.md) (default: the one the log names, "
+        "as a shipped log and fourwis simulate's logs do)",
+    )
     est.set_defaults(func=_estimate)
     from fourwis.estimation.optimizers import METHODS
     from fourwis.training.tune import CRITERIA
@@ -580,6 +666,15 @@ def build_parser() -> argparse.ArgumentParser:
     _add_backend_arguments(
         tune, "split each population over this many worker processes (default: one batched replay here)"
     )
+    tune.add_argument(
+        "--log",
+        help="instead of a calibration run: tune on a recorded log's first part (--split) and score on the "
+        "rest (a file or a shipped log's name); writes OUT (default results/tune_log)/tuned_noise.json, "
+        "report.md and scores.csv; --agents and --iterations default to 12 and 20 there",
+    )
+    tune.add_argument("--vehicle", help="the car of --log: a vehicle file (default: the one the log names)")
+    tune.add_argument("--estimator", default="alo-fkf", help="with --log: the filter whose noise is tuned")
+    tune.add_argument("--split", type=float, default=0.3, help="with --log: the fraction of the log tuned on")
     tune.add_argument(
         "--mu-noise",
         action="store_true",

@@ -22,7 +22,14 @@ from fourwis.envs.metrics import mae, rmse
 from fourwis.envs.road import contact_points
 from fourwis.envs.scenarios import PAPER_SCENARIOS, Scenario
 from fourwis.envs.simulation import Trajectory, simulate
-from fourwis.estimation import ESTIMATORS, Estimate, check_estimator_name, make_estimator, parse_estimator_name
+from fourwis.estimation import (
+    BASELINES,
+    ESTIMATORS,
+    Estimate,
+    check_estimator_name,
+    make_estimator,
+    parse_estimator_name,
+)
 from fourwis.estimation.joint import KINDS
 from fourwis.training.compare import (
     FAULT_SUFFIX,
@@ -39,7 +46,8 @@ from fourwis.training.provenance import Provenance, provenance
 from fourwis.training.tables import mean_over_seeds, require_distinct, write_runs_csv
 from fourwis.training.tyre_fit import plot_tyre_curves
 
-DEFAULT_ESTIMATORS = tuple(e for e in ESTIMATORS if e != "oracle")  #: the oracle is the truth itself
+#: the filters (the oracle is the truth itself) and the baselines they must beat (estimation.baselines)
+DEFAULT_ESTIMATORS = tuple(e for e in ESTIMATORS if e != "oracle") + BASELINES
 MU_TOLERANCE = 0.1  #: mean |mu_hat - mu| over the wheels below which mu counts as converged
 METRICS = (
     "mae_u",

@@ -115,14 +115,15 @@ def tyre_curves(load: float, mu: float = 1.0, vehicle=None, points: int = 121) -
     balance; Dugoff's longitudinal stiffness enters only through its combined-slip cut of Fy.)"""
     vehicle = vehicle or VehicleParams()
     p = ModelParams.from_vehicle(vehicle)
-    cx, cy = stiffness(load, p.kernel)
+    cx, cy = stiffness(load, p.front.kernel)
     kappa, alpha = np.linspace(0.0, 0.5, points), np.radians(np.linspace(0.0, 15.0, points))
     fx_plant = tyre_forces(vehicle.tyre, load, kappa, 0.0, mu, vehicle.reference_wheel_load)[0]
     fy_plant = np.abs(tyre_forces(vehicle.tyre, load, 0.0, np.tan(alpha), mu, vehicle.reference_wheel_load)[1])
     wheel_speed = FIGURE_SPEED * (1.0 + kappa)
     slip = (wheel_speed - FIGURE_SPEED) / np.maximum(np.maximum(wheel_speed, FIGURE_SPEED), MIN_SPEED)
-    fx_dugoff = np.array([dugoff(load, s, 0.0, p.mu_scale * mu, cx, cy, 0.0, 0.0)[0] for s in slip])
-    fy_dugoff = np.array([dugoff(load, 0.0, t, p.mu_scale * mu, cx, cy, 0.0, 0.0)[1] for t in np.tan(alpha)])
+    k = p.front.mu_scale
+    fx_dugoff = np.array([dugoff(load, s, 0.0, k * mu, cx, cy, 0.0, 0.0)[0] for s in slip])
+    fy_dugoff = np.array([dugoff(load, 0.0, t, k * mu, cx, cy, 0.0, 0.0)[1] for t in np.tan(alpha)])
     return TyreCurves(kappa, fx_plant, fx_dugoff, alpha, fy_plant, fy_dugoff)
 
 

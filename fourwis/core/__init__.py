@@ -15,7 +15,16 @@ from fourwis.core.checks import (
     member_rows,
 )
 from fourwis.core.constants import GRAVITY
-from fourwis.core.types import CHANNELS, N_CHANNELS, Command, Controller, Estimate, Estimator, SensorReading
+from fourwis.core.types import (
+    CHANNELS,
+    N_CHANNELS,
+    Command,
+    Controller,
+    Estimate,
+    Estimator,
+    SensorReading,
+    net_wheel_torque,
+)
 
 __all__ = [
     "CHANNELS",
@@ -36,4 +45,5 @@ __all__ = [
     "is_integer",
     "is_number",
     "member_rows",
+    "net_wheel_torque",
 ]

@@ -9,9 +9,14 @@ from typing import NamedTuple, Protocol
 
 import numpy as np
 
-#: Channel order of every sensor reading (13 channels; fourwis.envs.sensors produces them, the
-#: estimators read them): accelerations [m/s^2], yaw rate [rad/s], wheel speeds [rad/s], road-
-#: wheel steer angles [rad], motor torques [N m].
+#: Channel order of every sensor reading (16 channels), the layout estimators read: the
+#: accelerometers' specific forces ax, ay [m/s^2] and the gyro's yaw rate [rad/s]; four wheel
+#: speeds [rad/s]; four road-wheel steer angles [rad]; four net wheel torques [N m] (drive minus
+#: brake: :func:`net_wheel_torque`); and a measured forward speed at the CG [m/s] (a GNSS-aided
+#: INS, an optical sensor). Wheels FL, FR, RL, RR. fourwis.envs.sensors produces them from the
+#: simulated car's 13 sensors (one steer sensor per axle feeds both of its wheels' channels; it
+#: has no forward-speed sensor, whose channel it reports invalid); recorded logs fill what they
+#: have (fourwis.training.logs).
 CHANNELS = (
     "ax",
     "ay",
@@ -20,20 +25,42 @@ CHANNELS = (
     "omega_fr",
     "omega_rl",
     "omega_rr",
-    "delta_f",
-    "delta_r",
+    "delta_fl",
+    "delta_fr",
+    "delta_rl",
+    "delta_rr",
     "torque_fl",
     "torque_fr",
     "torque_rl",
     "torque_rr",
+    "speed",
 )
 N_CHANNELS = len(CHANNELS)
+#: the first column of each group of CHANNELS (the wheel groups run FL, FR, RL, RR)
+CH_AX, CH_AY, CH_YAW_RATE, CH_OMEGA, CH_DELTA, CH_TORQUE, CH_SPEED = 0, 1, 2, 3, 7, 11, 15
+#: the channels that are measurements only (the inertial sensors and the forward speed): an
+#: invalid one may hold anything, NaN included. Every other channel is also an input of the
+#: estimators' model, which needs a finite value every step (a sensor that is out holds its
+#: last value and flags it invalid).
+MEASUREMENT_CHANNELS = (CH_AX, CH_AY, CH_YAW_RATE, CH_SPEED)
+
+
+def net_wheel_torque(drive_torque, brake_pressure=0.0, brake_gain=0.0):
+    """The torque channel's quantity, the net torque a wheel's tyre must balance [N m]: the drive
+    (motor, or engine through the driveline) ``drive_torque`` [N m] less the friction brake's
+    ``brake_gain`` [N m/Pa] x ``brake_pressure`` [Pa] (forward driving: the brake opposes a wheel
+    spinning forwards). Arrays broadcast."""
+    return np.asarray(drive_torque, dtype=float) - np.asarray(brake_gain, dtype=float) * np.asarray(
+        brake_pressure, dtype=float
+    )
 
 
 class SensorReading(NamedTuple):
-    """One sample for B vehicles: ``values`` (B, 13) in :data:`CHANNELS` order and units,
-    ``valid`` (B, 13) bool (False: a dropout or a stuck sensor the fault model flags; ``values``
-    then holds the last good value), times ``t`` (B,) [s]."""
+    """One sample for B vehicles: ``values`` (B, N_CHANNELS) in :data:`CHANNELS` order and units,
+    ``valid`` (B, N_CHANNELS) bool (False: a dropout, or a channel the car has no sensor for;
+    ``values`` then holds the last good value, or anything on a :data:`MEASUREMENT_CHANNELS`
+    channel), times ``t`` (B,) [s] (fourwis's estimators step by the time since the previous
+    sample; an empty ``t`` steps by their nominal dt)."""
 
     values: np.ndarray
     valid: np.ndarray
