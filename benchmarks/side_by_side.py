@@ -38,6 +38,15 @@ NUMBER = re.compile(r"^-?[\d,]*\.?\d+(?:e[-+]?\d+)?")
 LOWER_IS_BETTER = re.compile(r"\b(us|ms|seconds?|time|wall|cost|per step|per vehicle-step|\[s\])\b", re.IGNORECASE)
 
 
+def better(label: str) -> str:
+    """ "higher" or "lower": a unit in brackets that is a rate ("[steps/s]") says higher, else
+    :data:`LOWER_IS_BETTER` decides."""
+    unit = re.search(r"\[([^\]]*)\]\s*$", label)
+    if unit and unit.group(1).endswith("/s"):
+        return "higher"
+    return "lower" if LOWER_IS_BETTER.search(label) else "higher"
+
+
 def build(ref: str, into: Path) -> tuple[Path, Path]:
     """(the source tree, the unpacked wheel) of ``ref`` under ``into``."""
     tree = into / "tree"
@@ -135,25 +144,22 @@ def main(argv: list[str] | None = None) -> int:
                                    capture_output=True)  # fmt: skip
     head = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
     after = f"`{args.after}`" if args.after else f"`{head.stdout.strip()}` (this checkout)"
+    command = " ".join([".venv/bin/python", "benchmarks/side_by_side.py", *(argv or sys.argv[1:])])
     lines = [
         "# Two versions side by side",
         "",
-        f"*Written by `{' '.join(['.venv/bin/python', 'benchmarks/side_by_side.py', *(argv or sys.argv[1:])])}` "
-        "(`make side-by-side BEFORE=REF`); to re-measure, rerun it, do not edit this page.*",
+        "*Written by the command below (`make side-by-side BEFORE=REF`); to re-measure, rerun it, do not "
+        "edit this page.*",
         "",
-        f"- before: `{args.before}`; after: {after}",
+        f"- command: `{command}`",
+        f"- commit: before `{args.before}`; after {after}",
         f"- date: {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC; load average before {load:.1f}",
         f"- machine: {cpu_model()}, {os.cpu_count()} cores, Python {platform.python_version()}",
         f"- each value: the best of {args.repeats} runs per version, the versions alternating",
         "",
         "| benchmark | measurement | better | before | after | after / before |",
         "|---|---|---|---:|---:|---:|",
-        *(
-            f"| {n} | {label} | {'lower' if LOWER_IS_BETTER.search(label) else 'higher'} | {b:,.4g} | {a:,.4g} "
-            f"| {a / b:.2f} |"
-            for n, label, b, a in rows
-            if b
-        ),
+        *(f"| {n} | {label} | {better(label)} | {b:,.4g} | {a:,.4g} | {a / b:.2f} |" for n, label, b, a in rows if b),
     ]
     text = "\n".join(lines) + "\n"
     print(text)
