@@ -60,6 +60,8 @@ class Slot(NamedTuple):
     unit: str
 
 
+#: the wheels in the order of every per-wheel slot (the layouts' FL, FR, RL, RR)
+WHEEL_NAMES = ("front-left", "front-right", "rear-left", "rear-right")
 #: the observation from an estimate (``observation="estimated"``) or the truth (``"true"``)
 STATE_SLOTS = (
     Slot("longitudinal speed u", 30.0, "m/s"),
@@ -67,10 +69,7 @@ STATE_SLOTS = (
     Slot("yaw rate r", 1.0, "rad/s"),
     Slot("longitudinal acceleration ax", 10.0, "m/s²"),
     Slot("lateral acceleration ay", 10.0, "m/s²"),
-    *(
-        Slot(f"road friction mu, {wheel} wheel", 1.0, "-")
-        for wheel in ("front-left", "front-right", "rear-left", "rear-right")
-    ),
+    *(Slot(f"road friction mu, {wheel} wheel", 1.0, "-") for wheel in WHEEL_NAMES),
     Slot("sideslip standard deviation", 0.05, "rad"),
     Slot("mean road-friction standard deviation", 0.3, "-"),
     Slot("reference yaw rate r_ref (2-DOF steady state, friction-bounded)", 1.0, "rad/s"),
@@ -83,16 +82,10 @@ SENSOR_SLOTS = (
     Slot("longitudinal acceleration ax", 10.0, "m/s²"),
     Slot("lateral acceleration ay", 10.0, "m/s²"),
     Slot("yaw rate r", 1.0, "rad/s"),
-    *(
-        Slot(f"wheel speed, {wheel}", 100.0, "rad/s")
-        for wheel in ("front-left", "front-right", "rear-left", "rear-right")
-    ),
+    *(Slot(f"wheel speed, {wheel}", 100.0, "rad/s") for wheel in WHEEL_NAMES),
     Slot("front road-wheel angle", 0.3, "rad"),
     Slot("rear road-wheel angle", 0.3, "rad"),
-    *(
-        Slot(f"motor torque, {wheel}", 600.0, "N m")
-        for wheel in ("front-left", "front-right", "rear-left", "rear-right")
-    ),
+    *(Slot(f"motor torque, {wheel}", 600.0, "N m") for wheel in WHEEL_NAMES),
     Slot("reference yaw rate r_ref from the readings and friction 0.8", 1.0, "rad/s"),
 )
 N_OBS = len(STATE_SLOTS)
