@@ -952,8 +952,12 @@ class Replay(NamedTuple):
 
 
 def empty_estimate(batch: int) -> Estimate:
-    """An :class:`Estimate` of ``batch`` rows of uninitialised float64 arrays, to write into."""
-    return Estimate(*(np.empty((batch, 4) if name in ("mu", "fz", "mu_std") else batch) for name in Estimate._fields))
+    """An :class:`Estimate` of ``batch`` rows of uninitialised float64 arrays, to write into: the
+    rows of two blocks, (7, B) and (3, B, 4), each C-contiguous (two allocations instead of ten:
+    a single car's step pays for each)."""
+    u, v, beta, r, ax, ay, beta_std = np.empty((7, batch))
+    mu, fz, mu_std = np.empty((3, batch, 4))
+    return Estimate(u, v, beta, r, ax, ay, mu, fz, beta_std, mu_std)
 
 
 @dataclass

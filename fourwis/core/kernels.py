@@ -258,10 +258,15 @@ THREADS_VARIABLE = "FOURWIS_THREADS"
 _threads: int | None = None
 
 
+#: the machine's cores, counted once: ``os.cpu_count()`` reads /sys on every call (~15 us on
+#: Linux), which every batched kernel entry would pay (docs/decisions/0032-kernel-threads.md)
+CORES = os.cpu_count() or 1
+
+
 def max_threads() -> int:
     """The most threads the kernels take: the machine's cores (as many as numba's
     NUMBA_NUM_THREADS, if that is set lower)."""
-    return max(1, min(os.cpu_count() or 1, numba.config.NUMBA_NUM_THREADS))
+    return max(1, min(CORES, numba.config.NUMBA_NUM_THREADS))
 
 
 def set_threads(threads: int | None) -> None:
@@ -304,8 +309,11 @@ def run_parallel(kernel, items: np.ndarray, *args, min_items: int = 2) -> None:
     on this thread. ``kernel`` must be compiled with ``nogil=True`` and write only to its own
     items' rows. Python threads rather than numba's ``prange``: a parallel loop cannot take the
     NamedTuple bundles the kernels are given."""
+    if len(items) < min_items:  # (first: one car's step skips the thread count's look-ups)
+        kernel(items, *args)
+        return
     threads = min(kernel_threads(), len(items))
-    if threads < 2 or len(items) < min_items:
+    if threads < 2:
         kernel(items, *args)
         return
     list(_thread_pool(threads).map(lambda part: kernel(part, *args), np.array_split(items, threads)))
