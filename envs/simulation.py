@@ -58,9 +58,10 @@ from fourwis.estimation.oracle import Oracle
 DT = 0.002  #: physics, sensor and estimator step [s] (the paper samples at 2 ms)
 SIMULATE_CHUNK = 250  #: steps :func:`simulate` advances per call (its progress bar moves by as many)
 #: largest batch whose plant steps car by car inside the compiled loop; beyond it the plant steps
-#: the whole batch at once between the loop's other stages, in SIMD lanes of cars (the two are even
-#: at about this size: docs/decisions/0008-compiled-closed-loop-and-dyc.md)
-PER_CAR_PLANT_MAX = 32
+#: the whole batch at once between the loop's other stages, in SIMD lanes of cars, at the price of
+#: leaving the loop every 2 ms (car by car is faster up to 256 cars, slower at 1,024:
+#: docs/decisions/0008-compiled-closed-loop-and-dyc.md)
+PER_CAR_PLANT_MAX = 256
 
 
 def truth_of(state: np.ndarray, aux: np.ndarray) -> tuple[np.ndarray, Estimate]:
