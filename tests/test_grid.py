@@ -130,31 +130,19 @@ def test_the_steady_turn_steer_stops_at_the_plants_limit():
 
 
 def _series(mu_hat, mu, beta_hat, beta, beta_std, mu_std):
+    """(estimate, truth) on a straight road at a steady 0.3 mu g of lateral acceleration."""
     n = mu_hat.size
-    zeros = np.zeros(n)
-    return Estimate(
-        zeros,
-        zeros,
-        beta_hat,
-        zeros,
-        zeros,
-        zeros,
-        np.repeat(mu_hat[:, None], 4, 1),
-        np.zeros((n, 4)),
-        beta_std,
-        np.repeat(mu_std[:, None], 4, 1),
-    ), Estimate(
-        zeros,
-        zeros,
-        beta,
-        zeros,
-        np.full(n, 0.3 * mu[0] * GRAVITY),
-        zeros,
-        np.repeat(mu[:, None], 4, 1),
-        np.zeros((n, 4)),
-        zeros,
-        np.zeros((n, 4)),
+    zeros, wheels = np.zeros(n), np.zeros((n, 4))
+
+    def per_wheel(x):
+        return np.repeat(x[:, None], 4, 1)
+
+    common = dict(u=zeros, v=zeros, r=zeros, ax=zeros, fz=wheels)
+    estimate = Estimate(
+        **common, beta=beta_hat, ay=zeros, mu=per_wheel(mu_hat), beta_std=beta_std, mu_std=per_wheel(mu_std)
     )
+    truth = Estimate(**common, beta=beta, ay=0.3 * mu * GRAVITY, mu=per_wheel(mu), beta_std=zeros, mu_std=wheels)
+    return estimate, truth
 
 
 class _Traj:

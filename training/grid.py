@@ -83,9 +83,9 @@ CLOSED_LOOP_CONTROLLERS = ("dyc-lqr", "dyc-smc")
 CLOSED_LOOP_ESTIMATORS = ("joint", "oracle")
 HEADLINE_SEEDS = 2  #: sensor seeds of each headline run (as fourwis compare)
 DEFAULT_ESTIMATORS = ("joint", "alo-fkf", "ckf", "baseline-kf")  #: open loop (the oracle's errors are 0)
-#: estimators run on the uniform-road friction x manoeuvre cells only: the linear baseline steps in
-#: Python (~190 us per 2 ms step against ~25 for the compiled filters), and the whole grid with it
-#: would take 2.5 times as long (docs/decisions/0037-evaluation-grid.md)
+#: estimators run on the friction x manoeuvre cells of :data:`CLOSED_LOOP_FRICTIONS` only: the
+#: linear baseline steps in Python (~190 us per 2 ms step against ~25 for the compiled filters),
+#: and the whole grid with it would take twice as long (docs/decisions/0037-evaluation-grid.md)
 FRICTION_ONLY = ("baseline-kf",)
 
 
@@ -176,7 +176,8 @@ MANOEUVRES = (
     *(Manoeuvre("random", k) for k in range(4)),
 )
 STRAIGHT_MANOEUVRES = tuple(m for m in MANOEUVRES if m.family != "turn")
-SUBSET_FRICTIONS = (0.4, 0.5, 0.8, 0.9)
+SUBSET_FRICTIONS = (0.5, 0.8)  #: the speed and model-error studies' roads (one of each half)
+CLOSED_LOOP_FRICTIONS = (0.4, 0.5, 0.8, 0.9)  #: the closed-loop cells' roads (and the slow baseline's)
 SUBSET_MANOEUVRES = (Manoeuvre("turn", 0.5), Manoeuvre("turn", 0.6), Manoeuvre("sine", 0.5), Manoeuvre("sine", 0.8))
 CLOSED_LOOP_MANOEUVRES = STRAIGHT_MANOEUVRES[:6]  #: steps, sines and lane changes
 CLOSED_LOOP_SPEEDS_KPH = (60.0, 75.0)
@@ -378,11 +379,11 @@ def grid_cells(
     speeds = [s for s in SPEEDS_KPH if s != BASE_SPEED_KPH]
     manoeuvres, straight, subset, errors = MANOEUVRES, STRAIGHT_MANOEUVRES, SUBSET_MANOEUVRES, MODEL_ERRORS
     closed, closed_speeds = CLOSED_LOOP_MANOEUVRES, CLOSED_LOOP_SPEEDS_KPH
-    closed_roads = subset_roads
+    closed_roads = [Road("uniform", m) for m in CLOSED_LOOP_FRICTIONS]
     if quick:
         closed_roads = [Road("uniform", 0.4), Road("uniform", 0.5)]  # (one cell of each half)
         uniform_roads, pair_roads = [Road("uniform", 0.4), Road("uniform", 0.5)], [Road("split", 0.2, 0.6)]
-        subset_roads, speeds = subset_roads[:1], [90.0]
+        subset_roads, speeds = subset_roads[1:], [90.0]
         manoeuvres, straight = (Manoeuvre("turn", 0.5), Manoeuvre("step", 0.8)), (Manoeuvre("sine", 0.5),)
         subset, errors, closed, closed_speeds = (
             subset[2:3],
@@ -401,9 +402,8 @@ def grid_cells(
         for estimator in estimators:
             if estimator == "oracle" and error is not NOMINAL:
                 continue
-            if estimator in FRICTION_ONLY and (
-                road.kind != "uniform" or speed != BASE_SPEED_KPH or error is not NOMINAL
-            ):
+            other_study = road.kind != "uniform" or speed != BASE_SPEED_KPH or error is not NOMINAL
+            if estimator in FRICTION_ONLY and (other_study or not _member(road.low, CLOSED_LOOP_FRICTIONS)):
                 continue
             cells += _seeded(Cell(road, m, speed, 0, error, estimator), seeds)
     if closed_loop:
@@ -629,6 +629,7 @@ CELL_COLUMNS = [
     "controller",
     "seed",
     "swa [rad]",
+    "steady_grip [-]",
 ]
 
 
