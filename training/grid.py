@@ -280,18 +280,13 @@ class Cell:
             duration = TURN_DURATION if m.family == "turn" else SHORT_DURATION
             return make_scenario("paper_step", angle=self.swa, step_time=MANOEUVRE_START, duration=duration, **common)
         if m.family == "sine":
-            return replace(
-                make_scenario("paper_sine", duration=SHORT_DURATION, **common), steering=_sine(self.swa, m.variant)
+            amplitude = math.degrees(self.swa)  # (paper_sine's sine starts at MANOEUVRE_START too)
+            return make_scenario(
+                "paper_sine", duration=SHORT_DURATION, amplitude_deg=amplitude, frequency=m.variant, **common
             )
         if m.family == "lane":
             return make_scenario("paper_dlc" if m.variant == 1 else "iso3888_2", **common)
         return make_scenario("random", seed=int(m.variant), duration=SHORT_DURATION, **common)
-
-
-def _sine(amplitude: float, frequency: float):
-    from fourwis.envs.driver import Sine
-
-    return Sine(amplitude, frequency, start=MANOEUVRE_START)
 
 
 # -- the steady turn's steering ------------------------------------------------------------------
@@ -711,7 +706,7 @@ def plot_heat_maps(results, estimators: Sequence[str], metric: str, scale: float
             ax.set_title(f"{e}, {h}", fontsize=8)
             fig.colorbar(image, ax=ax, fraction=0.04)
     fig.suptitle(f"{title} at {BASE_SPEED_KPH:g} km/h, nominal model (blank: the other half)")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0.0, 0.0, 1.0, 1.0 - 0.4 / fig.get_figheight()))  # (room for the title)
     atomic_write(path, lambda p: fig.savefig(p, format="png", dpi=110))
     plt.close(fig)
     return path
