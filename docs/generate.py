@@ -1,14 +1,15 @@
 """Writes the results pages of the docs site from measured runs: ``make docs``.
 
-    .venv/bin/python docs/generate.py [--pages comparison estimation rl benchmarks] [--reuse]
+    .venv/bin/python docs/generate.py [--pages comparison estimation grid rl benchmarks] [--reuse]
 
 Each page runs its job as a user would (``fourwis compare``, ``fourwis estimate``, ``fourwis
-evaluate`` of the shipped policy, the ``benchmarks/bench_*.py`` scripts) into build/results/,
-then writes docs/results/<page>.md and its figures under docs/results/figures/<page>/. Every page
-is headed with the job's command, commit, date and machine (training.provenance), so a number
-on the site can be traced to the run that measured it and a re-measurement is a rerun of this
-script, never an edit of prose. ``--reuse`` reads the saved outputs in build/results/ where a
-job has already written them (a report carries its own provenance header).
+estimate --grid``, ``fourwis evaluate`` of the shipped policy, the ``benchmarks/bench_*.py``
+scripts) into build/results/, then writes docs/results/<page>.md and its figures under
+docs/results/figures/<page>/. Every page is headed with the job's command, commit, date and
+machine (training.provenance), so a number on the site can be traced to the run that measured
+it and a re-measurement is a rerun of this script, never an edit of prose. ``--reuse`` reads
+the saved outputs in build/results/ where a job has already written them (a report carries its
+own provenance header).
 
 The comparison page also writes docs/results/headline.md, the at-most-six-row summary that the
 home page includes and that this script copies into README.md between its ``headline`` markers.
@@ -203,6 +204,28 @@ def estimation(reuse: bool) -> str:
     )
 
 
+# -- the evaluation grid ------------------------------------------------------------------------
+
+
+def grid(reuse: bool) -> str:
+    out = run(["estimate", "--grid", "--out", "build/results/grid"], WORK / "grid", reuse, "grid.md")
+    copy_figures(out, "grid")
+    return "\n".join(
+        [
+            "# Evaluation grid",
+            "",
+            GENERATED,
+            "",
+            "The estimators on roads, speeds, manoeuvres, sensor seeds and model errors split into a "
+            "development half (what they were tuned on) and a held-out half (what they never saw), side "
+            "by side, with the targets of issue 41 checked per cell (training/grid.py; "
+            "docs/decisions/0037-evaluation-grid.md).",
+            "",
+            *report_body(out / "grid.md", "figures/grid"),
+        ]
+    )
+
+
 # -- reinforcement learning ----------------------------------------------------------------------
 
 
@@ -282,6 +305,7 @@ def benchmarks(reuse: bool) -> str:
 PAGES: dict[str, Callable[[bool], str]] = {
     "comparison": comparison,
     "estimation": estimation,
+    "grid": grid,
     "rl": rl,
     "benchmarks": benchmarks,
 }

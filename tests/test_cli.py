@@ -148,7 +148,8 @@ def test_tune_checks_its_output_file_before_any_work(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize(
-    "command", [["compare"], ["estimate"], ["simulate", "paper_step"], ["swd", "--A", "20"], ["train"]]
+    "command",
+    [["compare"], ["estimate"], ["estimate", "--grid"], ["simulate", "paper_step"], ["swd", "--A", "20"], ["train"]],
 )
 def test_every_command_checks_its_output_folder_before_any_work(command, tmp_path, monkeypatch):
     from fourwis.envs import simulation as envs_simulation

@@ -248,9 +248,38 @@ def _estimate_log(args: argparse.Namespace) -> int:
     )
 
 
+def _estimate_grid(args: argparse.Namespace) -> int:
+    from fourwis.training.grid import DEFAULT_ESTIMATORS, grid_report
+
+    others = _given(args, "estimate", ("scenarios", "road_mu", "log", "vehicle"))
+    if others:
+        raise SystemExit(f"fourwis estimate: --grid sets its own scenarios; {others} are for the named scenarios")
+    estimators = args.estimators if _given(args, "estimate", ("estimators",)) else list(DEFAULT_ESTIMATORS)
+    out = args.out if _given(args, "estimate", ("out",)) else "results/grid"
+    return _report(
+        "estimate",
+        lambda: grid_report(
+            out,
+            args.half,
+            estimators,
+            args.quick,
+            args.seeds,
+            args.jobs,
+            command=args.command_line,
+            backend=_backend(args),
+        ),
+        "runs.csv",
+    )
+
+
 def _estimate(args: argparse.Namespace) -> int:
     from fourwis.training.estimate import estimate_report
 
+    if args.grid:
+        return _estimate_grid(args)
+    others = _given(args, "estimate", ("half", "quick"))
+    if others:
+        raise SystemExit(f"fourwis estimate: {others} apply to --grid only")
     if args.log is not None:
         return _estimate_log(args)
     if args.vehicle is not None:
@@ -631,6 +660,17 @@ def build_parser() -> argparse.ArgumentParser:
         help="the car of --log: a vehicle file (TOML; docs/logs.md) (default: the one the log names, "
         "as a shipped log and fourwis simulate's logs do)",
     )
+    from fourwis.training.grid import HALF_CHOICES
+
+    est.add_argument(
+        "--grid",
+        action="store_true",
+        help="instead of scenarios: the evaluation grid (friction x manoeuvre x speed x seed x model error, "
+        "development and held-out halves, closed-loop cells); writes OUT/grid.md (default OUT: "
+        "results/grid), runs.csv, checks.csv and heat maps",
+    )
+    est.add_argument("--half", choices=HALF_CHOICES, default="both", help="with --grid: which half to run")
+    est.add_argument("--quick", action="store_true", help="with --grid: a few cells of each kind (about a minute)")
     est.set_defaults(func=_estimate)
     from fourwis.estimation.optimizers import METHODS
     from fourwis.training.tune import CRITERIA
