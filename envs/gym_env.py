@@ -30,7 +30,7 @@ from fourwis.core.checks import is_integer, is_number
 from fourwis.core.types import Command, Estimate
 from fourwis.envs.fmvss126 import characterise
 from fourwis.envs.layout import A_AY, S_DELTA_F, S_DELTA_R, S_R, S_U, S_X, S_Y
-from fourwis.envs.loop import HeldAction
+from fourwis.envs.loop import HeldAction, Sample
 from fourwis.envs.metrics import (
     SPIN_OUT_SIDESLIP,
     CoursePaths,
@@ -297,9 +297,10 @@ class YawStabilityCore:
         for b in members:
             self._traces[b] = []
 
-    def observe(self) -> np.ndarray:
-        """Observations (B, observation_size) float32 at the current time."""
-        s = self.loop.sample()
+    def observe(self, sample: Sample | None = None) -> np.ndarray:
+        """Observations (B, observation_size) float32 at the current time (from ``sample``, the
+        loop's current sample, if the caller has taken it already)."""
+        s = self.loop.sample() if sample is None else sample
         delta_f = s.front_steer
         if self.config.observation == "sensors":
             values = s.reading.values[:, CHANNEL_OF_SENSOR]  # the car's 13 sensors
@@ -341,7 +342,7 @@ class YawStabilityCore:
                 )
             )
         s = self.loop.sample()
-        obs = self.observe()
+        obs = self.observe(s)
         truth = s.truth
         r_ref = reference_yaw_rate(truth.u, s.front_steer, truth.mu, self.params)
         yaw_error = truth.r - r_ref
