@@ -12,7 +12,7 @@ import fourwis  # noqa: F401  (registers the environments)
 from fourwis.envs.scenarios import make_scenario
 from fourwis.envs.simulation import simulate
 from fourwis.envs.vehicle import VehicleParams
-from fourwis.estimation import ESTIMATORS, make_estimator
+from fourwis.estimation import ESTIMATORS, ModelParams, StateEstimator, make_estimator
 from fourwis.training.estimate import consistency
 
 DATA = Path(__file__).with_name("data")
@@ -82,3 +82,20 @@ def test_consistency_reads_a_calibrated_sigma_as_one_and_an_overconfident_one_as
     ratio, inside = consistency(error, sigma / 10)
     assert ratio == pytest.approx(10.0, rel=0.01) and inside < 0.2
     assert all(math.isnan(q) for q in consistency(error, np.zeros_like(sigma)))
+
+
+def test_the_grip_floor_option_is_the_joint_estimators_and_names_a_bad_value():
+    """grip_floor_time_constant: > 0 (math.inf: off), and only for ``joint`` (joint-paper is the
+    estimator without it)."""
+    params = ModelParams.from_vehicle(VehicleParams())
+    assert StateEstimator(params, kind="joint").settings.grip_floor
+    assert not StateEstimator(params, kind="joint", grip_floor_time_constant=math.inf).settings.grip_floor
+    assert not StateEstimator(params, kind="joint-paper").settings.grip_floor
+    for kwargs, named in (
+        ({"grip_floor_time_constant": 0.0}, "grip_floor_time_constant must be > 0"),
+        ({"grip_floor_time_constant": math.inf, "kind": "joint-paper"}, "applies to the joint estimator"),
+    ):
+        with pytest.raises(ValueError, match=named):
+            StateEstimator(params, **kwargs)
+    assert make_estimator("joint", VehicleParams()).params.force_ellipse
+    assert not make_estimator("joint-paper", VehicleParams()).params.force_ellipse
