@@ -8,12 +8,14 @@ from dataclasses import fields
 from fourwis.core.checks import check_estimator, check_step, check_vehicle_params, import_factory
 from fourwis.core.types import Estimate
 from fourwis.estimation.baselines import BASELINES, make_baseline
-from fourwis.estimation.joint import KINDS, NoiseParams, StateEstimator, tuned_noise
+from fourwis.estimation.joint import KINDS, TUNED_KINDS, NoiseParams, StateEstimator, tuned_noise
 from fourwis.estimation.model import AxleTyre, ModelParams
 from fourwis.estimation.online import OnlineTuner
 from fourwis.estimation.oracle import TRUE_SUFFIX, TRUTH_GROUPS, Oracle, PartialOracle, parse_truth_groups
 
-ESTIMATORS = ("oracle",) + KINDS  #: the estimators' names (make_estimator); "joint" is the paper's full system
+#: the estimators' names (make_estimator); "joint-paper" is the paper's full system as shipped before
+#: issue 41, "joint" the same system with the fixes of docs/decisions/0034-0036
+ESTIMATORS = ("oracle",) + KINDS
 #: make_estimator also builds the BASELINES (estimation.baselines): a linear single-track Kalman
 #: observer, the steady-state single-track sideslip and beta = 0
 
@@ -55,7 +57,7 @@ def make_estimator(
 ):
     """Build the estimator ``name`` (see :data:`ESTIMATORS` and :data:`BASELINES`) for vehicle
     ``params`` (duck-typed VehicleParams) at step ``dt`` [s] (its nominal step: fourwis's
-    estimators step by the readings' times). ``alo-fkf`` and ``joint`` (the paper's
+    estimators step by the readings' times). ``alo-fkf``, ``joint-paper`` and ``joint`` (the paper's
     antlion-tuned filters) use the ALO-tuned noise shipped in estimation/data/tuned_noise.json
     (``fourwis tune`` rewrites it; without the file they run the hand-set noise); ``noise``
     overrides it. ``<name>+true-<group>[-<group>...]`` (e.g. ``joint+true-mu``) reports the
@@ -108,14 +110,10 @@ def make_estimator(
             f"known: {sorted(options)}"
         )
     if noise is None:
-        noise = (tuned_noise() if name in ("alo-fkf", "joint") else None) or NoiseParams()
-    return StateEstimator(
-        ModelParams.from_vehicle(params, relaxation=tyre_relaxation, tyres=tyres),
-        kind=name,
-        dt=dt,
-        noise=noise,
-        **kwargs,
-    )
+        noise = (tuned_noise() if name in TUNED_KINDS else None) or NoiseParams()
+    # (joint: the combined slip from the measured longitudinal force, docs/decisions/0034)
+    model = ModelParams.from_vehicle(params, relaxation=tyre_relaxation, tyres=tyres, force_ellipse=name == "joint")
+    return StateEstimator(model, kind=name, dt=dt, noise=noise, **kwargs)
 
 
 def relaxed_joint(params, dt: float = 0.002):

@@ -10,11 +10,14 @@ angles, four net wheel torques, a measured forward speed; times t (B,) [s]) and 
 * ``ckf``: one cubature Kalman filter, all measurements, nominal mu;
 * ``fkf``: federated CKF, sub-filter 1 [ax, ay, r, wheel speeds], sub-filter 2 [ay, r];
 * ``alo-fkf``: the paper's section 3: robust (Huber, :data:`HUBER_C`) sub-filters, nominal mu;
-* ``joint``: the paper's section 4: the robust state FKF plus a mu FKF (random-walk mu per
+* ``joint-paper``: the paper's section 4: the robust state FKF plus a mu FKF (random-walk mu per
   wheel, measured [ax, ay, r] / [ay, r] predicted from the tyre forces) exchanging estimates
-  every step.
+  every step, with the deviations below as fourwis shipped it before issue 41;
+* ``joint``: ``joint-paper`` with issue 41's fixes: the grip floor (GRIP_FLOOR_TIME_CONSTANT) and,
+  from ``make_estimator``, the combined slip from the measured longitudinal force (``ModelParams.force_ellipse``;
+  docs/decisions/0034-combined-slip-from-the-measured-force.md).
 
-``estimation.make_estimator`` gives ``alo-fkf`` and ``joint`` the ALO-tuned noise
+``estimation.make_estimator`` gives ``alo-fkf``, ``joint-paper`` and ``joint`` the ALO-tuned noise
 (estimation/data/tuned_noise.json, written by ``fourwis tune``); a StateEstimator built
 directly uses ``noise`` (default: the hand-set :class:`NoiseParams`).
 
@@ -69,6 +72,7 @@ import numba
 import numpy as np
 
 from fourwis.core.checks import check_step, is_number, member_rows
+from fourwis.core.constants import GRAVITY
 from fourwis.core.kernels import JIT, dot, matmul, run_parallel, scratch
 from fourwis.core.types import (
     CH_AX,
@@ -112,8 +116,11 @@ from fourwis.estimation.model import (
 
 N_STATE = 6
 I_U, I_V, I_AX, I_AY, I_R, I_GAMMA = range(N_STATE)
-KINDS = ("ekf", "ckf", "fkf", "alo-fkf", "joint")
-ROBUST_KINDS = ("alo-fkf", "joint")  #: the kinds that update with Huber weights (huber_c)
+KINDS = ("ekf", "ckf", "fkf", "alo-fkf", "joint-paper", "joint")
+ROBUST_KINDS = ("alo-fkf", "joint-paper", "joint")  #: the kinds that update with Huber weights (huber_c)
+FRICTION_KINDS = ("joint-paper", "joint")  #: the kinds that estimate the friction
+#: the kinds make_estimator gives the ALO-tuned noise (estimation/data/tuned_noise.json)
+TUNED_KINDS = ("alo-fkf", "joint-paper", "joint")
 MU_BOUNDS = (0.1, 1.2)  #: estimated mu stays inside these bounds
 EXCITATION_LAMBDA = 1.0  #: a wheel's mu is updated only while its lateral Dugoff lambda is below this
 #: below this estimated forward speed [m/s] the friction filter does not run (mu and its
@@ -318,6 +325,18 @@ SLIDE_MIN_SPEED = 5.0
 #: off (the paper's sub-filter 2, [ay, r]). Only the joint estimator measures it: a filter holding a
 #: wrong nominal friction cannot meet the balance and ay together (docs/decisions/0018-yaw-balance.md).
 YAW_BALANCE_STD = 45.0
+#: The grip floor (``joint``): the tyres cannot carry more than the road's friction, so the
+#: horizontal acceleration the accelerometers measure bounds it from below, mu >= |a| / (k g) with
+#: k the tyres' friction scale (the sum of the four loads is m g whatever the load transfer).
+#: |a| is the magnitude of the measured ax, ay (ay less its learnt offset) low-passed over this
+#: time constant [s], which takes the sensors' noise (0.17 m/s^2 per sample) to ~0.02 m/s^2;
+#: each wheel's mu is kept at or above the floor (a projection of the estimate onto the
+#: constraint, its covariance kept: Simon, "Kalman filtering with state constraints", IET CTA
+#: 2010). It is what keeps a wrongly low mu from capping the model's lateral force under what the
+#: car is measured to carry, which drove the sideslip into both axles' saturation on the fuzz's
+#: random-torque case, and keeps a dry road in a 0.4 g turn from reading as an icy one
+#: (docs/decisions/0034-combined-slip-from-the-measured-force.md). math.inf: off.
+GRIP_FLOOR_TIME_CONSTANT = 0.1
 #: columns of the zero-point state: learnt ay offset [m/s^2], steady time [s], steering angle
 #: the steady time counts from [rad], low-passed yaw rate [rad/s], low-passed kinematic
 #: sideslip rate ay / u - r [rad/s] (SLIDE_TAU)
@@ -336,6 +355,7 @@ class FilterSettings(NamedTuple):
     yaw_balance: bool  #: state sub-filter 2 measures Gamma = 0 in steady driving (yaw_balance_std)
     slide_detection: bool  #: a slide in a steady turn opens the friction gate (slide_rate)
     friction_gate: bool  #: mu is updated only while a tyre's lateral demand makes it observable
+    grip_floor: bool  #: mu kept at or above the measured acceleration's (grip_floor_time_constant)
     dt: float  #: [s]
     huber_c: float
     zero_point_time_constant: float  #: [s] (inf: no learning)
@@ -344,6 +364,7 @@ class FilterSettings(NamedTuple):
     speed_channel: int
     slide_rate: float  #: [rad/s]
     yaw_balance_std: float  #: [N m]
+    grip_floor_time_constant: float  #: [s]
 
 
 class FilterNoise(NamedTuple):
@@ -363,7 +384,8 @@ class FilterState(NamedTuple):
     the previous wheel speeds and their low-passed derivative (B, 4), the previous readings of
     the measured channels (HELD_CHANNELS) and how often each repeated (B, 8), the
     zero-point state (B, 5: ZP_*), the latest innovation NLL (B,), the relaxed slip of each tyre
-    (B, 4; NaN: not started) and the time of the previous reading (B,) [s] (NaN: none)."""
+    (B, 4; NaN: not started), the time of the previous reading (B,) [s] (NaN: none) and the
+    low-passed measured horizontal acceleration of the grip floor (B,) [m/s^2]."""
 
     x: np.ndarray
     P: np.ndarray
@@ -379,6 +401,7 @@ class FilterState(NamedTuple):
     last_nll: np.ndarray
     slip_relaxed: np.ndarray
     t_prev: np.ndarray
+    grip_accel: np.ndarray
 
 
 class FilterKernel(NamedTuple):
@@ -770,6 +793,11 @@ def _step_vehicle(f: FilterKernel, i: int, reading, valid_in, t: float, out: Est
     values = scratch((channels,))
     values[:] = reading
     values[CH_AY] -= zero_point_new[ZP_OFFSET]
+    grip_accel = state.grip_accel[i]
+    if valid[CH_AX] and valid[CH_AY]:  # (GRIP_FLOOR_TIME_CONSTANT)
+        grip_accel = _low_pass(
+            grip_accel, math.hypot(values[CH_AX], values[CH_AY]), dt, settings.grip_floor_time_constant
+        )
     # inputs; wheel angular acceleration for eq. 7: differentiated wheel speed, low-passed
     omega, torque, od = values[CH_OMEGA : CH_OMEGA + 4], values[CH_TORQUE : CH_TORQUE + 4], scratch((4,))
     for w in range(4):
@@ -867,6 +895,10 @@ def _step_vehicle(f: FilterKernel, i: int, reading, valid_in, t: float, out: Est
                 mu_new[w] = min(max(mu_fused[w], MU_BOUNDS[0]), MU_BOUNDS[1])
                 if unseen_slide:  # (a slide tells only that the road is slipperier than mu_hat)
                     mu_new[w] = min(mu_new[w], mu[w])
+        if settings.grip_floor:  # (GRIP_FLOOR_TIME_CONSTANT)
+            for w in range(4):
+                floor = grip_accel / (GRAVITY * axle_tyre(pk, w).mu_scale)
+                mu_new[w] = max(mu_new[w], min(floor, MU_BOUNDS[1]))
         # cap the random walk's growth where mu is unobservable
         scale = scratch((4,))
         for w in range(4):
@@ -886,6 +918,7 @@ def _step_vehicle(f: FilterKernel, i: int, reading, valid_in, t: float, out: Est
             inertial_prev[m] = reading[HELD_CHANNELS[m]]
     if math.isfinite(t):
         state.t_prev[i] = t
+    state.grip_accel[i] = grip_accel
     # the estimate
     u, v = x[I_U], x[I_V]
     out.u[j], out.v[j], out.r[j], out.ax[j], out.ay[j] = u, v, x[I_R], x[I_AX], x[I_AY]
@@ -992,6 +1025,9 @@ class StateEstimator:
     #: lambda is below EXCITATION_LAMBDA (the module docstring); False updates it every step, as
     #: the paper's joint estimator does, so that mu follows model error where it is unobservable
     friction_gate: bool = True
+    #: the joint estimator's grip floor: the time constant [s] of the measured acceleration that
+    #: bounds mu from below (GRIP_FLOOR_TIME_CONSTANT); math.inf switches it off (as joint-paper)
+    grip_floor_time_constant: float = GRIP_FLOOR_TIME_CONSTANT
     needs_truth: bool = False
 
     def __post_init__(self) -> None:
@@ -1013,32 +1049,43 @@ class StateEstimator:
             raise ValueError(f"slide_rate must be > 0 [rad/s] (math.inf: off), got {self.slide_rate!r}")
         if not (is_number(self.yaw_balance_std) and self.yaw_balance_std > 0):
             raise ValueError(f"yaw_balance_std must be > 0 [N m] (math.inf: off), got {self.yaw_balance_std!r}")
-        if self.yaw_balance_std != YAW_BALANCE_STD and self.kind != "joint":
+        if self.yaw_balance_std != YAW_BALANCE_STD and self.kind not in FRICTION_KINDS:
             raise ValueError(
                 f"yaw_balance_std applies to the joint estimator; {self.kind!r} has no friction "
                 f"filter to balance, got yaw_balance_std={self.yaw_balance_std!r}"
             )
         if not isinstance(self.friction_gate, bool):
             raise ValueError(f"friction_gate must be True or False, got {self.friction_gate!r}")
-        if not self.friction_gate and self.kind != "joint":
+        if not self.friction_gate and self.kind not in FRICTION_KINDS:
             raise ValueError(f"friction_gate applies to the joint estimator; {self.kind!r} holds a nominal mu")
         if not (is_number(self.zero_point_time_constant) and self.zero_point_time_constant > 0):
             raise ValueError(f"zero_point_time_constant must be > 0 [s], got {self.zero_point_time_constant!r}")
-        friction = self.kind == "joint"
+        if not (is_number(self.grip_floor_time_constant) and self.grip_floor_time_constant > 0):
+            raise ValueError(
+                f"grip_floor_time_constant must be > 0 [s] (math.inf: off), got {self.grip_floor_time_constant!r}"
+            )
+        if self.grip_floor_time_constant != GRIP_FLOOR_TIME_CONSTANT and self.kind != "joint":
+            raise ValueError(
+                f"grip_floor_time_constant applies to the joint estimator; {self.kind!r} has none, "
+                f"got grip_floor_time_constant={self.grip_floor_time_constant!r}"
+            )
+        friction = self.kind in FRICTION_KINDS
         self.settings = FilterSettings(
             extended=self.kind == "ekf",
-            federated=self.kind in ("fkf", "alo-fkf", "joint"),
+            federated=self.kind in ("fkf", "alo-fkf", *FRICTION_KINDS),
             robust=self.kind in ROBUST_KINDS,
             friction=friction,
             yaw_balance=friction and self.yaw_balance_std < math.inf,
             slide_detection=friction and self.slide_rate < math.inf,
             friction_gate=bool(self.friction_gate),
+            grip_floor=self.kind == "joint" and self.grip_floor_time_constant < math.inf,
             dt=float(self.dt),
             huber_c=float(self.huber_c),
             zero_point_time_constant=float(self.zero_point_time_constant),
             stuck_samples=float(self.stuck_samples),
             slide_rate=float(self.slide_rate),
             yaw_balance_std=float(self.yaw_balance_std),
+            grip_floor_time_constant=float(self.grip_floor_time_constant),
             speed_channel=CH_SPEED,
         )
         self.state: FilterState | None = None
@@ -1135,6 +1182,7 @@ class StateEstimator:
             last_nll=np.zeros(B),
             slip_relaxed=np.full((B, 4), np.nan),  # (NaN: the first step starts it without lag)
             t_prev=np.full(B, np.nan),  # (NaN: the first step is one of the nominal dt)
+            grip_accel=np.hypot(measured[:, CH_AX], measured[:, CH_AY]),
         )
         if mask is None or not started:
             self.state = fresh

@@ -118,7 +118,9 @@ class ModelParams:
     tyres of each axle (:class:`AxleTyre`; their friction scale k is fitted to the plant tyre by
     training/tyre_fit.py: Dugoff saturates more gently than the Magic Formula, so with k = 1 the
     estimated mu reads high), eps: Dugoff's speed reduction of friction [s/m];
-    rolling_resistance: f_r [-]; drag_factor: (1/2) rho Cd A [kg/m], drag = drag_factor u|u|."""
+    rolling_resistance: f_r [-]; drag_factor: (1/2) rho Cd A [kg/m], drag = drag_factor u|u|;
+    force_ellipse: the combined-slip cut of the lateral force from the measured longitudinal
+    force (:func:`lateral_force`; False: Dugoff's cut by the wheel-speed slip, the paper's)."""
 
     mass: float
     yaw_inertia: float
@@ -134,8 +136,11 @@ class ModelParams:
     eps: float = 0.0
     rolling_resistance: float = 0.0
     drag_factor: float = 0.0
+    force_ellipse: bool = False
 
     def __post_init__(self) -> None:
+        if not isinstance(self.force_ellipse, bool):
+            raise ValueError(f"ModelParams.force_ellipse must be True or False, got {self.force_ellipse!r}")
         for name in ("front", "rear"):
             if not isinstance(getattr(self, name), AxleTyre):
                 raise ValueError(
@@ -150,6 +155,7 @@ class ModelParams:
         resistances: bool = False,
         relaxation: bool = False,
         tyres: tuple[AxleTyre, AxleTyre] | None = None,
+        force_ellipse: bool = False,
     ) -> ModelParams:
         """From a duck-typed VehicleParams and the tyres (front, rear) ``tyres`` (default: both
         axles the eq. 17 fit of fourwis's own simulated tyre, estimation/data/dugoff_fit.json, or
@@ -160,7 +166,8 @@ class ModelParams:
         ``tyres`` (each must have one), or, for fourwis's own tyre, its length at the mean static
         wheel load m g / 4 (``vehicle.static_relaxation_lengths``, 0.36 m for the paper's car; the
         plant's grows with load, which this constant leaves out). Both off by default
-        (docs/decisions/0020-tyre-relaxation-and-resistances-off.md)."""
+        (docs/decisions/0020-tyre-relaxation-and-resistances-off.md). ``force_ellipse``: see the
+        class docstring (docs/decisions/0034-combined-slip-from-the-measured-force.md)."""
         if tyres is None:
             shipped = AxleTyre.shipped(fit)
             sigma = float(vehicle.static_relaxation_lengths[1]) if relaxation else 0.0
@@ -188,6 +195,7 @@ class ModelParams:
             rear,
             rolling_resistance=vehicle.rolling_resistance if resistances else 0.0,
             drag_factor=0.5 * vehicle.air_density * vehicle.drag_area if resistances else 0.0,
+            force_ellipse=bool(force_ellipse),
         )
 
     @property
@@ -212,16 +220,24 @@ class ModelParams:
         """These parameters as the compiled model reads them (a value: numba keeps it in registers)."""
         return ModelKernel(
             *(
-                getattr(self, f.name).kernel if f.name in ("front", "rear") else float(getattr(self, f.name))
+                getattr(self, f.name).kernel
+                if f.name in ("front", "rear")
+                else getattr(self, f.name)
+                if f.name == "force_ellipse"
+                else float(getattr(self, f.name))
                 for f in fields(self)
             )
         )
 
 
 #: :class:`ModelParams` as the compiled model takes it: a NamedTuple of the same fields (floats,
-#: and the axles' :data:`TyreKernel`)
+#: the axles' :data:`TyreKernel` and the force_ellipse flag)
 ModelKernel = NamedTuple(
-    "ModelKernel", [(f.name, TyreKernel if f.name in ("front", "rear") else float) for f in fields(ModelParams)]
+    "ModelKernel",
+    [
+        (f.name, TyreKernel if f.name in ("front", "rear") else bool if f.name == "force_ellipse" else float)
+        for f in fields(ModelParams)
+    ],
 )
 
 
@@ -382,6 +398,23 @@ def tyre_operating_point(u, v, r, fz, trig, omega, pk, w) -> tuple[float, float,
 
 
 @numba.njit(inline="always", **JIT)
+def lateral_force(fz, fx, slip, tan_alpha, tyre_mu, cx, cy, speed, pk) -> float:
+    """A wheel's lateral force [N] at load ``fz`` [N] and friction ``tyre_mu`` (k mu). Dugoff's
+    combined slip cuts it by the longitudinal ``slip`` from the wheel speed (the paper's); with
+    ``pk.force_ellipse`` the pure-slip Dugoff force is cut by the friction ellipse of the measured
+    longitudinal force ``fx`` [N] (|fx| <= tyre_mu fz): Fy0 sqrt(1 - (Fx / (mu Fz))^2) (the
+    friction-ellipse combination; Wong, Theory of Ground Vehicles, sec. 1.4). A wheel speed swings
+    around the force its wheel carries when torques change fast (random torques at 8 m/s: slips of
+    10-30% while the car holds 0.85 g), and Dugoff's cut at that slip removes lateral force the car
+    still has (docs/decisions/0034-combined-slip-from-the-measured-force.md)."""
+    if not pk.force_ellipse:
+        return dugoff(fz, slip, tan_alpha, tyre_mu, cx, cy, speed, pk.eps)[1]
+    pure = dugoff(fz, 0.0, tan_alpha, tyre_mu, cx, cy, speed, pk.eps)[1]
+    share = fx / max(tyre_mu * fz, 1e-9)
+    return pure * math.sqrt(max(1.0 - share * share, 0.0))
+
+
+@numba.njit(inline="always", **JIT)
 def body_forces(
     state: np.ndarray,
     mu: np.ndarray,
@@ -419,9 +452,9 @@ def body_forces(
             fz = wheel_load(state[3, k], state[4, k], pk, w)
             tan_alpha, slip, cx, cy = tyre_operating_point(u, v, r, fz, trig, spin, pk, w)
             tyre_mu = mu_scale * mu[w, k]
-            _, fy, _ = dugoff(fz, slip, tan_alpha, tyre_mu, cx, cy, u, pk.eps)
             limit = tyre_mu * fz
             fx = min(max(drive - rolling * fz, -limit), limit)
+            fy = lateral_force(fz, fx, slip, tan_alpha, tyre_mu, cx, cy, u, pk)
             f_long, f_lat = fx * c - fy * s, fx * s + fy * c
             out[0, k] += f_long
             out[1, k] += f_lat

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy.stats import chi2
 
 from fourwis.envs.metrics import mae, rmse
 from fourwis.envs.scenarios import make_scenario
@@ -38,6 +39,13 @@ def _metrics_of(traj):
     estimated = bool(np.any(est.mu_std > 0) or np.any(est.mu != est.mu[0]))
     out["mu_convergence_time"] = convergence_time(traj.t, mu_error) if estimated else math.nan
     out["mu_estimated"] = float(estimated)
+    # the sigmas' consistency: RMS of error / sigma where a sigma is reported, and the share of
+    # (error / sigma)^2 inside the two-sided 95% chi-square band of one degree of freedom
+    for q, error, sigma in (("beta", est.beta - truth.beta, est.beta_std), ("mu", est.mu - truth.mu, est.mu_std)):
+        z2 = (error[sigma > 0] / sigma[sigma > 0]) ** 2
+        out[f"{q}_z_rms"] = math.sqrt(z2.mean()) if z2.size else math.nan
+        inside = (z2 >= chi2.ppf(0.025, 1)) & (z2 <= chi2.ppf(0.975, 1))
+        out[f"{q}_nees_in_band"] = inside.mean() if z2.size else math.nan
     return out
 
 

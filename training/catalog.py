@@ -16,7 +16,7 @@ from fourwis.envs.gym_env import EnvConfig
 from fourwis.envs.scenarios import SCENARIOS
 from fourwis.envs.vehicle import VehicleParams
 from fourwis.estimation import ESTIMATORS, TRUTH_GROUPS, StateEstimator, tuned_noise
-from fourwis.estimation.joint import ROBUST_KINDS
+from fourwis.estimation.joint import FRICTION_KINDS, ROBUST_KINDS, TUNED_KINDS
 from fourwis.training.compare import SWD_MU, SWD_MULTIPLE
 
 SECTIONS = ("scenarios", "estimators", "controllers", "logs")
@@ -42,7 +42,8 @@ ESTIMATOR_SUMMARIES = {
     "ckf": "cubature Kalman filter (third-degree spherical-radial rule) on the same model",
     "fkf": "federated CKF: sub-filters on [ax, ay, r] and [ay, r] fused by information sharing",
     "alo-fkf": "paper section 3: federated CKF with Huber-robust sub-filters and ALO-tuned noise",
-    "joint": "paper section 4, the full system: state FKF and per-wheel friction FKF exchanging estimates",
+    "joint-paper": "paper section 4, the full system: state FKF and per-wheel friction FKF exchanging estimates",
+    "joint": "joint-paper with combined slip from the measured longitudinal force (docs/decisions/0034)",
 }
 
 #: what each controller is (its defaults come from the StabilityController make_controller builds)
@@ -122,12 +123,12 @@ def estimator_rows() -> list[tuple[str, str, str]]:
         else:
             mu = (
                 f"mu estimated from {default['nominal_mu']:g}"
-                if name == "joint"
+                if name in FRICTION_KINDS
                 else f"mu fixed at {default['nominal_mu']:g}"
             )
             noise = (
                 "ALO-tuned noise (estimation/data/tuned_noise.json)"
-                if name in ("alo-fkf", "joint") and tuned
+                if name in TUNED_KINDS and tuned
                 else "hand-set noise"
             )
             robust = f", Huber c {default['huber_c']:g}" if name in ROBUST_KINDS else ""

@@ -16,6 +16,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+from scipy.stats import chi2
 
 from fourwis.core.checks import is_integer
 from fourwis.envs.metrics import mae, rmse
@@ -30,7 +31,7 @@ from fourwis.estimation import (
     make_estimator,
     parse_estimator_name,
 )
-from fourwis.estimation.joint import KINDS
+from fourwis.estimation.joint import FRICTION_KINDS, KINDS
 from fourwis.training.compare import (
     FAULT_SUFFIX,
     build_scenario,
@@ -59,6 +60,10 @@ METRICS = (
     "mu_error_last_half",
     "mu_convergence_time",
     "mu_estimated",
+    "beta_z_rms",
+    "beta_nees_in_band",
+    "mu_z_rms",
+    "mu_nees_in_band",
 )
 #: the unit of each metric, as estimate.csv heads its columns ("-": dimensionless, "0/1": a flag)
 METRIC_UNITS = {
@@ -71,7 +76,14 @@ METRIC_UNITS = {
     "mu_error_last_half": "-",
     "mu_convergence_time": "s",
     "mu_estimated": "0/1",
+    "beta_z_rms": "-",
+    "beta_nees_in_band": "-",
+    "mu_z_rms": "-",
+    "mu_nees_in_band": "-",
 }
+#: the two-sided 95% chi-square band of a one-degree-of-freedom NEES, (error / sigma)^2 of one
+#: sample: a consistent filter's samples lie inside it 95% of the time
+NEES_BAND = (float(chi2.ppf(0.025, 1)), float(chi2.ppf(0.975, 1)))
 WHEELS = ("FL", "FR", "RL", "RR")
 
 #: The paper's Table 2 (section 3.3.3, double lane change on mu 0.5 at 35 km/h, CarSim, sampled
@@ -87,7 +99,7 @@ PAPER_TABLE2_SCENARIO = "paper_dlc"
 
 
 #: the estimators that hold a nominal mu (``road_mu`` sets it to the road's): all but the joint one
-FIXED_MU = tuple(kind for kind in KINDS if kind != "joint")
+FIXED_MU = tuple(kind for kind in KINDS if kind not in FRICTION_KINDS)
 
 
 @dataclass(frozen=True)
@@ -113,8 +125,23 @@ def convergence_time(t: np.ndarray, error: np.ndarray, tolerance: float = MU_TOL
     return float(t[k]) if k < t.size else math.nan
 
 
+def consistency(error: np.ndarray, sigma: np.ndarray) -> tuple[float, float]:
+    """(RMS of error / sigma, the fraction of samples whose NEES (error / sigma)^2 lies in
+    :data:`NEES_BAND`) over the samples of ``error`` and ``sigma`` (same shape, same units) with a
+    sigma > 0; (NaN, NaN) where there is none (an estimator that reports no uncertainty). A
+    calibrated sigma gives an RMS ratio near 1 and 95% in the band (issue 41's target: a ratio in
+    [0.5, 2])."""
+    has = sigma > 0
+    if not np.any(has):
+        return math.nan, math.nan
+    z2 = np.square(error[has] / sigma[has])
+    return float(np.sqrt(np.mean(z2))), float(np.mean((z2 >= NEES_BAND[0]) & (z2 <= NEES_BAND[1])))
+
+
 def run_metrics(traj: Trajectory) -> dict[str, float]:
-    """Table 2 metrics of one run: MAE/RMSE of u, v [m/s] and beta [rad]; mu error and convergence time [s].
+    """Table 2 metrics of one run: MAE/RMSE of u, v [m/s] and beta [rad]; mu error and convergence
+    time [s]; the consistency of the reported sigmas (:func:`consistency`) of beta (``beta_z_rms``,
+    ``beta_nees_in_band``) and of each wheel's mu (``mu_z_rms``, ``mu_nees_in_band``).
 
     An estimator with neither a mu_std nor a mu_hat that moves from its first value holds a
     nominal mu: its convergence time is NaN (not meaningful).
@@ -129,6 +156,8 @@ def run_metrics(traj: Trajectory) -> dict[str, float]:
     estimated = bool(np.any(E.mu_std > 0) or np.any(E.mu != E.mu[0]))
     out["mu_convergence_time"] = convergence_time(traj.t, mu_error) if estimated else math.nan
     out["mu_estimated"] = float(estimated)
+    out["beta_z_rms"], out["beta_nees_in_band"] = consistency(E.beta - T.beta, E.beta_std)
+    out["mu_z_rms"], out["mu_nees_in_band"] = consistency(E.mu - T.mu, E.mu_std)
     return out
 
 

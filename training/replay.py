@@ -49,7 +49,7 @@ from fourwis.core.types import (
     net_wheel_torque,
 )
 from fourwis.estimation import BASELINES, NoiseParams, make_estimator, parse_estimator_name, tuned_noise
-from fourwis.estimation.joint import StateEstimator, empty_estimate
+from fourwis.estimation.joint import TUNED_KINDS, StateEstimator, empty_estimate
 from fourwis.estimation.model import MIN_SPEED
 from fourwis.training.logs import WHEELS, Log
 from fourwis.training.vehicle_file import Vehicle
@@ -303,7 +303,7 @@ def log_noise(name: str, vehicle: Vehicle, noise: NoiseParams | None = None) -> 
     if base in ("baseline-steady", "baseline-zero") or ":" in base:
         return noise
     if noise is None:
-        noise = (tuned_noise() if base in ("alo-fkf", "joint") else None) or NoiseParams()
+        noise = (tuned_noise() if base in TUNED_KINDS else None) or NoiseParams()
     declared = vehicle.sensor_noise
     if not declared:
         return noise
