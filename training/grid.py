@@ -82,7 +82,8 @@ CALIBRATION_DURATION = 8.0  #: a calibration run [s]; its steady a_y is the mean
 CLOSED_LOOP_CONTROLLERS = ("dyc-lqr", "dyc-smc")
 CLOSED_LOOP_ESTIMATORS = ("joint", "oracle")
 HEADLINE_SEEDS = 2  #: sensor seeds of each headline run (as fourwis compare)
-DEFAULT_ESTIMATORS = ("joint", "alo-fkf", "ckf", "baseline-kf")  #: open loop (the oracle's errors are 0)
+#: open loop (the oracle's errors are 0); joint-paper, the paper's estimator, shows the improvement
+DEFAULT_ESTIMATORS = ("joint", "joint-paper", "alo-fkf", "ckf", "baseline-kf")
 #: estimators run on the friction x manoeuvre cells of :data:`CLOSED_LOOP_FRICTIONS` only: the
 #: linear baseline steps in Python (~190 us per 2 ms step against ~25 for the compiled filters),
 #: and the whole grid with it would take twice as long (docs/decisions/0037-evaluation-grid.md)
