@@ -40,7 +40,7 @@ from fourwis.envs.metrics import (
 )
 from fourwis.envs.render import close_window, show_frame
 from fourwis.envs.scenarios import SCENARIOS, Scenario, make_scenario
-from fourwis.envs.sensors import CHANNEL_OF_SENSOR, Fault
+from fourwis.envs.sensors import Fault
 from fourwis.envs.simulation import DT, ClosedLoop
 from fourwis.estimation import check_estimator_name
 
@@ -76,7 +76,7 @@ STATE_SLOTS = (
     Slot("the driver's front road-wheel angle", 0.3, "rad"),
     Slot("yaw-rate error r - r_ref", 1.0, "rad/s"),
 )
-#: the observation from the raw sensors (``observation="sensors"``): the simulated car's 13 sensors
+#: the observation from the raw sensors (``observation="sensors"``): the simulated car's 17 sensors
 #: (envs.sensors.SENSORS, not the 16 channels of a log), then r_ref
 SENSOR_SLOTS = (
     Slot("longitudinal acceleration ax", 10.0, "m/s²"),
@@ -86,6 +86,7 @@ SENSOR_SLOTS = (
     Slot("front road-wheel angle", 0.3, "rad"),
     Slot("rear road-wheel angle", 0.3, "rad"),
     *(Slot(f"motor torque, {wheel}", 600.0, "N m") for wheel in WHEEL_NAMES),
+    *(Slot(f"brake pressure, {wheel}", 1.0e7, "Pa") for wheel in WHEEL_NAMES),
     Slot("reference yaw rate r_ref from the readings and friction 0.8", 1.0, "rad/s"),
 )
 N_OBS = len(STATE_SLOTS)
@@ -302,7 +303,7 @@ class YawStabilityCore:
         s = self.loop.sample()
         delta_f = s.front_steer
         if self.config.observation == "sensors":
-            values = s.reading.values[:, CHANNEL_OF_SENSOR]  # the car's 13 sensors
+            values = s.sensors  # the car's 17 sensors
             r_ref = reference_yaw_rate(
                 values[:, 3:7].mean(axis=1) * self.params.wheel_radius,
                 values[:, 7],
@@ -520,7 +521,7 @@ class YawStabilityEnv(gym.Env):
 
     **Observation** (float32, ``N_OBS`` slots): :data:`STATE_SLOTS` from the estimate
     (``observation="estimated"``, the default) or from the truth with zero uncertainty
-    (``"true"``); ``"sensors"``: :data:`SENSOR_SLOTS`, the car's 13 raw sensors and r_ref. The
+    (``"true"``); ``"sensors"``: :data:`SENSOR_SLOTS`, the car's 17 raw sensors and r_ref. The
     fixed-friction estimators report their nominal 0.8 in the friction slots and zero friction
     uncertainty. ``privileged=True`` appends the truth's ``N_OBS`` slots (asymmetric
     actor-critic: ``training.asymmetric``).
