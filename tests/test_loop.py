@@ -21,7 +21,8 @@ def _python_stages(monkeypatch) -> None:
 
     def python(loop):
         return Parts(*(loop.python_stages[stage] for stage in (Stage.CONTROL, Stage.PLANT, Stage.SENSE,
-                                                                Stage.ESTIMATE, Stage.STEER, Stage.SPEED)))  # fmt: skip
+                                                                Stage.ESTIMATE, Stage.STEER, Stage.SPEED)),
+                     loop.actuators)  # fmt: skip
 
     monkeypatch.setattr(simulation, "kernel_parts", python)
 
