@@ -227,14 +227,18 @@ class AgentController:
                 base_torques, self.action[:, 0] * MAX_YAW_MOMENT, estimate, p, front_steer=front_steer, rear_steer=rear
             ).torques
             return Command(torques, rear)
-        limit = p.motor_peak_torque
-        return Command(np.clip(base_torques + self.action * limit, -limit, limit), np.zeros(len(base_torques)))
+        motor, brake = p.motor_peak_torque, p.brake_peak_torque
+        scale = np.where(self.action > 0.0, motor, motor + brake)
+        torques = np.clip(base_torques + self.action * scale, -(motor + brake), motor)
+        return Command(torques, np.zeros(len(base_torques)))
 
     def kernel(self) -> HeldAction:
         """This controller as the compiled loop runs it (the held actions themselves)."""
         p = self.params
         yaw_moment = self.action_mode == "yaw_moment"
-        return HeldAction(self.action, yaw_moment, MAX_YAW_MOMENT, float(p.max_rear_steer), allocator_limits(p))
+        return HeldAction(
+            self.action, yaw_moment, MAX_YAW_MOMENT, float(p.max_rear_steer), allocator_limits(p), p.brake_peak_torque
+        )
 
 
 class _EpisodeStats:
@@ -529,8 +533,10 @@ class YawStabilityEnv(gym.Env):
     **Action** (float32 in [-1, 1]): ``action="yaw_moment"``: [corrective yaw moment x
     MAX_YAW_MOMENT N m, rear road-wheel angle x the rear servo's range] (``rear_steer=False``:
     the moment alone), allocated to the wheels within the motors' and tyres' limits from the
-    estimate; ``"wheel_torques"``: four corrective torques x the motors' peak torque, added to
-    the driver's. Out-of-range actions are clipped (``info["action_clipped"]``); NaN raises.
+    estimate; ``"wheel_torques"``: four corrective net wheel torques added to the driver's, a
+    positive action times the motor's peak torque, a negative one times the motor's and the
+    friction brake's peaks (braking; the wheels' actuators split it, with ABS). Out-of-range
+    actions are clipped (``info["action_clipped"]``); NaN raises.
 
     **Reward** per step: -(e_r / 0.1)^2 - (beta / 0.05)^2 - 0.1 |a|^2 - (d / 1 m)^2, times
     ``control_dt`` (e_r the true yaw rate less the reference [rad/s], beta the true sideslip

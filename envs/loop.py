@@ -114,14 +114,16 @@ class NoControl(NamedTuple):
 class HeldAction(NamedTuple):
     """A held agent action (B, n) in [-1, 1] as a controller: with ``yaw_moment``, action 0 scaled
     by ``max_yaw_moment`` [N m] is a corrective yaw moment allocated over the wheels (and action 1,
-    if there is one, scaled by ``max_rear_steer`` [rad], the rear steer); else the actions scaled
-    by the motors' peak torque are added to the base wheel torques."""
+    if there is one, scaled by ``max_rear_steer`` [rad], the rear steer); else the actions are
+    corrective net wheel torques added to the base wheel torques (:func:`wheel_torque_action`,
+    braking up to ``brake_peak_torque`` [N m] beyond the motors)."""
 
     action: np.ndarray
     yaw_moment: bool
     max_yaw_moment: float
     max_rear_steer: float
     limits: AllocatorLimits
+    brake_peak_torque: float
 
 
 class PlantStage(NamedTuple):
@@ -281,6 +283,16 @@ def _no_control(controller, b, sample, cars, call):
     return Status.DONE
 
 
+@numba.njit(inline="always", **JIT)
+def wheel_torque_action(base: float, action: float, motor_peak: float, brake_peak: float) -> float:
+    """The net torque [N m] a ``wheel_torques`` action in [-1, 1] asks of a wheel with the driver's
+    ``base`` torque [N m]: a positive action adds up to the motor's peak ``motor_peak`` [N m], a
+    negative one brakes by up to the motor's and the friction brake's peaks together, within
+    [-(motor_peak + brake_peak), motor_peak]."""
+    scale = motor_peak if action > 0.0 else motor_peak + brake_peak
+    return min(max(base + action * scale, -(motor_peak + brake_peak)), motor_peak)
+
+
 @command.register(HeldAction)
 def _held_action(controller, b, sample, cars, call):
     controls = cars.controls[b]
@@ -288,7 +300,9 @@ def _held_action(controller, b, sample, cars, call):
     action, limit = controller.action, controller.limits.motor_peak_torque
     if not controller.yaw_moment:
         for w in range(4):
-            controls[C_TORQUE + w] = min(max(sample.base_torques[b, w] + action[b, w] * limit, -limit), limit)
+            controls[C_TORQUE + w] = wheel_torque_action(
+                sample.base_torques[b, w], action[b, w], limit, controller.brake_peak_torque
+            )
         return Status.DONE
     row, estimate = slice(b, b + 1), sample.estimate
     rear, yaw, lateral = scratch((1,)), scratch((1,)), scratch((1, 4))

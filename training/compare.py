@@ -66,7 +66,7 @@ HEADLINE = (
     "iso3888_2:speed_kph=70",
 )
 DEFAULT_ESTIMATORS = ("oracle", "ckf", "joint")
-DEFAULT_CONTROLLERS = ("none", "dyc-lqr")
+DEFAULT_CONTROLLERS = ("none", "dyc-lqr", "esc")
 RL_PREFIX = "rl:"  #: controller name prefix of a trained policy: ``rl:<run directory>`` (training.rl)
 SWD_MULTIPLE = 5.5  #: sine-with-dwell amplitude in multiples of A for the comparison
 SWD_MU = 0.5  #: road friction of the comparison's sine with dwell (wet asphalt)
