@@ -10,16 +10,20 @@ torque over the brake gain (forward driving: the brake opposes a wheel spinning 
 Wheel-slip control, per wheel and switchable, runs before the split on the measured wheel speed
 omega, the estimated forward speed u and the estimated friction mu_hat of the wheel's road (what a
 production ABS/TCS unit has: its wheel-speed sensors and a vehicle-speed and friction estimate),
-with slip ``s = (R omega - u_ref) / max(u_ref, min_speed)``. The reference speed u_ref is the
-larger of the estimate u and the production ABS reference, the fastest wheel's rim speed held
+with slip ``s = (R omega - u_w) / max(u_w, min_speed)`` against the wheel's own forward speed
+``u_w = u_ref - r_hat y_w`` (y_w its lateral position, left positive, r_hat the estimated yaw rate:
+in a turn the outer wheels roll faster than the CG; the steer angle's cosine is left out). The
+reference speed u_ref is the larger of the estimate u and the production ABS reference, the
+fastest wheel's rim speed (moved to the CG with r_hat y_w) held
 within ``REFERENCE_MARGIN`` of the measured longitudinal acceleration (falling and rising no faster
 than that: a braked wheel lags the car, a released one overshoots it). A speed estimator built on
 the wheels alone loses the car's speed when all four slip, as the joint estimator does under full
 braking (docs/decisions/0039-wheel-slip-control.md).
 
 The slip window is scheduled on the friction, ``peak = peak_slip mu_hat`` and
-``band = slip_band mu_hat`` (mu_hat floored at MIN_SLIP_MU): the tyre's stiffness does not fall
-with the road's grip, so its peak slip does (0.147 mu on the shipped tyre). A braking demand is
+``band = max(slip_band mu_hat, MIN_SLIP_BAND)`` (mu_hat floored at MIN_SLIP_MU): the tyre's
+stiffness does not fall with the road's grip, so its peak slip does (0.147 mu on the shipped tyre).
+A braking demand is
 scaled by ``clip((peak + band / 2 + s) / band, 0, 1)`` (ABS: full demand while the slip is above
 -(peak - band / 2), none below -(peak + band / 2)), a drive demand by
 ``clip((peak + band / 2 - s) / band, 0, 1)`` (TCS). A full pedal asks for several times the
@@ -47,6 +51,9 @@ PEAK_SLIP = 0.15
 SLIP_BAND = 0.06  #: slip over which the demand fades from full to none at friction 1 [-]
 MIN_SLIP_SPEED = 1.0  #: estimated speed [m/s] below which slip control is off (ABS cut-out)
 MIN_SLIP_MU = 0.05  #: floor of the friction estimate the slip window is scheduled on [-]
+#: narrowest slip window [-]: ~25 times the slip noise of a wheel-speed sensor at 60 km/h (0.05 rad/s
+#: x 0.278 m / 16.7 m/s = 8e-4); narrower, on ice, the noise chops the demand
+MIN_SLIP_BAND = 0.02
 #: extra decay of the wheel-speed reference beyond the measured deceleration [m/s^2] (above the
 #: accelerometer's 0.03 m/s^2 bias std, so the reference does not drift above the car)
 REFERENCE_MARGIN = 0.1
@@ -56,8 +63,9 @@ class WheelActuators(NamedTuple):
     """The car's wheel actuators and their slip control, as :func:`actuate` takes them: ``abs`` and
     ``tcs`` switch ABS and traction control, ``peak_slip`` and ``slip_band`` [-] place the slip
     window, ``min_speed`` [m/s]; wheel radius [m], motor peak torque [N m] and power [W], brake gain
-    [N m/Pa] and largest pressure [Pa]; ``reference`` (B,) [m/s] each vehicle's wheel-speed
-    reference, updated in place (0: none yet), and the step ``dt`` [s] it ramps over."""
+    [N m/Pa] and largest pressure [Pa], the front and rear tracks [m]; ``reference`` (B,) [m/s]
+    each vehicle's wheel-speed reference, updated in place (0: none yet), and the step ``dt`` [s]
+    it ramps over."""
 
     abs: bool
     tcs: bool
@@ -69,6 +77,8 @@ class WheelActuators(NamedTuple):
     motor_peak_power: float
     brake_gain: float
     brake_max_pressure: float
+    track_front: float
+    track_rear: float
     reference: np.ndarray
     dt: float
 
@@ -93,7 +103,7 @@ def wheel_actuators(
     return WheelActuators(
         bool(abs), bool(tcs), float(peak_slip), float(slip_band), float(min_speed), params.wheel_radius,
         params.motor_peak_torque, params.motor_peak_power, params.brake_gain, params.brake_max_pressure,
-        np.zeros(batch_size), float(dt),
+        params.track_front, params.track_rear, np.zeros(batch_size), float(dt),
     )  # fmt: skip
 
 
@@ -104,7 +114,7 @@ def slip_scale(actuators: WheelActuators, demand: float, omega: float, speed: fl
     a = actuators
     slip = (a.wheel_radius * omega - speed) / max(speed, a.min_speed)
     grip = max(mu, MIN_SLIP_MU)
-    band = a.slip_band * grip
+    band = max(a.slip_band * grip, MIN_SLIP_BAND)
     edge = a.peak_slip * grip + 0.5 * band
     if demand < 0.0 and a.abs and speed > a.min_speed:
         return min(max((edge + slip) / band, 0.0), 1.0)
@@ -114,12 +124,23 @@ def slip_scale(actuators: WheelActuators, demand: float, omega: float, speed: fl
 
 
 @numba.njit(inline="always", **JIT)
-def reference_speed(actuators: WheelActuators, b: int, omega: np.ndarray, ax: float, speed: float) -> float:
-    """Vehicle b's slip reference speed [m/s] from its measured wheel speeds ``omega`` (4,) [rad/s],
-    measured longitudinal specific force ``ax`` [m/s^2] and estimated speed ``speed`` [m/s],
-    advancing its wheel-speed reference by one step."""
+def lateral_position(actuators: WheelActuators, w: int) -> float:
+    """Wheel w's lateral position y [m] (left positive; FL, FR, RL, RR)."""
+    half = 0.5 * (actuators.track_front if w < 2 else actuators.track_rear)
+    return half if w % 2 == 0 else -half
+
+
+@numba.njit(inline="always", **JIT)
+def reference_speed(
+    actuators: WheelActuators, b: int, omega: np.ndarray, ax: float, speed: float, yaw_rate: float
+) -> float:
+    """Vehicle b's slip reference speed at the CG [m/s] from its measured wheel speeds ``omega``
+    (4,) [rad/s], measured longitudinal specific force ``ax`` [m/s^2], estimated speed ``speed``
+    [m/s] and yaw rate ``yaw_rate`` [rad/s], advancing its wheel-speed reference by one step."""
     a = actuators
-    fastest = a.wheel_radius * max(max(omega[0], omega[1]), max(omega[2], omega[3]))
+    fastest = -math.inf
+    for w in range(4):
+        fastest = max(fastest, a.wheel_radius * omega[w] + yaw_rate * lateral_position(a, w))
     ref = a.reference[b]
     if ref > 0.0 and math.isfinite(ax):
         fastest = min(max(fastest, ref + (ax - REFERENCE_MARGIN) * a.dt), ref + (ax + REFERENCE_MARGIN) * a.dt)
@@ -129,34 +150,42 @@ def reference_speed(actuators: WheelActuators, b: int, omega: np.ndarray, ax: fl
 
 @numba.njit(inline="always", **JIT)
 def actuate(
-    actuators: WheelActuators, demand: np.ndarray, omega: np.ndarray, speed: float, mu: np.ndarray,
-    motor: np.ndarray, pressure: np.ndarray,
+    actuators: WheelActuators, demand: np.ndarray, omega: np.ndarray, speed: float, yaw_rate: float,
+    mu: np.ndarray, motor: np.ndarray, pressure: np.ndarray,
 ) -> None:  # fmt: skip
     """One car's net torque demands ``demand`` (4,) [N m] after slip control, split into motor
     torque commands ``motor`` (4,) [N m] and brake pressure commands ``pressure`` (4,) [Pa], at the
-    measured wheel speeds ``omega`` (4,) [rad/s], reference speed ``speed`` [m/s]
-    (:func:`reference_speed`) and estimated friction ``mu`` (4,)."""
+    measured wheel speeds ``omega`` (4,) [rad/s], reference speed at the CG ``speed`` [m/s]
+    (:func:`reference_speed`), estimated yaw rate ``yaw_rate`` [rad/s] and friction ``mu`` (4,)."""
     a = actuators
     for w in range(4):
-        net = demand[w] * slip_scale(a, demand[w], omega[w], speed, mu[w])
+        wheel_speed = speed - yaw_rate * lateral_position(a, w)
+        net = demand[w] * slip_scale(a, demand[w], omega[w], wheel_speed, mu[w])
         limit = min(a.motor_peak_torque, a.motor_peak_power / max(abs(omega[w]), 1e-6))
         motor[w] = min(max(net, -limit), limit)
         pressure[w] = min(max(motor[w] - net, 0.0) / a.brake_gain, a.brake_max_pressure)
 
 
 def actuate_batch(
-    actuators: WheelActuators, demand: np.ndarray, omega: np.ndarray, speed: np.ndarray, mu: np.ndarray
+    actuators: WheelActuators,
+    demand: np.ndarray,
+    omega: np.ndarray,
+    speed: np.ndarray,
+    mu: np.ndarray,
+    yaw_rate: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`actuate` of B cars: demands, wheel speeds and friction (B, 4), reference speeds (B,);
-    returns the motor torque (B, 4) [N m] and brake pressure (B, 4) [Pa] commands."""
+    """:func:`actuate` of B cars: demands, wheel speeds and friction (B, 4), reference speeds and
+    yaw rates (B,) (None: straight); returns the motor torque (B, 4) [N m] and brake pressure
+    (B, 4) [Pa] commands."""
     demand, omega = np.ascontiguousarray(demand, dtype=float), np.ascontiguousarray(omega, dtype=float)
     speed, mu = np.ascontiguousarray(speed, dtype=float), np.ascontiguousarray(mu, dtype=float)
+    yaw_rate = np.zeros(len(speed)) if yaw_rate is None else np.ascontiguousarray(yaw_rate, dtype=float)
     motor, pressure = np.empty_like(demand), np.empty_like(demand)
-    _actuate_rows(actuators, demand, omega, speed, mu, motor, pressure)
+    _actuate_rows(actuators, demand, omega, speed, yaw_rate, mu, motor, pressure)
     return motor, pressure
 
 
 @numba.njit(**JIT)
-def _actuate_rows(actuators, demand, omega, speed, mu, motor, pressure):
+def _actuate_rows(actuators, demand, omega, speed, yaw_rate, mu, motor, pressure):
     for b in range(demand.shape[0]):
-        actuate(actuators, demand[b], omega[b], speed[b], mu[b], motor[b], pressure[b])
+        actuate(actuators, demand[b], omega[b], speed[b], yaw_rate[b], mu[b], motor[b], pressure[b])

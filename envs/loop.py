@@ -415,8 +415,9 @@ def actuate_controls(actuators: WheelActuators, b: int, sample: Sample, controls
     for w in range(4):
         demand[w] = controls[C_TORQUE + w]
     omega, estimate = sample.reading.values[b, CH_OMEGA : CH_OMEGA + 4], sample.estimate
-    speed = reference_speed(actuators, b, omega, sample.reading.values[b, CH_AX], estimate.u[b])
-    actuate(actuators, demand, omega, speed, estimate.mu[b], motor, pressure)
+    r = estimate.r[b]
+    speed = reference_speed(actuators, b, omega, sample.reading.values[b, CH_AX], estimate.u[b], r)
+    actuate(actuators, demand, omega, speed, r, estimate.mu[b], motor, pressure)
     for w in range(4):
         controls[C_TORQUE + w], controls[C_BRAKE + w] = motor[w], pressure[w]
 

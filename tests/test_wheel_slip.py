@@ -4,7 +4,7 @@ ABS in the closed loop on the straight-line braking scenario."""
 import numpy as np
 import pytest
 
-from fourwis.control.wheel_slip import PEAK_SLIP, SLIP_BAND, actuate_batch, wheel_actuators
+from fourwis.control.wheel_slip import MIN_SLIP_BAND, PEAK_SLIP, SLIP_BAND, actuate_batch, wheel_actuators
 from fourwis.core.constants import GRAVITY
 from fourwis.envs.layout import A_FX, A_FZ, A_KAPPA, S_OMEGA, S_U, S_X
 from fourwis.envs.metrics import braking_metrics
@@ -41,12 +41,13 @@ def test_the_motors_take_what_they_can_and_the_brakes_the_rest_of_a_braking_dema
     np.testing.assert_allclose(motor, min(P.motor_peak_torque, limit)) and np.all(pressure == 0.0)
 
 
-@pytest.mark.parametrize("mu", [1.0, 0.3])
+@pytest.mark.parametrize("mu", [1.0, 0.3, 0.1])
 def test_abs_and_tcs_fade_the_demand_across_the_friction_scheduled_slip_window(mu):
-    """Full demand below peak - band / 2 of slip, none beyond peak + band / 2 (both times mu), a
+    """Full demand below peak - band / 2 of slip, none beyond peak + band / 2 (times mu; the band
+    at least MIN_SLIP_BAND), a
     straight line between; ABS on braking slip, TCS on drive slip; switched off, the demand stands."""
     speed = 8.0  # (below the motors' power limit at 400 N m)
-    peak, band = PEAK_SLIP * mu, SLIP_BAND * mu
+    peak, band = PEAK_SLIP * mu, max(SLIP_BAND * mu, MIN_SLIP_BAND)
     for slip, share in ((-(peak - band / 2) + 1e-9, 1.0), (-peak, 0.5), (-(peak + band / 2) - 1e-9, 0.0)):
         omega = speed * (1 + slip) / P.wheel_radius
         motor, pressure = split(-1000.0, omega, speed, mu, tcs=False)
