@@ -259,7 +259,7 @@ _threads: int | None = None
 
 
 #: the machine's cores, counted once: ``os.cpu_count()`` reads /sys on every call (~15 us on
-#: Linux), which every batched kernel entry would pay (docs/decisions/0032-kernel-threads.md)
+#: Linux), which every batched kernel entry would pay (docs/decisions/0041-per-call-cost.md)
 CORES = os.cpu_count() or 1
 
 
@@ -309,11 +309,8 @@ def run_parallel(kernel, items: np.ndarray, *args, min_items: int = 2) -> None:
     on this thread. ``kernel`` must be compiled with ``nogil=True`` and write only to its own
     items' rows. Python threads rather than numba's ``prange``: a parallel loop cannot take the
     NamedTuple bundles the kernels are given."""
-    if len(items) < min_items:  # (first: one car's step skips the thread count's look-ups)
-        kernel(items, *args)
-        return
-    threads = min(kernel_threads(), len(items))
-    if threads < 2:
+    # (the batch size first: one car's step skips the thread count's look-ups)
+    if len(items) < min_items or (threads := min(kernel_threads(), len(items))) < 2:
         kernel(items, *args)
         return
     list(_thread_pool(threads).map(lambda part: kernel(part, *args), np.array_split(items, threads)))
