@@ -44,7 +44,7 @@ from fourwis.estimation import check_estimator_name, make_estimator
 from fourwis.estimation.model import AxleTyre
 from fourwis.training import compare
 from fourwis.training.compare import ORACLE_TOLERANCE, build_controller, naming_the_run, oracle_ratio
-from fourwis.training.estimate import METRIC_UNITS, run_metrics
+from fourwis.training.estimate import METRIC_UNITS, consistency, run_metrics
 from fourwis.training.io import atomic_write, atomic_write_text, check_writable, pyplot, staged_output
 from fourwis.training.pool import Backend, as_backend, parallel_map
 from fourwis.training.provenance import Provenance, provenance
@@ -458,9 +458,9 @@ def grid_metrics(traj: Trajectory, manoeuvre: Manoeuvre) -> dict[str, float]:
     stays within :data:`SETTLE_BAND` throughout), mu_drift_last_half (the least-squares slope of
     the wheels' mean mu_hat times the half's length: how far it drifts over it), mu_read_low
     (mean of mu - mu_hat: > 0 reads a road more slippery than it is); beta_z_rms and mu_z_rms:
-    RMS of error / sigma (beta_std, mu_std per wheel) in the scored window (NaN where the
-    estimator reports no sigma); grip_use: peak |a_y| / (mu g) of the truth in the scored window
-    (mu: the wheels' mean)."""
+    RMS of error / sigma (beta_std, mu_std per wheel; :func:`fourwis.training.estimate.consistency`)
+    in the scored window (NaN where the estimator reports no sigma); grip_use: peak |a_y| / (mu g)
+    of the truth in the scored window (mu: the wheels' mean)."""
     T, E, t = traj.truth, traj.estimate, traj.t
     window = t >= manoeuvre.scored_from
     last = np.arange(t.size) >= t.size // 2
@@ -475,17 +475,10 @@ def grid_metrics(traj: Trajectory, manoeuvre: Manoeuvre) -> dict[str, float]:
         "mu_settled": float(np.all(mu_error[last] < SETTLE_BAND)),
         "mu_drift_last_half": float(slope * (t[last][-1] - t[last][0])),
         "mu_read_low": float(np.mean(np.mean(T.mu[last], axis=1) - mu_hat)),
-        "beta_z_rms": _z_rms(error, beta_std),
-        "mu_z_rms": _z_rms(E.mu[window] - T.mu[window], mu_std),
+        "beta_z_rms": consistency(error, beta_std)[0],
+        "mu_z_rms": consistency(E.mu[window] - T.mu[window], mu_std)[0],
         "grip_use": float(np.max(np.abs(T.ay[window]) / (np.mean(T.mu[window], axis=1) * GRAVITY))),
     }
-
-
-def _z_rms(error: np.ndarray, sigma: np.ndarray) -> float:
-    """RMS of error / sigma; NaN where some sigma is not > 0 (an estimator that reports none)."""
-    if not np.all(sigma > 0):
-        return math.nan
-    return float(np.sqrt(np.mean((error / sigma) ** 2)))
 
 
 @naming_the_run
