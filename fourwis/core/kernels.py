@@ -89,30 +89,53 @@ if not numba.config.CACHE_DIR:
 #: the heap); the estimator's largest work array is 13 x 7 doubles (728 bytes)
 #: (docs/decisions/0006-estimator-kernel-scratch-and-simd.md)
 SCRATCH_BYTES = 1024
+#: bytes a :func:`scratch` array whose shape is all compile-time constants may take on the stack
+#: (exactly its size; larger ones go to the heap): the lane kernels' blocks of cars, e.g. 12
+#: cubature points x 7 measurements x 64 cars (43 KB) (docs/decisions/0048-estimator-in-lanes-of-cars.md)
+STACK_LIMIT = 128 * 1024
 
 
 def scratch(shape: tuple[int, ...], dtype=np.float64) -> np.ndarray:
     """Uninitialised work array of ``shape`` (a tuple) for compiled kernels: in compiled code
-    it lives on the caller's stack (a heap array if it needs more than SCRATCH_BYTES); called
-    from Python, or with NUMBA_DISABLE_JIT, it is a plain ``np.empty``.
+    it lives on the caller's stack (a heap array if it needs more than SCRATCH_BYTES; a shape of
+    compile-time constants, e.g. literal arguments or module constants, takes exactly its bytes,
+    up to STACK_LIMIT); called from Python, or with NUMBA_DISABLE_JIT, it is a plain ``np.empty``.
 
     Only for arrays that do not outlive the compiled function that creates them: never return
     one, store it, or keep one across iterations of a loop (each call site owns one buffer)."""
     return np.empty(shape, dtype)
 
 
-@overload(scratch, inline="always", jit_options=JIT)
+@overload(scratch, inline="always", prefer_literal=True, jit_options=JIT)
 def _scratch_compiled(shape, dtype=np.float64):
     """The compiled :func:`scratch`, inlined so that its stack bytes are the caller's."""
     # the element type as a compile-time constant (dtype left out: float64)
     element = numpy_support.as_dtype(dtype.dtype).type if isinstance(dtype, types.NumberClass) else np.float64
+    size = _literal_bytes(shape, element)
+    if size is not None:  # a shape of compile-time constants: exactly its bytes, up to STACK_LIMIT
+        if size <= STACK_LIMIT:
+            return lambda shape, dtype=np.float64: _stack_array(shape, element)
+        return lambda shape, dtype=np.float64: np.empty(_intp_shape(shape), element)
 
     def stack_or_heap(shape, dtype=np.float64):
         if _nbytes(shape, element) <= SCRATCH_BYTES:
             return _stack_array(shape, element)
-        return np.empty(shape, element)
+        return np.empty(_intp_shape(shape), element)
 
     return stack_or_heap
+
+
+def _literal_bytes(shape, element) -> int | None:
+    """The bytes of a scratch array of ``shape`` (a numba type) if all its extents are compile-time
+    constants (IntegerLiteral), else None."""
+    if not (isinstance(shape, types.BaseTuple) and all(isinstance(t, types.IntegerLiteral) for t in shape)):
+        return None
+    return int(np.prod([t.literal_value for t in shape], dtype=np.int64)) * np.dtype(element).itemsize
+
+
+def _integer_shape(shape) -> bool:
+    """Whether the numba type ``shape`` is a tuple of integers (constants or not)."""
+    return isinstance(shape, types.BaseTuple) and all(isinstance(t, types.Integer) for t in shape)
 
 
 def fixed_tuple(array: np.ndarray, n: int) -> tuple:
@@ -131,28 +154,31 @@ def _fixed_tuple_compiled(array, n):
     return lambda array, n: to_fixed_tuple(array, size)
 
 
-@intrinsic
+@intrinsic(prefer_literal=True)
 def _stack_array(typingctx, shape, dtype):
     """Uninitialised C-contiguous array of ``shape`` (a tuple of ints) and ``dtype`` in the
-    calling function's stack frame: SCRATCH_BYTES reserved once in its entry block (so a call
-    in a loop reuses the same bytes), no meminfo (so no reference counting and no free)."""
-    if not (
-        isinstance(shape, types.UniTuple)
-        and isinstance(shape.dtype, types.Integer)
-        and isinstance(dtype, types.NumberClass)
-    ):
+    calling function's stack frame, reserved once in its entry block (so a call in a loop reuses
+    the same bytes): exactly its size, 64-byte aligned, for a shape of compile-time constants,
+    else SCRATCH_BYTES; no meminfo (so no reference counting and no free)."""
+    if not (_integer_shape(shape) and isinstance(dtype, types.NumberClass)):
         return None
-    array_type = types.Array(dtype.dtype, shape.count, "C")
+    array_type = types.Array(dtype.dtype, len(shape), "C")
+    exact = _literal_bytes(shape, numpy_support.as_dtype(dtype.dtype))
 
     def codegen(context, builder, signature, args):
         intp = context.get_value_type(types.intp)
         element = context.get_data_type(dtype.dtype)
         itemsize = context.get_abi_sizeof(element)
-        buffer = cgutils.alloca_once(builder, ir.DoubleType(), size=ir.Constant(intp, SCRATCH_BYTES // 8))
-        sizes = [
-            context.cast(builder, size, shape.dtype, types.intp)
-            for size in cgutils.unpack_tuple(builder, args[0], shape.count)
-        ]
+        doubles = SCRATCH_BYTES // 8 if exact is None else max(1, -(-exact // 8))
+        buffer = cgutils.alloca_once(builder, ir.DoubleType(), size=ir.Constant(intp, doubles))
+        if exact is not None:
+            buffer.align = 64  # (a cache line: whole vectors of lanes)
+            sizes = [ir.Constant(intp, t.literal_value) for t in shape]
+        else:
+            sizes = [
+                context.cast(builder, size, t, types.intp)
+                for size, t in zip(cgutils.unpack_tuple(builder, args[0], len(shape)), shape)
+            ]
         strides, stride = [], ir.Constant(intp, itemsize)
         for size in reversed(sizes):
             strides.insert(0, stride)
@@ -174,20 +200,32 @@ def _stack_array(typingctx, shape, dtype):
 @intrinsic
 def _nbytes(typingctx, shape, dtype):
     """Bytes of an array of ``shape`` (a tuple of ints) and NumPy scalar type ``dtype``."""
-    if not (
-        isinstance(shape, types.UniTuple)
-        and isinstance(shape.dtype, types.Integer)
-        and isinstance(dtype, types.NumberClass)
-    ):
+    if not (_integer_shape(shape) and isinstance(dtype, types.NumberClass)):
         return None
 
     def codegen(context, builder, signature, args):
         size = context.get_constant(types.intp, context.get_abi_sizeof(context.get_data_type(dtype.dtype)))
-        for extent in cgutils.unpack_tuple(builder, args[0], shape.count):
-            size = builder.mul(size, context.cast(builder, extent, shape.dtype, types.intp))
+        for extent, t in zip(cgutils.unpack_tuple(builder, args[0], len(shape)), shape):
+            size = builder.mul(size, context.cast(builder, extent, t, types.intp))
         return size
 
     return types.intp(shape, dtype), codegen
+
+
+@intrinsic
+def _intp_shape(typingctx, shape):
+    """A tuple of ints (constants or not) as a tuple of intp, as ``np.empty`` takes a shape."""
+    if not _integer_shape(shape):
+        return None
+    result = types.UniTuple(types.intp, len(shape))
+
+    def codegen(context, builder, signature, args):
+        values = [
+            context.cast(builder, v, t, types.intp) for v, t in zip(cgutils.unpack_tuple(builder, args[0]), shape)
+        ]
+        return context.make_tuple(builder, result, values)
+
+    return result(shape), codegen
 
 
 @numba.njit(inline="always", **JIT)

@@ -1,0 +1,166 @@
+"""The filter arithmetic in lanes of cars (estimation/lanes.py) equals the single-car building
+blocks (estimation/ckf.py, estimation/federated.py) bit for bit, lane by lane, including lanes
+whose Cholesky factor needs the jitter fallback or fails, invalid channels and Huber weights."""
+
+import math
+
+import numba
+import numpy as np
+import pytest
+
+from fourwis.estimation.ckf import cubature_points, measurement_update, predicted_moments, spd_inverse
+from fourwis.estimation.federated import fuse, sharing_coefficients
+from fourwis.estimation.lanes import (
+    cubature_points_lanes,
+    fuse_lanes,
+    measurement_update_lanes,
+    predicted_moments_lanes,
+    sharing_coefficients_lanes,
+    spd_inverse_lanes,
+)
+
+N, M = 6, 7  #: a state filter's sizes (sub-filter 1)
+
+
+def lanes_of(a: np.ndarray) -> np.ndarray:
+    """(B, ...) per car as (..., B) lanes."""
+    return np.ascontiguousarray(np.moveaxis(a, 0, -1))
+
+
+def cars_of(a: np.ndarray) -> np.ndarray:
+    """(..., B) lanes as (B, ...) per car."""
+    return np.moveaxis(a, -1, 0)
+
+
+def covariances(rng, B: int, n: int) -> np.ndarray:
+    """B covariances (B, n, n) of very different scales, two of them semi-definite (one needs the
+    jitter, one is hopeless: not finite)."""
+    A = rng.normal(size=(B, n, n)) * np.exp(rng.normal(scale=2.0, size=(B, 1, n)))
+    P = A @ A.transpose(0, 2, 1) + 1e-3 * np.eye(n)
+    if B > 2:
+        v = rng.normal(size=n)
+        P[1] = np.outer(v, v)  # rank one: the Cholesky factor fails, the jitter helps
+        P[2, 0, 0] = math.nan  # no factor at all
+    return P
+
+
+@numba.njit
+def _points_lanes(x, P, points, ok, n, lanes):
+    cubature_points_lanes(x, P, points, ok, n, lanes)
+
+
+@numba.njit
+def _moments_lanes(moved, Q, x_out, P_out, n, lanes):
+    predicted_moments_lanes(moved, Q, x_out, P_out, n, lanes)
+
+
+@numba.njit
+def _inverse_lanes(A, out, ok, n, lanes):
+    spd_inverse_lanes(A, out, ok, n, lanes)
+
+
+@numba.njit
+def _sharing_lanes(confidence, beta, lanes):
+    sharing_coefficients_lanes(confidence, beta, lanes)
+
+
+@numba.njit
+def _scalar_points(x, P, points, ok):
+    for b in range(x.shape[0]):
+        ok[b] = cubature_points(x[b], P[b], points[b])
+
+
+@pytest.mark.parametrize("lanes", [1, 5, 32])
+def test_cubature_points_and_moments_in_lanes_equal_the_single_car_ones(lanes):
+    rng = np.random.default_rng(lanes)
+    x, P = rng.normal(size=(lanes, N)), covariances(rng, lanes, N)
+    points, ok = np.empty((lanes, 2 * N, N)), np.empty(lanes, np.bool_)
+    _scalar_points(x, P, points, ok)
+    points_l, ok_l = np.empty((2 * N, N, lanes)), np.empty(lanes, np.bool_)
+    _points_lanes(lanes_of(x), lanes_of(P), points_l, ok_l, N, lanes)
+    np.testing.assert_array_equal(ok_l, ok)
+    assert ok.sum() == lanes - (1 if lanes > 2 else 0)
+    np.testing.assert_array_equal(cars_of(points_l)[ok], points[ok])
+    Q = covariances(rng, lanes, N)[:, ::-1, ::-1].copy()  # (asymmetric rounding: symmetrised alike)
+    moved = points + 0.01 * np.sin(points)
+    x_out, P_out = np.empty((lanes, N)), np.empty((lanes, N, N))
+    for b in range(lanes):
+        predicted_moments(moved[b], Q[b], x_out[b], P_out[b])
+    x_l, P_l = np.empty((N, lanes)), np.empty((N, N, lanes))
+    _moments_lanes(lanes_of(moved), lanes_of(Q), x_l, P_l, N, lanes)
+    np.testing.assert_array_equal(cars_of(x_l), x_out)
+    np.testing.assert_array_equal(cars_of(P_l), P_out)
+
+
+@numba.njit
+def _update_lanes(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nll, ok, n, m, lanes):
+    measurement_update_lanes(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nll, ok, n, m, lanes)
+
+
+@pytest.mark.parametrize("huber_c", [math.inf, 1.5])
+@pytest.mark.parametrize("lanes", [1, 5, 32])
+def test_the_measurement_update_in_lanes_equals_the_single_car_one(lanes, huber_c):
+    rng = np.random.default_rng(10 + lanes)
+    x, P = rng.normal(size=(lanes, N)), covariances(rng, lanes, N)
+    P[np.isnan(P)] = 1.0
+    points, ok = np.empty((lanes, 2 * N, N)), np.empty(lanes, np.bool_)
+    _scalar_points(x, P, points, ok)
+    mix = rng.normal(size=(N, M))
+    Z = np.tanh(points @ mix) + 0.1 * points[..., :1]
+    z = Z.mean(axis=1) + rng.normal(scale=3.0, size=(lanes, M))  # outliers for the Huber weights
+    valid = rng.random((lanes, M)) > 0.2
+    R = np.broadcast_to(np.diag(rng.uniform(0.01, 0.5, M)), (lanes, M, M)).copy()
+    if lanes > 3:
+        R[3] = -np.eye(M)  # an innovation covariance that is not positive definite
+    x_out, P_out, nll = np.full((lanes, N), np.nan), np.full((lanes, N, N), np.nan), np.empty(lanes)
+    for b in range(lanes):
+        nll[b] = measurement_update(
+            x[b], P[b], points[b], Z[b], z[b], valid[b], R[b], huber_c, x_out[b], P_out[b],
+            np.empty(M), np.empty((M, M)), np.empty(M),
+        )  # fmt: skip
+    x_l, P_l, nll_l, ok_l = np.empty((N, lanes)), np.empty((N, N, lanes)), np.empty(lanes), np.empty(lanes, np.bool_)
+    _update_lanes(
+        lanes_of(x), lanes_of(P), lanes_of(points), lanes_of(Z), lanes_of(z), lanes_of(valid), lanes_of(R),
+        huber_c, x_l, P_l, nll_l, ok_l, N, M, lanes,
+    )  # fmt: skip
+    good = np.isfinite(nll)
+    np.testing.assert_array_equal(ok_l, good)
+    assert good.sum() == lanes - (1 if lanes > 3 else 0)
+    np.testing.assert_array_equal(nll_l, nll)  # (NaN where it failed)
+    np.testing.assert_array_equal(cars_of(x_l)[good], x_out[good])
+    np.testing.assert_array_equal(cars_of(P_l)[good], P_out[good])
+
+
+@numba.njit
+def _fuse_lanes(xs, Ps, x_out, P_out, confidence, ok, n, lanes):
+    fuse_lanes(xs, Ps, x_out, P_out, confidence, ok, n, lanes)
+
+
+@pytest.mark.parametrize("n", [4, 6])
+@pytest.mark.parametrize("lanes", [1, 5, 32])
+def test_the_fusion_inverse_and_sharing_in_lanes_equal_the_single_car_ones(lanes, n):
+    rng = np.random.default_rng(20 + lanes + n)
+    Ps = np.stack([covariances(rng, lanes, n), covariances(rng, lanes, n)], axis=1)  # (B, 2, n, n)
+    Ps[:, 1][np.isnan(Ps[:, 1])] = 0.5
+    xs = rng.normal(size=(lanes, 2, n))
+    inverse, ok = np.empty((lanes, n, n)), np.empty(lanes, np.bool_)
+    for b in range(lanes):
+        ok[b] = spd_inverse(Ps[b, 0], inverse[b])
+    inverse_l, ok_l = np.empty((n, n, lanes)), np.empty(lanes, np.bool_)
+    _inverse_lanes(lanes_of(Ps[:, 0]), inverse_l, ok_l, n, lanes)
+    np.testing.assert_array_equal(ok_l, ok)
+    np.testing.assert_array_equal(cars_of(inverse_l)[ok], inverse[ok])
+    x_g, P_g = np.empty((lanes, n)), np.empty((lanes, n, n))
+    confidence, beta = np.empty((lanes, 2)), np.empty((lanes, 2))
+    for b in range(lanes):
+        ok[b] = fuse(xs[b], Ps[b], x_g[b], P_g[b], confidence[b])
+        if ok[b]:
+            sharing_coefficients(confidence[b], beta[b])
+    x_l, P_l = np.empty((n, lanes)), np.empty((n, n, lanes))
+    confidence_l, beta_l = np.empty((2, lanes)), np.empty((2, lanes))
+    _fuse_lanes(lanes_of(xs), lanes_of(Ps), x_l, P_l, confidence_l, ok_l, n, lanes)
+    _sharing_lanes(confidence_l, beta_l, lanes)
+    np.testing.assert_array_equal(ok_l, ok)
+    assert ok.sum() == lanes - (1 if lanes > 2 else 0)
+    for got, want in ((x_l, x_g), (P_l, P_g), (confidence_l, confidence), (beta_l, beta)):
+        np.testing.assert_array_equal(cars_of(got)[ok], want[ok])
