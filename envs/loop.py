@@ -49,7 +49,7 @@ from fourwis.envs.sensors import (
     noisy_readings,
     to_channels,
 )
-from fourwis.envs.vehicle import Plant, advance_block, sideslip
+from fourwis.envs.vehicle import BLOCK, Plant, advance_block, sideslip
 from fourwis.estimation.joint import OK, FilterKernel, step_vehicle
 from fourwis.estimation.oracle import TruthKernel
 
@@ -66,6 +66,10 @@ class Stage(enum.IntEnum):
 
 
 STAGES = tuple(Stage)  #: the one stage order
+#: vehicles the loop runs stage by stage together (its blocks: each stage steps them in turn)
+LOOP_BLOCK = 64
+#: vehicles per call of the plant's block kernel (envs.vehicle.BLOCK: its wheel lanes)
+PLANT_BLOCK = BLOCK
 
 
 class Status(enum.IntEnum):
@@ -201,9 +205,11 @@ class Timing(NamedTuple):
 #: the stages' compiled forms: each returns Status.DONE or why the vehicle stops (``value`` in
 #: ``call.value[b]``)
 command = bundle_dispatch("command", "controller, b, sample, cars, call")
-integrate = bundle_dispatch("integrate", "plant, b, cars, call, dt")
+#: the plant and the estimator step the block's cars at their stage together (``rows[:count]``),
+#: each car's status into ``statuses[:count]``: blocks of cars run in SIMD lanes
+integrate = bundle_dispatch("integrate", "plant, rows, count, cars, call, dt, statuses")
 sense = bundle_dispatch("sense", "sensors, b, cars, sample, call")
-estimate_stage = bundle_dispatch("estimate_stage", "estimator, b, sample, call")
+estimate_stage = bundle_dispatch("estimate_stage", "estimator, rows, count, sample, call, statuses")
 steer = bundle_dispatch("steer", "drivers, b, sample, cars, call")
 speed_hold = bundle_dispatch("speed_hold", "drivers, b, sample, cars, call")
 
@@ -222,9 +228,18 @@ def _python_control(controller, b, sample, cars, call):
     return _served(controller, b)
 
 
+@numba.njit(**JIT)
+def _served_rows(stage: PythonStage, rows, count, statuses) -> None:
+    """:func:`_served` of the vehicles ``rows[:count]`` into ``statuses``. (The block stages' loops
+    live in functions of their own, not in the inlined stage implementations: numba's inliner
+    warns about loops in them.)"""
+    for j in range(count):
+        statuses[j] = _served(stage, rows[j])
+
+
 @integrate.register(PythonStage)
-def _python_plant(plant, b, cars, call, dt):
-    return _served(plant, b)
+def _python_plant(plant, rows, count, cars, call, dt, statuses):
+    _served_rows(plant, rows, count, statuses)
 
 
 @sense.register(PythonStage)
@@ -233,8 +248,8 @@ def _python_sensors(sensors, b, cars, sample, call):
 
 
 @estimate_stage.register(PythonStage)
-def _python_estimator(estimator, b, sample, call):
-    return _served(estimator, b)
+def _python_estimator(estimator, rows, count, sample, call, statuses):
+    _served_rows(estimator, rows, count, statuses)
 
 
 @steer.register(PythonStage)
@@ -302,10 +317,17 @@ def _dyc(controller, b, sample, cars, call):
     return Status.DONE
 
 
-@integrate.register(PlantStage)
-def _plant_step(plant, b, cars, call, dt):
+@numba.njit(inline="always", **JIT)
+def _too_fast(plant: PlantStage, x: np.ndarray, b: int) -> bool:
+    """Whether vehicle b's tyres relax too fast for RK4 at this step (PlantStage.relaxation_speed)."""
+    return math.hypot(x[b, S_U], x[b, S_V]) + abs(x[b, S_R]) * plant.reach > plant.relaxation_speed
+
+
+@numba.njit(**JIT)
+def _plant_car(plant: PlantStage, b: int, cars: Cars, call: Call, dt: float) -> int:
+    """One RK4 step of vehicle b alone; its status (and on a failure its value and reached state in ``call``)."""
     x = cars.state
-    if math.hypot(x[b, S_U], x[b, S_V]) + abs(x[b, S_R]) * plant.reach > plant.relaxation_speed:
+    if _too_fast(plant, x, b):
         return Status.TOO_FAST_FOR_RELAXATION
     row = slice(b, b + 1)
     road = RoadTables(plant.road.base_mu[row], plant.road.rects[row], plant.road.mu_given[row], plant.road.use_map)
@@ -318,6 +340,51 @@ def _plant_step(plant, b, cars, call, dt):
         return Status.PLANT_FAILED
     x[b, :] = state[0]
     return Status.DONE
+
+
+@integrate.register(PlantStage)
+def _plant_step(plant, rows, count, cars, call, dt, statuses):
+    _plant_rows(plant, rows, count, cars, call, dt, statuses)
+
+
+@numba.njit(**JIT)
+def _plant_rows(plant: PlantStage, rows, count, cars: Cars, call: Call, dt: float, statuses) -> None:
+    """One RK4 step of the vehicles ``rows[:count]``, each one's status into ``statuses``."""
+    # blocks of up to PLANT_BLOCK cars in wheel lanes (envs.vehicle.advance_block), each car's step
+    # the same as alone; a block with a failing car is stepped again car by car, so that each car
+    # fails (or not) as it would alone and the others of its block still step
+    x, road = cars.state, plant.road
+    chosen = scratch((PLANT_BLOCK,), np.int64)
+    for lo in range(0, count, PLANT_BLOCK):
+        n = 0
+        for j in range(lo, min(lo + PLANT_BLOCK, count)):
+            if _too_fast(plant, x, rows[j]):
+                statuses[j] = Status.TOO_FAST_FOR_RELAXATION
+            else:
+                chosen[n] = j
+                n += 1
+        if n == 0:
+            continue
+        state, controls, aux = np.empty((n, NX)), np.empty((n, NU)), np.empty((n, NAUX))
+        base_mu, mu_given = np.empty(n), np.empty((n, 4))
+        rects = np.empty((n, road.rects.shape[1], road.rects.shape[2]))
+        for i in range(n):
+            b = rows[chosen[i]]
+            state[i, :], controls[i, :] = x[b], cars.controls[b]
+            base_mu[i], mu_given[i, :], rects[i, :, :] = road.base_mu[b], road.mu_given[b], road.rects[b]
+        status, block_road = np.zeros(n, np.int64), RoadTables(base_mu, rects, mu_given, road.use_map)
+        advance_block(state, controls, plant.plant, block_road, dt, 1, aux, status)
+        failed = False
+        for i in range(n):
+            failed = failed or status[i] != 0
+        for i in range(n):
+            j = chosen[i]
+            if failed:
+                statuses[j] = _plant_car(plant, rows[j], cars, call, dt)
+            else:
+                x[rows[j], :] = state[i]
+                cars.aux[rows[j], :] = aux[i]
+                statuses[j] = Status.DONE
 
 
 @sense.register(SensorKernel)
@@ -335,18 +402,36 @@ def _sensors(sensors, b, cars, sample, call):
 
 
 @estimate_stage.register(FilterKernel)
-def _filter(estimator, b, sample, call):
-    status = step_vehicle(estimator, b, sample.reading, sample.estimate, b)
-    if status != OK:
-        call.value[b] = status
-        return Status.ESTIMATOR_FAILED
-    return Status.DONE
+def _filter(estimator, rows, count, sample, call, statuses):
+    _filter_rows(estimator, rows, count, sample.reading, sample.estimate, call.value, statuses)
+
+
+@numba.njit(**JIT)
+def _filter_rows(estimator: FilterKernel, rows, count, reading: SensorReading, estimate: Estimate, value,
+                 statuses) -> None:  # fmt: skip
+    """The estimator's step of the vehicles ``rows[:count]`` on their ``reading`` into their rows of
+    ``estimate``, each one's status into ``statuses`` (and the estimator's own into ``value``)."""
+    for j in range(count):
+        b = rows[j]
+        status = step_vehicle(estimator, b, reading, estimate, b)
+        if status != OK:
+            value[b] = status
+            statuses[j] = Status.ESTIMATOR_FAILED
+        else:
+            statuses[j] = Status.DONE
 
 
 @estimate_stage.register(TruthKernel)
-def _truth(estimator, b, sample, call):
-    copy_estimate_row(sample.truth, b, sample.estimate, b)
-    return Status.DONE
+def _truth(estimator, rows, count, sample, call, statuses):
+    _truth_rows(rows, count, sample.truth, sample.estimate, statuses)
+
+
+@numba.njit(**JIT)
+def _truth_rows(rows, count, truth: Estimate, estimate: Estimate, statuses) -> None:
+    """The truth as the estimate of the vehicles ``rows[:count]`` (the oracle)."""
+    for j in range(count):
+        copy_estimate_row(truth, rows[j], estimate, rows[j])
+        statuses[j] = Status.DONE
 
 
 @numba.njit(inline="always", **JIT)
@@ -426,63 +511,116 @@ def _record_estimate(source: Estimate, b: int, target: Estimate, s: int) -> None
     target.mu[s, b, :], target.fz[s, b, :], target.mu_std[s, b, :] = source.mu[b], source.fz[b], source.mu_std[b]
 
 
+#: a car's status from a stage that ends its run without moving on (the steps asked for are done)
+FINISHED = -1
+
+
 @numba.njit(**JIT)
-def _run_car(b, call: Call, cars: Cars, sample: Sample, parts: Parts, timing: Timing, records: StepRecord) -> None:
-    """Vehicle b's stages from where it stands up to ``call.n`` steps (see the module docstring);
-    sets ``call.status[b]`` (and ``call.value[b]``)."""
-    while True:
-        stage = cars.stage[b]
-        status = Status.DONE
-        if stage == Stage.CONTROL:
-            if call.progress[b] >= call.n and not (call.final and call.progress[b] == call.n):
-                call.status[b] = Status.DONE
-                return
-            status = command(parts.controller, b, sample, cars, call)
-            if status == Status.DONE and records.t.shape[0]:
-                _record(records, call.progress[b], b, sample, cars)
-            if status == Status.DONE and call.progress[b] == call.n:  # (the final control: no plant step)
-                call.progress[b] += 1
-                call.status[b] = Status.DONE
-                return
-        elif stage == Stage.PLANT:
-            status = integrate(parts.plant, b, cars, call, timing.dt)
-            if status == Status.DONE:
-                cars.k[b] += 1
-                sample.t[b] = cars.k[b] * timing.dt
-                call.progress[b] += 1
-        elif stage == Stage.SENSE:
-            sample.reading.t[b] = sample.t[b]
-            measure_truth(b, cars.state, cars.aux, cars.sensed, sample.truth)
-            for c in range(cars.sensed.shape[1]):
-                if not math.isfinite(cars.sensed[b, c]):
-                    call.value[b] = c
-                    status = Status.BAD_TRUTH
-                    break
-            if status == Status.DONE:
-                status = sense(parts.sensors, b, cars, sample, call)
-        elif stage == Stage.ESTIMATE:
-            status = Status.NEEDS_RESET if cars.fresh[b] else estimate_stage(parts.estimator, b, sample, call)
-        elif stage == Stage.STEER:
-            status = steer(parts.steering, b, sample, cars, call)
-            if status == Status.DONE:
-                delta = sample.steering_wheel[b] / timing.steering_ratio
-                sample.front_steer[b] = min(max(delta, -timing.max_front_steer), timing.max_front_steer)
-        else:
-            status = speed_hold(parts.speed, b, sample, cars, call)
-            if status == Status.DONE:
-                for w in range(4):
-                    sample.base_torques[b, w] = cars.drive_torque[b]
-        if status != Status.DONE:
-            call.status[b] = status
-            return
-        cars.stage[b] = (stage + 1) % len(STAGES)
+def _run_block(members, call: Call, cars: Cars, sample: Sample, parts: Parts, timing: Timing, records: StepRecord):
+    """The vehicles ``members`` (at most LOOP_BLOCK) from where each stands up to ``call.n`` steps
+    (see the module docstring), stage by stage: each stage runs for the block's vehicles that stand
+    at it (``rows[:count]``, each one's status into ``statuses``: DONE, on to the next stage,
+    FINISHED, or why it stops), in the stages' order, so that a plant or an estimator with a
+    block form steps them together; a vehicle leaves the block when it stops (``call.status[b]``,
+    ``call.value[b]``). Each stage's code is written out here: a helper function taking the loop's
+    bundles would have numba count the references of every array in them at each call."""
+    M = members.shape[0]
+    running, slots = scratch((LOOP_BLOCK,), np.bool_), scratch((LOOP_BLOCK,), np.int64)
+    rows, statuses = scratch((LOOP_BLOCK,), np.int64), scratch((LOOP_BLOCK,), np.int64)
+    for i in range(M):
+        running[i] = True
+    left = M
+    while left:
+        for stage in range(len(STAGES)):
+            count = 0
+            for i in range(M):
+                if running[i] and cars.stage[members[i]] == stage:
+                    slots[count], rows[count] = i, members[i]
+                    count += 1
+            if count == 0:
+                continue
+            if stage == Stage.CONTROL:
+                for j in range(count):
+                    b = rows[j]
+                    if call.progress[b] >= call.n and not (call.final and call.progress[b] == call.n):
+                        statuses[j] = FINISHED  # (its steps are done)
+                        continue
+                    status = command(parts.controller, b, sample, cars, call)
+                    if status == Status.DONE and records.t.shape[0]:
+                        _record(records, call.progress[b], b, sample, cars)
+                    if status == Status.DONE and call.progress[b] == call.n:  # (the final control: no plant step)
+                        call.progress[b] += 1
+                        status = FINISHED
+                    statuses[j] = status
+            elif stage == Stage.PLANT:
+                integrate(parts.plant, rows, count, cars, call, timing.dt, statuses)
+                for j in range(count):
+                    b = rows[j]
+                    if statuses[j] == Status.DONE:
+                        cars.k[b] += 1
+                        sample.t[b] = cars.k[b] * timing.dt
+                        call.progress[b] += 1
+            elif stage == Stage.SENSE:
+                for j in range(count):
+                    b = rows[j]
+                    sample.reading.t[b] = sample.t[b]
+                    measure_truth(b, cars.state, cars.aux, cars.sensed, sample.truth)
+                    status = Status.DONE
+                    for c in range(cars.sensed.shape[1]):
+                        if not math.isfinite(cars.sensed[b, c]):
+                            call.value[b] = c
+                            status = Status.BAD_TRUTH
+                            break
+                    if status == Status.DONE:
+                        status = sense(parts.sensors, b, cars, sample, call)
+                    statuses[j] = status
+            elif stage == Stage.ESTIMATE:
+                ready, n = scratch((LOOP_BLOCK,), np.int64), 0  # (a new vehicle's estimator is reset first)
+                for j in range(count):
+                    if cars.fresh[rows[j]]:
+                        statuses[j] = Status.NEEDS_RESET
+                    else:
+                        ready[n] = j
+                        n += 1
+                if n == count:
+                    estimate_stage(parts.estimator, rows, count, sample, call, statuses)
+                elif n:
+                    going, going_statuses = scratch((LOOP_BLOCK,), np.int64), scratch((LOOP_BLOCK,), np.int64)
+                    for i in range(n):
+                        going[i] = rows[ready[i]]
+                    estimate_stage(parts.estimator, going, n, sample, call, going_statuses)
+                    for i in range(n):
+                        statuses[ready[i]] = going_statuses[i]
+            elif stage == Stage.STEER:
+                for j in range(count):
+                    b = rows[j]
+                    statuses[j] = steer(parts.steering, b, sample, cars, call)
+                    if statuses[j] == Status.DONE:
+                        delta = sample.steering_wheel[b] / timing.steering_ratio
+                        sample.front_steer[b] = min(max(delta, -timing.max_front_steer), timing.max_front_steer)
+            else:
+                for j in range(count):
+                    b = rows[j]
+                    statuses[j] = speed_hold(parts.speed, b, sample, cars, call)
+                    if statuses[j] == Status.DONE:
+                        for w in range(4):
+                            sample.base_torques[b, w] = cars.drive_torque[b]
+            for j in range(count):
+                b, status = rows[j], statuses[j]
+                if status == Status.DONE:
+                    cars.stage[b] = (stage + 1) % len(STAGES)
+                else:
+                    call.status[b] = Status.DONE if status == FINISHED else status
+                    running[slots[j]] = False
+                    left -= 1
 
 
 @numba.njit(nogil=True, **JIT)
 def run_cars(cars_to_run, call: Call, cars: Cars, sample: Sample, parts: Parts, timing: Timing, records: StepRecord):
-    """:func:`_run_car` for each vehicle of ``cars_to_run`` (M,) int64, without the GIL."""
-    for b in cars_to_run:
-        _run_car(b, call, cars, sample, parts, timing, records)
+    """:func:`_run_block` for the vehicles of ``cars_to_run`` (M,) int64 in blocks of LOOP_BLOCK,
+    without the GIL."""
+    for lo in range(0, cars_to_run.shape[0], LOOP_BLOCK):
+        _run_block(cars_to_run[lo : lo + LOOP_BLOCK], call, cars, sample, parts, timing, records)
 
 
 def run(cars_to_run: np.ndarray, *args) -> None:
