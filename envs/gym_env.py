@@ -40,7 +40,7 @@ from fourwis.envs.metrics import (
 )
 from fourwis.envs.render import close_window, show_frame
 from fourwis.envs.scenarios import SCENARIOS, Scenario, make_scenario
-from fourwis.envs.sensors import CHANNEL_OF_SENSOR, Fault
+from fourwis.envs.sensors import Fault
 from fourwis.envs.simulation import DT, ClosedLoop
 from fourwis.estimation import check_estimator_name
 
@@ -76,7 +76,7 @@ STATE_SLOTS = (
     Slot("the driver's front road-wheel angle", 0.3, "rad"),
     Slot("yaw-rate error r - r_ref", 1.0, "rad/s"),
 )
-#: the observation from the raw sensors (``observation="sensors"``): the simulated car's 13 sensors
+#: the observation from the raw sensors (``observation="sensors"``): the simulated car's 17 sensors
 #: (envs.sensors.SENSORS, not the 16 channels of a log), then r_ref
 SENSOR_SLOTS = (
     Slot("longitudinal acceleration ax", 10.0, "m/s²"),
@@ -86,6 +86,7 @@ SENSOR_SLOTS = (
     Slot("front road-wheel angle", 0.3, "rad"),
     Slot("rear road-wheel angle", 0.3, "rad"),
     *(Slot(f"motor torque, {wheel}", 600.0, "N m") for wheel in WHEEL_NAMES),
+    *(Slot(f"brake pressure, {wheel}", 1.0e7, "Pa") for wheel in WHEEL_NAMES),
     Slot("reference yaw rate r_ref from the readings and friction 0.8", 1.0, "rad/s"),
 )
 N_OBS = len(STATE_SLOTS)
@@ -226,14 +227,18 @@ class AgentController:
                 base_torques, self.action[:, 0] * MAX_YAW_MOMENT, estimate, p, front_steer=front_steer, rear_steer=rear
             ).torques
             return Command(torques, rear)
-        limit = p.motor_peak_torque
-        return Command(np.clip(base_torques + self.action * limit, -limit, limit), np.zeros(len(base_torques)))
+        motor, brake = p.motor_peak_torque, p.brake_peak_torque
+        scale = np.where(self.action > 0.0, motor, motor + brake)
+        torques = np.clip(base_torques + self.action * scale, -(motor + brake), motor)
+        return Command(torques, np.zeros(len(base_torques)))
 
     def kernel(self) -> HeldAction:
         """This controller as the compiled loop runs it (the held actions themselves)."""
         p = self.params
         yaw_moment = self.action_mode == "yaw_moment"
-        return HeldAction(self.action, yaw_moment, MAX_YAW_MOMENT, float(p.max_rear_steer), allocator_limits(p))
+        return HeldAction(
+            self.action, yaw_moment, MAX_YAW_MOMENT, float(p.max_rear_steer), allocator_limits(p), p.brake_peak_torque
+        )
 
 
 class _EpisodeStats:
@@ -303,7 +308,7 @@ class YawStabilityCore:
         s = self.loop.sample() if sample is None else sample
         delta_f = s.front_steer
         if self.config.observation == "sensors":
-            values = s.reading.values[:, CHANNEL_OF_SENSOR]  # the car's 13 sensors
+            values = s.sensors  # the car's 17 sensors
             r_ref = reference_yaw_rate(
                 values[:, 3:7].mean(axis=1) * self.params.wheel_radius,
                 values[:, 7],
@@ -521,7 +526,7 @@ class YawStabilityEnv(gym.Env):
 
     **Observation** (float32, ``N_OBS`` slots): :data:`STATE_SLOTS` from the estimate
     (``observation="estimated"``, the default) or from the truth with zero uncertainty
-    (``"true"``); ``"sensors"``: :data:`SENSOR_SLOTS`, the car's 13 raw sensors and r_ref. The
+    (``"true"``); ``"sensors"``: :data:`SENSOR_SLOTS`, the car's 17 raw sensors and r_ref. The
     fixed-friction estimators report their nominal 0.8 in the friction slots and zero friction
     uncertainty. ``privileged=True`` appends the truth's ``N_OBS`` slots (asymmetric
     actor-critic: ``training.asymmetric``).
@@ -529,8 +534,10 @@ class YawStabilityEnv(gym.Env):
     **Action** (float32 in [-1, 1]): ``action="yaw_moment"``: [corrective yaw moment x
     MAX_YAW_MOMENT N m, rear road-wheel angle x the rear servo's range] (``rear_steer=False``:
     the moment alone), allocated to the wheels within the motors' and tyres' limits from the
-    estimate; ``"wheel_torques"``: four corrective torques x the motors' peak torque, added to
-    the driver's. Out-of-range actions are clipped (``info["action_clipped"]``); NaN raises.
+    estimate; ``"wheel_torques"``: four corrective net wheel torques added to the driver's, a
+    positive action times the motor's peak torque, a negative one times the motor's and the
+    friction brake's peaks (braking; the wheels' actuators split it, with ABS). Out-of-range
+    actions are clipped (``info["action_clipped"]``); NaN raises.
 
     **Reward** per step: -(e_r / 0.1)^2 - (beta / 0.05)^2 - 0.1 |a|^2 - (d / 1 m)^2, times
     ``control_dt`` (e_r the true yaw rate less the reference [rad/s], beta the true sideslip

@@ -35,10 +35,26 @@ import numpy as np
 
 from fourwis.control.allocation import Allocation, AllocationInputs, AllocatorLimits, allocation_kernel
 from fourwis.control.dyc import DycKernel, stability_command
+from fourwis.control.wheel_slip import WheelActuators, actuate, reference_speed
 from fourwis.core.kernels import JIT, bundle_dispatch, run_parallel, scratch
-from fourwis.core.types import N_CHANNELS, Estimate, SensorReading
+from fourwis.core.types import CH_AX, CH_OMEGA, N_CHANNELS, Estimate, SensorReading
 from fourwis.envs.driver import DRIVEN, NEEDS_PREVIEW, DriverTables, drive
-from fourwis.envs.layout import A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NAUX, NU, NX, S_R, S_U, S_V
+from fourwis.envs.layout import (
+    A_AX,
+    A_AY,
+    A_FZ,
+    A_MU,
+    C_BRAKE,
+    C_DELTA_F,
+    C_DELTA_R,
+    C_TORQUE,
+    NAUX,
+    NU,
+    NX,
+    S_R,
+    S_U,
+    S_V,
+)
 from fourwis.envs.road import RoadTables
 from fourwis.envs.sensors import (
     BLOCK_USED_UP,
@@ -98,14 +114,16 @@ class NoControl(NamedTuple):
 class HeldAction(NamedTuple):
     """A held agent action (B, n) in [-1, 1] as a controller: with ``yaw_moment``, action 0 scaled
     by ``max_yaw_moment`` [N m] is a corrective yaw moment allocated over the wheels (and action 1,
-    if there is one, scaled by ``max_rear_steer`` [rad], the rear steer); else the actions scaled
-    by the motors' peak torque are added to the base wheel torques."""
+    if there is one, scaled by ``max_rear_steer`` [rad], the rear steer); else the actions are
+    corrective net wheel torques added to the base wheel torques (:func:`wheel_torque_action`,
+    braking up to ``brake_peak_torque`` [N m] beyond the motors)."""
 
     action: np.ndarray
     yaw_moment: bool
     max_yaw_moment: float
     max_rear_steer: float
     limits: AllocatorLimits
+    brake_peak_torque: float
 
 
 class PlantStage(NamedTuple):
@@ -123,7 +141,10 @@ class Sample(NamedTuple):
     """What a closed loop knows at its current time, before the controller acts (B vehicles):
     t (B,) [s]; the sensors' reading; the truth and the estimate (:class:`Estimate` of B rows);
     the driver's steering-wheel angle (B,) [rad], the front road-wheel angle it commands within
-    the steering's lock (B,) [rad], and the speed-holding driver's wheel torques (B, 4) [N m]."""
+    the steering's lock (B,) [rad], the speed-holding driver's wheel torques (B, 4) [N m], and the
+    car's sensors' readings (B, N_SENSORS) in their own order and units
+    (:data:`fourwis.envs.sensors.SENSORS`: the brake pressures, which the reading's channels net
+    into the wheel torques, among them)."""
 
     t: np.ndarray
     reading: SensorReading
@@ -132,6 +153,7 @@ class Sample(NamedTuple):
     steering_wheel: np.ndarray
     front_steer: np.ndarray
     base_torques: np.ndarray
+    sensors: np.ndarray
 
 
 class StepRecord(NamedTuple):
@@ -180,7 +202,9 @@ class Call(NamedTuple):
 
 
 class Parts(NamedTuple):
-    """The loop's components, each its compiled bundle or :class:`PythonStage`."""
+    """The loop's components, each its compiled bundle or :class:`PythonStage`, and the car's wheel
+    actuators (:class:`fourwis.control.wheel_slip.WheelActuators`: every command's net wheel
+    torques to motors and brakes, with the slip control)."""
 
     controller: object
     plant: object
@@ -188,6 +212,7 @@ class Parts(NamedTuple):
     estimator: object
     steering: object
     speed: object
+    actuators: WheelActuators
 
 
 class Timing(NamedTuple):
@@ -258,6 +283,16 @@ def _no_control(controller, b, sample, cars, call):
     return Status.DONE
 
 
+@numba.njit(inline="always", **JIT)
+def wheel_torque_action(base: float, action: float, motor_peak: float, brake_peak: float) -> float:
+    """The net torque [N m] a ``wheel_torques`` action in [-1, 1] asks of a wheel with the driver's
+    ``base`` torque [N m]: a positive action adds up to the motor's peak ``motor_peak`` [N m], a
+    negative one brakes by up to the motor's and the friction brake's peaks together, within
+    [-(motor_peak + brake_peak), motor_peak]."""
+    scale = motor_peak if action > 0.0 else motor_peak + brake_peak
+    return min(max(base + action * scale, -(motor_peak + brake_peak)), motor_peak)
+
+
 @command.register(HeldAction)
 def _held_action(controller, b, sample, cars, call):
     controls = cars.controls[b]
@@ -265,7 +300,9 @@ def _held_action(controller, b, sample, cars, call):
     action, limit = controller.action, controller.limits.motor_peak_torque
     if not controller.yaw_moment:
         for w in range(4):
-            controls[C_TORQUE + w] = min(max(sample.base_torques[b, w] + action[b, w] * limit, -limit), limit)
+            controls[C_TORQUE + w] = wheel_torque_action(
+                sample.base_torques[b, w], action[b, w], limit, controller.brake_peak_torque
+            )
         return Status.DONE
     row, estimate = slice(b, b + 1), sample.estimate
     rear, yaw, lateral = scratch((1,)), scratch((1,)), scratch((1, 4))
@@ -330,7 +367,8 @@ def _sensors(sensors, b, cars, sample, call):
     if found >= 0:
         call.value[b] = found
         return Status.BAD_TRUTH
-    to_channels(sensed[0], sample.reading.values[b], sample.reading.valid[b])
+    to_channels(sensed[0], sample.reading.values[b], sample.reading.valid[b], sensors.brake_gain)
+    sample.sensors[b, :] = sensed[0]
     return Status.DONE
 
 
@@ -369,6 +407,22 @@ def _speed(drivers, b, sample, cars, call):
 
 
 @numba.njit(inline="always", **JIT)
+def actuate_controls(actuators: WheelActuators, b: int, sample: Sample, controls: np.ndarray) -> None:
+    """Vehicle b's commanded net wheel torques in ``controls`` (NU,) to its motor torque and brake
+    pressure commands, slip-controlled on its measured wheel speeds and acceleration, estimated
+    forward speed and friction."""
+    demand, motor, pressure = scratch((4,)), scratch((4,)), scratch((4,))
+    for w in range(4):
+        demand[w] = controls[C_TORQUE + w]
+    omega, estimate = sample.reading.values[b, CH_OMEGA : CH_OMEGA + 4], sample.estimate
+    r = estimate.r[b]
+    speed = reference_speed(actuators, b, omega, sample.reading.values[b, CH_AX], estimate.u[b], r)
+    actuate(actuators, demand, omega, speed, r, estimate.mu[b], motor, pressure)
+    for w in range(4):
+        controls[C_TORQUE + w], controls[C_BRAKE + w] = motor[w], pressure[w]
+
+
+@numba.njit(inline="always", **JIT)
 def copy_estimate_row(source: Estimate, i: int, target: Estimate, j: int) -> None:
     """Row i of ``source`` into row j of ``target``."""
     target.u[j], target.v[j], target.beta[j], target.r[j] = source.u[i], source.v[i], source.beta[i], source.r[i]
@@ -383,7 +437,7 @@ def measure_truth(b: int, state: np.ndarray, aux: np.ndarray, sensed: np.ndarray
     and its true state in estimator form into row b of ``truth`` (zero sigmas)."""
     for c in range(2):
         sensed[b, c] = aux[b, TRUE_AUX_COLUMNS[c]]
-    for c in range(11):
+    for c in range(len(TRUE_STATE_COLUMNS)):
         sensed[b, 2 + c] = state[b, TRUE_STATE_COLUMNS[c]]
     truth.u[b], truth.v[b], truth.r[b] = state[b, S_U], state[b, S_V], state[b, S_R]
     truth.beta[b] = sideslip(state[b, S_U], state[b, S_V])
@@ -438,6 +492,8 @@ def _run_car(b, call: Call, cars: Cars, sample: Sample, parts: Parts, timing: Ti
                 call.status[b] = Status.DONE
                 return
             status = command(parts.controller, b, sample, cars, call)
+            if status == Status.DONE:
+                actuate_controls(parts.actuators, b, sample, cars.controls[b])
             if status == Status.DONE and records.t.shape[0]:
                 _record(records, call.progress[b], b, sample, cars)
             if status == Status.DONE and call.progress[b] == call.n:  # (the final control: no plant step)

@@ -356,7 +356,7 @@ def test_async_vector_env_with_spawned_workers():
     try:
         obs, _ = env.reset(seed=0)
         obs2, reward, *_ = env.step(np.zeros((2, 2), dtype=np.float32))
-        assert obs.shape == (2, 14) and np.all(np.isfinite(obs2)) and reward.shape == (2,)
+        assert obs.shape == (2, 18) and np.all(np.isfinite(obs2)) and reward.shape == (2,)
     finally:
         env.close()
 

@@ -333,3 +333,22 @@ def test_swd_shows_mirror_image_runs_as_one_row():
     assert len(rows) == 3
     assert "| 83 deg (5.0A) | L, R | 10.0% |" in rows[0]
     assert "| 91 deg (5.5A) | L | 10.0% |" in rows[1] and "| 91 deg (5.5A) | R | 30.0% |" in rows[2]
+
+
+def test_a_sine_with_dwell_result_names_each_criterion_it_fails():
+    """Constructed results: each FMVSS 126 criterion fails alone and together, in the regulation's
+    order; responsiveness does not apply below 5A (None), so it cannot fail there."""
+    from fourwis.envs.metrics import SWD_CRITERIA, SineWithDwellResult
+
+    def result(r1000, r1750, responsive):
+        return SineWithDwellResult(1, 3.0, 1.0, 2.9, 0.5, r1000, r1750, 2.1, responsive, False)
+
+    assert result(0.1, 0.05, True).failed_criteria == () and result(0.1, 0.05, True).passed
+    assert result(0.36, 0.05, True).failed_criteria == ("yaw ratio at 1.00 s",)
+    assert result(0.1, -0.21, True).failed_criteria == ("yaw ratio at 1.75 s",)
+    assert result(0.1, 0.05, False).failed_criteria == ("responsiveness at 1.07 s",)
+    assert result(math.inf, 0.5, False).failed_criteria == SWD_CRITERIA
+    assert result(0.1, 0.05, None).failed_criteria == () and result(0.1, 0.05, None).passed
+    assert result(0.1, 0.05, False).as_dict()["failed_criteria"] == "responsiveness at 1.07 s"
+    for r in (result(0.36, 0.05, True), result(0.1, 0.05, False), result(0.1, 0.05, None)):
+        assert r.passed == (not r.failed_criteria)

@@ -7,32 +7,42 @@ import numpy as np
 import pytest
 
 from fourwis.core.types import CHANNELS
-from fourwis.envs.sensors import CHANNEL_OF_SENSOR, SENSORS, Fault, SensorModel, SensorParams
+from fourwis.envs.sensors import SENSORS, Fault, SensorModel, SensorParams
 from fourwis.envs.simulation import DT
 
 
 def run(faults=(), seed=0, n=2000, batch=2, params=SensorParams()):
-    """n readings of a constant truth: values and valid (n, batch, 13) per sensor (the channel
-    each sensor fills first), the truth, the model."""
+    """n readings of a constant truth: values and valid (n, batch, 17) per sensor, the truth, the model."""
     model = SensorModel(params, tuple(faults), batch, np.random.default_rng(seed))
-    truth = np.tile(np.linspace(1.0, 13.0, len(SENSORS)), (batch, 1))
-    readings = [model.measure(truth, k * DT) for k in range(n)]
-    values = np.stack([r.values[:, CHANNEL_OF_SENSOR] for r in readings])
-    valid = np.stack([r.valid[:, CHANNEL_OF_SENSOR] for r in readings])
+    truth = np.tile(np.linspace(1.0, 17.0, len(SENSORS)), (batch, 1))
+    readings = [model.read(truth, k * DT) for k in range(n)]
+    values = np.stack([r.values for r in readings])
+    valid = np.stack([r.valid for r in readings])
     return values, valid, truth, model
 
 
 def test_the_cars_sensors_fill_the_channel_layout():
-    """Each axle's one steer sensor fills both its wheels' channels; the car has no forward-speed
-    sensor, whose channel is NaN and invalid; every other channel is its sensor's reading."""
-    faults = (Fault("delta_f", "dropout", start=0.0, end=1.0),)
-    model = SensorModel(SensorParams().scaled(0.0), faults, 1, np.random.default_rng(0))
-    reading = model.measure(np.linspace(1.0, 13.0, len(SENSORS))[None], 0.0)
+    """Each axle's one steer sensor fills both its wheels' channels; each wheel's torque channel is
+    its motor torque less the brake gain times its brake pressure, invalid while the pressure
+    sensor is out; the car has no forward-speed sensor, whose channel is NaN and invalid; every
+    other channel is its sensor's reading."""
+    faults = (Fault("delta_f", "dropout", start=0.0, end=1.0), Fault("brake_rr", "dropout", start=0.0, end=1.0))
+    gain = 2.0e-4
+    model = SensorModel(SensorParams().scaled(0.0), faults, 1, np.random.default_rng(0), brake_gain=gain)
+    truth = np.linspace(1.0, 17.0, len(SENSORS))
+    truth[-4:] = [1e5, 2e5, 3e5, 4e5]  # brake pressures [Pa]
+    reading = model.measure(truth[None], 0.0)
     assert reading.values.shape == reading.valid.shape == (1, len(CHANNELS)) == (1, 16)
     row, ok = reading.values[0], reading.valid[0]
     for name in SENSORS:
-        if not name.startswith("delta_"):
+        if not name.startswith(("delta_", "torque_", "brake_")):
             assert row[CHANNELS.index(name)] == 1.0 + SENSORS.index(name), name
+    for wheel in ("fl", "fr", "rl", "rr"):
+        motor = truth[SENSORS.index(f"torque_{wheel}")]
+        # (the rr pressure is held at 0: never valid yet)
+        held = 0.0 if wheel == "rr" else truth[SENSORS.index(f"brake_{wheel}")]
+        assert row[CHANNELS.index(f"torque_{wheel}")] == pytest.approx(motor - gain * held, abs=1e-12)
+        assert ok[CHANNELS.index(f"torque_{wheel}")] == (wheel != "rr")
     assert row[CHANNELS.index("delta_fl")] == row[CHANNELS.index("delta_fr")] == 0.0  # (held: never valid yet)
     assert row[CHANNELS.index("delta_rl")] == row[CHANNELS.index("delta_rr")] == 9.0
     assert np.isnan(row[CHANNELS.index("speed")]) and not ok[CHANNELS.index("speed")]
@@ -181,7 +191,7 @@ def test_bad_truth_raises_naming_the_channel():
         model.measure(truth, 0.0)
     with pytest.raises(ValueError, match="shape"):
         model.measure(np.zeros((2, len(SENSORS))), 0.0)
-    with pytest.raises(ValueError, match=r"noise_std must be 13 .*, got \[1. 1. 1. 1. 1. 1. 1. 1. 1. 1. 1. 1.\]"):
+    with pytest.raises(ValueError, match=r"noise_std must be 17 .*, got \[1. 1. 1. 1. 1. 1. 1. 1. 1. 1. 1. 1.\]"):
         SensorParams(noise_std=(1.0,) * 12)
 
 

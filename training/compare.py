@@ -66,7 +66,7 @@ HEADLINE = (
     "iso3888_2:speed_kph=70",
 )
 DEFAULT_ESTIMATORS = ("oracle", "ckf", "joint")
-DEFAULT_CONTROLLERS = ("none", "dyc-lqr")
+DEFAULT_CONTROLLERS = ("none", "dyc-lqr", "esc")
 RL_PREFIX = "rl:"  #: controller name prefix of a trained policy: ``rl:<run directory>`` (training.rl)
 SWD_MULTIPLE = 5.5  #: sine-with-dwell amplitude in multiples of A for the comparison
 SWD_MU = 0.5  #: road friction of the comparison's sine with dwell (wet asphalt)
@@ -258,12 +258,10 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
             # FMVSS 126's responsiveness (displacement >= 1.83 m), which applies from 5A: NaN below
             swd_responsive=math.nan if res.passed_responsiveness is None else float(res.passed_responsiveness),
         )
-    # the pass-rate map's verdict: no spin-out, on a course its end reached, and on sine with
-    # dwell FMVSS 126 passed (the yaw ratios and the responsiveness displacement: a stable car
-    # can still fail the latter)
-    out["passed"] = float(
-        not out["spin_out"] and out.get("course_completed", 1.0) == 1.0 and out.get("swd_passed", 1.0) == 1.0
-    )
+    # the pass-rate map's verdict (failed_criteria's): no spin-out, on a course its end reached and
+    # no cone displaced (ISO 3888-2: such a run is not valid), and on sine with dwell FMVSS 126
+    # passed (the yaw ratios and the responsiveness displacement: a stable car can still fail the latter)
+    out["passed"] = float(not failed_criteria(out))
     for name in ("u", "v", "beta", "r"):
         out[f"rmse_{name}"] = rmse(getattr(E, name), getattr(T, name))
         out[f"mae_{name}"] = mae(getattr(E, name), getattr(T, name))
@@ -317,8 +315,8 @@ CRITERIA = {
 
 
 def failed_criteria(metrics: dict[str, float]) -> tuple[str, ...]:
-    """The :data:`CRITERIA` one run of :func:`run_metrics` fails (empty: it passes). The same
-    judgement as its ``passed`` flag (the pass-rate map) but for one criterion more, the cones."""
+    """The :data:`CRITERIA` one run of :func:`run_metrics` fails (empty: it passes; its ``passed``
+    flag and the pass-rate map judge the same)."""
     swd = "swd_ratio_1000" in metrics
     failed = {
         "spin-out": bool(metrics["spin_out"]),
@@ -347,6 +345,38 @@ def verdict_cell(runs: Sequence[dict[str, float]]) -> str:
         return f"pass {len(runs)}/{len(runs)}"
     counts = {name: sum(name in f for f in failures) for name in CRITERIA}
     return f"FAIL {failing}/{len(runs)}: " + ", ".join(f"{name} {k}" for name, k in counts.items() if k)
+
+
+def criterion_pass_lines(runs: dict[tuple[str, str, str], list[dict]], scenarios, estimators, controllers) -> list[str]:
+    """The report's table of pass counts per criterion: for each controller and estimator, over every
+    scenario's runs to which a criterion applies, how many passed it (``k/n``; a dash where none applies)."""
+    applies = {
+        "spin-out": lambda m: True,
+        "course": lambda m: "course_completed" in m,
+        "cones": lambda m: "cone_hits" in m,
+        "FMVSS yaw 1.0 s": lambda m: "swd_ratio_1000" in m,
+        "FMVSS yaw 1.75 s": lambda m: "swd_ratio_1750" in m,
+        "FMVSS responsiveness": lambda m: m.get("swd_responsive") in (0.0, 1.0),
+    }
+    lines = [
+        "",
+        "## Passes per criterion",
+        "",
+        "Runs that passed each criterion over all scenarios' runs it applies to (responsiveness: from 5A).",
+        "",
+        "| controller | estimator | " + " | ".join(CRITERIA) + " |",
+        "|---|---|" + "---:|" * len(CRITERIA),
+    ]
+    for c in controllers:
+        for e in estimators:
+            cells = [m for s in scenarios for m in runs[(s, e, c)]]
+            counts = []
+            for name in CRITERIA:
+                judged = [m for m in cells if applies[name](m)]
+                passed = sum(name not in failed_criteria(m) for m in judged)
+                counts.append(f"{passed}/{len(judged)}" if judged else "—")
+            lines.append(f"| {c} | {e} | " + " | ".join(counts) + " |")
+    return lines
 
 
 def build_controller(name: str, params):
@@ -529,7 +559,7 @@ def markdown_report(
         "Verdict: `pass k/n` when all n seeds pass, else `FAIL k/n` (k seeds failed) and each failed "
         "criterion with the number of seeds that failed it: "
         + "; ".join(f"*{name}*: {text}" for name, text in CRITERIA.items())
-        + ". The pass-rate map (pass_rate.png, runs.csv `passed`) judges the same but for the cones.",
+        + ". The pass-rate map (pass_rate.png, runs.csv `passed`) judges the same.",
         "",
         "## Stability",
         "",
@@ -551,6 +581,7 @@ def markdown_report(
                     f"| {_fmt(m.get('swd_ratio_1750'), 100, 0)}{'%' if 'swd_ratio_1750' in m else ''} "
                     f"| {_fmt(m.get('swd_displacement'))} | {_fmt(m['yaw_moment_rms'], 1, 0)} |"
                 )
+    lines += criterion_pass_lines(runs, scenarios, estimators, controllers)
     lines += oracle_ratio_lines(table, scenarios, estimators, controllers)
     estimated = [e for e in estimators if e != "oracle"]  # (the oracle's errors are zero by construction)
     c = "none" if "none" in controllers else controllers[0]
@@ -673,7 +704,8 @@ def plot_report(
         ax.set_title(f"controller {c}", fontsize=9)
     axes[-1, 0].set_xticks(range(len(scenarios)), scenarios, rotation=30, ha="right", fontsize=8)
     fig.suptitle(
-        f"pass rate over {over}: no spin-out, course completed, FMVSS 126 passed on sine with dwell", fontsize=9
+        f"pass rate over {over}: no spin-out, course completed, no cone hit, FMVSS 126 passed on sine with dwell",
+        fontsize=9,
     )
     paths.append(atomic_write(out / "pass_rate.png", lambda p: fig.savefig(p, format="png", dpi=110)))
     plt.close(fig)
