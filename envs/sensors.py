@@ -22,7 +22,13 @@ run draws a constant turn-on bias per channel from N(0, bias_std). Default magni
   ratio of 16), rear actuator encoder 1e-4 rad std, no bias;
 * motor torques (estimated from phase currents by the inverter): 2 N m std, 2 N m bias std;
 * brake pressures (the hydraulic unit's pressure sensors, ~250 bar full scale at ~0.5%
-  accuracy): 1e4 Pa (0.1 bar) std, 5e3 Pa bias std, i.e. 1.8 and 0.9 N m of brake torque.
+  accuracy): 1e4 Pa (0.1 bar) std, 5e3 Pa bias std, i.e. 1.8 and 0.9 N m of brake torque; a
+  reading below :data:`BRAKE_RELEASED_PRESSURE` counts as a released brake in the net torque.
+
+The first 13 sensors (the car's before it had brakes) draw their turn-on biases and noise from
+the vehicle's generator exactly as they did then; the brake pressures draw theirs from a second
+stream, the vehicle's generator jumped ahead (``bit_generator.jumped()``), so a run that never
+brakes reads bit for bit what it read without the brake sensors.
 
 These are the package's reference magnitudes (SensorParams' defaults); :meth:`SensorParams.scaled` scales
 all of them.
@@ -47,7 +53,7 @@ import numpy as np
 
 from fourwis.core.checks import member_rows  # (the readings' layout, which the estimators read)
 from fourwis.core.kernels import JIT
-from fourwis.core.types import CH_TORQUE, CHANNELS, SensorReading, net_wheel_torque
+from fourwis.core.types import CH_TORQUE, CHANNELS, N_CHANNELS, SensorReading
 from fourwis.envs.layout import A_AX, A_AY, S_BRAKE, S_DELTA_F, S_DELTA_R, S_OMEGA, S_R, S_TORQUE
 from fourwis.envs.vehicle import VehicleParams
 
@@ -76,6 +82,10 @@ SENSORS = (
 )
 N_SENSORS = len(SENSORS)
 S_TORQUE_SENSOR, S_BRAKE_SENSOR = SENSORS.index("torque_fl"), SENSORS.index("brake_fl")  #: first of each group
+#: a brake-pressure reading below this [Pa] (1 bar, ~18 N m of brake torque) counts as a released
+#: brake, no torque, in the net torque channel: an ECU's zero-offset deadband, ~9 std of a released
+#: brake's reading (noise 0.1 bar, bias 0.05 bar), so its sensor noise never reaches the estimators
+BRAKE_RELEASED_PRESSURE = 1.0e5
 #: the sensor (index into SENSORS) whose reading fills each channel of CHANNELS, -1 for none
 SENSOR_OF_CHANNEL = np.array(
     [SENSORS.index(c) if c in SENSORS else SENSORS.index(f"delta_{c[-2]}") if c.startswith("delta_") else -1
@@ -101,7 +111,8 @@ def _per_channel(
 def to_channels(sensed: np.ndarray, values: np.ndarray, valid: np.ndarray, brake_gain: float) -> None:
     """One car's valid sensor readings ``sensed`` (N_SENSORS,) into its channel row ``values``
     and ``valid`` (N_CHANNELS,) (the :data:`SENSOR_OF_CHANNEL` map; a channel without a sensor:
-    NaN, invalid; the torque channels net of ``brake_gain`` [N m/Pa] x brake pressure)."""
+    NaN, invalid; the torque channels net of ``brake_gain`` [N m/Pa] x the brake pressure where it
+    reads at least :data:`BRAKE_RELEASED_PRESSURE`)."""
     for c in range(values.shape[0]):
         s = SENSOR_OF_CHANNEL[c]
         if s < 0:
@@ -109,7 +120,16 @@ def to_channels(sensed: np.ndarray, values: np.ndarray, valid: np.ndarray, brake
         else:
             values[c], valid[c] = sensed[s], True
     for w in range(4):
-        values[CH_TORQUE + w] -= brake_gain * sensed[S_BRAKE_SENSOR + w]
+        pressure = sensed[S_BRAKE_SENSOR + w]
+        if pressure >= BRAKE_RELEASED_PRESSURE:
+            values[CH_TORQUE + w] -= brake_gain * pressure
+
+
+@numba.njit(**JIT)
+def _channel_rows(sensed: np.ndarray, values: np.ndarray, valid: np.ndarray, brake_gain: float) -> None:
+    """:func:`to_channels` of each row of ``sensed`` (M, N_SENSORS) into ``values``, ``valid`` (M, N_CHANNELS)."""
+    for i in range(sensed.shape[0]):
+        to_channels(sensed[i], values[i], valid[i], brake_gain)
 
 
 @dataclass(frozen=True)
@@ -207,6 +227,21 @@ class SensorSample(NamedTuple):
 
 
 NOISE_BLOCK = 256  #: samples of noise each vehicle draws from its generator at a time
+
+
+def brake_stream(rng: np.random.Generator) -> np.random.Generator:
+    """The brake-pressure sensors' generator of a vehicle whose sensors draw from ``rng``: ``rng``'s
+    bit generator jumped ahead (its state left as it was), so the other sensors' draws are the
+    same as without brake sensors; a bit generator that cannot jump raises ValueError naming it."""
+    bit_generator = rng.bit_generator
+    if not hasattr(bit_generator, "jumped"):
+        raise ValueError(
+            f"sensor generators need a bit generator with jumped() (PCG64, PCG64DXSM, Philox, MT19937), "
+            f"got {type(bit_generator).__name__}"
+        )
+    return np.random.Generator(bit_generator.jumped())
+
+
 SENSED, BLOCK_USED_UP = -1, -2  #: statuses of noisy_readings (>= 0: a non-finite channel)
 
 
@@ -293,6 +328,8 @@ class SensorModel:
         if isinstance(rng, np.random.Generator):
             rng = [rng] if batch_size == 1 else rng.spawn(batch_size)
         self.rngs: list[np.random.Generator] = [None] * batch_size  # type: ignore[list-item]
+        #: each vehicle's brake-pressure stream (module docstring)
+        self.brake_rngs: list[np.random.Generator] = [None] * batch_size  # type: ignore[list-item]
         self.reset_members(np.ones(batch_size, dtype=bool), list(rng))
 
     def reset_members(self, mask: np.ndarray, rngs: Sequence[np.random.Generator]) -> None:
@@ -302,8 +339,11 @@ class SensorModel:
         if len(rngs) != len(members):
             raise ValueError(f"need one generator per reset vehicle ({len(members)}), got {len(rngs)}")
         for b, rng in zip(members, rngs):
-            self.rngs[b] = rng
-            self.bias[b] = rng.standard_normal(N_SENSORS) * self._bias_std
+            self.rngs[b], self.brake_rngs[b] = rng, brake_stream(rng)
+            self.bias[b, :S_BRAKE_SENSOR] = rng.standard_normal(S_BRAKE_SENSOR) * self._bias_std[:S_BRAKE_SENSOR]
+            self.bias[b, S_BRAKE_SENSOR:] = (
+                self.brake_rngs[b].standard_normal(N_SENSORS - S_BRAKE_SENSOR) * self._bias_std[S_BRAKE_SENSOR:]
+            )
             self.refill(b)
         self._held[members] = 0.0
         self._is_frozen[:, members] = False
@@ -315,8 +355,11 @@ class SensorModel:
     def refill(self, b: int) -> None:
         """Draw vehicle b's next block of NOISE_BLOCK samples from its generator."""
         rng = self.rngs[b]
-        self._normal[b] = rng.standard_normal((NOISE_BLOCK, N_SENSORS))
+        self._normal[b, :, :S_BRAKE_SENSOR] = rng.standard_normal((NOISE_BLOCK, S_BRAKE_SENSOR))
         self._uniform[b] = rng.random(self._uniform.shape[1:])
+        self._normal[b, :, S_BRAKE_SENSOR:] = self.brake_rngs[b].standard_normal(
+            (NOISE_BLOCK, N_SENSORS - S_BRAKE_SENSOR)
+        )
         self._cursor[b] = 0
 
     def measure(self, truth: np.ndarray, t: float | np.ndarray, members: np.ndarray | None = None) -> SensorReading:
@@ -331,11 +374,10 @@ class SensorModel:
         time ``t`` [s] (scalar or (M,))."""
         values, valid = sensed
         t = np.full(len(values), t, dtype=float) if np.ndim(t) == 0 else np.asarray(t, dtype=float)
-        channels = np.where(CHANNEL_PRESENT, values[:, np.maximum(SENSOR_OF_CHANNEL, 0)], np.nan)
-        present = valid[:, np.maximum(SENSOR_OF_CHANNEL, 0)] & CHANNEL_PRESENT
-        torque, brake = slice(CH_TORQUE, CH_TORQUE + 4), slice(S_BRAKE_SENSOR, S_BRAKE_SENSOR + 4)
-        channels[:, torque] = net_wheel_torque(channels[:, torque], values[:, brake], self.brake_gain)
-        present[:, torque] &= valid[:, brake]
+        channels, present = np.empty((len(values), N_CHANNELS)), np.empty((len(values), N_CHANNELS), dtype=bool)
+        _channel_rows(np.ascontiguousarray(values, dtype=float), channels, present, self.brake_gain)
+        present &= valid[:, np.maximum(SENSOR_OF_CHANNEL, 0)]
+        present[:, CH_TORQUE : CH_TORQUE + 4] &= valid[:, S_BRAKE_SENSOR : S_BRAKE_SENSOR + 4]
         return SensorReading(channels, present, t)
 
     def read(self, truth: np.ndarray, t: float | np.ndarray, members: np.ndarray | None = None) -> SensorSample:

@@ -10,7 +10,7 @@ from fourwis.core.types import CHANNELS
 from fourwis.envs.layout import A_USAGE
 from fourwis.envs.metrics import rmse
 from fourwis.envs.scenarios import PAPER_SCENARIOS, make_scenario
-from fourwis.envs.sensors import Fault, SensorParams
+from fourwis.envs.sensors import N_SENSORS, Fault, SensorParams
 from fourwis.envs.simulation import simulate
 from fourwis.envs.vehicle import VehicleParams
 from fourwis.estimation import ESTIMATORS, make_estimator
@@ -989,7 +989,7 @@ def test_zero_point_learning_finds_an_accelerometer_offset_in_steady_driving_onl
     """A 0.2 m/s^2 lateral accelerometer offset (perfect gyro): learnt on a 10 s straight to
     within 0.01, never while the steering moves, and it cuts the sideslip error once
     the tyres saturate on mu 0.3, where the filter without learning drifts."""
-    sensors = SensorParams(bias_std=(0.0,) * 13)  # (per sensor of the simulated car)
+    sensors = SensorParams(bias_std=(0.0,) * N_SENSORS)  # (per sensor of the simulated car)
     offset = (Fault("ay", "bias_step", magnitude=0.2),)
     straight = make_estimator("joint", VehicleParams())
     simulate(
