@@ -13,12 +13,14 @@ production ABS/TCS unit has: its wheel-speed sensors and a vehicle-speed and fri
 with slip ``s = (R omega - u_w) / max(u_w, min_speed)`` against the wheel's own forward speed
 ``u_w = u_ref - r_hat y_w`` (y_w its lateral position, left positive, r_hat the estimated yaw rate:
 in a turn the outer wheels roll faster than the CG; the steer angle's cosine is left out). The
-reference speed u_ref is the larger of the estimate u and the production ABS reference, the
-fastest wheel's rim speed (moved to the CG with r_hat y_w) held
-within ``REFERENCE_MARGIN`` of the measured longitudinal acceleration (falling and rising no faster
-than that: a braked wheel lags the car, a released one overshoots it). A speed estimator built on
+reference speed u_ref bounds the car's speed from the side the slip is on, as production units
+do: ABS takes the larger of the estimate u and the fastest wheel's rim speed, TCS the smaller of u
+and the slowest wheel's (each moved to the CG with r_hat y_w), each wheel reference held within
+``REFERENCE_MARGIN`` of the measured longitudinal acceleration (falling and rising no faster than
+that: a braked wheel lags the car, a spinning one runs ahead of it). A speed estimator built on
 the wheels alone loses the car's speed when all four slip, as the joint estimator does under full
-braking (docs/decisions/0039-wheel-slip-control.md).
+braking; and with the fastest wheel as TCS's reference, four wheels spinning alike on ice read no
+slip at all (docs/decisions/0039-wheel-slip-control.md, 0042).
 
 The slip window is scheduled on the friction, ``peak = peak_slip mu_hat`` and
 ``band = max(slip_band mu_hat, MIN_SLIP_BAND)`` (mu_hat floored at MIN_SLIP_MU): the tyre's
@@ -63,9 +65,9 @@ class WheelActuators(NamedTuple):
     """The car's wheel actuators and their slip control, as :func:`actuate` takes them: ``abs`` and
     ``tcs`` switch ABS and traction control, ``peak_slip`` and ``slip_band`` [-] place the slip
     window, ``min_speed`` [m/s]; wheel radius [m], motor peak torque [N m] and power [W], brake gain
-    [N m/Pa] and largest pressure [Pa], the front and rear tracks [m]; ``reference`` (B,) [m/s]
-    each vehicle's wheel-speed reference, updated in place (0: none yet), and the step ``dt`` [s]
-    it ramps over."""
+    [N m/Pa] and largest pressure [Pa], the front and rear tracks [m]; ``reference`` (B, 2) [m/s]
+    each vehicle's wheel-speed references, the fastest wheel's (ABS) and the slowest wheel's (TCS),
+    updated in place (0: none yet), and the step ``dt`` [s] they ramp over."""
 
     abs: bool
     tcs: bool
@@ -103,7 +105,7 @@ def wheel_actuators(
     return WheelActuators(
         bool(abs), bool(tcs), float(peak_slip), float(slip_band), float(min_speed), params.wheel_radius,
         params.motor_peak_torque, params.motor_peak_power, params.brake_gain, params.brake_max_pressure,
-        params.track_front, params.track_rear, np.zeros(batch_size), float(dt),
+        params.track_front, params.track_rear, np.zeros((batch_size, 2)), float(dt),
     )  # fmt: skip
 
 
@@ -131,34 +133,45 @@ def lateral_position(actuators: WheelActuators, w: int) -> float:
 
 
 @numba.njit(inline="always", **JIT)
-def reference_speed(
+def _ramped(reference: float, wheel: float, ax: float, dt: float) -> float:
+    """A wheel-speed reference [m/s] moved to ``wheel`` [m/s] within ``ax`` +/- REFERENCE_MARGIN
+    [m/s^2] over ``dt`` [s] (``reference`` 0: none yet, it starts at ``wheel``)."""
+    if reference > 0.0 and math.isfinite(ax):
+        return min(max(wheel, reference + (ax - REFERENCE_MARGIN) * dt), reference + (ax + REFERENCE_MARGIN) * dt)
+    return wheel
+
+
+@numba.njit(inline="always", **JIT)
+def reference_speeds(
     actuators: WheelActuators, b: int, omega: np.ndarray, ax: float, speed: float, yaw_rate: float
-) -> float:
-    """Vehicle b's slip reference speed at the CG [m/s] from its measured wheel speeds ``omega``
-    (4,) [rad/s], measured longitudinal specific force ``ax`` [m/s^2], estimated speed ``speed``
-    [m/s] and yaw rate ``yaw_rate`` [rad/s], advancing its wheel-speed reference by one step."""
+) -> tuple[float, float]:
+    """Vehicle b's slip reference speeds at the CG [m/s], ABS's and TCS's, from its measured wheel
+    speeds ``omega`` (4,) [rad/s], measured longitudinal specific force ``ax`` [m/s^2], estimated
+    speed ``speed`` [m/s] and yaw rate ``yaw_rate`` [rad/s], advancing its wheel-speed references by
+    one step."""
     a = actuators
-    fastest = -math.inf
+    fastest, slowest = -math.inf, math.inf
     for w in range(4):
-        fastest = max(fastest, a.wheel_radius * omega[w] + yaw_rate * lateral_position(a, w))
-    ref = a.reference[b]
-    if ref > 0.0 and math.isfinite(ax):
-        fastest = min(max(fastest, ref + (ax - REFERENCE_MARGIN) * a.dt), ref + (ax + REFERENCE_MARGIN) * a.dt)
-    a.reference[b] = fastest
-    return max(speed, fastest)
+        rim = a.wheel_radius * omega[w] + yaw_rate * lateral_position(a, w)
+        fastest, slowest = max(fastest, rim), min(slowest, rim)
+    a.reference[b, 0] = _ramped(a.reference[b, 0], fastest, ax, a.dt)
+    a.reference[b, 1] = _ramped(a.reference[b, 1], slowest, ax, a.dt)
+    return max(speed, a.reference[b, 0]), min(speed, a.reference[b, 1])
 
 
 @numba.njit(inline="always", **JIT)
 def actuate(
-    actuators: WheelActuators, demand: np.ndarray, omega: np.ndarray, speed: float, yaw_rate: float,
-    mu: np.ndarray, motor: np.ndarray, pressure: np.ndarray,
+    actuators: WheelActuators, demand: np.ndarray, omega: np.ndarray, braking_speed: float, drive_speed: float,
+    yaw_rate: float, mu: np.ndarray, motor: np.ndarray, pressure: np.ndarray,
 ) -> None:  # fmt: skip
     """One car's net torque demands ``demand`` (4,) [N m] after slip control, split into motor
     torque commands ``motor`` (4,) [N m] and brake pressure commands ``pressure`` (4,) [Pa], at the
-    measured wheel speeds ``omega`` (4,) [rad/s], reference speed at the CG ``speed`` [m/s]
-    (:func:`reference_speed`), estimated yaw rate ``yaw_rate`` [rad/s] and friction ``mu`` (4,)."""
+    measured wheel speeds ``omega`` (4,) [rad/s], the reference speeds at the CG [m/s] a braking
+    and a drive demand's slip is taken against (:func:`reference_speeds`), the estimated yaw rate
+    ``yaw_rate`` [rad/s] and friction ``mu`` (4,)."""
     a = actuators
     for w in range(4):
+        speed = braking_speed if demand[w] < 0.0 else drive_speed
         wheel_speed = speed - yaw_rate * lateral_position(a, w)
         net = demand[w] * slip_scale(a, demand[w], omega[w], wheel_speed, mu[w])
         limit = min(a.motor_peak_torque, a.motor_peak_power / max(abs(omega[w]), 1e-6))
@@ -174,9 +187,9 @@ def actuate_batch(
     mu: np.ndarray,
     yaw_rate: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`actuate` of B cars: demands, wheel speeds and friction (B, 4), reference speeds and
-    yaw rates (B,) (None: straight); returns the motor torque (B, 4) [N m] and brake pressure
-    (B, 4) [Pa] commands."""
+    """:func:`actuate` of B cars: demands, wheel speeds and friction (B, 4), reference speeds (B,)
+    (for braking and drive alike) and yaw rates (B,) (None: straight); returns the motor torque
+    (B, 4) [N m] and brake pressure (B, 4) [Pa] commands."""
     demand, omega = np.ascontiguousarray(demand, dtype=float), np.ascontiguousarray(omega, dtype=float)
     speed, mu = np.ascontiguousarray(speed, dtype=float), np.ascontiguousarray(mu, dtype=float)
     yaw_rate = np.zeros(len(speed)) if yaw_rate is None else np.ascontiguousarray(yaw_rate, dtype=float)
@@ -188,4 +201,4 @@ def actuate_batch(
 @numba.njit(**JIT)
 def _actuate_rows(actuators, demand, omega, speed, yaw_rate, mu, motor, pressure):
     for b in range(demand.shape[0]):
-        actuate(actuators, demand[b], omega[b], speed[b], yaw_rate[b], mu[b], motor[b], pressure[b])
+        actuate(actuators, demand[b], omega[b], speed[b], speed[b], yaw_rate[b], mu[b], motor[b], pressure[b])

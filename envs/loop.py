@@ -1,7 +1,8 @@
 """The closed loop's stages, in the one order every step runs them, as one compiled loop.
 
-Each 2 ms step of each vehicle runs :data:`STAGES` in order: the controller's command (and the
-step's record), one RK4 step of the plant, the sensors' reading (with the truth), the
+Each 2 ms step of each vehicle runs :data:`STAGES` in order: the controller's command (its net
+wheel torques then turned into motor and brake commands by the wheels' actuators, with slip
+control; and the step's record), one RK4 step of the plant, the sensors' reading (with the truth), the
 estimator's step, the steering driver and the speed driver. Between two steps the vehicle rests
 at CONTROL with its sample complete (what :meth:`fourwis.envs.simulation.ClosedLoop.sample`
 returns).
@@ -10,7 +11,8 @@ Each stage is written once, here, and runs the component it is handed: a compone
 compiled form hands itself over as a named bundle (``component.kernel()``: the plant's
 :class:`PlantStage`, the sensors' :class:`fourwis.envs.sensors.SensorKernel`, the estimator's
 :class:`fourwis.estimation.joint.FilterKernel` or the oracle's, the controller's
-:class:`fourwis.control.dyc.DycKernel` or :class:`HeldAction`, the drivers'
+:class:`fourwis.control.dyc.DycKernel`, :class:`fourwis.control.esc.EscKernel` or
+:class:`HeldAction`, the drivers'
 :class:`fourwis.envs.driver.DriverTables`); a component without one (a user's Python estimator
 or controller, sensor faults, a callable friction map, a user's driver) is :class:`PythonStage`,
 and the vehicle stops there: Python serves every vehicle waiting at that stage in one batched
@@ -32,10 +34,12 @@ from typing import NamedTuple
 
 import numba
 import numpy as np
+from numba.extending import register_jitable
 
 from fourwis.control.allocation import Allocation, AllocationInputs, AllocatorLimits, allocation_kernel
 from fourwis.control.dyc import DycKernel, stability_command
-from fourwis.control.wheel_slip import WheelActuators, actuate, reference_speed
+from fourwis.control.esc import EscKernel, esc_torques, unstable
+from fourwis.control.wheel_slip import WheelActuators, actuate, reference_speeds
 from fourwis.core.kernels import JIT, bundle_dispatch, run_parallel, scratch
 from fourwis.core.types import CH_AX, CH_OMEGA, N_CHANNELS, Estimate, SensorReading
 from fourwis.envs.driver import DRIVEN, NEEDS_PREVIEW, DriverTables, drive
@@ -113,10 +117,13 @@ class NoControl(NamedTuple):
 
 class HeldAction(NamedTuple):
     """A held agent action (B, n) in [-1, 1] as a controller: with ``yaw_moment``, action 0 scaled
-    by ``max_yaw_moment`` [N m] is a corrective yaw moment allocated over the wheels (and action 1,
-    if there is one, scaled by ``max_rear_steer`` [rad], the rear steer); else the actions are
-    corrective net wheel torques added to the base wheel torques (:func:`wheel_torque_action`,
-    braking up to ``brake_peak_torque`` [N m] beyond the motors)."""
+    by ``max_yaw_moment`` [N m] is a corrective yaw moment allocated over the wheels' motors and
+    brakes, before the driver's drive force while the car is outside its stable region
+    (:func:`fourwis.control.esc.unstable`, on ``esc``'s settings), and action 1, if there is one,
+    scaled by ``max_rear_steer`` [rad], the rear steer; else the actions are corrective net wheel
+    torques added to the base wheel torques (:func:`wheel_torque_action`, braking up to
+    ``brake_peak_torque`` [N m] beyond the motors). With ``esc_on`` the car's brake-based ESC
+    ``esc`` acts beneath the agent's command."""
 
     action: np.ndarray
     yaw_moment: bool
@@ -124,6 +131,8 @@ class HeldAction(NamedTuple):
     max_rear_steer: float
     limits: AllocatorLimits
     brake_peak_torque: float
+    esc: EscKernel
+    esc_on: bool
 
 
 class PlantStage(NamedTuple):
@@ -141,10 +150,7 @@ class Sample(NamedTuple):
     """What a closed loop knows at its current time, before the controller acts (B vehicles):
     t (B,) [s]; the sensors' reading; the truth and the estimate (:class:`Estimate` of B rows);
     the driver's steering-wheel angle (B,) [rad], the front road-wheel angle it commands within
-    the steering's lock (B,) [rad], the speed-holding driver's wheel torques (B, 4) [N m], and the
-    car's sensors' readings (B, N_SENSORS) in their own order and units
-    (:data:`fourwis.envs.sensors.SENSORS`: the brake pressures, which the reading's channels net
-    into the wheel torques, among them)."""
+    the steering's lock (B,) [rad], and the speed-holding driver's wheel torques (B, 4) [N m]."""
 
     t: np.ndarray
     reading: SensorReading
@@ -153,7 +159,6 @@ class Sample(NamedTuple):
     steering_wheel: np.ndarray
     front_steer: np.ndarray
     base_torques: np.ndarray
-    sensors: np.ndarray
 
 
 class StepRecord(NamedTuple):
@@ -283,14 +288,14 @@ def _no_control(controller, b, sample, cars, call):
     return Status.DONE
 
 
-@numba.njit(inline="always", **JIT)
-def wheel_torque_action(base: float, action: float, motor_peak: float, brake_peak: float) -> float:
+@register_jitable
+def wheel_torque_action(base, action, motor_peak: float, brake_peak: float):
     """The net torque [N m] a ``wheel_torques`` action in [-1, 1] asks of a wheel with the driver's
     ``base`` torque [N m]: a positive action adds up to the motor's peak ``motor_peak`` [N m], a
     negative one brakes by up to the motor's and the friction brake's peaks together, within
-    [-(motor_peak + brake_peak), motor_peak]."""
-    scale = motor_peak if action > 0.0 else motor_peak + brake_peak
-    return min(max(base + action * scale, -(motor_peak + brake_peak)), motor_peak)
+    [-(motor_peak + brake_peak), motor_peak] (scalars, or numpy arrays of one shape)."""
+    scale = np.where(action > 0.0, motor_peak, motor_peak + brake_peak)
+    return np.minimum(np.maximum(base + action * scale, -(motor_peak + brake_peak)), motor_peak)
 
 
 @command.register(HeldAction)
@@ -298,30 +303,49 @@ def _held_action(controller, b, sample, cars, call):
     controls = cars.controls[b]
     base_controls(b, sample, controls)
     action, limit = controller.action, controller.limits.motor_peak_torque
-    if not controller.yaw_moment:
+    torques, estimate = scratch((4,)), sample.estimate
+    if controller.yaw_moment:
+        row = slice(b, b + 1)
+        rear, yaw, lateral, first = scratch((1,)), scratch((1,)), scratch((1, 4)), scratch((1,), np.bool_)
+        yaw[0] = action[b, 0] * controller.max_yaw_moment
+        rear[0] = action[b, 1] * controller.max_rear_steer if action.shape[1] == 2 else 0.0
+        lateral[:, :] = 0.0
+        first[0] = unstable(controller.esc.settings, b, estimate, sample.front_steer[b])
+        out = Allocation(scratch((1, 4)), scratch((1,)), scratch((1,)), scratch((1,), np.bool_))
+        bad = allocation_kernel(
+            AllocationInputs(sample.base_torques[row], yaw, estimate.fz[row], estimate.mu[row], lateral,
+                             estimate.u[row], sample.front_steer[row], rear, first),
+            controller.limits,
+            out,
+        )  # fmt: skip
+        if bad:
+            call.value[b] = bad
+            return Status.ALLOCATION_FAILED
         for w in range(4):
-            controls[C_TORQUE + w] = wheel_torque_action(
+            torques[w] = out.torques[0, w]
+        controls[C_DELTA_R] = rear[0]
+    else:
+        for w in range(4):
+            torques[w] = wheel_torque_action(
                 sample.base_torques[b, w], action[b, w], limit, controller.brake_peak_torque
             )
-        return Status.DONE
-    row, estimate = slice(b, b + 1), sample.estimate
-    rear, yaw, lateral = scratch((1,)), scratch((1,)), scratch((1, 4))
-    yaw[0] = action[b, 0] * controller.max_yaw_moment
-    rear[0] = action[b, 1] * controller.max_rear_steer if action.shape[1] == 2 else 0.0
-    lateral[:, :] = 0.0
-    out = Allocation(scratch((1, 4)), scratch((1,)), scratch((1,)), scratch((1,), np.bool_))
-    bad = allocation_kernel(
-        AllocationInputs(sample.base_torques[row], yaw, estimate.fz[row], estimate.mu[row], lateral,
-                         estimate.u[row], sample.front_steer[row], rear),
-        controller.limits,
-        out,
-    )  # fmt: skip
-    if bad:
-        call.value[b] = bad
-        return Status.ALLOCATION_FAILED
+    if controller.esc_on:
+        esc_torques(controller.esc, b, estimate, sample.front_steer[b], torques)
     for w in range(4):
-        controls[C_TORQUE + w] = out.torques[0, w]
-    controls[C_DELTA_R] = rear[0]
+        controls[C_TORQUE + w] = torques[w]
+    return Status.DONE
+
+
+@command.register(EscKernel)
+def _esc(controller, b, sample, cars, call):
+    controls = cars.controls[b]
+    base_controls(b, sample, controls)
+    torques = scratch((4,))
+    for w in range(4):
+        torques[w] = sample.base_torques[b, w]
+    esc_torques(controller, b, sample.estimate, sample.front_steer[b], torques)
+    for w in range(4):
+        controls[C_TORQUE + w] = torques[w]
     return Status.DONE
 
 
@@ -368,7 +392,6 @@ def _sensors(sensors, b, cars, sample, call):
         call.value[b] = found
         return Status.BAD_TRUTH
     to_channels(sensed[0], sample.reading.values[b], sample.reading.valid[b], sensors.brake_gain)
-    sample.sensors[b, :] = sensed[0]
     return Status.DONE
 
 
@@ -416,8 +439,8 @@ def actuate_controls(actuators: WheelActuators, b: int, sample: Sample, controls
         demand[w] = controls[C_TORQUE + w]
     omega, estimate = sample.reading.values[b, CH_OMEGA : CH_OMEGA + 4], sample.estimate
     r = estimate.r[b]
-    speed = reference_speed(actuators, b, omega, sample.reading.values[b, CH_AX], estimate.u[b], r)
-    actuate(actuators, demand, omega, speed, r, estimate.mu[b], motor, pressure)
+    braking, drive = reference_speeds(actuators, b, omega, sample.reading.values[b, CH_AX], estimate.u[b], r)
+    actuate(actuators, demand, omega, braking, drive, r, estimate.mu[b], motor, pressure)
     for w in range(4):
         controls[C_TORQUE + w], controls[C_BRAKE + w] = motor[w], pressure[w]
 

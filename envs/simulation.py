@@ -19,6 +19,7 @@ import numpy as np
 from fourwis.control import StabilityController
 from fourwis.control.allocation import allocation_error
 from fourwis.control.dyc import inputs_row
+from fourwis.control.esc import BrakeESC, outside_stable
 from fourwis.control.wheel_slip import wheel_actuators
 from fourwis.core.checks import check_command, check_controller, check_estimate, check_estimator, is_integer
 from fourwis.core.progress import progress as progress_bar
@@ -113,7 +114,7 @@ def kernel_parts(loop: ClosedLoop) -> Parts:
     kind = type(controller)  # (a subclass that changes the call but inherits kernel(): Python)
     if controller is None:
         controller_part = NoControl()
-    elif kind is StabilityController:
+    elif kind in (StabilityController, BrakeESC):
         controller_part = controller.kernel(loop.batch_size)
     elif "kernel" in vars(kind) and "__call__" in vars(kind):
         controller_part = controller.kernel()
@@ -235,9 +236,8 @@ class ClosedLoop:
             np.where(CHANNEL_PRESENT, 0.0, np.nan) * np.ones((B, 1)), np.tile(CHANNEL_PRESENT, (B, 1)), np.zeros(B)
         )
         self._sample = Sample(
-            np.zeros(B), reading, empty_estimate(B), empty_estimate(B), np.zeros(B), np.zeros(B), np.zeros((B, 4)),
-            np.zeros((B, N_SENSORS)),
-        )  # fmt: skip
+            np.zeros(B), reading, empty_estimate(B), empty_estimate(B), np.zeros(B), np.zeros(B), np.zeros((B, 4))
+        )
         #: the stages this loop serves in Python, each with its vehicles' served marks
         self.python_stages = {stage: PythonStage(np.zeros(B, dtype=bool)) for stage in compiled.STAGES}
         self._timing = compiled.Timing(dt, float(params.steering_ratio), float(params.max_front_steer))
@@ -316,7 +316,7 @@ class ClosedLoop:
         self.steering_drivers.replace(members, [s.steering for s in scenarios])
         self.speed_drivers.replace(members, [s.speed_driver() for s in scenarios])
         self.sensors.reset_members(mask, rngs)
-        if isinstance(self.controller, StabilityController):
+        if isinstance(self.controller, (StabilityController, BrakeESC)):
             self.controller.reset(mask)
         self.cars.k[members] = 0
         self._sample.t[members] = 0.0
@@ -437,10 +437,8 @@ class ClosedLoop:
 
     def _serve_sensors(self, rows: np.ndarray) -> None:
         partial = len(rows) < self.batch_size
-        sensed = self.sensors.read(self.cars.sensed[rows], self._sample.t[rows], rows if partial else None)
-        reading = self.sensors.channels(sensed, self._sample.t[rows])
+        reading = self.sensors.measure(self.cars.sensed[rows], self._sample.t[rows], rows if partial else None)
         self._sample.reading.values[rows], self._sample.reading.valid[rows] = reading.values, reading.valid
-        self._sample.sensors[rows] = sensed.values
 
     def _serve_estimator(self, rows: np.ndarray) -> None:
         partial = len(rows) < self.batch_size
@@ -498,9 +496,10 @@ def _held_action_inputs(action: HeldAction, sample: Sample, b: int):
 
     e, row = sample.estimate, slice(b, b + 1)
     rear = action.action[row, 1] * action.max_rear_steer if action.action.shape[1] == 2 else np.zeros(1)
+    first = outside_stable(action.esc.settings, _rows(e, np.array([b])), sample.front_steer[row])
     return AllocationInputs(
         sample.base_torques[row], action.action[row, 0] * action.max_yaw_moment, e.fz[row], e.mu[row],
-        np.zeros((1, 4)), e.u[row], sample.front_steer[row], rear,
+        np.zeros((1, 4)), e.u[row], sample.front_steer[row], rear, first,
     )  # fmt: skip
 
 
@@ -517,7 +516,7 @@ def _copied(sample: Sample) -> Sample:
     return Sample(
         sample.t.copy(), SensorReading(*(field.copy() for field in sample.reading)), _copied_estimate(sample.truth),
         _copied_estimate(sample.estimate), sample.steering_wheel.copy(), sample.front_steer.copy(),
-        sample.base_torques.copy(), sample.sensors.copy(),
+        sample.base_torques.copy(),
     )  # fmt: skip
 
 

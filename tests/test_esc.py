@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from fourwis.control import make_controller
-from fourwis.control.esc import ENTRY_YAW_ERROR, EXIT_YAW_ERROR, BrakeESC
+from fourwis.control.esc import EXIT_YAW_ERROR, BrakeESC
+from fourwis.control.reference import STABLE_YAW_ERROR as ENTRY_YAW_ERROR
 from fourwis.control.reference import reference_yaw_rate
 from fourwis.core.types import Estimate
 from fourwis.envs.vehicle import VehicleParams
@@ -69,3 +70,24 @@ def test_the_brake_torque_stays_within_the_wheels_estimated_grip_and_the_name_bu
     assert isinstance(esc, BrakeESC)
     torques = command(esc, 20.0, 2.0, 0.02, mu=0.1, base=0.0)
     assert -torques.min() <= 0.1 * P.static_wheel_loads.max() * P.wheel_radius + 1e-9
+
+
+class PythonESC(BrakeESC):
+    """The ESC served in Python by the closed loop (a subclass: the loop compiles only BrakeESC)."""
+
+    def __call__(self, t, estimate, front_steer, base_torques):
+        return super().__call__(t, estimate, front_steer, base_torques)
+
+
+def test_the_compiled_esc_stage_drives_the_car_as_its_python_call_does():
+    """On a patch of ice (mu_jump to 0.1, the oracle) the ESC acts, and the closed loop's compiled
+    ESC stage and the controller called from Python give the same trajectory."""
+    from fourwis.envs.layout import C_BRAKE
+    from fourwis.envs.scenarios import make_scenario
+    from fourwis.envs.simulation import simulate
+
+    scenario = make_scenario("mu_jump", mu_patch=0.1, duration=4.0)
+    compiled = simulate(scenario, BrakeESC(P), "oracle", seed=0)
+    python = simulate(scenario, PythonESC(P), "oracle", seed=0)
+    assert compiled.controls[:, C_BRAKE : C_BRAKE + 4].max() > 1e4  # it braked a wheel (> 0.1 bar)
+    np.testing.assert_allclose(compiled.state, python.state, rtol=1e-9, atol=1e-9)

@@ -20,12 +20,14 @@ DATA = Path(__file__).with_name("data")
 
 def replay_case(path: Path, estimator: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Replay a recorded random-action episode (scenario, mu, reset seed, actions) in the single
-    env with ``estimator``; returns the true and estimated sideslip [rad] and whether the car had
-    spun, per env step, up to the episode's end."""
+    env with ``estimator``, as it was recorded: without wheel-slip control (the car had none then);
+    returns the true and estimated sideslip [rad] and whether the car had spun, per env step, up
+    to the episode's end."""
     case = np.load(path)
     env = gym.make(
-        "fourwis:FourWIS/YawStability-v0", scenario=str(case["scenario"]), mu=float(case["mu"]), estimator=estimator
-    )
+        "fourwis:FourWIS/YawStability-v0", scenario=str(case["scenario"]), mu=float(case["mu"]), estimator=estimator,
+        slip_control=False,
+    )  # fmt: skip
     env.reset(seed=int(case["seed"]))
     truth, estimate, spun = [], [], []
     for action in case["actions"]:

@@ -101,3 +101,25 @@ def test_abs_holds_each_wheel_near_its_tyres_peak_slip():
         peak = int(np.argmin(curve))
         assert abs(kappa[w] - grid[peak]) < 0.02, (w, kappa[w], grid[peak])
         assert fx[w] / curve[peak] > 0.97
+
+
+def test_tcs_sees_four_wheels_spinning_alike_that_abs_reference_would_not():
+    """All four wheels spin up together (from 10 to 12 m/s of rim speed in 1 s) while the car, by
+    its accelerometer, does not accelerate, and the speed estimate follows the wheels (as a
+    wheel-based estimator does): the TCS reference, the slowest wheel held within the measured
+    acceleration + REFERENCE_MARGIN, stays near 10 m/s, so the slip reads ~0.19 and a drive demand
+    is cut; the ABS reference, the fastest wheel, stays at or below the wheels."""
+    from fourwis.control.wheel_slip import REFERENCE_MARGIN, actuate, reference_speeds
+
+    actuators = wheel_actuators(P, 1, DT)
+    steps = int(1.0 / DT)
+    for k in range(steps + 1):
+        rim = 10.0 + 2.0 * k / steps
+        omega = np.full(4, rim / P.wheel_radius)
+        braking, drive = reference_speeds(actuators, 0, omega, 0.0, rim, 0.0)
+    assert drive == pytest.approx(10.0 + REFERENCE_MARGIN * 1.0, abs=1e-9)
+    assert braking == pytest.approx(12.0)  # (the estimate, which the wheels carried along)
+    motor, pressure = np.empty(4), np.empty(4)
+    actuate(actuators, np.full(4, 300.0), omega, braking, drive, 0.0, np.ones(4), motor, pressure)
+    np.testing.assert_allclose(motor, 0.0, atol=1e-9)
+    assert np.all(pressure == 0.0)

@@ -11,7 +11,8 @@ from dataclasses import fields
 from importlib import resources
 
 from fourwis.control import CONTROLLERS, make_controller
-from fourwis.control.esc import ENTRY_SIDESLIP, ENTRY_YAW_ERROR, EXIT_SIDESLIP, EXIT_YAW_ERROR, BrakeESC
+from fourwis.control.esc import EXIT_SIDESLIP, EXIT_YAW_ERROR, BrakeESC
+from fourwis.control.reference import STABLE_SIDESLIP, STABLE_YAW_ERROR
 from fourwis.envs import scenarios as scenario_builders
 from fourwis.envs.gym_env import EnvConfig
 from fourwis.envs.scenarios import SCENARIOS
@@ -150,7 +151,7 @@ def controller_rows() -> list[tuple[str, str, str]]:
             defaults = "no settings"
         elif isinstance(controller, BrakeESC):
             defaults = (
-                f"entry {ENTRY_YAW_ERROR:g} rad/s or {ENTRY_SIDESLIP:g} x the sideslip bound, exit "
+                f"entry {STABLE_YAW_ERROR:g} rad/s or {STABLE_SIDESLIP:g} x the sideslip bound, exit "
                 f"{EXIT_YAW_ERROR:g} rad/s and {EXIT_SIDESLIP:g} x; step {1000 * controller.dt:g} ms"
             )
         else:
