@@ -447,6 +447,11 @@ def stability_command(dyc: DycKernel, b: int, estimate: Estimate, front: float, 
     # a moment that turns the car further (understeer correction) fades out as |beta| approaches its bound
     if np.sign(moment) == np.sign(r_ref):
         moment = moment * min(max(1.0 - abs(beta) / bound, 0.0), 1.0)
+    unstable = abs(u) > ACTIVE_SPEED and outside_stable_region(r - r_ref, beta, bound)
+    # inside the stable region a moment that drives the yaw rate away from its reference fades out as
+    # the error grows to the deadband (a law's model-based terms must not undo the car's own response)
+    if not unstable and moment * (r - r_ref) > 0.0:
+        moment = moment * max(1.0 - abs(r - r_ref) / YAW_DEADBAND, 0.0)
     # beyond the stable region's sideslip the ESC's sideslip moment holds it (the 2-DOF law, linear
     # in a beta it sees well damped, hardly answers a car sliding on ice)
     moment += sideslip_moment(beta, bound)
@@ -457,7 +462,7 @@ def stability_command(dyc: DycKernel, b: int, estimate: Estimate, front: float, 
         inputs.base_torques[b, w], inputs.fz[b, w], inputs.mu[b, w] = base[w], estimate.fz[b, w], mu[w]
         inputs.lateral[b, w] = estimate.fz[b, w] * (ay / GRAVITY) if settings.friction_ellipse else 0.0
     inputs.yaw_moment[b], inputs.speed[b], inputs.front_steer[b], inputs.rear_steer[b] = moment, u, front, rear
-    inputs.stability_first[b] = abs(u) > ACTIVE_SPEED and outside_stable_region(r - r_ref, beta, bound)
+    inputs.stability_first[b] = unstable
     row = slice(b, b + 1)
     allocation = memory.allocation
     bad = allocation_kernel(

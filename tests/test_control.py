@@ -805,3 +805,30 @@ def test_the_friction_ellipse_leaves_a_cornering_tyre_less_longitudinal_force():
     assert ellipse.feasible[1]
     tyre_fx = np.abs(ellipse.torques[0]) / P.wheel_radius
     assert np.all(tyre_fx <= 0.6 * 2000.0 * (1 + 1e-6))
+
+
+def test_inside_the_stable_region_a_moment_against_the_yaw_error_fades_over_the_deadband():
+    """A sliding-mode DYC on a car cornering hard on mu 0.65 at 22 m/s just short of its reference
+    (inside the stable region, sideslip within half its bound): the law's model term asks for a
+    moment that would turn the car out of the bend, away from the reference; the controller scales
+    it by 1 - |r - r_ref| / YAW_DEADBAND, to nothing at the deadband, and lets a moment towards the
+    reference through whole."""
+    from fourwis.control import YAW_DEADBAND
+    from fourwis.control.dyc import SlidingModeYawController
+
+    u, front, mu = np.full(3, 22.0), np.full(3, 0.088), np.full((3, 4), 0.65)
+    r_ref = reference_yaw_rate(u, front, mu, P)  # (the lagged reference starts on the steady state)
+    error = np.array([-0.25, -1.5, 0.5]) * YAW_DEADBAND  # short of it twice, then past it
+    est = Estimate(
+        u=u, v=np.zeros(3), beta=np.zeros(3), r=r_ref + error, ax=np.zeros(3), ay=np.zeros(3), mu=mu,
+        fz=np.full((3, 4), P.mass * GRAVITY / 4), beta_std=np.zeros(3), mu_std=np.zeros((3, 4)),
+    )  # fmt: skip
+    shrunk = np.sign(error) * np.maximum(np.abs(error) - YAW_DEADBAND, 0.0)
+    asked = SlidingModeYawController(P).moment(u, 0.0, r_ref + shrunk, r_ref, front, 0.0, 0.002, mu)
+    assert np.all(asked < -100.0)  # the model's phantom yaw acceleration, cancelled: out of the bend
+    controller = StabilityController(P, law="smc")
+    controller(np.zeros(3), est, front, np.zeros((3, 4)))
+    delivered = controller.last_allocation.yaw_moment
+    np.testing.assert_allclose(delivered[0], asked[0] * 0.75, rtol=1e-6)  # against the error: faded
+    assert delivered[1] == 0.0  # beyond the deadband against the error: none
+    np.testing.assert_allclose(delivered[2], asked[2], rtol=1e-6)  # towards the reference: whole
