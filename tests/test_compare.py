@@ -298,7 +298,8 @@ def _metrics(**given) -> dict:
 
     course = ("path_rms", "path_max", "cone_hits", "course_completed")
     swd = ("swd_ratio_1000", "swd_ratio_1750", "swd_displacement", "swd_passed", "swd_responsive")
-    base = {m: 0.0 for m in METRIC_UNITS if m not in course + swd}
+    braking = ("stop_distance", "stop_ratio", "longest_lock")
+    base = {m: 0.0 for m in METRIC_UNITS if m not in course + swd + braking}
     return base | {"passed": 1.0} | given
 
 
@@ -434,3 +435,22 @@ def test_real_runs_are_judged_as_their_pass_flag_says_and_the_report_names_what_
     assert all("spin-out" in verdict for verdict in uncontrolled.values()), uncontrolled
     text = report.read_text()
     assert "| swd_wet | none | oracle | FAIL 1/1: spin-out 1" in text
+
+
+def test_the_report_tables_straight_line_braking_for_its_scenarios_only():
+    """Constructed runs: a straight_braking cell's stopping distance, its ratio to the ideal stop and
+    the longest lock appear in their own table, as means over seeds; a report without the scenario
+    has no such table."""
+    from fourwis.training.compare import RunSpec, markdown_report
+    from fourwis.training.provenance import Provenance
+
+    stops = [dict(stop_distance=40.0, stop_ratio=1.02, longest_lock=0.0), dict(stop_distance=42.0, stop_ratio=1.06,
+                                                                                longest_lock=0.1)]  # fmt: skip
+    results = [(RunSpec("straight_braking:mu=1.0", "oracle", "none", k, math.nan), _metrics(**m)) for k, m in
+               enumerate(stops)]  # fmt: skip
+    header = Provenance(**HEADER_FIELDS, host="testhost (2 CPUs)")
+    text = markdown_report(results, ["straight_braking:mu=1.0"], ["oracle"], ["none"], 2, header)
+    assert "## Straight-line braking" in text
+    assert "| straight_braking:mu=1.0 | none | oracle | 41.0 | 1.040 | 0.050 |" in text
+    other = [(RunSpec("paper_sine", "oracle", "none", 0, math.nan), _metrics())]
+    assert "Straight-line braking" not in markdown_report(other, ["paper_sine"], ["oracle"], ["none"], 1, header)
