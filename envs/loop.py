@@ -331,8 +331,7 @@ def _held_action(controller, b, sample, cars, call):
             )
     if controller.esc_on:
         esc_torques(controller.esc, b, estimate, sample.front_steer[b], torques)
-    for w in range(4):
-        controls[C_TORQUE + w] = torques[w]
+    controls[C_TORQUE : C_TORQUE + 4] = torques
     return Status.DONE
 
 
@@ -340,12 +339,7 @@ def _held_action(controller, b, sample, cars, call):
 def _esc(controller, b, sample, cars, call):
     controls = cars.controls[b]
     base_controls(b, sample, controls)
-    torques = scratch((4,))
-    for w in range(4):
-        torques[w] = sample.base_torques[b, w]
-    esc_torques(controller, b, sample.estimate, sample.front_steer[b], torques)
-    for w in range(4):
-        controls[C_TORQUE + w] = torques[w]
+    esc_torques(controller, b, sample.estimate, sample.front_steer[b], controls[C_TORQUE : C_TORQUE + 4])
     return Status.DONE
 
 

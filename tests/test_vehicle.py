@@ -281,14 +281,9 @@ def rk4_amplification(z: np.ndarray) -> np.ndarray:
     return np.abs(1 + z + z**2 / 2 + z**3 / 6 + z**4 / 24)
 
 
-@pytest.mark.parametrize("speed", [0.0, 0.5, 1.0, 5.0, 20.0, 45.0])
-def test_linearised_plant_is_inside_rk4_stability_region(speed):
-    """Wheel spin is stiff at low speed; the relaxed-slip tyre keeps every eigenvalue inside RK4's region."""
-    x0 = initial_state(P, speed)[0]
-    x0[10:14] = 200.0  # driving torque so that the tyres carry load in the linearisation
-    u0 = np.zeros(NU)
-    u0[:4] = 200.0
-    mu = np.ones((1, 4))
+def _jacobian(x0: np.ndarray, u0: np.ndarray, mu: np.ndarray) -> np.ndarray:
+    """The plant's Jacobian d(state_dot)/d(state) (NX, NX) at state x0 (NX,), controls u0 (NU,) and
+    friction mu (1, 4), by central differences."""
     jac = np.empty((NX, NX))
     for j in range(NX):
         h = 1e-6 * max(1.0, abs(x0[j]))
@@ -298,7 +293,18 @@ def test_linearised_plant_is_inside_rk4_stability_region(speed):
         jac[:, j] = (derivatives(xp[None], u0[None], mu, P)[0][0] - derivatives(xm[None], u0[None], mu, P)[0][0]) / (
             2 * h
         )
-    eig = np.linalg.eigvals(jac)
+    return jac
+
+
+@pytest.mark.parametrize("speed", [0.0, 0.5, 1.0, 5.0, 20.0, 45.0])
+def test_linearised_plant_is_inside_rk4_stability_region(speed):
+    """Wheel spin is stiff at low speed; the relaxed-slip tyre keeps every eigenvalue inside RK4's region."""
+    x0 = initial_state(P, speed)[0]
+    x0[10:14] = 200.0  # driving torque so that the tyres carry load in the linearisation
+    u0 = np.zeros(NU)
+    u0[:4] = 200.0
+    mu = np.ones((1, 4))
+    eig = np.linalg.eigvals(_jacobian(x0, u0, mu))
     assert rk4_amplification(eig * DT).max() <= 1.0 + 1e-9
 
 
@@ -610,15 +616,6 @@ def test_a_locked_wheel_is_inside_rk4_stability_region():
     u0 = np.zeros(NU)
     u0[C_BRAKE : C_BRAKE + 4] = P.brake_max_pressure
     mu = np.ones((1, 4))
-    jac = np.empty((NX, NX))
-    for j in range(NX):
-        h = 1e-6 * max(1.0, abs(x0[j]))
-        xp, xm = x0.copy(), x0.copy()
-        xp[j] += h
-        xm[j] -= h
-        jac[:, j] = (derivatives(xp[None], u0[None], mu, P)[0][0] - derivatives(xm[None], u0[None], mu, P)[0][0]) / (
-            2 * h
-        )
-    eig = np.linalg.eigvals(jac)
+    eig = np.linalg.eigvals(_jacobian(x0, u0, mu))
     assert np.any(np.isclose(eig.real, -1.0 / P.brake_lock_time_constant, rtol=1e-3))
     assert rk4_amplification(eig * DT).max() <= 1.0 + 1e-9
