@@ -364,7 +364,7 @@ def grid_cells(
     no model), ``seeds`` sensor seeds per condition (even ones for development conditions, odd
     ones for held-out), and, with ``closed_loop``, the closed-loop cells
     (:data:`CLOSED_LOOP_CONTROLLERS` x :data:`CLOSED_LOOP_ESTIMATORS`). ``quick``: a few cells
-    of each study."""
+    of each study, without the slow baseline (:data:`FRICTION_ONLY`)."""
     if half not in HALF_CHOICES:
         raise ValueError(f"half must be one of {list(HALF_CHOICES)}, got {half!r}")
     if not estimators:
@@ -406,8 +406,8 @@ def grid_cells(
             if estimator == "oracle" and error is not NOMINAL:
                 continue
             other_study = road.kind != "uniform" or speed != BASE_SPEED_KPH or error is not NOMINAL
-            if estimator in FRICTION_ONLY and (other_study or not _member(road.low, CLOSED_LOOP_FRICTIONS)):
-                continue
+            if estimator in FRICTION_ONLY and (quick or other_study or not _member(road.low, CLOSED_LOOP_FRICTIONS)):
+                continue  # (the slow Python baseline: not in a quick run)
             cells += _seeded(Cell(road, m, speed, 0, error, estimator), seeds)
     if closed_loop:
         for road in closed_roads:

@@ -135,7 +135,8 @@ def fit_dugoff(tyre: TyreParams | None = None, reference_load: float | None = No
 
 class TyreCurves(NamedTuple):
     """Pure-slip force curves at one load: slip ratios kappa (S,) [-] and slip angles (A,) [rad];
-    the plant's and the estimator's Dugoff longitudinal (S,) and lateral (A,) forces [N]."""
+    the plant's and the estimator's Dugoff longitudinal (S,) and lateral (A,) forces [N], and the
+    joint estimator's Magic Formula lateral force (A,) [N]."""
 
     kappa: np.ndarray
     fx_plant: np.ndarray
@@ -143,6 +144,7 @@ class TyreCurves(NamedTuple):
     alpha: np.ndarray
     fy_plant: np.ndarray
     fy_dugoff: np.ndarray
+    fy_magic: np.ndarray
 
 
 def tyre_curves(load: float, mu: float = 1.0, vehicle=None, points: int = 121) -> TyreCurves:
@@ -164,7 +166,11 @@ def tyre_curves(load: float, mu: float = 1.0, vehicle=None, points: int = 121) -
     k = p.front.mu_scale
     fx_dugoff = np.array([dugoff(load, s, 0.0, k * mu, cx, cy, 0.0, 0.0)[0] for s in slip])
     fy_dugoff = np.array([dugoff(load, 0.0, t, k * mu, cx, cy, 0.0, 0.0)[1] for t in np.tan(alpha)])
-    return TyreCurves(kappa, fx_plant, fx_dugoff, alpha, fy_plant, fy_dugoff)
+    m = ModelParams.from_vehicle(vehicle, shape="magic").front
+    fy_magic = magic_lateral_force(
+        load, np.tan(alpha), mu, cy, m.magic_c, m.magic_e, m.mu_scale, m.load_sensitivity, m.reference_load
+    )
+    return TyreCurves(kappa, fx_plant, fx_dugoff, alpha, fy_plant, fy_dugoff, fy_magic)
 
 
 def plot_tyre_curves(path: str | Path, mu: float = 1.0, loads=FIGURE_LOADS, vehicle=None) -> Path:
@@ -179,6 +185,7 @@ def plot_tyre_curves(path: str | Path, mu: float = 1.0, loads=FIGURE_LOADS, vehi
         ax_x.plot(c.kappa, c.fx_dugoff, "--", lw=1.2, color=line.get_color())
         ax_y.plot(np.degrees(c.alpha), c.fy_plant, lw=1.5, color=line.get_color(), label=f"{load / 1000:g} kN")
         ax_y.plot(np.degrees(c.alpha), c.fy_dugoff, "--", lw=1.2, color=line.get_color())
+        ax_y.plot(np.degrees(c.alpha), c.fy_magic, ":", lw=1.5, color=line.get_color())
     ax_x.set(
         xlabel="slip ratio [-]",
         ylabel="longitudinal force Fx [N]",
@@ -189,7 +196,11 @@ def plot_tyre_curves(path: str | Path, mu: float = 1.0, loads=FIGURE_LOADS, vehi
     )
     for ax in (ax_x, ax_y):
         ax.grid(alpha=0.3)
-        ax.legend(title="wheel load (solid: plant PAC2002, dashed: fitted Dugoff)", fontsize=8, title_fontsize=8)
+        ax.legend(
+            title="wheel load (solid: plant PAC2002, dashed: fitted Dugoff, dotted: joint's Magic Formula)",
+            fontsize=8,
+            title_fontsize=8,
+        )
     fig.suptitle(f"tyre curves on mu {mu:g}: the plant's Magic Formula and the estimator's Dugoff (eq. 17 fit)")
     fig.tight_layout()
     atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=100))
