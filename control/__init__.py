@@ -32,11 +32,12 @@ from fourwis.control.dyc import (
     planning_friction,
     stability_commands,
 )
+from fourwis.control.esc import BrakeESC
 from fourwis.control.reference import understeer_gradient
 from fourwis.core.checks import check_controller, check_step, check_vehicle_params, import_factory, is_number
 from fourwis.core.types import Command, Estimate
 
-CONTROLLERS = ("none", "dyc-lqr", "dyc-smc", "dyc-lqr-4ws", "dyc-smc-4ws")
+CONTROLLERS = ("none", "dyc-lqr", "dyc-smc", "dyc-lqr-4ws", "dyc-smc-4ws", "esc")
 #: default StabilityController.mu_margin [standard deviations]: the controller plans with
 #: mu_hat - MU_MARGIN mu_std, so a friction the estimator has not confirmed is not taken for granted;
 #: chosen on an earlier design and not re-tuned on the evaluation matrix
@@ -259,6 +260,8 @@ def make_controller(name: str, params, dt: float = 0.002, **options):
         controller = import_factory(name, "controller")(params, dt)
         check_controller(controller, name)
         return controller
+    if name == "esc":
+        return BrakeESC(params, dt)
     if name not in _DYC:
         raise ValueError(f"unknown controller {name!r}; known: {list(CONTROLLERS)}")
     law, rear_steer = _DYC[name]
@@ -271,6 +274,7 @@ __all__ = [
     "MIN_PLANNING_MU",
     "YAW_DEADBAND",
     "Allocation",
+    "BrakeESC",
     "Command",
     "StabilityController",
     "allocate_for_estimate",

@@ -1,5 +1,5 @@
-"""Lower layer: the four in-wheel torques that deliver the driver's drive force and the
-corrective yaw moment with the least tyre workload.
+"""Lower layer: the four net wheel torques (in-wheel motor plus friction brake) that deliver the
+driver's drive force and the corrective yaw moment with the least tyre workload.
 
 Decision variables are the longitudinal tyre forces Fx_i = T_i / R (wheel inertia neglected).
 With the lateral forces Fy_i as they are, the tyre workload
@@ -10,12 +10,15 @@ is minimised over Fx subject to
 
     sum_i w_i Fx_i = Fx_total         (the driver's drive force along the body, from the base torques)
     sum_i c_i Fx_i = Mz               (the corrective yaw moment)
-    |Fx_i| <= min(T_motor(u) / R, sqrt((mu_i Fz_i)^2 - Fy_i^2))   (motor and friction ellipse)
+    -min((T_motor(u) + T_brake) / R, G_i) <= Fx_i <= min(T_motor(u) / R, G_i)
+    G_i = sqrt((mu_i Fz_i)^2 - Fy_i^2)   (motor, motor and friction brake, friction ellipse)
 
 with the steered wheels' body-frame share w_i = cos(delta_i) and lever arm
 c_i = x_i sin(delta_i) - y_i cos(delta_i) (wheel i at (x_i, y_i), ISO axes: -/+ the half-track
 for left/right wheels when straight; a steered front wheel's drive force also turns the car,
-as in the plant), and T_motor(u) = min(peak torque, peak power / (u / R)). When no bound
+as in the plant), T_motor(u) = min(peak torque, peak power / (u / R)) and T_brake the friction
+brake's peak torque (a wheel drives with its motor alone and brakes with both: the wheel
+actuators, :mod:`fourwis.control.wheel_slip`, split each net torque). When no bound
 is active this is the closed-form weighted least squares Fx = W^-1 A^T (A W^-1 A^T)^-1 d. When
 a bound binds, the small bounded QP is solved exactly: the optimum lies on one face of the box
 (each force free, at its lower or at its upper bound, 3^4 = 81 faces), on each face the
@@ -24,10 +27,15 @@ the optimum (strict convexity). It is compiled and batched (timings: benchmarks/
 docs/results/benchmarks.md); scipy's SLSQP on the same QPs serves as the tests' reference
 (docs/decisions/0027-torque-allocation.md).
 
-Infeasible demands degrade in a fixed priority: the drive force is clipped to what the bounds
-allow, then the yaw moment to the largest one feasible with that drive force (an exact
-greedy linear programme over the box, by lever per unit of drive force; |delta| < 90 deg);
-the result reports what was delivered and flags it.
+Infeasible demands degrade in a priority set per vehicle: while the car is inside its stable
+region the driver comes first, the drive force clipped to what the bounds allow, then the yaw
+moment to the largest one feasible with that drive force (an exact greedy linear programme over
+the box, by lever per unit of drive force; |delta| < 90 deg); outside it (``stability_first``,
+:func:`fourwis.control.reference.outside_stable_region`) stability comes first, the yaw moment
+clipped to the largest the bounds allow at any drive force, then the drive force to the one
+nearest the driver's that still delivers that moment (exact: the achievable (force, moment) set
+is the convex hull of the box vertices' images). The result reports what was delivered and flags
+it.
 """
 
 from __future__ import annotations
@@ -59,7 +67,8 @@ class AllocationInputs(NamedTuple):
     """The allocator's demand for B vehicles: the driver's base torques (B, 4) [N m] (their drive
     force), the yaw moment (B,) [N m], the estimated wheel loads (B, 4) [N], friction (B, 4) and
     lateral tyre forces (B, 4) [N] (the friction ellipse; zero: the circle), the speed (B,)
-    [m/s] (the motors' power limit) and the front and rear road-wheel angles (B,) [rad]."""
+    [m/s] (the motors' power limit), the front and rear road-wheel angles (B,) [rad], and
+    whether the yaw moment comes before the drive force when both cannot be met (B,) bool."""
 
     base_torques: np.ndarray
     yaw_moment: np.ndarray
@@ -69,16 +78,18 @@ class AllocationInputs(NamedTuple):
     speed: np.ndarray
     front_steer: np.ndarray
     rear_steer: np.ndarray
+    stability_first: np.ndarray
 
 
 class AllocatorLimits(NamedTuple):
     """The car the allocator drives: contact-point positions (4, 2) [m] (body frame), motor peak
-    torque [N m] and power [W], wheel radius [m]."""
+    torque [N m] and power [W], wheel radius [m], friction brake peak torque [N m] (0: no brakes)."""
 
     positions: np.ndarray
     motor_peak_torque: float
     motor_peak_power: float
     wheel_radius: float
+    brake_peak_torque: float
 
 
 @numba.njit(**JIT)
@@ -155,13 +166,47 @@ def _solve_box_qp(capacity_sq, weight, lever, lower, upper, force, moment, faces
     return best_cost < np.inf
 
 
+@numba.njit(**JIT)
+def _force_range(weight, lever, lower, upper, moment, x_low, x_high) -> tuple[float, float]:
+    """Smallest and largest sum weight_i x_i over lower <= x <= upper with sum lever_i x_i = moment
+    (within the box's moment range); writes an x of each into ``x_low`` and ``x_high`` (4,). The
+    (force, moment) pairs the box reaches are the convex hull of its 16 vertices' images, so each
+    end lies on a segment between two vertices whose moments straddle ``moment``."""
+    corners_f, corners_m, corners = scratch((16,)), scratch((16,)), scratch((16, 4))
+    for v in range(16):
+        force_v = moment_v = 0.0
+        for w in range(4):
+            corners[v, w] = upper[w] if (v >> w) & 1 else lower[w]
+            force_v += weight[w] * corners[v, w]
+            moment_v += lever[w] * corners[v, w]
+        corners_f[v], corners_m[v] = force_v, moment_v
+    tolerance = 1e-9 * (1.0 + abs(moment))
+    f_low, f_high = np.inf, -np.inf
+    for i in range(16):
+        for j in range(16):
+            if corners_m[i] > moment + tolerance or corners_m[j] < moment - tolerance:
+                continue
+            span = corners_m[j] - corners_m[i]
+            t = min(max((moment - corners_m[i]) / span, 0.0), 1.0) if span > tolerance else 0.0
+            force = corners_f[i] + t * (corners_f[j] - corners_f[i])
+            if force < f_low or force > f_high:
+                for w in range(4):
+                    x = corners[i, w] + t * (corners[j, w] - corners[i, w])
+                    if force < f_low:
+                        x_low[w] = x
+                    if force > f_high:
+                        x_high[w] = x
+                f_low, f_high = min(f_low, force), max(f_high, force)
+    return f_low, f_high
+
+
 NEGATIVE_LOAD, NONPOSITIVE_FRICTION = -1, -2  #: statuses of allocation_kernel for out-of-range inputs
 
 
 @numba.njit(**JIT)
 def allocation_kernel(inputs: AllocationInputs, limits: AllocatorLimits, out: Allocation) -> int:
-    base_torques, yaw_moment, fz, mu, lateral, speed, front_steer, rear_steer = inputs
-    positions, motor_peak_torque, motor_peak_power, wheel_radius = limits
+    base_torques, yaw_moment, fz, mu, lateral, speed, front_steer, rear_steer, stability_first = inputs
+    positions, motor_peak_torque, motor_peak_power, wheel_radius, brake_peak_torque = limits
     torques, delivered_moment, delivered_force, feasible = out
     """Fills ``out`` (its rows as ``inputs``'); returns 0, 1 + the index of the first non-finite
     input (AllocationInputs order), or NEGATIVE_LOAD / NONPOSITIVE_FRICTION."""
@@ -185,6 +230,7 @@ def allocation_kernel(inputs: AllocationInputs, limits: AllocatorLimits, out: Al
         return NONPOSITIVE_FRICTION
     upper, lower, x, capacity_sq = scratch((4,)), scratch((4,)), scratch((4,)), scratch((4,))
     weight, lever = scratch((4,)), scratch((4,))
+    brake_force = brake_peak_torque / wheel_radius
     for b in range(base_torques.shape[0]):
         _wheel_force_map(positions, front_steer[b], rear_steer[b], weight, lever)
         spin = abs(speed[b]) / wheel_radius  # wheel speed [rad/s] if rolling
@@ -193,22 +239,36 @@ def allocation_kernel(inputs: AllocationInputs, limits: AllocatorLimits, out: Al
         for w in range(4):
             capacity = max(mu[b, w] * fz[b, w], 1e-6)
             capacity_sq[w] = capacity * capacity
-            upper[w] = min(motor_force, np.sqrt(max(capacity_sq[w] - lateral[b, w] ** 2, 0.0)))
-            lower[w] = -upper[w]
+            grip = np.sqrt(max(capacity_sq[w] - lateral[b, w] ** 2, 0.0))
+            upper[w] = min(motor_force, grip)
+            lower[w] = -min(motor_force + brake_force, grip)
             drive_force += weight[w] * base_torques[b, w] / wheel_radius
+        if stability_first[b]:  # the driver's drive yields (a production ESC's engine-torque request)
+            drive_force = min(drive_force, 0.0)
         # no bound active: the closed-form weighted least squares is the optimum
         feasible[b] = _solve_box_qp(capacity_sq, weight, lever, lower, upper, drive_force, yaw_moment[b], 1, x)
         if not feasible[b]:
-            force = min(max(drive_force, dot(weight, lower)), dot(weight, upper))
             x_high, x_low = scratch((4,)), scratch((4,))
-            moment_high = _greedy_moment(weight, lever, lower, upper, force, 1.0, x_high)
-            moment_low = _greedy_moment(weight, lever, lower, upper, force, -1.0, x_low)
-            moment = min(max(yaw_moment[b], moment_low), moment_high)
-            tolerance = 1e-9 * (abs(drive_force) + abs(yaw_moment[b]) + upper.sum() + 1.0)
+            if stability_first[b]:  # the largest moment at any force, then the force nearest the driver's
+                moment_low = moment_high = 0.0
+                for w in range(4):
+                    moment_low += min(lever[w] * lower[w], lever[w] * upper[w])
+                    moment_high += max(lever[w] * lower[w], lever[w] * upper[w])
+                moment = min(max(yaw_moment[b], moment_low), moment_high)
+                force_low, force_high = _force_range(weight, lever, lower, upper, moment, x_low, x_high)
+                force = min(max(drive_force, force_low), force_high)
+                vertex_high = force >= 0.5 * (force_high + force_low)
+            else:  # the force within the bounds, then the largest moment with it
+                force = min(max(drive_force, dot(weight, lower)), dot(weight, upper))
+                moment_high = _greedy_moment(weight, lever, lower, upper, force, 1.0, x_high)
+                moment_low = _greedy_moment(weight, lever, lower, upper, force, -1.0, x_low)
+                moment = min(max(yaw_moment[b], moment_low), moment_high)
+                vertex_high = moment >= 0.5 * (moment_high + moment_low)
+            tolerance = 1e-9 * (abs(drive_force) + abs(yaw_moment[b]) + upper.sum() - lower.sum() + 1.0)
             feasible[b] = abs(force - drive_force) <= tolerance and abs(moment - yaw_moment[b]) <= tolerance
             if not _solve_box_qp(capacity_sq, weight, lever, lower, upper, force, moment, len(_FACES), x):
                 # only at a vertex of the achievable set, within rounding: take the LP's vertex
-                x[:] = x_high if moment >= 0.5 * (moment_high + moment_low) else x_low
+                x[:] = x_high if vertex_high else x_low
         delivered_force[b] = delivered_moment[b] = 0.0
         for w in range(4):
             torques[b, w] = x[w] * wheel_radius
@@ -246,11 +306,11 @@ def wheel_force_map(params, front_steer, rear_steer) -> tuple[np.ndarray, np.nda
 
 
 @functools.lru_cache(maxsize=16)
-def _zeros(batch: int) -> tuple[np.ndarray, np.ndarray]:
-    """Read-only zero arrays (batch, 4) and (batch,)."""
-    wheels, cars = np.zeros((batch, 4)), np.zeros(batch)
-    wheels.flags.writeable = cars.flags.writeable = False
-    return wheels, cars
+def _zeros(batch: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Read-only zero arrays (batch, 4), (batch,) and (batch,) bool."""
+    wheels, cars, flags = np.zeros((batch, 4)), np.zeros(batch), np.zeros(batch, dtype=np.bool_)
+    wheels.flags.writeable = cars.flags.writeable = flags.flags.writeable = False
+    return wheels, cars, flags
 
 
 #: how errors name AllocationInputs' fields
@@ -263,6 +323,7 @@ _INPUTS = (
     "speed",
     "front steer",
     "rear steer",
+    "stability first",
 )
 
 
@@ -276,6 +337,7 @@ def allocate_torques(
     speed: np.ndarray | None = None,
     front_steer: np.ndarray | None = None,
     rear_steer: np.ndarray | None = None,
+    stability_first: np.ndarray | None = None,
 ) -> Allocation:
     """Minimum-workload wheel torques for the drive force of ``base_torques`` (B, 4) [N m]
     (what they push the body forward with) plus the yaw moment ``yaw_moment`` (B,) [N m].
@@ -284,13 +346,14 @@ def allocate_torques(
     [N]: estimated tyre lateral forces for the friction ellipse (None: zero, the friction
     circle's full radius is available longitudinally); ``speed`` (B,) [m/s]: for the motors'
     power limit (None: peak torque at any speed); ``front_steer``, ``rear_steer`` (B,) [rad]:
-    road-wheel angles, for the wheels' lever arms and drive directions (None: straight).
-    Compiled (numba)."""
+    road-wheel angles, for the wheels' lever arms and drive directions (None: straight);
+    ``stability_first`` (B,) bool: the yaw moment before the drive force where both cannot be met
+    (None: the drive force first). Compiled (numba)."""
     base_torques = np.ascontiguousarray(base_torques, dtype=np.float64)
     if base_torques.ndim != 2 or base_torques.shape[1] != 4:
         raise ValueError(f"base_torques must have shape (B, 4), got {base_torques.shape}")
     B = base_torques.shape[0]
-    wheels, cars = _zeros(B)  # read-only defaults, shared: this runs at every 2 ms substep
+    wheels, cars, flags = _zeros(B)  # read-only defaults, shared: this runs at every 2 ms substep
     inputs = AllocationInputs(
         base_torques,
         np.ascontiguousarray(yaw_moment, dtype=np.float64),
@@ -300,11 +363,12 @@ def allocate_torques(
         cars if speed is None else np.ascontiguousarray(speed, dtype=np.float64),
         cars if front_steer is None else np.ascontiguousarray(front_steer, dtype=np.float64),
         cars if rear_steer is None else np.ascontiguousarray(rear_steer, dtype=np.float64),
+        flags if stability_first is None else np.ascontiguousarray(stability_first, dtype=np.bool_),
     )
     shapes = tuple(q.shape for q in inputs[1:])
-    if shapes != ((B,), (B, 4), (B, 4), (B, 4), (B,), (B,), (B,)):
+    if shapes != ((B,), (B, 4), (B, 4), (B, 4), (B,), (B,), (B,), (B,)):
         raise ValueError(
-            f"yaw_moment, speed and the steer angles must have shape ({B},) and fz, mu, "
+            f"yaw_moment, speed, the steer angles and stability_first must have shape ({B},) and fz, mu, "
             f"lateral_forces ({B}, 4); got " + ", ".join(f"{name} {shape}" for name, shape in zip(_INPUTS[1:], shapes))
         )
     out = Allocation(np.empty((B, 4)), np.empty(B), np.empty(B), np.empty(B, dtype=np.bool_))
@@ -315,12 +379,14 @@ def allocate_torques(
 
 
 def allocator_limits(params) -> AllocatorLimits:
-    """The :class:`AllocatorLimits` of duck-typed vehicle ``params``."""
+    """The :class:`AllocatorLimits` of duck-typed vehicle ``params`` (without ``brake_peak_torque``:
+    a car without friction brakes)."""
     return AllocatorLimits(
         np.ascontiguousarray(params.wheel_positions, dtype=np.float64),
         float(params.motor_peak_torque),
         float(params.motor_peak_power),
         float(params.wheel_radius),
+        float(getattr(params, "brake_peak_torque", 0.0)),
     )
 
 
@@ -343,9 +409,11 @@ def allocate_for_estimate(
     mu: np.ndarray | None = None,
     front_steer: np.ndarray | None = None,
     rear_steer: np.ndarray | None = None,
+    stability_first: np.ndarray | None = None,
 ) -> Allocation:
     """:func:`allocate_torques` fed from an Estimate-like object (u, ay, mu, fz); ``mu`` (B, 4)
-    replaces the estimate's friction when given; the steer angles [rad] (B,) as there.
+    replaces the estimate's friction when given; the steer angles [rad] (B,) and
+    ``stability_first`` (B,) bool as there.
 
     ``friction_ellipse``: bound each tyre's Fx by what its lateral force leaves, with the
     quasi-static lateral forces Fy_i = Fz_i a_y / g (each tyre carries lateral force in
@@ -358,5 +426,5 @@ def allocate_for_estimate(
     lateral = estimate.fz * (estimate.ay / GRAVITY)[:, None] if friction_ellipse else None
     mu = estimate.mu if mu is None else mu
     return allocate_torques(
-        base_torques, yaw_moment, estimate.fz, mu, params, lateral, estimate.u, front_steer, rear_steer
+        base_torques, yaw_moment, estimate.fz, mu, params, lateral, estimate.u, front_steer, rear_steer, stability_first
     )

@@ -24,9 +24,11 @@ from fourwis.control.reference import (
     axle_friction,
     bicycle_state_matrix,
     eq20_gain,
+    friction_limited,
+    outside_stable_region,
     sideslip_bound_of,
+    sideslip_moment,
     slower_time_constant,
-    steady_yaw_rate,
 )
 from fourwis.core.kernels import JIT, bundle_dispatch, scratch
 from fourwis.core.types import Estimate
@@ -305,13 +307,15 @@ class DycSettings(NamedTuple):
 
 
 class DycMemory(NamedTuple):
-    """A StabilityController's memory of B vehicles, one row each (NaN: no step yet): the lagged
-    yaw reference (B,) [rad/s], the rear road-wheel angle it commands (B,) [rad], the yaw moment
+    """A StabilityController's memory of B vehicles, one row each (NaN: no step yet): the yaw
+    reference (B,) [rad/s] and its lagged steady state before the friction bound (B,) [rad/s], the
+    rear road-wheel angle it commands (B,) [rad], the yaw moment
     the wheels deliver (B,) [N m] (the LQR's M), the reference at the previous step (B,) [rad/s]
     (the sliding mode's rate), the latest allocation (the command: its torques) and the
     allocator's inputs of that step (for its error message)."""
 
     reference: np.ndarray
+    lagged: np.ndarray
     rear: np.ndarray
     delivered: np.ndarray
     previous_reference: np.ndarray
@@ -326,10 +330,10 @@ def fresh_memory(batch: int) -> DycMemory:
         return np.full(shape, np.nan)
 
     return DycMemory(
-        nan(batch), nan(batch), np.zeros(batch), nan(batch),
+        nan(batch), nan(batch), nan(batch), np.zeros(batch), nan(batch),
         Allocation(nan(batch, 4), nan(batch), nan(batch), np.zeros(batch, dtype=np.bool_)),
         AllocationInputs(nan(batch, 4), nan(batch), nan(batch, 4), nan(batch, 4), nan(batch, 4), nan(batch),
-                         nan(batch), nan(batch)),
+                         nan(batch), nan(batch), np.zeros(batch, dtype=np.bool_)),
     )  # fmt: skip
 
 
@@ -429,13 +433,13 @@ def stability_command(dyc: DycKernel, b: int, estimate: Estimate, front: float, 
         step = settings.rear_steer_rate * dt
         rear = previous + min(max(target - previous, -step), step)
     memory.rear[b] = rear
-    # the 2-DOF steady state of the car as steered, bounded by the weaker axle's friction, lagged
-    steady = steady_yaw_rate(
-        u, front - rear, axle_friction(mu[0], mu[1], mu[2], mu[3]), settings.wheelbase, settings.understeer
-    )
-    reference = steady if math.isnan(memory.reference[b]) else memory.reference[b]
-    reference = reference + (steady - reference) * min(dt / slower_time_constant(u, c_f, c_r, mass, iz, a, b_rear), 1.0)
-    memory.reference[b] = r_ref = reference
+    # the 2-DOF steady state of the car as steered, lagged like the car's yaw response, then bounded
+    # by the weaker axle's friction (a grip the road no longer has is gone at once, not after the lag)
+    steady = u * (front - rear) / (settings.wheelbase + settings.understeer * (u * u))
+    lagged = steady if math.isnan(memory.lagged[b]) else memory.lagged[b]
+    lagged = lagged + (steady - lagged) * min(dt / slower_time_constant(u, c_f, c_r, mass, iz, a, b_rear), 1.0)
+    memory.lagged[b] = lagged
+    memory.reference[b] = r_ref = friction_limited(lagged, u, axle_friction(mu[0], mu[1], mu[2], mu[3]))
     mu_mean = (mu[0] + mu[1] + mu[2] + mu[3]) / 4.0
     bound = sideslip_bound_of(mu_mean)
     shrunk_error, shrunk_beta = deadband(r - r_ref, YAW_DEADBAND), deadband(beta, 0.5 * bound)
@@ -443,6 +447,14 @@ def stability_command(dyc: DycKernel, b: int, estimate: Estimate, front: float, 
     # a moment that turns the car further (understeer correction) fades out as |beta| approaches its bound
     if np.sign(moment) == np.sign(r_ref):
         moment = moment * min(max(1.0 - abs(beta) / bound, 0.0), 1.0)
+    unstable = abs(u) > ACTIVE_SPEED and outside_stable_region(r - r_ref, beta, bound)
+    # inside the stable region a moment that drives the yaw rate away from its reference fades out as
+    # the error grows to the deadband (a law's model-based terms must not undo the car's own response)
+    if not unstable and moment * (r - r_ref) > 0.0:
+        moment = moment * max(1.0 - abs(r - r_ref) / YAW_DEADBAND, 0.0)
+    # beyond the stable region's sideslip the ESC's sideslip moment holds it (the 2-DOF law, linear
+    # in a beta it sees well damped, hardly answers a car sliding on ice)
+    moment += sideslip_moment(beta, bound)
     if not abs(u) > ACTIVE_SPEED:
         moment = 0.0
     inputs = memory.inputs
@@ -450,12 +462,13 @@ def stability_command(dyc: DycKernel, b: int, estimate: Estimate, front: float, 
         inputs.base_torques[b, w], inputs.fz[b, w], inputs.mu[b, w] = base[w], estimate.fz[b, w], mu[w]
         inputs.lateral[b, w] = estimate.fz[b, w] * (ay / GRAVITY) if settings.friction_ellipse else 0.0
     inputs.yaw_moment[b], inputs.speed[b], inputs.front_steer[b], inputs.rear_steer[b] = moment, u, front, rear
+    inputs.stability_first[b] = unstable
     row = slice(b, b + 1)
     allocation = memory.allocation
     bad = allocation_kernel(
         AllocationInputs(
             inputs.base_torques[row], inputs.yaw_moment[row], inputs.fz[row], inputs.mu[row], inputs.lateral[row],
-            inputs.speed[row], inputs.front_steer[row], inputs.rear_steer[row],
+            inputs.speed[row], inputs.front_steer[row], inputs.rear_steer[row], inputs.stability_first[row],
         ),
         dyc.limits,
         Allocation(allocation.torques[row], allocation.yaw_moment[row], allocation.drive_force[row],

@@ -49,9 +49,14 @@ def reference_yaw_rate(
 def steady_yaw_rate(u, delta_f, mu_mean, wheelbase: float, understeer: float):
     """:func:`reference_yaw_rate` from the mean friction ``mu_mean``, the wheelbase [m] and the
     gradient K_us [rad s^2/m] (written once, for numpy arrays and for the compiled controller)."""
-    steady = u * delta_f / (wheelbase + understeer * (u * u))
+    return friction_limited(u * delta_f / (wheelbase + understeer * (u * u)), u, mu_mean)
+
+
+@register_jitable
+def friction_limited(yaw_rate, u, mu_mean):
+    """``yaw_rate`` [rad/s] within the friction limit 0.85 mu_mean g / u at speed ``u`` [m/s]."""
     limit = FRICTION_USE * mu_mean * GRAVITY / np.maximum(np.abs(u), MIN_SPEED)
-    return np.minimum(np.maximum(steady, -limit), limit)
+    return np.minimum(np.maximum(yaw_rate, -limit), limit)
 
 
 def bicycle_state_matrix(u, params) -> tuple:
@@ -134,6 +139,36 @@ def sideslip_bound(mu: np.ndarray) -> np.ndarray:
 def sideslip_bound_of(mu_mean):
     """:func:`sideslip_bound` of the mean friction."""
     return np.arctan(0.02 * mu_mean * GRAVITY)
+
+
+#: the car is outside its stable region when its yaw rate misses the reference by more than
+#: STABLE_YAW_ERROR [rad/s] (4 deg/s) or its sideslip exceeds STABLE_SIDESLIP times the sideslip
+#: bound (a production ESC's entry thresholds: van Zanten, SAE 2000-01-1633, enters at a few deg/s
+#: of yaw-rate error, and on sideslip before the bound)
+STABLE_YAW_ERROR = 0.07
+STABLE_SIDESLIP = 0.6
+
+
+@register_jitable
+def outside_stable_region(yaw_rate_error, beta, bound):
+    """Whether a car with yaw-rate error ``yaw_rate_error`` = r - r_ref [rad/s] and sideslip ``beta``
+    [rad] is outside its stable region, given the sideslip bound ``bound`` [rad]
+    (:func:`sideslip_bound`): the test that switches an ESC on and puts a yaw moment before the
+    driver's drive force in the allocation (scalars or arrays of one shape)."""
+    return (np.abs(yaw_rate_error) > STABLE_YAW_ERROR) | (np.abs(beta) > STABLE_SIDESLIP * bound)
+
+
+#: moment per rad of sideslip beyond STABLE_SIDESLIP x the bound [N m/rad] (:func:`sideslip_moment`)
+SIDESLIP_GAIN = 4.0e4
+
+
+@register_jitable
+def sideslip_moment(beta, bound):
+    """The yaw moment [N m] (counter-clockwise positive) that holds the sideslip ``beta`` [rad] within
+    STABLE_SIDESLIP times its ``bound`` [rad]: SIDESLIP_GAIN times the sideslip beyond that, zero
+    within it (a car sliding out of a left turn, beta < 0, is turned clockwise)."""
+    limit = STABLE_SIDESLIP * bound
+    return SIDESLIP_GAIN * (beta - np.minimum(np.maximum(beta, -limit), limit))
 
 
 def sideslip_rate(u: np.ndarray, v: np.ndarray, r: np.ndarray, ax: np.ndarray, ay: np.ndarray) -> np.ndarray:

@@ -116,7 +116,12 @@ def _speed_hold(table, members, t, states, out):
             + 0.5 * d["air_density"] * d["drag_area"] * u * abs(u)
         )
         peak = d["motor_peak_torque"]
-        out[b] = 0.0 if t[b] >= d["coast_after"] else min(max(force * d["wheel_radius"] / 4.0, -peak), peak)
+        if t[b] >= d["brake_after"]:
+            out[b] = -d["brake_torque"]
+        elif t[b] >= d["coast_after"]:
+            out[b] = 0.0
+        else:
+            out[b] = min(max(force * d["wheel_radius"] / 4.0, -peak), peak)
 
 
 @dataclass(frozen=True)
@@ -507,18 +512,22 @@ class SpeedHold(VectorisedDriver):
     Proportional control on speed error with a feed-forward of rolling resistance and drag:
     ``F = m k (v_target - u) + f m g + 0.5 rho CdA u^2``, split equally and limited to the
     motors. From ``coast_after`` [s] on, the driver lifts off (zero torque: coasting, as FMVSS
-    126 and ISO 3888-2 prescribe once the manoeuvre starts).
+    126 and ISO 3888-2 prescribe once the manoeuvre starts); from ``brake_after`` [s] on, the
+    driver brakes, asking ``brake_torque`` [N m] of each wheel (a net torque of -brake_torque: the
+    wheel actuators split it between motor and friction brake).
     """
 
     target_speed: float
     params: VehicleParams = field(default_factory=VehicleParams)
     gain: float = 1.0  #: [1/s]
     coast_after: float = math.inf
+    brake_after: float = math.inf
+    brake_torque: float = 0.0
 
     kernel = staticmethod(_speed_hold)
     COLUMNS = (
-        "target_speed", "gain", "coast_after", "mass", "rolling_resistance", "air_density", "drag_area",
-        "wheel_radius", "motor_peak_torque",
+        "target_speed", "gain", "coast_after", "brake_after", "brake_torque", "mass", "rolling_resistance",
+        "air_density", "drag_area", "wheel_radius", "motor_peak_torque",
     )  # fmt: skip
 
     def row(self) -> tuple[float, ...]:
@@ -527,6 +536,8 @@ class SpeedHold(VectorisedDriver):
             self.target_speed,
             self.gain,
             self.coast_after,
+            self.brake_after,
+            self.brake_torque,
             p.mass,
             p.rolling_resistance,
             p.air_density,

@@ -25,12 +25,13 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from fourwis.control.allocation import allocate_for_estimate, allocator_limits
+from fourwis.control.esc import BrakeESC, outside_stable
 from fourwis.control.reference import PhasePlaneRegion, reference_yaw_rate
 from fourwis.core.checks import is_integer, is_number
 from fourwis.core.types import Command, Estimate
 from fourwis.envs.fmvss126 import characterise
 from fourwis.envs.layout import A_AY, S_DELTA_F, S_DELTA_R, S_R, S_U, S_X, S_Y
-from fourwis.envs.loop import HeldAction, Sample
+from fourwis.envs.loop import HeldAction, Sample, wheel_torque_action
 from fourwis.envs.metrics import (
     SPIN_OUT_SIDESLIP,
     CoursePaths,
@@ -40,7 +41,7 @@ from fourwis.envs.metrics import (
 )
 from fourwis.envs.render import close_window, show_frame
 from fourwis.envs.scenarios import SCENARIOS, Scenario, make_scenario
-from fourwis.envs.sensors import CHANNEL_OF_SENSOR, Fault
+from fourwis.envs.sensors import CHANNEL_OF_SENSOR, S_BRAKE_SENSOR, Fault
 from fourwis.envs.simulation import DT, ClosedLoop
 from fourwis.estimation import check_estimator_name
 
@@ -76,8 +77,9 @@ STATE_SLOTS = (
     Slot("the driver's front road-wheel angle", 0.3, "rad"),
     Slot("yaw-rate error r - r_ref", 1.0, "rad/s"),
 )
-#: the observation from the raw sensors (``observation="sensors"``): the simulated car's 13 sensors
-#: (envs.sensors.SENSORS, not the 16 channels of a log), then r_ref
+#: the observation from the raw sensors (``observation="sensors"``): the simulated car's sensors
+#: (envs.sensors.SENSORS, not the 16 channels of a log) as its reading's channels carry them, the
+#: brake pressures netted into the wheel torques (:data:`SENSOR_CHANNELS`), then r_ref
 SENSOR_SLOTS = (
     Slot("longitudinal acceleration ax", 10.0, "m/s²"),
     Slot("lateral acceleration ay", 10.0, "m/s²"),
@@ -85,10 +87,13 @@ SENSOR_SLOTS = (
     *(Slot(f"wheel speed, {wheel}", 100.0, "rad/s") for wheel in WHEEL_NAMES),
     Slot("front road-wheel angle", 0.3, "rad"),
     Slot("rear road-wheel angle", 0.3, "rad"),
-    *(Slot(f"motor torque, {wheel}", 600.0, "N m") for wheel in WHEEL_NAMES),
+    *(Slot(f"net wheel torque (motor less brake), {wheel}", 600.0, "N m") for wheel in WHEEL_NAMES),
     Slot("reference yaw rate r_ref from the readings and friction 0.8", 1.0, "rad/s"),
 )
 N_OBS = len(STATE_SLOTS)
+#: the reading's channel of each sensor slot of SENSOR_SLOTS (the brake pressures' channels are the
+#: torque channels, read once)
+SENSOR_CHANNELS = CHANNEL_OF_SENSOR[:S_BRAKE_SENSOR]
 STATE_SCALE = np.array([slot.scale for slot in STATE_SLOTS])
 SENSOR_SCALE = np.array([slot.scale for slot in SENSOR_SLOTS[:-1]])
 NOMINAL_MU = 0.8  #: friction assumed for r_ref in the sensors observation
@@ -116,6 +121,8 @@ class EnvConfig:
     scenario_kwargs: dict | None = None
     rear_steer: bool = True
     privileged: bool = False
+    slip_control: bool = True
+    esc: bool = False
 
     def __post_init__(self) -> None:
         for name, known in (
@@ -160,7 +167,7 @@ class EnvConfig:
             raise ValueError(
                 "the random scenario's seed is drawn from reset(seed=...) each episode; scenario_kwargs cannot fix it"
             )
-        for name in ("rear_steer", "privileged"):
+        for name in ("rear_steer", "privileged", "slip_control", "esc"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
         make_scenario(self.scenario, **self.overrides)  # validate the overrides now
@@ -209,31 +216,44 @@ def state_observation(e: Estimate, delta_f: np.ndarray, params) -> np.ndarray:
 
 
 class AgentController:
-    """Turns the held agent actions (B, n) into wheel torques and rear steer each substep."""
+    """Turns the held agent actions (B, n) into wheel torques and rear steer each substep (the
+    compiled loop runs :class:`fourwis.envs.loop.HeldAction`, this class's :meth:`kernel`; a call
+    computes the same in numpy), with the car's ESC beneath them if ``config.esc``."""
 
     def __init__(self, params, config: EnvConfig, batch_size: int):
         self.params, self.action_mode = params, config.action
         self.action = np.zeros((batch_size, config.action_size))
+        self.esc, self.esc_on = BrakeESC(params), bool(config.esc)
 
     def reset(self) -> None:
         self.action[:] = 0.0
+        self.esc.reset()
 
     def __call__(self, t, estimate, front_steer, base_torques) -> Command:
         p = self.params
+        rear = np.zeros(len(base_torques))
         if self.action_mode == "yaw_moment":
-            rear = self.action[:, 1] * p.max_rear_steer if self.action.shape[1] == 2 else np.zeros(len(base_torques))
+            if self.action.shape[1] == 2:
+                rear = self.action[:, 1] * p.max_rear_steer
+            first = outside_stable(self.esc.settings, estimate, front_steer)
             torques = allocate_for_estimate(
-                base_torques, self.action[:, 0] * MAX_YAW_MOMENT, estimate, p, front_steer=front_steer, rear_steer=rear
-            ).torques
-            return Command(torques, rear)
-        limit = p.motor_peak_torque
-        return Command(np.clip(base_torques + self.action * limit, -limit, limit), np.zeros(len(base_torques)))
+                base_torques, self.action[:, 0] * MAX_YAW_MOMENT, estimate, p, front_steer=front_steer,
+                rear_steer=rear, stability_first=first,
+            ).torques  # fmt: skip
+        else:
+            torques = wheel_torque_action(base_torques, self.action, p.motor_peak_torque, p.brake_peak_torque)
+        if self.esc_on:
+            torques = self.esc(t, estimate, front_steer, torques).torques
+        return Command(torques, rear)
 
     def kernel(self) -> HeldAction:
         """This controller as the compiled loop runs it (the held actions themselves)."""
         p = self.params
         yaw_moment = self.action_mode == "yaw_moment"
-        return HeldAction(self.action, yaw_moment, MAX_YAW_MOMENT, float(p.max_rear_steer), allocator_limits(p))
+        return HeldAction(
+            self.action, yaw_moment, MAX_YAW_MOMENT, float(p.max_rear_steer), allocator_limits(p),
+            p.brake_peak_torque, self.esc.kernel(len(self.action)), self.esc_on,
+        )  # fmt: skip
 
 
 class _EpisodeStats:
@@ -271,7 +291,12 @@ class YawStabilityCore:
         params = scenarios[0].vehicle_params
         self.controller = AgentController(params, config, self.batch_size)
         self.loop = ClosedLoop(
-            list(scenarios), self.controller, config.estimator, list(sensor_rngs), faults=config.sensor_faults
+            list(scenarios),
+            self.controller,
+            config.estimator,
+            list(sensor_rngs),
+            faults=config.sensor_faults,
+            slip_control=config.slip_control,
         )
         self.params = params
         self.stats = _EpisodeStats(self.batch_size)
@@ -291,6 +316,7 @@ class YawStabilityCore:
         members = np.flatnonzero(mask)
         scenarios, sensor_rngs = zip(*(self.config.draw(rng) for rng in rngs))
         self.loop.reset_members(mask, list(scenarios), list(sensor_rngs))
+        self.controller.esc.reset(mask)
         self._ends[members] = self._end_steps(scenarios)
         self._paths.replace(members, [s.reference_path for s in scenarios])
         self.stats.clear(members)
@@ -303,7 +329,7 @@ class YawStabilityCore:
         s = self.loop.sample() if sample is None else sample
         delta_f = s.front_steer
         if self.config.observation == "sensors":
-            values = s.reading.values[:, CHANNEL_OF_SENSOR]  # the car's 13 sensors
+            values = s.reading.values[:, SENSOR_CHANNELS]
             r_ref = reference_yaw_rate(
                 values[:, 3:7].mean(axis=1) * self.params.wheel_radius,
                 values[:, 7],
@@ -521,16 +547,22 @@ class YawStabilityEnv(gym.Env):
 
     **Observation** (float32, ``N_OBS`` slots): :data:`STATE_SLOTS` from the estimate
     (``observation="estimated"``, the default) or from the truth with zero uncertainty
-    (``"true"``); ``"sensors"``: :data:`SENSOR_SLOTS`, the car's 13 raw sensors and r_ref. The
-    fixed-friction estimators report their nominal 0.8 in the friction slots and zero friction
-    uncertainty. ``privileged=True`` appends the truth's ``N_OBS`` slots (asymmetric
-    actor-critic: ``training.asymmetric``).
+    (``"true"``); ``"sensors"``: :data:`SENSOR_SLOTS`, the car's raw sensors (the brake
+    pressures netted into the wheel torques) and r_ref. The fixed-friction estimators report
+    their nominal 0.8 in the friction slots and zero friction uncertainty. ``privileged=True``
+    appends the truth's ``N_OBS`` slots (asymmetric actor-critic: ``training.asymmetric``).
 
     **Action** (float32 in [-1, 1]): ``action="yaw_moment"``: [corrective yaw moment x
     MAX_YAW_MOMENT N m, rear road-wheel angle x the rear servo's range] (``rear_steer=False``:
     the moment alone), allocated to the wheels within the motors' and tyres' limits from the
-    estimate; ``"wheel_torques"``: four corrective torques x the motors' peak torque, added to
-    the driver's. Out-of-range actions are clipped (``info["action_clipped"]``); NaN raises.
+    estimate; ``"wheel_torques"``: four corrective net wheel torques added to the driver's, a
+    positive action times the motor's peak torque, a negative one times the motor's and the
+    friction brake's peaks (braking; the wheels' actuators split it between motor and friction
+    brake). Out-of-range actions are clipped (``info["action_clipped"]``); NaN raises. Every wheel
+    torque passes the car's wheel-slip control, ABS and traction control
+    (:mod:`fourwis.control.wheel_slip`), unless ``slip_control=False``; ``esc=True`` puts the
+    brake-based ESC (:mod:`fourwis.control.esc`, the controller ``esc``) beneath the agent's
+    command, as in a production car.
 
     **Reward** per step: -(e_r / 0.1)^2 - (beta / 0.05)^2 - 0.1 |a|^2 - (d / 1 m)^2, times
     ``control_dt`` (e_r the true yaw rate less the reference [rad/s], beta the true sideslip
@@ -565,6 +597,8 @@ class YawStabilityEnv(gym.Env):
         scenario_kwargs: dict | None = None,
         rear_steer: bool = True,
         privileged: bool = False,
+        slip_control: bool = True,
+        esc: bool = False,
         **unknown,
     ):
         _unknown_arguments(unknown)
@@ -580,6 +614,8 @@ class YawStabilityEnv(gym.Env):
             scenario_kwargs=scenario_kwargs,
             rear_steer=rear_steer,
             privileged=privileged,
+            slip_control=slip_control,
+            esc=esc,
         )
         _check_render_mode(render_mode)
         self.render_mode = render_mode
@@ -709,6 +745,8 @@ class YawStabilityVectorEnv(VectorEnv):
         rear_steer: bool = True,
         privileged: bool = False,
         autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+        slip_control: bool = True,
+        esc: bool = False,
         **unknown,
     ):
         _unknown_arguments(unknown)
@@ -733,6 +771,8 @@ class YawStabilityVectorEnv(VectorEnv):
             scenario_kwargs,
             rear_steer,
             privileged,
+            slip_control,
+            esc,
         )
         _check_render_mode(render_mode)
         self.num_envs, self.render_mode = int(num_envs), render_mode

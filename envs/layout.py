@@ -2,7 +2,8 @@
 (B, NAUX), by name and column, and the friction range the plant accepts."""
 
 #: State layout, shape (..., NX): pose, body velocities, wheel speeds, motor torques,
-#: steer angles, tyre deflections (relaxed slip * relaxation length) and lagged accelerations.
+#: steer angles, tyre deflections (relaxed slip * relaxation length), lagged accelerations and
+#: the friction brakes' calliper pressures [Pa].
 STATE_NAMES = (
     "x",
     "y",
@@ -30,15 +31,31 @@ STATE_NAMES = (
     "defl_y_rr",
     "ax_lag",
     "ay_lag",
+    "brake_fl",
+    "brake_fr",
+    "brake_rl",
+    "brake_rr",
 )
 NX = len(STATE_NAMES)
 S_X, S_Y, S_PSI, S_U, S_V, S_R = range(6)
-S_OMEGA, S_TORQUE, S_DELTA_F, S_DELTA_R, S_DEFL_X, S_DEFL_Y, S_AX, S_AY = 6, 10, 14, 15, 16, 20, 24, 25
+S_OMEGA, S_TORQUE, S_DELTA_F, S_DELTA_R, S_DEFL_X, S_DEFL_Y, S_AX, S_AY, S_BRAKE = 6, 10, 14, 15, 16, 20, 24, 25, 26
 
-#: Control layout, shape (..., NU): motor torque commands [N m] and road-wheel steer commands [rad].
-CONTROL_NAMES = ("torque_fl", "torque_fr", "torque_rl", "torque_rr", "delta_f", "delta_r")
+#: Control layout, shape (..., NU): motor torque commands [N m], road-wheel steer commands [rad]
+#: and brake pressure commands [Pa].
+CONTROL_NAMES = (
+    "torque_fl",
+    "torque_fr",
+    "torque_rl",
+    "torque_rr",
+    "delta_f",
+    "delta_r",
+    "brake_fl",
+    "brake_fr",
+    "brake_rl",
+    "brake_rr",
+)
 NU = len(CONTROL_NAMES)
-C_TORQUE, C_DELTA_F, C_DELTA_R = 0, 4, 5
+C_TORQUE, C_DELTA_F, C_DELTA_R, C_BRAKE = 0, 4, 5, 6
 
 #: Diagnostic outputs, shape (..., NAUX), evaluated at the returned state:
 #:
@@ -53,6 +70,8 @@ C_TORQUE, C_DELTA_F, C_DELTA_R = 0, 4, 5
 #: - usage: friction used, |F| / (mu Fz) [-]; can exceed 1 where the Magic Formula's peak rises above
 #:   mu at light loads (load sensitivity), and in combined slip, whose MF 5.2 weights of Fx and Fy are
 #:   independent (1.04 at the reference load at kappa -0.13 and 4.1 deg)
+#: - brake_torque: the friction brake's torque [N m], positive against forward spin (at most
+#:   brake_gain x pressure; less while it holds a locked wheel)
 AUX_NAMES = (
     "ax",
     "ay",
@@ -84,8 +103,12 @@ AUX_NAMES = (
     "usage_fr",
     "usage_rl",
     "usage_rr",
+    "brake_torque_fl",
+    "brake_torque_fr",
+    "brake_torque_rl",
+    "brake_torque_rr",
 )
 NAUX = len(AUX_NAMES)
-A_AX, A_AY, A_FZ, A_FX, A_FY, A_KAPPA, A_ALPHA, A_MU, A_USAGE = 0, 1, 2, 6, 10, 14, 18, 22, 26
+A_AX, A_AY, A_FZ, A_FX, A_FY, A_KAPPA, A_ALPHA, A_MU, A_USAGE, A_BRAKE_TORQUE = 0, 1, 2, 6, 10, 14, 18, 22, 26, 30
 
 MU_MAX = 2.0  #: largest accepted road friction coefficient

@@ -1,7 +1,8 @@
 """The closed loop's stages, in the one order every step runs them, as one compiled loop.
 
-Each 2 ms step of each vehicle runs :data:`STAGES` in order: the controller's command (and the
-step's record), one RK4 step of the plant, the sensors' reading (with the truth), the
+Each 2 ms step of each vehicle runs :data:`STAGES` in order: the controller's command (its net
+wheel torques then turned into motor and brake commands by the wheels' actuators, with slip
+control; and the step's record), one RK4 step of the plant, the sensors' reading (with the truth), the
 estimator's step, the steering driver and the speed driver. Between two steps the vehicle rests
 at CONTROL with its sample complete (what :meth:`fourwis.envs.simulation.ClosedLoop.sample`
 returns).
@@ -10,7 +11,8 @@ Each stage is written once, here, and runs the component it is handed: a compone
 compiled form hands itself over as a named bundle (``component.kernel()``: the plant's
 :class:`PlantStage`, the sensors' :class:`fourwis.envs.sensors.SensorKernel`, the estimator's
 :class:`fourwis.estimation.joint.FilterKernel` or the oracle's, the controller's
-:class:`fourwis.control.dyc.DycKernel` or :class:`HeldAction`, the drivers'
+:class:`fourwis.control.dyc.DycKernel`, :class:`fourwis.control.esc.EscKernel` or
+:class:`HeldAction`, the drivers'
 :class:`fourwis.envs.driver.DriverTables`); a component without one (a user's Python estimator
 or controller, sensor faults, a callable friction map, a user's driver) is :class:`PythonStage`,
 and the vehicle stops there: Python serves every vehicle waiting at that stage in one batched
@@ -32,13 +34,31 @@ from typing import NamedTuple
 
 import numba
 import numpy as np
+from numba.extending import register_jitable
 
 from fourwis.control.allocation import Allocation, AllocationInputs, AllocatorLimits, allocation_kernel
 from fourwis.control.dyc import DycKernel, stability_command
+from fourwis.control.esc import EscKernel, esc_torques, unstable
+from fourwis.control.wheel_slip import WheelActuators, actuate, reference_speeds
 from fourwis.core.kernels import JIT, bundle_dispatch, run_parallel, scratch
-from fourwis.core.types import N_CHANNELS, Estimate, SensorReading
+from fourwis.core.types import CH_AX, CH_OMEGA, N_CHANNELS, Estimate, SensorReading
 from fourwis.envs.driver import DRIVEN, NEEDS_PREVIEW, DriverTables, drive
-from fourwis.envs.layout import A_AX, A_AY, A_FZ, A_MU, C_DELTA_F, C_DELTA_R, C_TORQUE, NAUX, NU, NX, S_R, S_U, S_V
+from fourwis.envs.layout import (
+    A_AX,
+    A_AY,
+    A_FZ,
+    A_MU,
+    C_BRAKE,
+    C_DELTA_F,
+    C_DELTA_R,
+    C_TORQUE,
+    NAUX,
+    NU,
+    NX,
+    S_R,
+    S_U,
+    S_V,
+)
 from fourwis.envs.road import RoadTables
 from fourwis.envs.sensors import (
     BLOCK_USED_UP,
@@ -101,15 +121,22 @@ class NoControl(NamedTuple):
 
 class HeldAction(NamedTuple):
     """A held agent action (B, n) in [-1, 1] as a controller: with ``yaw_moment``, action 0 scaled
-    by ``max_yaw_moment`` [N m] is a corrective yaw moment allocated over the wheels (and action 1,
-    if there is one, scaled by ``max_rear_steer`` [rad], the rear steer); else the actions scaled
-    by the motors' peak torque are added to the base wheel torques."""
+    by ``max_yaw_moment`` [N m] is a corrective yaw moment allocated over the wheels' motors and
+    brakes, before the driver's drive force while the car is outside its stable region
+    (:func:`fourwis.control.esc.unstable`, on ``esc``'s settings), and action 1, if there is one,
+    scaled by ``max_rear_steer`` [rad], the rear steer; else the actions are corrective net wheel
+    torques added to the base wheel torques (:func:`wheel_torque_action`, braking up to
+    ``brake_peak_torque`` [N m] beyond the motors). With ``esc_on`` the car's brake-based ESC
+    ``esc`` acts beneath the agent's command."""
 
     action: np.ndarray
     yaw_moment: bool
     max_yaw_moment: float
     max_rear_steer: float
     limits: AllocatorLimits
+    brake_peak_torque: float
+    esc: EscKernel
+    esc_on: bool
 
 
 class PlantStage(NamedTuple):
@@ -184,7 +211,9 @@ class Call(NamedTuple):
 
 
 class Parts(NamedTuple):
-    """The loop's components, each its compiled bundle or :class:`PythonStage`."""
+    """The loop's components, each its compiled bundle or :class:`PythonStage`, and the car's wheel
+    actuators (:class:`fourwis.control.wheel_slip.WheelActuators`: every command's net wheel
+    torques to motors and brakes, with the slip control)."""
 
     controller: object
     plant: object
@@ -192,6 +221,7 @@ class Parts(NamedTuple):
     estimator: object
     steering: object
     speed: object
+    actuators: WheelActuators
 
 
 class Timing(NamedTuple):
@@ -273,33 +303,58 @@ def _no_control(controller, b, sample, cars, call):
     return Status.DONE
 
 
+@register_jitable
+def wheel_torque_action(base, action, motor_peak: float, brake_peak: float):
+    """The net torque [N m] a ``wheel_torques`` action in [-1, 1] asks of a wheel with the driver's
+    ``base`` torque [N m]: a positive action adds up to the motor's peak ``motor_peak`` [N m], a
+    negative one brakes by up to the motor's and the friction brake's peaks together, within
+    [-(motor_peak + brake_peak), motor_peak] (scalars, or numpy arrays of one shape)."""
+    scale = np.where(action > 0.0, motor_peak, motor_peak + brake_peak)
+    return np.minimum(np.maximum(base + action * scale, -(motor_peak + brake_peak)), motor_peak)
+
+
 @command.register(HeldAction)
 def _held_action(controller, b, sample, cars, call):
     controls = cars.controls[b]
     base_controls(b, sample, controls)
     action, limit = controller.action, controller.limits.motor_peak_torque
-    if not controller.yaw_moment:
+    torques, estimate = scratch((4,)), sample.estimate
+    if controller.yaw_moment:
+        row = slice(b, b + 1)
+        rear, yaw, lateral, first = scratch((1,)), scratch((1,)), scratch((1, 4)), scratch((1,), np.bool_)
+        yaw[0] = action[b, 0] * controller.max_yaw_moment
+        rear[0] = action[b, 1] * controller.max_rear_steer if action.shape[1] == 2 else 0.0
+        lateral[:, :] = 0.0
+        first[0] = unstable(controller.esc.settings, b, estimate, sample.front_steer[b])
+        out = Allocation(scratch((1, 4)), scratch((1,)), scratch((1,)), scratch((1,), np.bool_))
+        bad = allocation_kernel(
+            AllocationInputs(sample.base_torques[row], yaw, estimate.fz[row], estimate.mu[row], lateral,
+                             estimate.u[row], sample.front_steer[row], rear, first),
+            controller.limits,
+            out,
+        )  # fmt: skip
+        if bad:
+            call.value[b] = bad
+            return Status.ALLOCATION_FAILED
         for w in range(4):
-            controls[C_TORQUE + w] = min(max(sample.base_torques[b, w] + action[b, w] * limit, -limit), limit)
-        return Status.DONE
-    row, estimate = slice(b, b + 1), sample.estimate
-    rear, yaw, lateral = scratch((1,)), scratch((1,)), scratch((1, 4))
-    yaw[0] = action[b, 0] * controller.max_yaw_moment
-    rear[0] = action[b, 1] * controller.max_rear_steer if action.shape[1] == 2 else 0.0
-    lateral[:, :] = 0.0
-    out = Allocation(scratch((1, 4)), scratch((1,)), scratch((1,)), scratch((1,), np.bool_))
-    bad = allocation_kernel(
-        AllocationInputs(sample.base_torques[row], yaw, estimate.fz[row], estimate.mu[row], lateral,
-                         estimate.u[row], sample.front_steer[row], rear),
-        controller.limits,
-        out,
-    )  # fmt: skip
-    if bad:
-        call.value[b] = bad
-        return Status.ALLOCATION_FAILED
-    for w in range(4):
-        controls[C_TORQUE + w] = out.torques[0, w]
-    controls[C_DELTA_R] = rear[0]
+            torques[w] = out.torques[0, w]
+        controls[C_DELTA_R] = rear[0]
+    else:
+        for w in range(4):
+            torques[w] = wheel_torque_action(
+                sample.base_torques[b, w], action[b, w], limit, controller.brake_peak_torque
+            )
+    if controller.esc_on:
+        esc_torques(controller.esc, b, estimate, sample.front_steer[b], torques)
+    controls[C_TORQUE : C_TORQUE + 4] = torques
+    return Status.DONE
+
+
+@command.register(EscKernel)
+def _esc(controller, b, sample, cars, call):
+    controls = cars.controls[b]
+    base_controls(b, sample, controls)
+    esc_torques(controller, b, sample.estimate, sample.front_steer[b], controls[C_TORQUE : C_TORQUE + 4])
     return Status.DONE
 
 
@@ -397,7 +452,7 @@ def _sensors(sensors, b, cars, sample, call):
     if found >= 0:
         call.value[b] = found
         return Status.BAD_TRUTH
-    to_channels(sensed[0], sample.reading.values[b], sample.reading.valid[b])
+    to_channels(sensed[0], sample.reading.values[b], sample.reading.valid[b], sensors.brake_gain)
     return Status.DONE
 
 
@@ -454,6 +509,22 @@ def _speed(drivers, b, sample, cars, call):
 
 
 @numba.njit(inline="always", **JIT)
+def actuate_controls(actuators: WheelActuators, b: int, sample: Sample, controls: np.ndarray) -> None:
+    """Vehicle b's commanded net wheel torques in ``controls`` (NU,) to its motor torque and brake
+    pressure commands, slip-controlled on its measured wheel speeds and acceleration, estimated
+    forward speed and friction."""
+    demand, motor, pressure = scratch((4,)), scratch((4,)), scratch((4,))
+    for w in range(4):
+        demand[w] = controls[C_TORQUE + w]
+    omega, estimate = sample.reading.values[b, CH_OMEGA : CH_OMEGA + 4], sample.estimate
+    r = estimate.r[b]
+    braking, drive = reference_speeds(actuators, b, omega, sample.reading.values[b, CH_AX], estimate.u[b], r)
+    actuate(actuators, demand, omega, braking, drive, r, estimate.mu[b], motor, pressure)
+    for w in range(4):
+        controls[C_TORQUE + w], controls[C_BRAKE + w] = motor[w], pressure[w]
+
+
+@numba.njit(inline="always", **JIT)
 def copy_estimate_row(source: Estimate, i: int, target: Estimate, j: int) -> None:
     """Row i of ``source`` into row j of ``target``."""
     target.u[j], target.v[j], target.beta[j], target.r[j] = source.u[i], source.v[i], source.beta[i], source.r[i]
@@ -468,7 +539,7 @@ def measure_truth(b: int, state: np.ndarray, aux: np.ndarray, sensed: np.ndarray
     and its true state in estimator form into row b of ``truth`` (zero sigmas)."""
     for c in range(2):
         sensed[b, c] = aux[b, TRUE_AUX_COLUMNS[c]]
-    for c in range(11):
+    for c in range(len(TRUE_STATE_COLUMNS)):
         sensed[b, 2 + c] = state[b, TRUE_STATE_COLUMNS[c]]
     truth.u[b], truth.v[b], truth.r[b] = state[b, S_U], state[b, S_V], state[b, S_R]
     truth.beta[b] = sideslip(state[b, S_U], state[b, S_V])
@@ -546,6 +617,8 @@ def _run_block(members, call: Call, cars: Cars, sample: Sample, parts: Parts, ti
                         statuses[j] = FINISHED  # (its steps are done)
                         continue
                     status = command(parts.controller, b, sample, cars, call)
+                    if status == Status.DONE:
+                        actuate_controls(parts.actuators, b, sample, cars.controls[b])
                     if status == Status.DONE and records.t.shape[0]:
                         _record(records, call.progress[b], b, sample, cars)
                     if status == Status.DONE and call.progress[b] == call.n:  # (the final control: no plant step)

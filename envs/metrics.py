@@ -105,6 +105,10 @@ def phaseless_butterworth(x, fs: float, cutoff: float, order: int = FILTER_ORDER
     return sosfiltfilt(sos, x, axis=-1, padlen=padlen)
 
 
+#: FMVSS 126's criteria, as :attr:`SineWithDwellResult.failed_criteria` names them: S5.2.1, S5.2.2, S5.2.3
+SWD_CRITERIA = ("yaw ratio at 1.00 s", "yaw ratio at 1.75 s", "responsiveness at 1.07 s")
+
+
 @dataclass(frozen=True)
 class SineWithDwellResult:
     """FMVSS 126 evaluation of one sine-with-dwell run."""
@@ -128,13 +132,24 @@ class SineWithDwellResult:
         return bool(abs(self.yaw_rate_ratio_1000) <= YAW_RATIO_1000 and abs(self.yaw_rate_ratio_1750) <= YAW_RATIO_1750)
 
     @property
+    def failed_criteria(self) -> tuple[str, ...]:
+        """The criteria of :data:`SWD_CRITERIA` this run fails (empty: it passes), in their order."""
+        failed = (
+            not abs(self.yaw_rate_ratio_1000) <= YAW_RATIO_1000,
+            not abs(self.yaw_rate_ratio_1750) <= YAW_RATIO_1750,
+            self.passed_responsiveness is False,
+        )
+        return tuple(name for name, bad in zip(SWD_CRITERIA, failed) if bad)
+
+    @property
     def passed(self) -> bool:
         """Every criterion that applies to this run (responsiveness only from 5A)."""
         return self.passed_yaw and self.passed_responsiveness is not False
 
     def as_dict(self) -> dict:
-        """All fields plus ``passed_yaw`` and ``passed``."""
-        return {**asdict(self), "passed_yaw": self.passed_yaw, "passed": self.passed}
+        """All fields plus ``passed_yaw``, ``passed`` and ``failed_criteria`` (joined by "; ")."""
+        failed = "; ".join(self.failed_criteria)
+        return {**asdict(self), "passed_yaw": self.passed_yaw, "passed": self.passed, "failed_criteria": failed}
 
 
 def _running_mean(x: np.ndarray, window: int) -> np.ndarray:
@@ -552,3 +567,50 @@ def mae(estimate, truth) -> float:
 def yaw_rate_tracking_rms(r, r_ref) -> float:
     """RMS [rad/s] of the yaw-rate tracking error r - r_ref (equal shapes)."""
     return rmse(r, r_ref)
+
+
+#: UN R13-H Annex 6 judges wheel lock only above 15 km/h [m/s]
+WHEEL_LOCK_SPEED = 15.0 / 3.6
+#: a wheel turning slower than this fraction of the car's speed counts as locked [-] (slip < -0.9)
+LOCKED_SPEED_RATIO = 0.1
+
+
+@dataclass(frozen=True)
+class BrakingResult:
+    """A straight-line stop: distance [m] and time [s] from the brake application to standstill
+    (None if the car does not stop), the speed at the application [m/s], and the longest time [s]
+    any wheel stayed locked (turning below LOCKED_SPEED_RATIO of the car's speed) while the car was
+    faster than WHEEL_LOCK_SPEED."""
+
+    stopping_distance: float | None
+    stopping_time: float | None
+    initial_speed: float
+    longest_lock: float
+
+
+def braking_metrics(t, x, u, wheel_speeds, brake_at: float) -> BrakingResult:
+    """:class:`BrakingResult` of a run: times ``t`` (T,) [s], the CG's travel ``x`` (T,) [m] and
+    forward speed ``u`` (T,) [m/s], the wheels' rim speeds R omega (T, 4) [m/s], brakes applied at
+    ``brake_at`` [s]."""
+    t = _series("t", t)
+    x, u = _series("x", x, len(t)), _series("u", u, len(t))
+    wheel_speeds = np.asarray(wheel_speeds, dtype=float)
+    if wheel_speeds.shape != (len(t), 4) or not np.all(np.isfinite(wheel_speeds)):
+        raise ValueError(f"wheel_speeds must be finite with shape ({len(t)}, 4), got {wheel_speeds.shape}")
+    if not (is_number(brake_at) and t[0] <= brake_at < t[-1]):
+        raise ValueError(f"brake_at must lie within the run [{t[0]}, {t[-1]}) s, got {brake_at!r}")
+    start = int(np.searchsorted(t, brake_at))
+    stopped = np.flatnonzero(u[start:] <= 0.0)
+    distance = time = None
+    if len(stopped):
+        end = start + int(stopped[0])
+        distance, time = float(x[end] - x[start]), float(t[end] - t[start])
+    dt = float(np.mean(np.diff(t)))
+    locked = (wheel_speeds < LOCKED_SPEED_RATIO * u[:, None]) & (u[:, None] > WHEEL_LOCK_SPEED)
+    longest = 0
+    for w in range(4):
+        run = 0
+        for flag in locked[start:, w]:
+            run = run + 1 if flag else 0
+            longest = max(longest, run)
+    return BrakingResult(distance, time, float(u[start]), longest * dt)

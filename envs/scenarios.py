@@ -47,7 +47,8 @@ class Scenario:
     """A manoeuvre: initial speed, road, driver inputs, duration.
 
     ``steering(t, plant_state) -> steering-wheel angle [rad]``; longitudinally the driver holds
-    ``speed_kph`` until ``coast_after`` [s], then coasts. ``course`` (cones) and
+    ``speed_kph`` until ``coast_after`` [s], then coasts, and from ``brake_after`` [s] brakes with
+    ``brake_torque`` [N m] per wheel. ``course`` (cones) and
     ``reference_path`` (N, 2) are set where the manoeuvre follows a path.
     """
 
@@ -57,6 +58,8 @@ class Scenario:
     duration: float
     steering: Steering
     coast_after: float = math.inf
+    brake_after: float = math.inf
+    brake_torque: float = 0.0
     rear_steer_feedforward: bool = False
     start_x: float = 0.0
     course: courses.Course | None = None
@@ -99,7 +102,13 @@ class Scenario:
         return initial_state(self.vehicle_params, self.speed, batch_size, x=self.start_x)
 
     def speed_driver(self) -> SpeedHold:
-        return SpeedHold(self.speed, self.vehicle_params, coast_after=self.coast_after)
+        return SpeedHold(
+            self.speed,
+            self.vehicle_params,
+            coast_after=self.coast_after,
+            brake_after=self.brake_after,
+            brake_torque=self.brake_torque,
+        )
 
 
 def _positive(name: str, value) -> float:
@@ -395,6 +404,33 @@ def iso3888_2(
     return replace(scenario, coast_after=(course.gates[0].x_start - scenario.start_x) / scenario.speed)
 
 
+def straight_braking(
+    speed_kph=100.0, mu=1.0, duration=None, steering=None, brake_at=0.5, rear_steer_feedforward=False,
+    params=VehicleParams(),
+) -> Scenario:  # fmt: skip
+    """Full braking in a straight line from ``speed_kph`` on ``mu``: the driver holds the speed
+    until ``brake_at`` [s], then asks every wheel for the brakes' peak torque (a full pedal, more
+    than the road can take: the wheels lock unless ABS works). Runs until 1.5 times the ideal
+    stopping time v / (mu g) after the brake application plus 1 s unless ``duration`` is given."""
+    speed = _positive("speed_kph", speed_kph) / 3.6
+    road = _road(mu)
+    brake_at = _finite("brake_at", brake_at, 0.0)
+    if duration is None:
+        lowest = min([road.table()[0], *road.table()[1][:, 4]]) if road.table() is not None else 0.1
+        duration = brake_at + 1.5 * speed / (lowest * GRAVITY) + 1.0
+    return Scenario(
+        "straight_braking",
+        speed_kph,
+        road,
+        _positive("duration", duration),
+        steering if steering is not None else Constant(0.0),
+        brake_after=brake_at,
+        brake_torque=params.brake_peak_torque,
+        rear_steer_feedforward=rear_steer_feedforward,
+        params=params,
+    )
+
+
 def mu_jump(
     speed_kph=60.0,
     mu=0.9,
@@ -546,6 +582,7 @@ _BUILDERS: dict[str, Callable[..., Scenario]] = {
         slowly_increasing_steer,
         iso3888_2,
         mu_jump,
+        straight_braking,
         random,
     )
 }

@@ -1,10 +1,12 @@
-"""Vehicle sensors: IMU, wheel speeds, steering angles and motor torques, with seeded noise,
-turn-on bias and injectable faults.
+"""Vehicle sensors: IMU, wheel speeds, steering angles, motor torques and brake pressures, with
+seeded noise, turn-on bias and injectable faults.
 
-The simulated car has 13 sensors (:data:`SENSORS`); their readings fill the estimators' channel
+The simulated car has 17 sensors (:data:`SENSORS`); their readings fill the estimators' channel
 layout (:data:`fourwis.core.types.CHANNELS`, 16 channels): each axle's one steering sensor
 feeds the steer channels of both its wheels (the plant steers an axle's wheels in parallel),
-and the forward-speed channel, for which the car has no sensor, is invalid (NaN).
+each wheel's torque channel is its motor torque less the brake gain times its brake pressure
+(:func:`fourwis.core.types.net_wheel_torque`, valid when both readings are), and the
+forward-speed channel, for which the car has no sensor, is invalid (NaN).
 All sensors are sampled at 500 Hz (every 2 ms plant step). Noise is white Gaussian; each
 run draws a constant turn-on bias per channel from N(0, bias_std). Default magnitudes:
 
@@ -18,7 +20,15 @@ run draws a constant turn-on bias per channel from N(0, bias_std). Default magni
   measurement jitter of ~0.2% at 80 km/h), no bias;
 * road-wheel steering angles: front 1.1e-4 rad std (0.1 deg steering-wheel resolution over a
   ratio of 16), rear actuator encoder 1e-4 rad std, no bias;
-* motor torques (estimated from phase currents by the inverter): 2 N m std, 2 N m bias std.
+* motor torques (estimated from phase currents by the inverter): 2 N m std, 2 N m bias std;
+* brake pressures (the hydraulic unit's pressure sensors, ~250 bar full scale at ~0.5%
+  accuracy): 1e4 Pa (0.1 bar) std, 5e3 Pa bias std, i.e. 1.8 and 0.9 N m of brake torque; a
+  reading below :data:`BRAKE_RELEASED_PRESSURE` counts as a released brake in the net torque.
+
+The first 13 sensors (the car's before it had brakes) draw their turn-on biases and noise from
+the vehicle's generator exactly as they did then; the brake pressures draw theirs from a second
+stream, the vehicle's generator jumped ahead (``bit_generator.jumped()``), so a run that never
+brakes reads bit for bit what it read without the brake sensors.
 
 These are the package's reference magnitudes (SensorParams' defaults); :meth:`SensorParams.scaled` scales
 all of them.
@@ -43,13 +53,14 @@ import numpy as np
 
 from fourwis.core.checks import member_rows  # (the readings' layout, which the estimators read)
 from fourwis.core.kernels import JIT
-from fourwis.core.types import CHANNELS, SensorReading
-from fourwis.envs.layout import A_AX, A_AY, S_DELTA_F, S_DELTA_R, S_OMEGA, S_R, S_TORQUE
+from fourwis.core.types import CH_TORQUE, CHANNELS, N_CHANNELS, SensorReading
+from fourwis.envs.layout import A_AX, A_AY, S_BRAKE, S_DELTA_F, S_DELTA_R, S_OMEGA, S_R, S_TORQUE
+from fourwis.envs.vehicle import VehicleParams
 
 FAULT_KINDS = ("spike", "dropout", "stuck", "bias_step")
 #: the simulated car's sensors (noise, biases and faults are per sensor): accelerometers [m/s^2],
 #: gyro [rad/s], wheel speeds [rad/s], the front and rear axles' road-wheel steer angles [rad],
-#: motor torques [N m]
+#: motor torques [N m], brake pressures [Pa]
 SENSORS = (
     "ax",
     "ay",
@@ -64,8 +75,17 @@ SENSORS = (
     "torque_fr",
     "torque_rl",
     "torque_rr",
+    "brake_fl",
+    "brake_fr",
+    "brake_rl",
+    "brake_rr",
 )
 N_SENSORS = len(SENSORS)
+S_TORQUE_SENSOR, S_BRAKE_SENSOR = SENSORS.index("torque_fl"), SENSORS.index("brake_fl")  #: first of each group
+#: a brake-pressure reading below this [Pa] (1 bar, ~18 N m of brake torque) counts as a released
+#: brake, no torque, in the net torque channel: an ECU's zero-offset deadband, ~9 std of a released
+#: brake's reading (noise 0.1 bar, bias 0.05 bar), so its sensor noise never reaches the estimators
+BRAKE_RELEASED_PRESSURE = 1.0e5
 #: the sensor (index into SENSORS) whose reading fills each channel of CHANNELS, -1 for none
 SENSOR_OF_CHANNEL = np.array(
     [SENSORS.index(c) if c in SENSORS else SENSORS.index(f"delta_{c[-2]}") if c.startswith("delta_") else -1
@@ -73,37 +93,55 @@ SENSOR_OF_CHANNEL = np.array(
     dtype=np.int64,
 )  # fmt: skip
 CHANNEL_PRESENT = SENSOR_OF_CHANNEL >= 0  #: the channels the simulated car has a sensor for (N_CHANNELS,) bool
-#: the channel each sensor's reading appears in first (for the steer sensors: their axle's left wheel)
-CHANNEL_OF_SENSOR = np.array([int(np.flatnonzero(SENSOR_OF_CHANNEL == s)[0]) for s in range(N_SENSORS)])
+#: the channel each sensor's reading appears in first (for the steer sensors: their axle's left
+#: wheel; for the brake pressures: their wheel's net torque)
+CHANNEL_OF_SENSOR = np.array(
+    [int(np.flatnonzero(SENSOR_OF_CHANNEL == s)[0]) if s < S_BRAKE_SENSOR else CH_TORQUE + s - S_BRAKE_SENSOR
+     for s in range(N_SENSORS)]
+)  # fmt: skip
 
 
-def _per_channel(accel: float, gyro: float, wheel: float, steer_f: float, steer_r: float, torque: float) -> tuple:
-    return (accel, accel, gyro, wheel, wheel, wheel, wheel, steer_f, steer_r, torque, torque, torque, torque)
+def _per_channel(
+    accel: float, gyro: float, wheel: float, steer_f: float, steer_r: float, torque: float, brake: float
+) -> tuple:
+    return (accel, accel, gyro, *(wheel,) * 4, steer_f, steer_r, *(torque,) * 4, *(brake,) * 4)
 
 
 @numba.njit(inline="always", **JIT)
-def to_channels(sensed: np.ndarray, values: np.ndarray, valid: np.ndarray) -> None:
+def to_channels(sensed: np.ndarray, values: np.ndarray, valid: np.ndarray, brake_gain: float) -> None:
     """One car's valid sensor readings ``sensed`` (N_SENSORS,) into its channel row ``values``
     and ``valid`` (N_CHANNELS,) (the :data:`SENSOR_OF_CHANNEL` map; a channel without a sensor:
-    NaN, invalid)."""
+    NaN, invalid; the torque channels net of ``brake_gain`` [N m/Pa] x the brake pressure where it
+    reads at least :data:`BRAKE_RELEASED_PRESSURE`)."""
     for c in range(values.shape[0]):
         s = SENSOR_OF_CHANNEL[c]
         if s < 0:
             values[c], valid[c] = math.nan, False
         else:
             values[c], valid[c] = sensed[s], True
+    for w in range(4):
+        pressure = sensed[S_BRAKE_SENSOR + w]
+        if pressure >= BRAKE_RELEASED_PRESSURE:
+            values[CH_TORQUE + w] -= brake_gain * pressure
+
+
+@numba.njit(**JIT)
+def _channel_rows(sensed: np.ndarray, values: np.ndarray, valid: np.ndarray, brake_gain: float) -> None:
+    """:func:`to_channels` of each row of ``sensed`` (M, N_SENSORS) into ``values``, ``valid`` (M, N_CHANNELS)."""
+    for i in range(sensed.shape[0]):
+        to_channels(sensed[i], values[i], valid[i], brake_gain)
 
 
 @dataclass(frozen=True)
 class SensorParams:
     """Noise std and turn-on bias std per sensor of :data:`SENSORS` (units of each: m/s^2, rad/s,
-    rad, N m)."""
+    rad, N m, Pa)."""
 
     noise_std: tuple[float, ...] = field(
-        default=_per_channel(accel=0.02, gyro=0.004, wheel=0.05, steer_f=1.1e-4, steer_r=1e-4, torque=2.0)
+        default=_per_channel(accel=0.02, gyro=0.004, wheel=0.05, steer_f=1.1e-4, steer_r=1e-4, torque=2.0, brake=1e4)
     )
     bias_std: tuple[float, ...] = field(
-        default=_per_channel(accel=0.03, gyro=0.002, wheel=0.0, steer_f=0.0, steer_r=0.0, torque=2.0)
+        default=_per_channel(accel=0.03, gyro=0.002, wheel=0.0, steer_f=0.0, steer_r=0.0, torque=2.0, brake=5e3)
     )
     sample_time: float = 0.002  #: sampling period [s] (500 Hz)
 
@@ -159,7 +197,7 @@ class Fault:
 
 
 #: where each sensor's true value sits in the plant's diagnostics (sensors 0-1: ax, ay) and
-#: state (sensors 2-12)
+#: state (sensors 2-16)
 TRUE_AUX_COLUMNS = (A_AX, A_AY)
 TRUE_STATE_COLUMNS = (
     S_R,
@@ -173,22 +211,52 @@ TRUE_STATE_COLUMNS = (
     S_TORQUE + 1,
     S_TORQUE + 2,
     S_TORQUE + 3,
+    S_BRAKE,
+    S_BRAKE + 1,
+    S_BRAKE + 2,
+    S_BRAKE + 3,
 )
 
+
+class SensorSample(NamedTuple):
+    """The car's sensors' readings for M vehicles: ``values`` (M, N_SENSORS) in :data:`SENSORS`
+    order and units, ``valid`` (M, N_SENSORS) bool (False: a dropout, holding the last valid value)."""
+
+    values: np.ndarray
+    valid: np.ndarray
+
+
 NOISE_BLOCK = 256  #: samples of noise each vehicle draws from its generator at a time
+
+
+def brake_stream(rng: np.random.Generator) -> np.random.Generator:
+    """The brake-pressure sensors' generator of a vehicle whose sensors draw from ``rng``: ``rng``'s
+    bit generator jumped ahead (its state left as it was), so the other sensors' draws are the
+    same as without brake sensors; a bit generator that cannot jump raises ValueError naming it."""
+    bit_generator = rng.bit_generator
+    if not hasattr(bit_generator, "jumped"):
+        raise ValueError(
+            f"sensor generators need a bit generator with jumped() (PCG64, PCG64DXSM, Philox, MT19937), "
+            f"got {type(bit_generator).__name__}"
+        )
+    return np.random.Generator(bit_generator.jumped())
+
+
 SENSED, BLOCK_USED_UP = -1, -2  #: statuses of noisy_readings (>= 0: a non-finite channel)
 
 
 class SensorKernel(NamedTuple):
     """A :class:`SensorModel` as its compiled kernel takes it (the arrays themselves, updated in
     place): each vehicle's turn-on bias (B, N_SENSORS), its block of standard normal draws (B,
-    NOISE_BLOCK, N_SENSORS), the noise standard deviation per sensor (N_SENSORS,) and each
-    vehicle's cursor into its block (B,) int64."""
+    NOISE_BLOCK, N_SENSORS), the noise standard deviation per sensor (N_SENSORS,), each
+    vehicle's cursor into its block (B,) int64 and the brakes' gain [N m/Pa] (the net torque
+    channels)."""
 
     bias: np.ndarray
     normal: np.ndarray
     noise_std: np.ndarray
     cursor: np.ndarray
+    brake_gain: float
 
 
 @numba.njit(**JIT)
@@ -197,7 +265,7 @@ def noisy_readings(sensors: SensorKernel, truth: np.ndarray, rows: np.ndarray, v
     each row's cursor: truth, values (M, N_SENSORS), per sensor. Returns SENSED; or, writing
     nothing, the first sensor of a non-finite truth value, or BLOCK_USED_UP when a row's noise
     block is exhausted (refill and call again)."""
-    bias, normal, noise, cursor = sensors
+    bias, normal, noise, cursor, _ = sensors
     for i in range(truth.shape[0]):
         for c in range(truth.shape[1]):
             if not np.isfinite(truth[i, c]):
@@ -220,7 +288,9 @@ class SensorModel:
     generator that is used as is for a single vehicle and spawned into ``batch_size``
     children otherwise), drawn in blocks of :data:`NOISE_BLOCK` samples, so a vehicle's
     readings do not depend on the batch it runs in: a vector env of N cars reproduces N
-    single-car runs bit for bit. :meth:`reset_members` restarts chosen vehicles.
+    single-car runs bit for bit. :meth:`reset_members` restarts chosen vehicles. ``brake_gain``
+    [N m/Pa]: the car's (:attr:`fourwis.envs.vehicle.VehicleParams.brake_gain`), for the net torque
+    channels.
     """
 
     def __init__(
@@ -229,9 +299,13 @@ class SensorModel:
         faults: tuple[Fault, ...],
         batch_size: int,
         rng: np.random.Generator | Sequence[np.random.Generator],
+        brake_gain: float = VehicleParams.brake_gain,
     ):
         if batch_size < 1:
             raise ValueError(f"batch_size must be >= 1, got {batch_size!r}")
+        if not (math.isfinite(brake_gain) and brake_gain >= 0):
+            raise ValueError(f"brake_gain must be a finite number >= 0 [N m/Pa], got {brake_gain!r}")
+        self.brake_gain = float(brake_gain)
         self.params = params
         self.faults = tuple(faults)
         for fault in self.faults:
@@ -254,6 +328,8 @@ class SensorModel:
         if isinstance(rng, np.random.Generator):
             rng = [rng] if batch_size == 1 else rng.spawn(batch_size)
         self.rngs: list[np.random.Generator] = [None] * batch_size  # type: ignore[list-item]
+        #: each vehicle's brake-pressure stream (module docstring)
+        self.brake_rngs: list[np.random.Generator] = [None] * batch_size  # type: ignore[list-item]
         self.reset_members(np.ones(batch_size, dtype=bool), list(rng))
 
     def reset_members(self, mask: np.ndarray, rngs: Sequence[np.random.Generator]) -> None:
@@ -263,28 +339,51 @@ class SensorModel:
         if len(rngs) != len(members):
             raise ValueError(f"need one generator per reset vehicle ({len(members)}), got {len(rngs)}")
         for b, rng in zip(members, rngs):
-            self.rngs[b] = rng
-            self.bias[b] = rng.standard_normal(N_SENSORS) * self._bias_std
+            self.rngs[b], self.brake_rngs[b] = rng, brake_stream(rng)
+            self.bias[b, :S_BRAKE_SENSOR] = rng.standard_normal(S_BRAKE_SENSOR) * self._bias_std[:S_BRAKE_SENSOR]
+            self.bias[b, S_BRAKE_SENSOR:] = (
+                self.brake_rngs[b].standard_normal(N_SENSORS - S_BRAKE_SENSOR) * self._bias_std[S_BRAKE_SENSOR:]
+            )
             self.refill(b)
         self._held[members] = 0.0
         self._is_frozen[:, members] = False
 
     def kernel(self) -> SensorKernel:
         """These sensors as :func:`noisy_readings` takes them (the arrays themselves)."""
-        return SensorKernel(self.bias, self._normal, self._noise, self._cursor)
+        return SensorKernel(self.bias, self._normal, self._noise, self._cursor, self.brake_gain)
 
     def refill(self, b: int) -> None:
         """Draw vehicle b's next block of NOISE_BLOCK samples from its generator."""
         rng = self.rngs[b]
-        self._normal[b] = rng.standard_normal((NOISE_BLOCK, N_SENSORS))
+        self._normal[b, :, :S_BRAKE_SENSOR] = rng.standard_normal((NOISE_BLOCK, S_BRAKE_SENSOR))
         self._uniform[b] = rng.random(self._uniform.shape[1:])
+        self._normal[b, :, S_BRAKE_SENSOR:] = self.brake_rngs[b].standard_normal(
+            (NOISE_BLOCK, N_SENSORS - S_BRAKE_SENSOR)
+        )
         self._cursor[b] = 0
 
     def measure(self, truth: np.ndarray, t: float | np.ndarray, members: np.ndarray | None = None) -> SensorReading:
         """Readings (M, N_CHANNELS) in :data:`CHANNELS` order of the true quantities ``truth``
         (M, N_SENSORS) in :data:`SENSORS` order at time ``t`` [s] (scalar, or (M,) when the
         vehicles' clocks differ) for the vehicles ``members`` (M,) indices (all B vehicles if
-        None). Each vehicle's stream advances by one sample."""
+        None): :meth:`channels` of :meth:`read`. Each vehicle's stream advances by one sample."""
+        return self.channels(self.read(truth, t, members), t)
+
+    def channels(self, sensed: SensorSample, t: float | np.ndarray) -> SensorReading:
+        """The channel layout (:data:`CHANNELS`) of the sensors' readings ``sensed`` (M rows) at
+        time ``t`` [s] (scalar or (M,))."""
+        values, valid = sensed
+        t = np.full(len(values), t, dtype=float) if np.ndim(t) == 0 else np.asarray(t, dtype=float)
+        channels, present = np.empty((len(values), N_CHANNELS)), np.empty((len(values), N_CHANNELS), dtype=bool)
+        _channel_rows(np.ascontiguousarray(values, dtype=float), channels, present, self.brake_gain)
+        present &= valid[:, np.maximum(SENSOR_OF_CHANNEL, 0)]
+        present[:, CH_TORQUE : CH_TORQUE + 4] &= valid[:, S_BRAKE_SENSOR : S_BRAKE_SENSOR + 4]
+        return SensorReading(channels, present, t)
+
+    def read(self, truth: np.ndarray, t: float | np.ndarray, members: np.ndarray | None = None) -> SensorSample:
+        """The sensors' readings (M, N_SENSORS) in :data:`SENSORS` order, with faults, of the true
+        quantities ``truth`` (M, N_SENSORS) at time ``t`` [s] for the vehicles ``members`` (as
+        :meth:`measure`). Each vehicle's stream advances by one sample."""
         rows = member_rows(members, self.batch_size)
         truth = np.ascontiguousarray(truth, dtype=np.float64)
         if truth.shape != (len(rows), N_SENSORS):
@@ -303,8 +402,7 @@ class SensorModel:
         valid = np.ones(truth.shape, dtype=bool)
         if self.faults:  # the fault draws of the sample just taken (the cursor has moved past it)
             self._inject_faults(rows, t, values, valid, self._uniform[rows, self._cursor[rows] - 1])
-        channels = np.where(CHANNEL_PRESENT, values[:, np.maximum(SENSOR_OF_CHANNEL, 0)], np.nan)
-        return SensorReading(channels, valid[:, np.maximum(SENSOR_OF_CHANNEL, 0)] & CHANNEL_PRESENT, t)
+        return SensorSample(values, valid)
 
     def _inject_faults(
         self, rows: np.ndarray, t: np.ndarray, values: np.ndarray, valid: np.ndarray, uniform: np.ndarray

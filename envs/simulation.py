@@ -19,6 +19,8 @@ import numpy as np
 from fourwis.control import StabilityController
 from fourwis.control.allocation import allocation_error
 from fourwis.control.dyc import inputs_row
+from fourwis.control.esc import BrakeESC, outside_stable
+from fourwis.control.wheel_slip import wheel_actuators
 from fourwis.core.checks import check_command, check_controller, check_estimate, check_estimator, is_integer
 from fourwis.core.progress import progress as progress_bar
 from fourwis.core.types import Controller, Estimate, Estimator, SensorReading
@@ -112,7 +114,7 @@ def kernel_parts(loop: ClosedLoop) -> Parts:
     kind = type(controller)  # (a subclass that changes the call but inherits kernel(): Python)
     if controller is None:
         controller_part = NoControl()
-    elif kind is StabilityController:
+    elif kind in (StabilityController, BrakeESC):
         controller_part = controller.kernel(loop.batch_size)
     elif "kernel" in vars(kind) and "__call__" in vars(kind):
         controller_part = controller.kernel()
@@ -127,7 +129,7 @@ def kernel_parts(loop: ClosedLoop) -> Parts:
     sensors = python[Stage.SENSE] if loop.sensors.faults else loop.sensors.kernel()
     steering = loop.steering_drivers.kernel() if loop.steering_drivers.compiled else python[Stage.STEER]
     speed_part = loop.speed_drivers.kernel() if loop.speed_drivers.compiled else python[Stage.SPEED]
-    return Parts(controller_part, plant_part, sensors, estimator_part, steering, speed_part)
+    return Parts(controller_part, plant_part, sensors, estimator_part, steering, speed_part, loop.actuators)
 
 
 class ClosedLoop:
@@ -156,6 +158,7 @@ class ClosedLoop:
         sensor_params: SensorParams | None = None,
         faults: Sequence[Fault] = (),
         dt: float = DT,
+        slip_control: bool = True,
     ):
         try:
             self.scenarios = [scenarios] if isinstance(scenarios, Scenario) else list(scenarios)
@@ -181,6 +184,10 @@ class ClosedLoop:
         self.batch_size = len(self.scenarios)
         self.params = params = self.scenarios[0].vehicle_params
         self._check_params(self.scenarios)
+        if not isinstance(slip_control, (bool, np.bool_)):
+            raise ValueError(f"slip_control must be True or False, got {slip_control!r}")
+        #: the wheels' motors and brakes, with ABS and traction control if ``slip_control``
+        self.actuators = wheel_actuators(params, self.batch_size, dt, abs=bool(slip_control), tcs=bool(slip_control))
         self._labels = (estimator, controller)  # how errors name a user's estimator and controller: as given
         if isinstance(estimator, str) or estimator is None:
             from fourwis.estimation import make_estimator
@@ -217,7 +224,7 @@ class ClosedLoop:
         self._check_estimates = type(estimator) not in (Oracle, StateEstimator)
         self._needs_truth = bool(getattr(estimator, "needs_truth", False))
         B = self.batch_size
-        self.sensors = SensorModel(sensor_params, fault_list, B, rng)
+        self.sensors = SensorModel(sensor_params, fault_list, B, rng, self.params.brake_gain)
         self.steering_drivers = DriverBatch([s.steering for s in self.scenarios])
         self.speed_drivers = DriverBatch([s.speed_driver() for s in self.scenarios])
         state = np.concatenate([s.initial_state() for s in self.scenarios])
@@ -309,10 +316,11 @@ class ClosedLoop:
         self.steering_drivers.replace(members, [s.steering for s in scenarios])
         self.speed_drivers.replace(members, [s.speed_driver() for s in scenarios])
         self.sensors.reset_members(mask, rngs)
-        if isinstance(self.controller, StabilityController):
+        if isinstance(self.controller, (StabilityController, BrakeESC)):
             self.controller.reset(mask)
         self.cars.k[members] = 0
         self._sample.t[members] = 0.0
+        self.actuators.reference[members] = 0.0
         self.cars.fresh[members] = True
         self.cars.stage[members] = Stage.SENSE
         self._update_road()
@@ -488,9 +496,10 @@ def _held_action_inputs(action: HeldAction, sample: Sample, b: int):
 
     e, row = sample.estimate, slice(b, b + 1)
     rear = action.action[row, 1] * action.max_rear_steer if action.action.shape[1] == 2 else np.zeros(1)
+    first = outside_stable(action.esc.settings, _rows(e, np.array([b])), sample.front_steer[row])
     return AllocationInputs(
         sample.base_torques[row], action.action[row, 0] * action.max_yaw_moment, e.fz[row], e.mu[row],
-        np.zeros((1, 4)), e.u[row], sample.front_steer[row], rear,
+        np.zeros((1, 4)), e.u[row], sample.front_steer[row], rear, first,
     )  # fmt: skip
 
 
@@ -544,6 +553,7 @@ def simulate(
     faults: Sequence[Fault] = (),
     dt: float = DT,
     progress: bool = False,
+    slip_control: bool = True,
 ) -> Trajectory:
     """Run ``scenario`` once; returns the :class:`Trajectory`.
 
@@ -552,7 +562,8 @@ def simulate(
     :func:`estimation.make_estimator`, or None (the oracle: the controller sees the truth).
     ``seed`` seeds the sensor noise and faults. ``dt`` [s] at most :data:`envs.vehicle.MAX_DT`
     (10 ms); the sensors sample once per step, so another ``dt`` than 2 ms needs
-    ``SensorParams(sample_time=dt)``. With fourwis's own estimators and controllers (or none),
+    ``SensorParams(sample_time=dt)``. ``slip_control`` switches ABS and traction control
+    (:mod:`fourwis.control.wheel_slip`). With fourwis's own estimators and controllers (or none),
     no sensor faults and a table friction map, every stage runs compiled (:mod:`fourwis.envs.loop`).
     """
     if isinstance(scenario, str):
@@ -561,7 +572,9 @@ def simulate(
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
     if not isinstance(progress, (bool, np.bool_)):
         raise ValueError(f"progress must be True or False, got {progress!r}")
-    loop = ClosedLoop(scenario, controller, estimator, np.random.default_rng(seed), sensor_params, faults, dt)
+    loop = ClosedLoop(
+        scenario, controller, estimator, np.random.default_rng(seed), sensor_params, faults, dt, slip_control
+    )
     n = int(math.ceil(scenario.duration / dt - 1e-9))
     chunks = []
     with progress_bar(n + 1, scenario.name, "step", disable=not progress, mininterval=0.5) as bar:

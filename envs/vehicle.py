@@ -32,6 +32,15 @@ estimator's 3-DOF Dugoff model (no "inverse crime"):
   neither pitches the car nor pushes it sideways when it slides: at 100 km/h the pitch
   moment left out shifts ~90 N, 2% of an axle's load, from front to rear);
 * four in-wheel motors: first-order torque lag, peak torque and peak power limits;
+* four hydraulic friction brakes: calliper pressure follows its command (clipped to
+  [0, ``brake_max_pressure``]) through a first-order lag and a rate limit; the pressure times
+  ``brake_gain`` is the largest friction torque the brake can exert. The friction torque opposes
+  the wheel's spin and can lock it: it is whatever torque would bring the wheel to rest within
+  ``brake_lock_time_constant`` (the other torques cancelled), limited to that capacity. Spinning,
+  the limit binds and the brake exerts its full capacity against the spin (sliding friction); near
+  standstill it holds the wheel (static friction) with a decay of 1 / ``brake_lock_time_constant``
+  that RK4 integrates like any other lag, so a locked wheel neither chatters nor flips its torque's
+  sign from one substep to the next (docs/decisions/0038-friction-brakes-and-wheel-lock.md);
 * front and rear steering servos with angle and rate limits; the paper's proportional
   4WS law (eq. 20) as a switchable rear-steer feed-forward.
 
@@ -65,12 +74,14 @@ from fourwis.envs.layout import (
     A_ALPHA,
     A_AX,
     A_AY,
+    A_BRAKE_TORQUE,
     A_FX,
     A_FY,
     A_FZ,
     A_KAPPA,
     A_MU,
     A_USAGE,
+    C_BRAKE,
     C_DELTA_F,
     C_DELTA_R,
     C_TORQUE,
@@ -80,6 +91,7 @@ from fourwis.envs.layout import (
     NX,
     S_AX,
     S_AY,
+    S_BRAKE,
     S_DEFL_X,
     S_DEFL_Y,
     S_DELTA_F,
@@ -99,8 +111,15 @@ from fourwis.envs.tyre import TyreCoefficients, TyreParams, combined_forces, rel
 #: VehicleParams fields that may be 0 (switching off a resistance or the low-speed damping);
 #: every other number must be > 0
 MAY_BE_ZERO = ("rolling_resistance", "drag_area", "air_density", "low_speed_damping")
-#: the plant's first-order lags: motors, steering servos, load transfer
-LAG_FIELDS = ("motor_time_constant", "steer_time_constant", "load_transfer_time_constant")
+#: the plant's first-order lags: motors, steering servos, load transfer, brake pressure, a locked
+#: wheel's hold
+LAG_FIELDS = (
+    "motor_time_constant",
+    "steer_time_constant",
+    "load_transfer_time_constant",
+    "brake_time_constant",
+    "brake_lock_time_constant",
+)
 
 
 @dataclass(frozen=True)
@@ -124,7 +143,7 @@ class VehicleParams:
     #: mu*Fz*R ~ 566 N m per wheel for this car, the motors are sized just above it. Under hard
     #: braking the front wheels carry more (~750 N m at 0.8 g), so with the power limit the
     #: motors brake the car at most ~0.80 g on a dry road below 10 m/s, 0.57 g at 80 km/h and
-    #: 0.47 g at 100 km/h (on mu 0.5, ~mu g up to ~80 km/h); there are no friction brakes.
+    #: 0.47 g at 100 km/h (on mu 0.5, ~mu g up to ~80 km/h); beyond that the friction brakes work.
     motor_peak_torque: float = 600.0
     motor_peak_power: float = 25.0e3  #: per-motor peak power [W] (caps torque above ~42 rad/s)
     motor_time_constant: float = 0.010  #: torque response lag [s] (in-wheel motors: 5-20 ms)
@@ -135,6 +154,22 @@ class VehicleParams:
     max_rear_steer: float = math.radians(5.0)  #: rear road-wheel angle limit [rad] (active rear steer: 3-10 deg)
     rear_steer_rate: float = 0.5  #: rear steer rate limit [rad/s]
     steer_time_constant: float = 0.010  #: steering servo position lag [s]
+    #: friction brake torque per calliper pressure [N m/Pa]: 2 pads x pad friction 0.38 x piston
+    #: area 2.29e-3 m^2 (54 mm piston) x effective radius 0.105 m = 1.83e-4 N m/Pa (18 N m/bar),
+    #: a small car's floating calliper (Breuer & Bill, Brake Technology Handbook, SAE 2008: pad
+    #: friction 0.35-0.45, 14-15" discs)
+    brake_gain: float = 1.83e-4
+    #: largest calliper pressure [Pa] (120 bar; passenger hydraulics work up to ~100-180 bar): with
+    #: brake_gain 2,200 N m per wheel, above the ~830 N m that locks a front wheel at 1 g on dry road
+    brake_max_pressure: float = 1.2e7
+    #: calliper pressure lag [s] and rate limit [Pa/s] (1,500 bar/s): an ESC/ABS hydraulic unit's
+    #: valves build and dump pressure at ~1,000-2,000 bar/s (Bosch, Automotive Handbook, ESP)
+    brake_time_constant: float = 0.020
+    brake_pressure_rate: float = 1.5e8
+    #: time [s] in which a brake that can hold a wheel brings it to rest (the stick phase of the
+    #: brake's Coulomb friction, regularised so that RK4 integrates it: 2.5 steps of 2 ms; a wheel
+    #: locks from 1 rad/s within ~15 ms)
+    brake_lock_time_constant: float = 0.005
     #: rolling resistance coefficient [-] (QSY1 of the tyre's .tir file)
     rolling_resistance: float = 0.01
     drag_area: float = 0.60  #: Cd * A [m^2] (Cd 0.32, A 1.9 m^2: small hatchback)
@@ -210,6 +245,11 @@ class VehicleParams:
         return float(c[0] + c[1]), float(c[2] + c[3])
 
     @property
+    def brake_peak_torque(self) -> float:
+        """Largest friction brake torque per wheel [N m]: brake_gain x brake_max_pressure."""
+        return self.brake_gain * self.brake_max_pressure
+
+    @property
     def front_extent(self) -> float:
         """Body length ahead of the CG [m] (to the front bumper)."""
         return self.cg_to_front + self.front_overhang
@@ -262,6 +302,11 @@ class VehicleParams:
             "max_rear_steer": self.max_rear_steer,
             "rear_steer_rate": self.rear_steer_rate,
             "steer_time_constant": self.steer_time_constant,
+            "brake_gain": self.brake_gain,
+            "brake_max_pressure": self.brake_max_pressure,
+            "brake_time_constant": self.brake_time_constant,
+            "brake_pressure_rate": self.brake_pressure_rate,
+            "brake_lock_time_constant": self.brake_lock_time_constant,
             "rolling_resistance": self.rolling_resistance,
             "drag_area": self.drag_area,
             "air_density": self.air_density,
@@ -297,6 +342,11 @@ PARAM_NAMES = (
     "max_rear_steer",
     "rear_steer_rate",
     "steer_time_constant",
+    "brake_gain",
+    "brake_max_pressure",
+    "brake_time_constant",
+    "brake_pressure_rate",
+    "brake_lock_time_constant",
     "rolling_resistance",
     "drag_area",
     "air_density",
@@ -344,6 +394,8 @@ LANES = 4 * BLOCK  #: wheel lanes per block: 64, eight AVX-512 registers' worth
     L_MU,
     L_TORQUE,
     L_TCMD,
+    L_BRAKE,
+    L_BCMD,
     L_WX,
     L_WY,
     L_FZ_STATIC,
@@ -353,6 +405,8 @@ LANES = 4 * BLOCK  #: wheel lanes per block: 64, eight AVX-512 registers' worth
     O_DDEFL_Y,
     O_DOMEGA,
     O_DTORQUE,
+    O_DBRAKE,
+    O_BRAKE_TORQUE,
     O_FXB,
     O_FYB,
     O_MZ,
@@ -373,8 +427,8 @@ LANES = 4 * BLOCK  #: wheel lanes per block: 64, eight AVX-512 registers' worth
     O_TAN_ALPHA,
     O_SCALE_X,
     O_SCALE_Y,
-) = (k * LANES for k in range(42))
-N_LANE_ROWS = 42  # L_*: inputs gathered per car; O_*: outputs (O_CAR_AX/AY: the car's accelerations, in its first lane)
+) = (k * LANES for k in range(46))
+N_LANE_ROWS = 46  # L_*: inputs gathered per car; O_*: outputs (O_CAR_AX/AY: the car's accelerations, in its first lane)
 
 
 @numba.njit(**JIT)
@@ -435,7 +489,7 @@ def _slip_lanes(p, tp, lanes, n_lanes):
 
 @numba.njit(**JIT)
 def _wheel_lanes(p, lanes, n_lanes):
-    """Per lane, after the tyre forces: low-speed damping, slip, wheel-spin and motor
+    """Per lane, after the tyre forces: low-speed damping, slip, wheel-spin, motor and brake
     derivatives, body-frame forces and yaw moment, diagnostics."""
     # parameters read before the loop: a load inside a conditional would stop if-conversion
     rw, jw, v_low, damping_per_load = (
@@ -445,6 +499,13 @@ def _wheel_lanes(p, lanes, n_lanes):
         p.low_speed_damping / p.reference_wheel_load,
     )
     rolling, t_max, p_max, tau_m = p.rolling_resistance, p.motor_peak_torque, p.motor_peak_power, p.motor_time_constant
+    gain, pb_max, tau_b, pb_rate, tau_lock = (
+        p.brake_gain,
+        p.brake_max_pressure,
+        p.brake_time_constant,
+        p.brake_pressure_rate,
+        p.brake_lock_time_constant,
+    )
     for lane in range(n_lanes):
         u = lanes[L_U + lane]
         v = lanes[L_V + lane]
@@ -465,11 +526,20 @@ def _wheel_lanes(p, lanes, n_lanes):
         fyw = lanes[O_FY + lane] - damping * vcy
         lanes[O_DDEFL_X + lane] = slip_velocity - abs(vcx) * kappa
         lanes[O_DDEFL_Y + lane] = vcy - abs(vcx) * tan_alpha
-        # wheel spin: motor torque, tyre force, rolling resistance (smoothed sign)
+        # wheel spin: motor torque, tyre force, rolling resistance (smoothed sign), brake friction
         wheel_speed = rw * omega
         m_roll = rw * rolling * fz * wheel_speed / vecmath.sqrt(wheel_speed * wheel_speed + 0.0025)
         torque = lanes[L_TORQUE + lane]
-        lanes[O_DOMEGA + lane] = (torque - rw * fxw - m_roll) / jw
+        unbraked = torque - rw * fxw - m_roll
+        # the brake's friction torque (positive against forward spin): what stops the wheel within
+        # tau_lock, up to the calliper's capacity (module docstring)
+        capacity = gain * max(lanes[L_BRAKE + lane], 0.0)
+        brake = min(max(unbraked + jw * omega / tau_lock, -capacity), capacity)
+        lanes[O_DOMEGA + lane] = (unbraked - brake) / jw
+        lanes[O_BRAKE_TORQUE + lane] = brake
+        pressure_cmd = min(max(lanes[L_BCMD + lane], 0.0), pb_max)
+        pressure_rate = (pressure_cmd - lanes[L_BRAKE + lane]) / tau_b
+        lanes[O_DBRAKE + lane] = min(max(pressure_rate, -pb_rate), pb_rate)
         # motor: first-order lag towards the torque/power-limited command
         t_lim = min(t_max, p_max / max(abs(omega), 1e-6))
         t_cmd = min(max(lanes[L_TCMD + lane], -t_lim), t_lim)
@@ -528,6 +598,8 @@ def _derivative_block(x, ctrl, mu, p, tp, dx, lanes):
         lanes[L_MU + lane] = mu[c, i]
         lanes[L_TORQUE + lane] = x[c, S_TORQUE + i]
         lanes[L_TCMD + lane] = ctrl[c, C_TORQUE + i]
+        lanes[L_BRAKE + lane] = x[c, S_BRAKE + i]
+        lanes[L_BCMD + lane] = ctrl[c, C_BRAKE + i]
     _tyre_lanes(p, tp, lanes, n_lanes)
     m, iz, a, b = p.mass, p.yaw_inertia, p.cg_to_front, p.cg_to_rear
     for c in range(n_cars):
@@ -543,6 +615,7 @@ def _derivative_block(x, ctrl, mu, p, tp, dx, lanes):
             dx[c, S_DEFL_Y + i] = lanes[O_DDEFL_Y + lane]
             dx[c, S_OMEGA + i] = lanes[O_DOMEGA + lane]
             dx[c, S_TORQUE + i] = lanes[O_DTORQUE + lane]
+            dx[c, S_BRAKE + i] = lanes[O_DBRAKE + lane]
         u, v, r = x[c, S_U], x[c, S_V], x[c, S_R]
         drag = 0.5 * p.air_density * p.drag_area * u * abs(u)
         ax = (fx_sum - drag) / m
@@ -586,6 +659,7 @@ def _fill_aux(mu, lanes, aux):
             aux[c, A_ALPHA + i] = lanes[O_ALPHA + lane]
             aux[c, A_MU + i] = mu[c, i]
             aux[c, A_USAGE + i] = lanes[O_USAGE + lane]
+            aux[c, A_BRAKE_TORQUE + i] = lanes[O_BRAKE_TORQUE + lane]
 
 
 @numba.njit(**JIT)

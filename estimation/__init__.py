@@ -51,7 +51,7 @@ def make_estimator(
     params,
     dt: float = 0.002,
     noise: NoiseParams | None = None,
-    tyre_relaxation: bool = False,
+    tyre_relaxation: bool | None = None,
     tyres: tuple[AxleTyre, AxleTyre] | None = None,
     **kwargs,
 ):
@@ -63,7 +63,10 @@ def make_estimator(
     overrides it. ``<name>+true-<group>[-<group>...]`` (e.g. ``joint+true-mu``) reports the
     truth for those groups (:class:`PartialOracle`, :data:`TRUTH_GROUPS`): which estimated
     quantity a closed-loop loss comes from. ``tyre_relaxation``: the model's slip angles lag by
-    the tyres' relaxation length (:meth:`ModelParams.from_vehicle`; off: the paper's model).
+    the tyres' relaxation length (:meth:`ModelParams.from_vehicle`; off: the paper's model); None:
+    on for ``joint`` where its tyres have one (fourwis's own do; a vehicle file's only if it gives
+    one), off for the others. ``joint``'s tyres take the Magic Formula shape
+    (``ModelParams.from_vehicle(..., shape="magic")``; docs/decisions/0045).
     ``tyres``: the model's (front, rear) :class:`AxleTyre` (another car's, e.g. from a vehicle
     file: fourwis.training.vehicle_file); default: both axles the fit of fourwis's own tyre.
     The baselines take ``nominal_mu`` (and ``baseline-kf`` the ``noise``) only.
@@ -77,12 +80,12 @@ def make_estimator(
     check_vehicle_params(params)
     if noise is not None and not isinstance(noise, NoiseParams):
         raise ValueError(f"noise must be an estimation.NoiseParams or None, got {noise!r}")
-    if not isinstance(tyre_relaxation, bool):
-        raise ValueError(f"tyre_relaxation must be True or False, got {tyre_relaxation!r}")
+    if tyre_relaxation is not None and not isinstance(tyre_relaxation, bool):
+        raise ValueError(f"tyre_relaxation must be True, False or None (the kind's default), got {tyre_relaxation!r}")
     if groups:
         return PartialOracle(make_estimator(base, params, dt, noise, tyre_relaxation, tyres, **kwargs), groups)
     # (options only the model filters take)
-    extra = sorted(kwargs) + ["tyre_relaxation"] * tyre_relaxation + ["tyres"] * (tyres is not None)
+    extra = sorted(kwargs) + ["tyre_relaxation"] * bool(tyre_relaxation) + ["tyres"] * (tyres is not None)
     if ":" in base:
         if noise is not None or extra:
             raise ValueError(
@@ -98,7 +101,7 @@ def make_estimator(
             raise ValueError(f"the oracle takes no noise or keyword arguments, got {extra or ['noise']}")
         return Oracle()
     if base in BASELINES:
-        unknown = sorted(set(kwargs) - {"nominal_mu"}) + ["tyre_relaxation"] * tyre_relaxation
+        unknown = sorted(set(kwargs) - {"nominal_mu"}) + ["tyre_relaxation"] * bool(tyre_relaxation)
         if unknown:
             raise ValueError(f"the baseline {name!r} takes nominal_mu (and tyres) only, got {unknown}")
         model = ModelParams.from_vehicle(params, tyres=tyres)
@@ -111,14 +114,24 @@ def make_estimator(
         )
     if noise is None:
         noise = (tuned_noise() if name in TUNED_KINDS else None) or NoiseParams()
-    # (joint: the combined slip from the measured longitudinal force, docs/decisions/0034)
-    model = ModelParams.from_vehicle(params, relaxation=tyre_relaxation, tyres=tyres, force_ellipse=name == "joint")
+    if tyre_relaxation is None:  # (joint: on where the tyres have a relaxation length, docs/decisions/0045)
+        tyre_relaxation = name == "joint" and (tyres is None or all(t.relaxation_length > 0 for t in tyres))
+    # (joint: the combined slip from the measured longitudinal force, docs/decisions/0034, and the
+    # Magic Formula's lateral shape, docs/decisions/0045)
+    model = ModelParams.from_vehicle(
+        params,
+        relaxation=tyre_relaxation,
+        tyres=tyres,
+        force_ellipse=name == "joint",
+        shape="magic" if name == "joint" else "dugoff",
+    )
     return StateEstimator(model, kind=name, dt=dt, noise=noise, **kwargs)
 
 
 def relaxed_joint(params, dt: float = 0.002):
     """The joint estimator with the tyre relaxation in its model (``make_estimator("joint", params,
-    dt, tyre_relaxation=True)``), as a factory, so that a name reaches it wherever names go:
+    dt, tyre_relaxation=True)``; the joint estimator's default since docs/decisions/0045, kept for
+    the names that use it), as a factory, so that a name reaches it wherever names go:
     ``fourwis compare --estimators joint fourwis.estimation:relaxed_joint``, ``gym.make(...,
     estimator="fourwis.estimation:relaxed_joint")``."""
     return make_estimator("joint", params, dt, tyre_relaxation=True)

@@ -152,7 +152,7 @@ def predicted_moments(moved: np.ndarray, Q: np.ndarray, x_out: np.ndarray, P_out
 
 
 @numba.njit(**JIT)
-def measurement_update(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nu, S, weights) -> float:
+def measurement_update(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nu, S, weights, z_centre=None) -> float:
     """Measurement update of one filter from its cubature points (K, n) of (x, P) and their
     predicted measurements Z (K, m); returns the innovation negative log-likelihood (NaN if
     the innovation covariance is not positive definite).
@@ -162,7 +162,14 @@ def measurement_update(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nu, 
     and the Huber weights (m,). Robust (finite ``huber_c``): standardised innovations
     r_i = nu_i / sqrt(S_ii) give Huber weights w_i = min(1, c / |r_i|) (eq. 27); the noise is
     inflated to R_ij / sqrt(w_i w_j) (the equivalent-weight form R_bar = P_bar^-1 of eq. 28-29;
-    the paper's printed indices slip) and the update redone."""
+    the paper's printed indices slip) and the update redone.
+
+    ``z_centre`` (m,), where given: the model's measurement at the mean x itself, which the
+    innovation takes instead of the points' mean (their spread still gives S and the gain).
+    Where the model is curved and the update repeats on the same information, the points' mean
+    sits off the model at x by the curvature times P / 2 every step, and the update walks the
+    state along it (the friction filter's climb in a steady turn,
+    docs/decisions/0045-friction-and-sideslip-consistency.md)."""
     K, n = points.shape
     m = z.shape[0]
     z_mean = scratch((m,))
@@ -187,7 +194,10 @@ def measurement_update(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nu, 
                 t += (points[k, i] - x[i]) * (Z[k, j] - z_mean[j])
             Pxz[i, j] = t / K
     Rv = scratch((m, m))
-    m_valid = innovation(z, z_mean, valid, R, nu, Rv)
+    if z_centre is None:
+        m_valid = innovation(z, z_mean, valid, R, nu, Rv)
+    else:
+        m_valid = innovation(z, z_centre, valid, R, nu, Rv)
     weights[:] = 1.0
     if huber_c < math.inf:
         for i in range(m):
@@ -265,6 +275,30 @@ def innovation_nll(L: np.ndarray, nu: np.ndarray, m_valid: int) -> float:
         maha += white[i] * white[i]
     log_det -= math.log(DROPOUT_VARIANCE) * (m - m_valid)
     return 0.5 * (maha + log_det + m_valid * math.log(2.0 * math.pi))
+
+
+@numba.njit(**JIT)
+def normalised_innovation(nu: np.ndarray, S: np.ndarray, valid: np.ndarray) -> tuple[float, int]:
+    """(NIS, valid channels): nu^T S^-1 nu of the innovation nu (m,) with covariance S (m, m)
+    over the channels that are ``valid`` (m,) (the others carry the dropout variance and nu = 0,
+    so they add nothing), and how many those are; (NaN, 0) if S is not positive definite. A
+    consistent filter's NIS follows chi-square with that many degrees of freedom."""
+    m = nu.shape[0]
+    L = scratch((m, m))
+    if not cholesky(S, L):
+        return math.nan, 0
+    white = scratch((m,))
+    nis = 0.0
+    for i in range(m):
+        t = nu[i]
+        for k in range(i):
+            t -= L[i, k] * white[k]
+        white[i] = t / L[i, i]
+        nis += white[i] * white[i]
+    count = 0
+    for i in range(m):
+        count += 1 if valid[i] else 0
+    return nis, count
 
 
 # ---- batched entry points from Python ----------------------------------------------------

@@ -96,6 +96,7 @@ from fourwis.estimation.ckf import (
     innovation,
     innovation_nll,
     measurement_update,
+    normalised_innovation,
     predicted_moments,
 )
 from fourwis.estimation.federated import fuse, sharing_coefficients
@@ -337,10 +338,43 @@ YAW_BALANCE_STD = 45.0
 #: random-torque case, and keeps a dry road in a 0.4 g turn from reading as an icy one
 #: (docs/decisions/0034-combined-slip-from-the-measured-force.md). math.inf: off.
 GRIP_FLOOR_TIME_CONSTANT = 0.1
+#: The consider term of the sideslip's standard deviation (``joint``, ``consider_std``): the
+#: relative error of each axle's modelled lateral force, which the filter's covariance leaves out
+#: (it takes the tyre model as exact), propagated to v with mu's own uncertainty
+#: (:func:`_considered_v_var`; docs/decisions/0045-friction-and-sideslip-consistency.md). math.inf is
+#: not allowed; 0: off (the filter's covariance alone).
+CONSIDER_FORCE_STD = 0.05
+#: the kinds whose sideslip sigma carries the consider term (alo-fkf and joint-paper: the paper's, as they were)
+CONSIDER_KINDS = ("ekf", "ckf", "fkf", "joint")
+#: Covariance matching of the wheel-speed pseudo-measurements (``joint``, ``adaptive_time_constant``):
+#: their zero-slip model is off by the tyres' longitudinal slip, which drive torques, load transfer
+#: and a wheel spinning up make persistent and far above the tuned noise; their noise variance
+#: is scaled, wheel by wheel, by the low-passed (this time constant [s]) square of its
+#: standardised innovation where it exceeds 1 (Mehra, "Approaches to adaptive filtering", IEEE TAC 17(5),
+#: 1972). The inertial channels are left alone: their model error is absorbed by the state, so
+#: their innovations stay small while the model is wrong, and scaling them diverged on a real log
+#: (docs/decisions/0045-friction-and-sideslip-consistency.md). math.inf: off.
+ADAPTIVE_TIME_CONSTANT = 0.5
+ADAPTIVE_KINDS = ("joint",)  #: the kinds with the wheel speeds' covariance matching
+CONSIDER_V_STEP = 1e-3  #: the finite-difference step of v [m/s per m/s of u]
+CONSIDER_MAX_V_STD = 0.35  #: the consider term's cap [m/s per m/s of u]: about 20 deg of sideslip
 #: columns of the zero-point state: learnt ay offset [m/s^2], steady time [s], steering angle
 #: the steady time counts from [rad], low-passed yaw rate [rad/s], low-passed kinematic
 #: sideslip rate ay / u - r [rad/s] (SLIDE_TAU)
 ZP_OFFSET, ZP_STEADY, ZP_STEER, ZP_YAW, ZP_SLIDE = range(5)
+#: the measurement updates of a step whose NIS the filter state keeps (FilterState.nis): the state
+#: filter's sub-filter 1 (or its single filter), sub-filter 2, and the friction filter's two
+UPDATES = ("state 1", "state 2", "friction 1", "friction 2")
+#: the innovations a step keeps (FilterState.innovation), update by update: state sub-filter 1 (or
+#: the single filter) [ax, ay, r, four wheel-centre speeds], state sub-filter 2 [ay, r, Gamma (the
+#: yaw balance)], friction sub-filter 1 [ax, ay, r], friction sub-filter 2 [ay, r]
+INNOVATIONS = (
+    *("state 1 " + c for c in ("ax", "ay", "r", "wheel FL", "wheel FR", "wheel RL", "wheel RR")),
+    *("state 2 " + c for c in ("ay", "r", "Gamma")),
+    *("friction 1 " + c for c in ("ax", "ay", "r")),
+    *("friction 2 " + c for c in ("ay", "r")),
+)
+N_INNOVATIONS = len(INNOVATIONS)
 
 
 # ---- the compiled step's bundles -----------------------------------------------------------
@@ -356,6 +390,13 @@ class FilterSettings(NamedTuple):
     slide_detection: bool  #: a slide in a steady turn opens the friction gate (slide_rate)
     friction_gate: bool  #: mu is updated only while a tyre's lateral demand makes it observable
     grip_floor: bool  #: mu kept at or above the measured acceleration's (grip_floor_time_constant)
+    #: the friction filter's innovation against the model at mu_hat, not its points' mean
+    centred_friction: bool
+    steady_hold: bool  #: mu held in steady driving, where it is unobservable (steady_hold)
+    held_covariance: bool  #: a held mu's covariance takes no update either (HELD_COVARIANCE)
+    consider_std: float  #: the sideslip's consider term, each axle's relative force error (0: off)
+    adaptive: bool  #: the wheel speeds' noise follows their innovations (adaptive_time_constant)
+    adaptive_time_constant: float  #: [s]
     dt: float  #: [s]
     huber_c: float
     zero_point_time_constant: float  #: [s] (inf: no learning)
@@ -384,8 +425,13 @@ class FilterState(NamedTuple):
     the previous wheel speeds and their low-passed derivative (B, 4), the previous readings of
     the measured channels (HELD_CHANNELS) and how often each repeated (B, 8), the
     zero-point state (B, 5: ZP_*), the latest innovation NLL (B,), the relaxed slip of each tyre
-    (B, 4; NaN: not started), the time of the previous reading (B,) [s] (NaN: none) and the
-    low-passed measured horizontal acceleration of the grip floor (B,) [m/s^2]."""
+    (B, 4; NaN: not started), the time of the previous reading (B,) [s] (NaN: none), the
+    low-passed measured horizontal acceleration of the grip floor (B,) [m/s^2], and the last
+    step's innovations and their standard deviations (B, N_INNOVATIONS: INNOVATIONS; NaN where a
+    channel had no valid reading or an update did not run) and each update's NIS and its valid
+    channel count (B, 4: UPDATES; NaN and 0 where it did not run), for the consistency reports;
+    the low-passed squared standardised innovation of each wheel speed (B, 4)
+    (ADAPTIVE_TIME_CONSTANT) and the consider term's variance of v (B,) [m^2/s^2] (CONSIDER_*)."""
 
     x: np.ndarray
     P: np.ndarray
@@ -402,6 +448,12 @@ class FilterState(NamedTuple):
     slip_relaxed: np.ndarray
     t_prev: np.ndarray
     grip_accel: np.ndarray
+    innovation: np.ndarray
+    innovation_std: np.ndarray
+    nis: np.ndarray
+    nis_dof: np.ndarray
+    wheel_nis: np.ndarray
+    consider_var: np.ndarray
 
 
 class FilterKernel(NamedTuple):
@@ -538,24 +590,57 @@ def _ckf_predict(x, P, Q, model, args, x_out, P_out) -> bool:
 
 
 @numba.njit(**JIT)
-def _ckf_update(x, P, z, valid, R, huber_c, model, args, x_out, P_out) -> float:
-    """CKF measurement update through ``model``; returns the innovation NLL (NaN on failure)."""
+def _ckf_update(x, P, z, valid, R, huber_c, model, args, x_out, P_out, nu, S, centred=False) -> float:
+    """CKF measurement update through ``model``; returns the innovation NLL (NaN on failure) and
+    writes the innovation nu (m,) and its covariance S (m, m). ``centred``: the innovation
+    against the model at x itself (:func:`measurement_update`'s ``z_centre``), not the points'
+    mean."""
     n, m = x.shape[0], z.shape[0]
-    points, Z = scratch((2 * n, n)), scratch((2 * n, m))
-    if not cubature_points(x, P, points):
+    if not centred:
+        points, Z = scratch((2 * n, n)), scratch((2 * n, m))
+        if not cubature_points(x, P, points):
+            return math.nan
+        _evaluate(model, points, Z, args)
+        return measurement_update(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nu, S, scratch((m,)))
+    points, Z = scratch((2 * n + 1, n)), scratch((2 * n + 1, m))
+    if not cubature_points(x, P, points[: 2 * n]):
         return math.nan
+    points[2 * n] = x
     _evaluate(model, points, Z, args)
     return measurement_update(
-        x, P, points, Z, z, valid, R, huber_c, x_out, P_out, scratch((m,)), scratch((m, m)), scratch((m,))
+        x, P, points[: 2 * n], Z[: 2 * n], z, valid, R, huber_c, x_out, P_out, nu, S, scratch((m,)), Z[2 * n]
     )
 
 
 @numba.njit(**JIT)
 def _federated(
-    x, P, Q, beta, f_model, z1, valid1, R1, h1_model, z2, valid2, R2, h2_model, huber_c, args, x_out, P_out, beta_out
+    x,
+    P,
+    Q,
+    beta,
+    f_model,
+    z1,
+    valid1,
+    R1,
+    h1_model,
+    z2,
+    valid2,
+    R2,
+    h2_model,
+    huber_c,
+    args,
+    x_out,
+    P_out,
+    beta_out,
+    nu1,
+    S1,
+    nu2,
+    S2,
+    centred=False,
 ) -> float:
     """One federated cycle (estimation/federated.py) with two sub-filters; returns the summed
-    innovation NLL (NaN on failure)."""
+    innovation NLL (NaN on failure) and writes each sub-filter's innovation and its covariance
+    (nu1, S1, nu2, S2). ``centred``: see :func:`_ckf_update`."""
     n = x.shape[0]
     xs, Ps = scratch((2, n)), scratch((2, n, n))
     x_pred, P_pred = scratch((n,)), scratch((n, n))
@@ -568,9 +653,9 @@ def _federated(
         if not _ckf_predict(x, P_shared, Q_shared, f_model, args, x_pred, P_pred):
             return math.nan
         if s == 0:
-            nll = _ckf_update(x_pred, P_pred, z1, valid1, R1, huber_c, h1_model, args, xs[0], Ps[0])
+            nll = _ckf_update(x_pred, P_pred, z1, valid1, R1, huber_c, h1_model, args, xs[0], Ps[0], nu1, S1, centred)
         else:
-            nll = _ckf_update(x_pred, P_pred, z2, valid2, R2, huber_c, h2_model, args, xs[1], Ps[1])
+            nll = _ckf_update(x_pred, P_pred, z2, valid2, R2, huber_c, h2_model, args, xs[1], Ps[1], nu2, S2, centred)
         if not math.isfinite(nll):
             return math.nan
         total += nll
@@ -608,9 +693,10 @@ def _finite_difference_jacobian(model, x, eps, centre, J, args) -> None:
 
 
 @numba.njit(**JIT)
-def _ekf_step(x, P, Q, z, valid, R, args, x_out, P_out) -> float:
+def _ekf_step(x, P, Q, z, valid, R, args, x_out, P_out, nu, S) -> float:
     """EKF on the same model (central-difference Jacobians, Joseph-form update); returns the
-    innovation negative log-likelihood, as the CKF's update (NaN if S is not positive definite)."""
+    innovation negative log-likelihood, as the CKF's update (NaN if S is not positive definite),
+    and writes the innovation nu (m,) and its covariance S (m, m)."""
     n, m = x.shape[0], z.shape[0]
     eps = scratch((n,))
     for k in range(n):
@@ -622,9 +708,9 @@ def _ekf_step(x, P, Q, z, valid, R, args, x_out, P_out) -> float:
     P_pred += Q
     z_pred, H = scratch((m,)), scratch((m, n))
     _finite_difference_jacobian(STATE_1, x_pred, eps, z_pred, H, args)
-    Rv, nu = scratch((m, m)), scratch((m,))
+    Rv = scratch((m, m))
     m_valid = innovation(z, z_pred, valid, R, nu, Rv)
-    PHt, S, L = scratch((n, m)), scratch((m, m)), scratch((m, m))
+    PHt, L = scratch((n, m)), scratch((m, m))
     matmul(P_pred, H.T, PHt)
     matmul(H, PHt, S)
     S += Rv
@@ -754,6 +840,50 @@ def _speed_update(x, P, z: float, variance: float, huber_c: float) -> float:
 
 
 @numba.njit(**JIT)
+def _considered_v_var(x, mu, P_mu, steer, omega, torque, omega_dot, pk, force_std: float) -> float:
+    """The variance [m^2/s^2] that the model's error adds to the lateral speed v of the estimate x
+    (6,): a consider term (Schmidt) for the tyre-force parameters the filter takes as exact. The
+    filter finds v where the model's lateral acceleration ay(v) meets the measured one, so an
+    error d ay of the model moves v by d ay / (d ay / d v); the model's error is each axle's force
+    off by ``force_std`` of itself (std, relative; the axles' errors independent: (force_std
+    ay)^2 / 2 for a car whose axles carry half each) and mu off by its standard deviation
+    (the four wheels together, sqrt of P_mu's mean). Near the peak d ay / d v falls to zero and
+    the term grows (capped at CONSIDER_MAX_V_STD): there the sensors no longer tell v."""
+    state, mus, out = scratch((5, 5)), scratch((4, 5)), scratch((3, 5))
+    h = CONSIDER_V_STEP * max(abs(x[I_U]), MIN_SPEED)
+    sigma_mu = math.sqrt(max((P_mu[0, 0] + P_mu[1, 1] + P_mu[2, 2] + P_mu[3, 3]) / 4.0, 0.0))
+    for k in range(5):
+        state[0, k], state[1, k], state[2, k], state[3, k], state[4, k] = x[I_U], x[I_V], x[I_R], x[I_AX], x[I_AY]
+        for w in range(4):
+            mus[w, k] = mu[w]
+    state[1, 0] -= h
+    state[1, 1] += h
+    for w in range(4):
+        mus[w, 3] = mu[w] + sigma_mu
+        mus[w, 4] = max(mu[w] - sigma_mu, MU_BOUNDS[0])
+    body_forces(state, mus, steer, omega, torque, omega_dot, pk, out)
+    slope = abs(out[1, 1] - out[1, 0]) / (2.0 * h)
+    from_mu = 0.5 * (out[1, 3] - out[1, 4])
+    error_var = 0.5 * (force_std * out[1, 2]) ** 2 + from_mu * from_mu
+    cap = CONSIDER_MAX_V_STD * max(abs(x[I_U]), MIN_SPEED)
+    if error_var >= (cap * slope) ** 2:
+        return cap * cap
+    return error_var / (slope * slope)
+
+
+@numba.njit(inline="always", **JIT)
+def _record_innovation(nu, S, valid, update: int, first: int, innov, innov_std, nis, dof) -> None:
+    """Write one update's innovation nu (m,) and the square roots of its covariance S's diagonal
+    into innov, innov_std (N_INNOVATIONS,) from ``first`` on (NaN for a channel without a valid
+    reading), and its NIS and valid channel count into nis[update], dof[update]."""
+    for k in range(nu.shape[0]):
+        innov[first + k] = nu[k] if valid[k] else math.nan
+        innov_std[first + k] = math.sqrt(S[k, k]) if valid[k] else math.nan
+    value, count = normalised_innovation(nu, S, valid)
+    nis[update], dof[update] = value if count > 0 else math.nan, count
+
+
+@numba.njit(**JIT)
 def _step_vehicle(f: FilterKernel, i: int, reading, valid_in, t: float, out: Estimate, j: int) -> tuple[int, float]:
     """One step of vehicle i's filters (:class:`FilterKernel` ``f``) on its raw sensor ``reading``
     and ``valid_in`` (N_CHANNELS,) taken at time ``t`` [s] (NaN: unknown, a step of the nominal
@@ -817,6 +947,9 @@ def _step_vehicle(f: FilterKernel, i: int, reading, valid_in, t: float, out: Est
     R1, R2, Q = scratch((7, 7)), scratch((2, 2)), scratch((6, 6))
     _fill_diagonal((ax_var, ay_var, gyro_var, wheel_var, wheel_var, wheel_var, wheel_var), R1)
     _fill_diagonal((ay_var, gyro_var), R2)
+    if settings.adaptive:  # (covariance matching of the wheel speeds: ADAPTIVE_TIME_CONSTANT)
+        for w in range(4):
+            R1[3 + w, 3 + w] *= max(state.wheel_nis[i, w], 1.0)
     # the state's sub-filter 2: [ay, r], and with the yaw balance Gamma = 0, measured in steady
     # driving (a third channel, invalid otherwise)
     m2 = 3 if settings.yaw_balance else 2
@@ -840,6 +973,7 @@ def _step_vehicle(f: FilterKernel, i: int, reading, valid_in, t: float, out: Est
         Q[I_AX, I_AX], Q[I_AY, I_AY] = max(Q[I_AX, I_AX], accel_floor), max(Q[I_AY, I_AY], accel_floor)
     x_new, P_new, beta_new = scratch((6,)), scratch((6, 6)), scratch((2,))
     beta_new[:] = beta
+    nu1, S1, nu2, S2 = scratch((7,)), scratch((7, 7)), scratch((m2,)), scratch((m2, m2))
     measurement = MeasurementInputs(steer, pk)
     # (the friction measurements at the previous estimate: the state filter does not evaluate them)
     args = ModelArgs(
@@ -851,17 +985,23 @@ def _step_vehicle(f: FilterKernel, i: int, reading, valid_in, t: float, out: Est
         huber_c = settings.huber_c if settings.robust else NO_HUBER
         nll = _federated(
             x, P, Q, beta, TRANSITION, z1, valid1, R1, STATE_1, z2_state, valid2_state, R2_state, STATE_2, huber_c,
-            args, x_new, P_new, beta_new,
+            args, x_new, P_new, beta_new, nu1, S1, nu2, S2,
         )  # fmt: skip
     elif settings.extended:
-        nll = _ekf_step(x, P, Q, z1, valid1, R1, args, x_new, P_new)
+        nll = _ekf_step(x, P, Q, z1, valid1, R1, args, x_new, P_new, nu1, S1)
     else:
         x_pred, P_pred = scratch((6,)), scratch((6, 6))
         if not _ckf_predict(x, P, Q, TRANSITION, args, x_pred, P_pred):
             return FILTER_FAILED, math.nan
-        nll = _ckf_update(x_pred, P_pred, z1, valid1, R1, NO_HUBER, STATE_1, args, x_new, P_new)
+        nll = _ckf_update(x_pred, P_pred, z1, valid1, R1, NO_HUBER, STATE_1, args, x_new, P_new, nu1, S1)
     if not math.isfinite(nll):
         return FILTER_FAILED, math.nan
+    # the innovations and their NIS (INNOVATIONS, UPDATES), NaN where an update did not run
+    innov, innov_std, nis, dof = scratch((N_INNOVATIONS,)), scratch((N_INNOVATIONS,)), scratch((4,)), scratch((4,))
+    innov[:], innov_std[:], nis[:], dof[:] = math.nan, math.nan, math.nan, 0.0
+    _record_innovation(nu1, S1, valid1, 0, 0, innov, innov_std, nis, dof)
+    if settings.federated:
+        _record_innovation(nu2, S2, valid2_state, 1, 7, innov, innov_std, nis, dof)
     if valid[settings.speed_channel]:  # a measured forward speed
         huber_c = settings.huber_c if settings.robust else NO_HUBER
         nll += _speed_update(x_new, P_new, values[settings.speed_channel], sensor_var[4], huber_c)
@@ -870,6 +1010,7 @@ def _step_vehicle(f: FilterKernel, i: int, reading, valid_in, t: float, out: Est
     mu_new, P_mu_new, beta_mu_new = scratch((4,)), scratch((4, 4)), scratch((2,))
     mu_new[:], P_mu_new[:, :], beta_mu_new[:] = mu, P_mu, beta_mu
     if settings.friction and x_new[I_U] > MU_MIN_SPEED:
+        nu1_mu, S1_mu, nu2_mu, S2_mu = scratch((3,)), scratch((3, 3)), scratch((2,)), scratch((2, 2))
         walk, R1_mu, R2_mu = scratch((4, 4)), scratch((3, 3)), scratch((2, 2))
         _fill_correlated(mu_var[0] * elapsed_steps, walk)
         _fill_diagonal((mu_var[1], mu_var[1], gyro_var), R1_mu)
@@ -879,22 +1020,31 @@ def _step_vehicle(f: FilterKernel, i: int, reading, valid_in, t: float, out: Est
         P_mu_in[:, :] = P_mu
         if unseen_slide:  # restart from the prior covariance (mu_max_std)
             _fill_correlated(mu_var[2], P_mu_in)
+        valid1_mu, valid2_mu = valid[: CH_YAW_RATE + 1], valid2
         nll_mu = _federated(
-            mu, P_mu_in, walk, beta_mu, RANDOM_WALK, values[:CH_YAW_RATE + 1], valid[:CH_YAW_RATE + 1], R1_mu, MU_1,
-            z2, valid2, R2_mu, MU_2,
-            settings.huber_c, args, mu_fused, P_fused, beta_mu_new,
+            mu, P_mu_in, walk, beta_mu, RANDOM_WALK, values[:CH_YAW_RATE + 1], valid1_mu, R1_mu, MU_1,
+            z2, valid2_mu, R2_mu, MU_2,
+            settings.huber_c, args, mu_fused, P_fused, beta_mu_new, nu1_mu, S1_mu, nu2_mu, S2_mu,
+            settings.centred_friction,
         )  # fmt: skip
         if not math.isfinite(nll_mu):
             return FILTER_FAILED, math.nan
+        _record_innovation(nu1_mu, S1_mu, valid1_mu, 2, 10, innov, innov_std, nis, dof)
+        _record_innovation(nu2_mu, S2_mu, valid2_mu, 3, 13, innov, innov_std, nis, dof)
         # hold mu where the lateral demand is far from saturation (lambda >= EXCITATION_LAMBDA);
         # the covariance keeps the update (see the module docstring)
         lam = scratch((4,))
         dugoff_lambdas(x_new[I_U], x_new[I_V], x_new[I_R], x_new[I_AX], x_new[I_AY], mu, steer, omega, pk, lam)
-        if lam.min() < EXCITATION_LAMBDA or unseen_slide or not settings.friction_gate:
+        steady_hold = settings.steady_hold and _settled(zero_point_new, x_new[I_U])
+        if (lam.min() < EXCITATION_LAMBDA and not steady_hold) or unseen_slide or not settings.friction_gate:
             for w in range(4):
                 mu_new[w] = min(max(mu_fused[w], MU_BOUNDS[0]), MU_BOUNDS[1])
                 if unseen_slide:  # (a slide tells only that the road is slipperier than mu_hat)
                     mu_new[w] = min(mu_new[w], mu[w])
+        elif settings.held_covariance:  # (HELD_COVARIANCE)
+            for a_ in range(4):
+                for b_ in range(4):
+                    P_fused[a_, b_] = P_mu_in[a_, b_] + (0.0 if steady_hold else walk[a_, b_])
         if settings.grip_floor:  # (GRIP_FLOOR_TIME_CONSTANT)
             for w in range(4):
                 floor = grip_accel / (GRAVITY * axle_tyre(pk, w).mu_scale)
@@ -919,6 +1069,12 @@ def _step_vehicle(f: FilterKernel, i: int, reading, valid_in, t: float, out: Est
     if math.isfinite(t):
         state.t_prev[i] = t
     state.grip_accel[i] = grip_accel
+    state.innovation[i], state.innovation_std[i], state.nis[i], state.nis_dof[i] = innov, innov_std, nis, dof
+    if settings.adaptive:
+        for w in range(4):
+            if math.isfinite(innov[3 + w]):  # (its squared standardised innovation, of the unscaled noise)
+                ratio = (innov[3 + w] / innov_std[3 + w]) ** 2 * max(state.wheel_nis[i, w], 1.0)
+                state.wheel_nis[i, w] = _low_pass(state.wheel_nis[i, w], ratio, dt, settings.adaptive_time_constant)
     # the estimate
     u, v = x[I_U], x[I_V]
     out.u[j], out.v[j], out.r[j], out.ax[j], out.ay[j] = u, v, x[I_R], x[I_AX], x[I_AY]
@@ -928,6 +1084,9 @@ def _step_vehicle(f: FilterKernel, i: int, reading, valid_in, t: float, out: Est
     grad_u = 0.0 if abs(u) < MIN_SPEED else (-v if u >= 0.0 else v) / denom
     grad_v = speed / denom
     beta_var = grad_u**2 * P[I_U, I_U] + 2 * grad_u * grad_v * P[I_U, I_V] + grad_v**2 * P[I_V, I_V]
+    if settings.consider_std > 0.0:  # (CONSIDER_*)
+        state.consider_var[i] = _considered_v_var(x, mu, P_mu, steer, omega, torque, od, pk, settings.consider_std)
+        beta_var += grad_v**2 * state.consider_var[i]
     out.beta_std[j] = math.sqrt(max(beta_var, 0.0))
     wheel_loads(x[I_AX], x[I_AY], pk, out.fz[j])
     for w in range(4):
@@ -955,13 +1114,51 @@ def _step_rows(positions, rows, f: FilterKernel, reading: SensorReading, out: Es
         status[j] = step_vehicle(f, rows[j], reading, out, j)
 
 
+class Diagnostics(NamedTuple):
+    """What a replay (:meth:`StateEstimator.replay` with ``diagnostics``) keeps of every step
+    besides the estimate, for NEES and NIS: the covariance of (u, v, r) (T, B, 3, 3) [SI] (the
+    filter's, with the consider term on v: what its beta_std reports, CONSIDER_*) and of
+    the four mu (T, B, 4, 4), the innovations and their standard deviations (T, B,
+    N_INNOVATIONS: :data:`INNOVATIONS`, NaN where a channel had no valid reading or an update did
+    not run) and each update's NIS and valid channel count (T, B, 4: :data:`UPDATES`)."""
+
+    P_state: np.ndarray
+    P_mu: np.ndarray
+    innovation: np.ndarray
+    innovation_std: np.ndarray
+    nis: np.ndarray
+    nis_dof: np.ndarray
+
+
+#: the rows and columns of the state covariance a Diagnostics keeps: u, v, r
+STATE_NEES = (I_U, I_V, I_R)
+
+
+@numba.njit(inline="always", **JIT)
+def _keep_diagnostics(state: FilterState, b: int, k: int, diagnostics: Diagnostics) -> None:
+    """Row (k, b) of ``diagnostics`` from vehicle b's filter state after a step."""
+    for i in range(3):
+        for j in range(3):
+            diagnostics.P_state[k, b, i, j] = state.P[b, STATE_NEES[i], STATE_NEES[j]]
+    diagnostics.P_state[k, b, 1, 1] += state.consider_var[b]  # (the sigma the estimate reports)
+    diagnostics.P_mu[k, b] = state.P_mu[b]
+    diagnostics.innovation[k, b] = state.innovation[b]
+    diagnostics.innovation_std[k, b] = state.innovation_std[b]
+    diagnostics.nis[k, b] = state.nis[b]
+    diagnostics.nis_dof[k, b] = state.nis_dof[b]
+
+
 @numba.njit(nogil=True, **JIT)
-def _replay_members(members, f: FilterKernel, values, valid, t, out: Estimate, record: bool, nll, status, at) -> None:
+def _replay_members(
+    members, f: FilterKernel, values, valid, t, out: Estimate, record: bool, nll, status, at, diagnostics: Diagnostics
+) -> None:
     """Each vehicle b of ``members`` through every sample k of a log (values, valid (T,
     N_CHANNELS), t (T,)), from its state as it stands: the estimate of step k into row k B + b of
-    ``out`` if ``record`` (else row b), the summed innovation NLL into nll[b]; a failure stops b
-    at its step at[b] with its status[b]."""
+    ``out`` if ``record`` (else row b), and into ``diagnostics`` where its arrays have T rows (else
+    none), the summed innovation NLL into nll[b]; a failure stops b at its step at[b] with its
+    status[b]."""
     B = f.state.x.shape[0]
+    keep = diagnostics.nis.shape[0] == values.shape[0]
     for b in members:
         for k in range(values.shape[0]):
             code, step_nll = _step_vehicle(f, b, values[k], valid[k], t[k], out, k * B + b if record else b)
@@ -970,18 +1167,33 @@ def _replay_members(members, f: FilterKernel, values, valid, t, out: Estimate, r
                 status[b], at[b] = code, k
                 break
             nll[b] += step_nll
+            if keep:
+                _keep_diagnostics(f.state, b, k, diagnostics)
 
 
 class Replay(NamedTuple):
     """A log replayed through a batch of B filters (:meth:`StateEstimator.replay`): the estimate
     of every step (fields (T, B), per wheel (T, B, 4); None unless recorded), each member's summed
-    innovation NLL (B,), and where a member's filter failed: its status (B,) (OK: it did not) and
-    the step (B,) (-1: none)."""
+    innovation NLL (B,), where a member's filter failed: its status (B,) (OK: it did not) and
+    the step (B,) (-1: none), and the :class:`Diagnostics` of every step (None unless asked)."""
 
     estimate: Estimate | None
     nll: np.ndarray
     status: np.ndarray
     failed_at: np.ndarray
+    diagnostics: Diagnostics | None = None
+
+
+def empty_diagnostics(steps: int, batch: int) -> Diagnostics:
+    """A :class:`Diagnostics` of ``steps`` x ``batch`` rows (NaN-filled: a failed member's rows stay NaN)."""
+    return Diagnostics(
+        np.full((steps, batch, 3, 3), np.nan),
+        np.full((steps, batch, 4, 4), np.nan),
+        np.full((steps, batch, N_INNOVATIONS), np.nan),
+        np.full((steps, batch, N_INNOVATIONS), np.nan),
+        np.full((steps, batch, len(UPDATES)), np.nan),
+        np.zeros((steps, batch, len(UPDATES))),
+    )
 
 
 def empty_estimate(batch: int) -> Estimate:
@@ -1028,6 +1240,16 @@ class StateEstimator:
     #: the joint estimator's grip floor: the time constant [s] of the measured acceleration that
     #: bounds mu from below (GRIP_FLOOR_TIME_CONSTANT); math.inf switches it off (as joint-paper)
     grip_floor_time_constant: float = GRIP_FLOOR_TIME_CONSTANT
+    #: the joint estimator's steady hold: mu is held (mean and covariance) while the steering and
+    #: yaw rate are steady (ZERO_POINT_*), where the friction is unobservable; False updates it
+    #: there too, where it drifted along with the sideslip (as joint-paper)
+    steady_hold: bool = True
+    #: the relative error [-] of each axle's modelled lateral force in the sideslip sigma's consider
+    #: term (CONSIDER_FORCE_STD, the kinds CONSIDER_KINDS); 0 switches it off
+    consider_std: float = CONSIDER_FORCE_STD
+    #: the time constant [s] of the wheel speeds' covariance matching (ADAPTIVE_TIME_CONSTANT,
+    #: the kinds ADAPTIVE_KINDS); math.inf switches it off
+    adaptive_time_constant: float = ADAPTIVE_TIME_CONSTANT
     needs_truth: bool = False
 
     def __post_init__(self) -> None:
@@ -1069,6 +1291,26 @@ class StateEstimator:
                 f"grip_floor_time_constant applies to the joint estimator; {self.kind!r} has none, "
                 f"got grip_floor_time_constant={self.grip_floor_time_constant!r}"
             )
+        if not isinstance(self.steady_hold, bool):
+            raise ValueError(f"steady_hold must be True or False, got {self.steady_hold!r}")
+        if not self.steady_hold and self.kind != "joint":
+            raise ValueError(f"steady_hold applies to the joint estimator; {self.kind!r} has none")
+        if not (is_number(self.consider_std) and 0.0 <= self.consider_std < math.inf):
+            raise ValueError(f"consider_std must be finite and >= 0 (0: off), got {self.consider_std!r}")
+        if self.consider_std != CONSIDER_FORCE_STD and self.kind not in CONSIDER_KINDS:
+            raise ValueError(
+                f"consider_std applies to {list(CONSIDER_KINDS)}; {self.kind!r} reports its filter's sigma "
+                f"as the paper's, got consider_std={self.consider_std!r}"
+            )
+        if not (is_number(self.adaptive_time_constant) and self.adaptive_time_constant > 0):
+            raise ValueError(
+                f"adaptive_time_constant must be > 0 [s] (math.inf: off), got {self.adaptive_time_constant!r}"
+            )
+        if self.adaptive_time_constant != ADAPTIVE_TIME_CONSTANT and self.kind not in ADAPTIVE_KINDS:
+            raise ValueError(
+                f"adaptive_time_constant applies to {list(ADAPTIVE_KINDS)}; {self.kind!r} has none, "
+                f"got adaptive_time_constant={self.adaptive_time_constant!r}"
+            )
         friction = self.kind in FRICTION_KINDS
         self.settings = FilterSettings(
             extended=self.kind == "ekf",
@@ -1079,6 +1321,12 @@ class StateEstimator:
             slide_detection=friction and self.slide_rate < math.inf,
             friction_gate=bool(self.friction_gate),
             grip_floor=self.kind == "joint" and self.grip_floor_time_constant < math.inf,
+            centred_friction=self.kind == "joint",
+            steady_hold=self.kind == "joint" and self.steady_hold,
+            held_covariance=self.kind == "joint",
+            consider_std=float(self.consider_std) if self.kind in CONSIDER_KINDS else 0.0,
+            adaptive=self.kind in ADAPTIVE_KINDS and self.adaptive_time_constant < math.inf,
+            adaptive_time_constant=float(self.adaptive_time_constant),
             dt=float(self.dt),
             huber_c=float(self.huber_c),
             zero_point_time_constant=float(self.zero_point_time_constant),
@@ -1183,6 +1431,12 @@ class StateEstimator:
             slip_relaxed=np.full((B, 4), np.nan),  # (NaN: the first step starts it without lag)
             t_prev=np.full(B, np.nan),  # (NaN: the first step is one of the nominal dt)
             grip_accel=np.hypot(measured[:, CH_AX], measured[:, CH_AY]),
+            innovation=np.full((B, N_INNOVATIONS), np.nan),
+            innovation_std=np.full((B, N_INNOVATIONS), np.nan),
+            nis=np.full((B, len(UPDATES)), np.nan),
+            nis_dof=np.zeros((B, len(UPDATES))),
+            wheel_nis=np.ones((B, 4)),
+            consider_var=np.zeros(B),
         )
         if mask is None or not started:
             self.state = fresh
@@ -1190,14 +1444,15 @@ class StateEstimator:
         for old, new in zip(self.state, fresh):
             old[mask] = new[mask]
 
-    def replay(self, values, valid, t, initial_speed, record: bool = True) -> Replay:
+    def replay(self, values, valid, t, initial_speed, record: bool = True, diagnostics: bool = False) -> Replay:
         """Run a whole log through the batch in one compiled loop: readings ``values`` and
         ``valid`` (T, N_CHANNELS), times ``t`` (T,) [s], every member reading the same samples
         (the batch: one member, or one per member of a per-member noise); reset from the first
         reading and ``initial_speed`` [m/s]. The same steps as :meth:`step` sample by sample,
         at a fraction of the cost. ``record``: keep every step's estimate (else only the NLL,
-        for a tuning population). A member whose filter fails stops there (:class:`Replay`);
-        :meth:`replay_error` gives its error."""
+        for a tuning population). ``diagnostics``: also keep each step's covariances,
+        innovations and NIS (:class:`Diagnostics`: for NEES and NIS). A member whose filter fails
+        stops there (:class:`Replay`); :meth:`replay_error` gives its error."""
         values = np.ascontiguousarray(values, dtype=np.float64)
         valid = np.ascontiguousarray(valid, dtype=np.bool_)
         t = np.ascontiguousarray(t, dtype=np.float64)
@@ -1219,14 +1474,15 @@ class StateEstimator:
         T = len(t)
         out = empty_estimate(T * B if record else B)
         nll, status, at = np.zeros(B), np.zeros(B, dtype=np.int64), np.full(B, -1, dtype=np.int64)
+        kept = empty_diagnostics(T if diagnostics else 0, B)
         run_parallel(
-            _replay_members, np.arange(B), self.kernel(), values, valid, t, out, bool(record), nll, status, at,
+            _replay_members, np.arange(B), self.kernel(), values, valid, t, out, bool(record), nll, status, at, kept,
             min_items=PARALLEL_MIN_BATCH,
         )  # fmt: skip
         estimate = None
         if record:
             estimate = Estimate(*(field.reshape((T, B) + field.shape[1:]) for field in out))
-        return Replay(estimate, nll, status, at)
+        return Replay(estimate, nll, status, at, kept if diagnostics else None)
 
     def replay_error(self, result: Replay, values, t, member: int = 0) -> ValueError:
         """The error of ``member``'s failed replay (``result``) of the log ``values`` (T,

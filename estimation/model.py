@@ -51,6 +51,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
+from fourwis.core import vecmath
 from fourwis.core.checks import is_number
 from fourwis.core.constants import GRAVITY
 from fourwis.core.kernels import JIT, scratch
@@ -63,6 +64,7 @@ def _load_fit() -> dict:
 
 
 MODEL_STEP = 0.002  #: [s] the model's longest integration step: a longer filter step integrates in substeps
+TYRE_SHAPES = ("dugoff", "magic")  #: the lateral force's shapes of :class:`AxleTyre`
 
 
 @dataclass(frozen=True)
@@ -70,9 +72,15 @@ class AxleTyre:
     """One axle's tyres in the estimator's model (both wheels alike; paper eq. 8-10 and 17).
     Stiffness C(Fz) = m Fz - n Fz^2 at wheel load Fz [N]: m1 [1/unit slip], n1 [1/(unit slip N)]
     longitudinal, m2 [1/rad], n2 [1/(rad N)] lateral (so C is in N/unit slip and N/rad);
-    mu_scale: Dugoff's friction scale k, the tyre using k mu on a road of friction mu [-];
+    mu_scale: the friction scale k, the tyre using k mu on a road of friction mu [-];
     relaxation_length: the lateral relaxation length sigma [m] its slip angle lags by (0: the
-    paper's tyre, without transient)."""
+    paper's tyre, without transient). The lateral force's shape: Dugoff's (the paper's) while
+    magic_c is 0, else the simplified Magic Formula (:func:`magic_lateral`) with shape factor
+    magic_c (C) and curvature magic_e (E) [-], its peak k mu Fz (1 + load_sensitivity (Fz /
+    reference_load - 1)) (load_sensitivity [-], reference_load [N]): Dugoff is linear up to half
+    the grip and rounds off late, the plant's tyre bends from the start, which put the sideslip
+    0.1-0.3 deg off at 50-70% of the grip even at the true friction
+    (docs/decisions/0045-friction-and-sideslip-consistency.md)."""
 
     m1: float
     n1: float
@@ -80,9 +88,24 @@ class AxleTyre:
     n2: float
     mu_scale: float = 1.0
     relaxation_length: float = 0.0
+    magic_c: float = 0.0
+    magic_e: float = 0.0
+    load_sensitivity: float = 0.0
+    reference_load: float = 1.0
 
     def __post_init__(self) -> None:
-        rules = {"m1": "> 0", "m2": "> 0", "mu_scale": "> 0", "n1": "", "n2": "", "relaxation_length": ">= 0"}
+        rules = {
+            "m1": "> 0",
+            "m2": "> 0",
+            "mu_scale": "> 0",
+            "n1": "",
+            "n2": "",
+            "relaxation_length": ">= 0",
+            "magic_c": ">= 0",
+            "magic_e": "",
+            "load_sensitivity": "",
+            "reference_load": "> 0",
+        }
         for name, rule in rules.items():
             value = getattr(self, name)
             ok = is_number(value) and math.isfinite(value)
@@ -91,10 +114,33 @@ class AxleTyre:
                 raise ValueError(f"AxleTyre.{name} must be a finite number {rule}".rstrip() + f", got {value!r}")
 
     @classmethod
-    def shipped(cls, fit: dict | None = None) -> AxleTyre:
-        """The eq. 17 fit of fourwis's own simulated tyre (estimation/data/dugoff_fit.json, or ``fit``)."""
+    def shipped(cls, fit: dict | None = None, *, shape: str = "dugoff") -> AxleTyre:
+        """The eq. 17 fit of fourwis's own simulated tyre (estimation/data/dugoff_fit.json, or
+        ``fit``) with the lateral ``shape`` ``"dugoff"`` (its friction scale) or ``"magic"`` (the
+        fit's Magic Formula shape, friction scale and load sensitivity, :meth:`with_magic_shape`)."""
         fit = fit or _load_fit()
-        return cls(fit["m1"], fit["n1"], fit["m2"], fit["n2"], fit["mu_scale"])
+        if shape not in TYRE_SHAPES:
+            raise ValueError(f"tyre shape must be one of {list(TYRE_SHAPES)}, got {shape!r}")
+        dugoff_tyre = cls(fit["m1"], fit["n1"], fit["m2"], fit["n2"], fit["mu_scale"])
+        return dugoff_tyre if shape == "dugoff" else dugoff_tyre.with_magic_shape(fit, peak=True)
+
+    def with_magic_shape(self, fit: dict | None = None, peak: bool = False) -> AxleTyre:
+        """This tyre with the Magic Formula lateral shape (C, E) of the shipped fit (or ``fit``);
+        its stiffness (the slope at zero slip) kept, and its friction scale unless ``peak``:
+        then the fit's friction scale and load sensitivity too (the shipped tyre's own). A tyre
+        that has a shape keeps it. Another car's tyre given by its stiffness alone borrows the
+        shape of fourwis's passenger tyre: the closest thing to it the file gives."""
+        if self.magic_c > 0.0:
+            return self
+        magic = (fit or _load_fit())["magic"]
+        shape = dict(magic_c=float(magic["magic_c"]), magic_e=float(magic["magic_e"]))
+        if peak:
+            shape |= dict(
+                mu_scale=float(magic["mu_scale"]),
+                load_sensitivity=float(magic["load_sensitivity"]),
+                reference_load=float(magic["reference_load"]),
+            )
+        return replace(self, **shape)
 
     def stiffness(self, fz) -> tuple[np.ndarray, np.ndarray]:
         """(Cx [N/unit slip], Cy [N/rad]) at wheel load(s) ``fz`` [N]."""
@@ -156,6 +202,7 @@ class ModelParams:
         relaxation: bool = False,
         tyres: tuple[AxleTyre, AxleTyre] | None = None,
         force_ellipse: bool = False,
+        shape: str = "dugoff",
     ) -> ModelParams:
         """From a duck-typed VehicleParams and the tyres (front, rear) ``tyres`` (default: both
         axles the eq. 17 fit of fourwis's own simulated tyre, estimation/data/dugoff_fit.json, or
@@ -167,9 +214,14 @@ class ModelParams:
         wheel load m g / 4 (``vehicle.static_relaxation_lengths``, 0.36 m for the paper's car; the
         plant's grows with load, which this constant leaves out). Both off by default
         (docs/decisions/0020-tyre-relaxation-and-resistances-off.md). ``force_ellipse``: see the
-        class docstring (docs/decisions/0034-combined-slip-from-the-measured-force.md)."""
+        class docstring (docs/decisions/0034-combined-slip-from-the-measured-force.md).
+        ``shape``: the tyres' lateral shape (:data:`TYRE_SHAPES`): ``"magic"`` gives fourwis's
+        own tyre the fit's Magic Formula and other tyres of Dugoff's form the fit's shape factors
+        (:meth:`AxleTyre.with_magic_shape`); ``"dugoff"`` keeps the tyres as they are."""
+        if shape not in TYRE_SHAPES:
+            raise ValueError(f"tyre shape must be one of {list(TYRE_SHAPES)}, got {shape!r}")
         if tyres is None:
-            shipped = AxleTyre.shipped(fit)
+            shipped = AxleTyre.shipped(fit, shape=shape)
             sigma = float(vehicle.static_relaxation_lengths[1]) if relaxation else 0.0
             front = rear = replace(shipped, relaxation_length=sigma)
         else:
@@ -181,6 +233,8 @@ class ModelParams:
                 if relaxation and tyre.relaxation_length <= 0:
                     raise ValueError(f"relaxation needs the {axle} tyres' relaxation length; it is not given")
             front, rear = (t if relaxation else replace(t, relaxation_length=0.0) for t in tyres)
+            if shape == "magic":
+                front, rear = front.with_magic_shape(fit), rear.with_magic_shape(fit)
         return cls(
             vehicle.mass,
             vehicle.yaw_inertia,
@@ -398,20 +452,44 @@ def tyre_operating_point(u, v, r, fz, trig, omega, pk, w) -> tuple[float, float,
 
 
 @numba.njit(inline="always", **JIT)
-def lateral_force(fz, fx, slip, tan_alpha, tyre_mu, cx, cy, speed, pk) -> float:
-    """A wheel's lateral force [N] at load ``fz`` [N] and friction ``tyre_mu`` (k mu). Dugoff's
-    combined slip cuts it by the longitudinal ``slip`` from the wheel speed (the paper's); with
-    ``pk.force_ellipse`` the pure-slip Dugoff force is cut by the friction ellipse of the measured
-    longitudinal force ``fx`` [N] (|fx| <= tyre_mu fz): Fy0 sqrt(1 - (Fx / (mu Fz))^2) (the
-    friction-ellipse combination; Wong, Theory of Ground Vehicles, sec. 1.4). A wheel speed swings
-    around the force its wheel carries when torques change fast (random torques at 8 m/s: slips of
-    10-30% while the car holds 0.85 g), and Dugoff's cut at that slip removes lateral force the car
-    still has (docs/decisions/0034-combined-slip-from-the-measured-force.md)."""
+def peak_friction(fz: float, tyre_mu: float, tyre) -> float:
+    """A tyre's peak force coefficient [-] at load ``fz`` [N] and friction ``tyre_mu`` (k mu): k mu
+    times the load sensitivity 1 + s (Fz / F0 - 1) of its peak (``tyre.load_sensitivity`` s,
+    ``tyre.reference_load`` F0 [N]; s = 0, Dugoff's tyre: k mu exactly)."""
+    return tyre_mu * (1.0 + tyre.load_sensitivity * (fz / tyre.reference_load - 1.0))
+
+
+@numba.njit(inline="always", **JIT)
+def magic_lateral(fz: float, tan_alpha: float, tyre_mu: float, cy: float, tyre) -> float:
+    """The simplified Magic Formula's pure-slip lateral force [N] (Pacejka, *Tire and Vehicle
+    Dynamics*, 3rd ed., eq. 4.49 without shifts): D sin(C atan(B x - E (B x - atan(B x)))), x the
+    slip angle, D :func:`peak_friction` times Fz, C ``tyre.magic_c``, E ``tyre.magic_e`` and B = Cy / (C D),
+    so that the slope at zero slip is the eq. 17 stiffness ``cy`` [N/rad] at any friction."""
+    d = max(peak_friction(fz, tyre_mu, tyre) * fz, 1e-9)
+    bx = cy / (tyre.magic_c * d) * vecmath.atan(tan_alpha)
+    return d * vecmath.sin(tyre.magic_c * vecmath.atan(bx - tyre.magic_e * (bx - vecmath.atan(bx))))
+
+
+@numba.njit(inline="always", **JIT)
+def lateral_force(fz, fx, slip, tan_alpha, tyre_mu, cx, cy, speed, pk, tyre) -> float:
+    """A wheel's lateral force [N] at load ``fz`` [N] and friction ``tyre_mu`` (k mu) with the
+    wheel's axle ``tyre``. Dugoff's combined slip cuts it by the longitudinal ``slip`` from the
+    wheel speed (the paper's); with ``pk.force_ellipse`` the pure-slip force (Dugoff's, or the
+    Magic Formula's where ``tyre.magic_c`` > 0, :func:`magic_lateral`) is cut by the friction
+    ellipse of the measured longitudinal force ``fx`` [N] (|fx| <= tyre_mu fz):
+    Fy0 sqrt(1 - (Fx / (mu Fz))^2) (the friction-ellipse combination; Wong, Theory of Ground
+    Vehicles, sec. 1.4). A wheel speed swings around the force its wheel carries when torques
+    change fast (random torques at 8 m/s: slips of 10-30% while the car holds 0.85 g), and
+    Dugoff's cut at that slip removes lateral force the car still has
+    (docs/decisions/0034-combined-slip-from-the-measured-force.md)."""
     if not pk.force_ellipse:
         return dugoff(fz, slip, tan_alpha, tyre_mu, cx, cy, speed, pk.eps)[1]
-    pure = dugoff(fz, 0.0, tan_alpha, tyre_mu, cx, cy, speed, pk.eps)[1]
-    share = fx / max(tyre_mu * fz, 1e-9)
-    return pure * math.sqrt(max(1.0 - share * share, 0.0))
+    if tyre.magic_c > 0.0:
+        pure = magic_lateral(fz, tan_alpha, tyre_mu, cy, tyre)
+    else:
+        pure = dugoff(fz, 0.0, tan_alpha, tyre_mu, cx, cy, speed, pk.eps)[1]
+    share = fx / max(peak_friction(fz, tyre_mu, tyre) * fz, 1e-9)
+    return pure * vecmath.sqrt(max(1.0 - share * share, 0.0))
 
 
 @numba.njit(inline="always", **JIT)
@@ -443,7 +521,8 @@ def body_forces(
     for w in range(4):
         x_w, y_w = wheel_position(pk, w)
         drive = (torque[w] - pk.wheel_inertia * omega_dot[w]) / pk.wheel_radius
-        trig, spin, mu_scale = wheel_trig(steer, w), omega[w], axle_tyre(pk, w).mu_scale
+        tyre = axle_tyre(pk, w)
+        trig, spin, mu_scale = wheel_trig(steer, w), omega[w], tyre.mu_scale
         c, s = trig[0], trig[1]
         wheel_speed = spin * pk.wheel_radius
         rolling = pk.rolling_resistance * wheel_speed / math.sqrt(wheel_speed * wheel_speed + 0.0025)
@@ -452,9 +531,9 @@ def body_forces(
             fz = wheel_load(state[3, k], state[4, k], pk, w)
             tan_alpha, slip, cx, cy = tyre_operating_point(u, v, r, fz, trig, spin, pk, w)
             tyre_mu = mu_scale * mu[w, k]
-            limit = tyre_mu * fz
+            limit = peak_friction(fz, tyre_mu, tyre) * fz
             fx = min(max(drive - rolling * fz, -limit), limit)
-            fy = lateral_force(fz, fx, slip, tan_alpha, tyre_mu, cx, cy, u, pk)
+            fy = lateral_force(fz, fx, slip, tan_alpha, tyre_mu, cx, cy, u, pk, tyre)
             f_long, f_lat = fx * c - fy * s, fx * s + fy * c
             out[0, k] += f_long
             out[1, k] += f_lat
@@ -472,7 +551,8 @@ def dugoff_lambdas(u, v, r, ax, ay, mu, steer, omega, pk, out) -> None:
     fz = load_tuple(ax, ay, pk)
     for w in range(4):
         tan_alpha, _, cx, cy = tyre_operating_point(u, v, r, fz[w], wheel_trig(steer, w), omega[w], pk, w)
-        out[w] = dugoff(fz[w], 0.0, tan_alpha, axle_tyre(pk, w).mu_scale * mu[w], cx, cy, u, 0.0)[2]
+        tyre = axle_tyre(pk, w)
+        out[w] = dugoff(fz[w], 0.0, tan_alpha, peak_friction(fz[w], tyre.mu_scale * mu[w], tyre), cx, cy, u, 0.0)[2]
 
 
 @numba.njit(inline="always", **JIT)

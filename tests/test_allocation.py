@@ -1,6 +1,7 @@
 """Torque allocation: minimum tyre workload under the drive-force and yaw-moment equalities,
-motor and friction bounds; checked against scipy's SLSQP and linprog on random demands, with
-steered wheels (the body-frame effect of each wheel's force derived here from the geometry)."""
+motor, brake and friction bounds; checked against scipy's SLSQP and linprog on random demands,
+with steered wheels (the body-frame effect of each wheel's force derived here from the geometry),
+and each priority of an infeasible demand (the driver's force first, or the yaw moment)."""
 
 import numpy as np
 import pytest
@@ -45,8 +46,12 @@ def _random_demands(seed: int, batch: int):
 
 
 def _force_limits(fz, mu, lateral, speed):
+    """(lower, upper) (B, 4) [N]: a wheel drives with its motor and brakes with its motor and
+    friction brake, both within what the friction ellipse leaves."""
     motor = np.minimum(P.motor_peak_torque, P.motor_peak_power * P.wheel_radius / np.maximum(speed, 1e-9))
-    return np.minimum(motor[:, None] / P.wheel_radius, np.sqrt(np.maximum((mu * fz) ** 2 - lateral**2, 0.0)))
+    grip = np.sqrt(np.maximum((mu * fz) ** 2 - lateral**2, 0.0))
+    upper = np.minimum(motor[:, None] / P.wheel_radius, grip)
+    return -np.minimum((motor[:, None] + P.brake_peak_torque) / P.wheel_radius, grip), upper
 
 
 @pytest.mark.parametrize("steered", [False, True])
@@ -55,8 +60,8 @@ def test_feasible_demands_are_met_exactly_at_the_least_workload_scipy_finds(stee
     front, rear = _random_steer(0, 60) if steered else (np.zeros(60), np.zeros(60))
     out = allocate_torques(base, moment, fz, mu, P, lateral, speed, front, rear)
     forces = out.torques / P.wheel_radius
-    limits = _force_limits(fz, mu, lateral, speed)
-    assert np.all(np.abs(forces) <= limits * (1 + 1e-9) + 1e-9)
+    lower, upper = _force_limits(fz, mu, lateral, speed)
+    assert np.all((forces <= upper * (1 + 1e-9) + 1e-9) & (forces >= lower * (1 + 1e-9) - 1e-9))
     checked = 0
     for b in np.flatnonzero(out.feasible):
         along, lever = _body_effect(front[b], rear[b])
@@ -73,7 +78,7 @@ def test_feasible_demands_are_met_exactly_at_the_least_workload_scipy_finds(stee
             np.zeros(4),
             jac=lambda y: 2 * y,
             method="SLSQP",
-            bounds=list(zip(-limits[b] / cap, limits[b] / cap)),
+            bounds=list(zip(lower[b] / cap, upper[b] / cap)),
             options={"ftol": 1e-13, "maxiter": 1000},
             constraints=[
                 {"type": "eq", "fun": lambda y: rows @ y - np.array([drive, moment[b]]) / 1e3, "jac": lambda y: rows}
@@ -84,7 +89,8 @@ def test_feasible_demands_are_met_exactly_at_the_least_workload_scipy_finds(stee
         assert workload <= reference.fun * (1 + 1e-7) + 1e-12
         checked += 1
     assert checked >= 20  # the random set exercises the bounded-QP branch, not only easy cases
-    assert np.sum(np.any(np.isclose(np.abs(forces), limits), axis=1) & out.feasible) >= 5
+    at_bound = np.isclose(forces, lower) | np.isclose(forces, upper)
+    assert np.sum(np.any(at_bound, axis=1) & out.feasible) >= 5
 
 
 def test_without_active_bounds_it_is_the_closed_form_weighted_least_squares():
@@ -105,18 +111,72 @@ def test_infeasible_moment_degrades_to_the_largest_feasible_one_and_is_flagged(s
     front, rear = _random_steer(1, 40) if steered else (np.zeros(40), np.zeros(40))
     moment = np.sign(moment) * 2e4  # beyond any tyre's reach on this car
     out = allocate_torques(base, moment, fz, mu, P, lateral, speed, front, rear)
-    limits = _force_limits(fz, mu, lateral, speed)
+    lower, upper = _force_limits(fz, mu, lateral, speed)
     assert not out.feasible.any()
     for b in range(len(base)):
         along, lever = _body_effect(front[b], rear[b])
-        drive = np.clip(along @ base[b] / P.wheel_radius, -along @ limits[b], along @ limits[b])
+        drive = np.clip(along @ base[b] / P.wheel_radius, along @ lower[b], along @ upper[b])
         best = linprog(
-            -np.sign(moment[b]) * lever, A_eq=along[None], b_eq=[drive], bounds=list(zip(-limits[b], limits[b]))
+            -np.sign(moment[b]) * lever, A_eq=along[None], b_eq=[drive], bounds=list(zip(lower[b], upper[b]))
         )
         assert out.drive_force[b] == pytest.approx(drive, abs=1e-6)
         assert out.yaw_moment[b] == pytest.approx(lever @ best.x, abs=1e-6)
         np.testing.assert_allclose(along @ out.torques[b] / P.wheel_radius, out.drive_force[b], atol=1e-6)
     assert np.isfinite(out.torques).all()
+
+
+@pytest.mark.parametrize("steered", [False, True])
+def test_stability_first_keeps_the_largest_moment_then_the_drive_force_nearest_the_drivers(steered):
+    """Outside the stable region (stability_first) the driver's drive yields (a drive force is
+    asked as none, a braking one stands), and an infeasible demand keeps the yaw moment the box
+    allows at any drive force (linprog over the box), then the drive force nearest that demand
+    which delivers it (linprog with that moment); the driver's force first comes no nearer the
+    asked moment. A feasible demand is met either way."""
+    base, moment, fz, mu, lateral, speed = _random_demands(2, 40)
+    front, rear = _random_steer(2, 40) if steered else (np.zeros(40), np.zeros(40))
+    base = base + np.where(np.arange(40) % 2 == 0, -1500.0, 600.0)[:, None]  # a pedal the tyres cannot all take
+    moment = np.sign(moment) * np.abs(moment).clip(500.0, None) * 3.0
+    first = np.ones(40, dtype=bool)
+    out = allocate_torques(base, moment, fz, mu, P, lateral, speed, front, rear, stability_first=first)
+    driver = allocate_torques(base, moment, fz, mu, P, lateral, speed, front, rear)
+    lower, upper = _force_limits(fz, mu, lateral, speed)
+    checked = 0
+    for b in range(40):
+        along, lever = _body_effect(front[b], rear[b])
+        bounds = list(zip(lower[b], upper[b]))
+        forces = out.torques[b] / P.wheel_radius
+        assert np.all((forces <= upper[b] + 1e-6) & (forces >= lower[b] - 1e-6))
+        assert lever @ forces == pytest.approx(out.yaw_moment[b], abs=1e-6)
+        assert along @ forces == pytest.approx(out.drive_force[b], abs=1e-6)
+        drive = min(along @ base[b] / P.wheel_radius, 0.0)
+        if out.feasible[b]:
+            assert out.yaw_moment[b] == pytest.approx(moment[b], abs=1e-6)
+            assert out.drive_force[b] == pytest.approx(drive, abs=1e-6)
+            continue
+        reach = -linprog(-np.sign(moment[b]) * lever, bounds=bounds).fun * np.sign(moment[b])
+        kept = np.sign(moment[b]) * min(abs(moment[b]), abs(reach))
+        assert out.yaw_moment[b] == pytest.approx(kept, abs=1e-6)
+        assert abs(out.yaw_moment[b] - moment[b]) <= abs(driver.yaw_moment[b] - moment[b]) + 1e-6
+        low = linprog(along, A_eq=lever[None], b_eq=[kept], bounds=bounds).fun
+        high = -linprog(-along, A_eq=lever[None], b_eq=[kept], bounds=bounds).fun
+        assert out.drive_force[b] == pytest.approx(np.clip(drive, low, high), abs=1e-6)
+        checked += 1
+    assert checked >= 10
+
+
+def test_a_wheel_brakes_beyond_its_motor_within_its_grip():
+    """At 100 km/h the motors' power limit leaves ~250 N m; a braking demand the grip allows goes
+    beyond it (the friction brake), a drive demand stops at it."""
+    fz, mu = np.full((1, 4), 2500.0), np.full((1, 4), 1.0)
+    speed = np.array([100 / 3.6])
+    motor = P.motor_peak_power * P.wheel_radius / speed[0]
+    braking = allocate_torques(np.full((1, 4), -500.0), np.zeros(1), fz, mu, P, speed=speed)
+    np.testing.assert_allclose(braking.torques[0], -500.0, rtol=1e-12)
+    assert braking.feasible[0] and motor < 500.0
+    grip = allocate_torques(np.full((1, 4), -1500.0), np.zeros(1), fz, mu, P, speed=speed)
+    np.testing.assert_allclose(grip.torques[0], -2500.0 * P.wheel_radius, rtol=1e-9)
+    driving = allocate_torques(np.full((1, 4), 500.0), np.zeros(1), fz, mu, P, speed=speed)
+    np.testing.assert_allclose(driving.torques[0], motor, rtol=1e-9)
 
 
 def test_mirrored_demand_mirrors_the_torques_and_a_laterally_saturated_tyre_gets_none():

@@ -44,7 +44,8 @@ def test_list_estimators_and_controllers_give_each_name_its_line(capsys):
     assert "Huber c 3" in estimators["alo-fkf"] and "Huber" not in estimators["fkf"]
     controllers = _listed(capsys, "controllers")
     assert set(controllers) == set(CONTROLLERS) | {"rl:training/policies/ppo_joint"}
-    for name in CONTROLLERS[1:]:
+    assert "entry 0.07 rad/s" in controllers["esc"]
+    for name in (c for c in CONTROLLERS[1:] if c != "esc"):
         built = make_controller(name, VehicleParams())
         assert f"law {built.law}, rear steer {'on' if built.rear_steer else 'off'}" in controllers[name]
         assert f"mu_margin {built.mu_margin:g} sigma" in controllers[name]

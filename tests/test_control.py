@@ -533,7 +533,9 @@ def test_only_a_moment_that_turns_the_car_further_fades_near_the_sideslip_bound(
     """At |beta| = 0.9 of the sideslip bound, the law's moment that turns the car further into the
     bend (an understeering car, r short of r_ref: same sign as r_ref) is scaled by
     1 - |beta| / bound = 0.1; the counter-moment to an oversteering car (r beyond r_ref) is delivered
-    in full, as at beta = 0. Both turns, mu 1 (moments well within what the tyres give)."""
+    in full, as at beta = 0; beyond STABLE_SIDESLIP (0.6) of the bound the sideslip moment
+    (SIDESLIP_GAIN times the sideslip past it, against the slide) adds to either. Both turns, mu 1
+    (moments well within what the tyres give)."""
     u, front, mu = np.full(8, 20.0), np.repeat([0.02, -0.02], 4), np.ones((8, 4))
     r_ref = reference_yaw_rate(u, front, mu, P)  # the lagged reference starts on the steady state
     bound = sideslip_bound(mu)
@@ -567,7 +569,14 @@ def test_only_a_moment_that_turns_the_car_further_fades_near_the_sideslip_bound(
     controller(np.zeros(8), est, front, np.zeros((8, 4)))
     delivered = controller.last_allocation
     assert np.all(delivered.feasible)
-    np.testing.assert_allclose(delivered.yaw_moment, np.where(oversteer, 1.0, 1.0 - share) * asked, rtol=1e-6)
+    from fourwis.control.reference import SIDESLIP_GAIN, STABLE_SIDESLIP
+
+    beyond = beta - np.clip(beta, -STABLE_SIDESLIP * bound, STABLE_SIDESLIP * bound)
+    held = SIDESLIP_GAIN * beyond
+    assert np.all(np.sign(held[share > 0]) == -np.sign(r_ref[share > 0]))  # against the slide out of the turn
+    np.testing.assert_allclose(
+        delivered.yaw_moment, np.where(oversteer, 1.0, 1.0 - share) * asked + held, rtol=1e-6, atol=1e-6
+    )
 
 
 def test_with_rear_steer_the_reference_is_the_four_wheel_steered_car_s():
@@ -758,8 +767,9 @@ def _turning(u: np.ndarray, r: float, ay: float = 0.0) -> Estimate:
 @pytest.mark.parametrize("law", ["lqr", "smc"])
 def test_the_dyc_asks_no_moment_below_its_active_speed_but_still_shares_the_drive(law):
     """Below ACTIVE_SPEED (2 m/s: slip angles mean little at walking pace) the law's moment is 0
-    and the allocator only shares the driver's torque; just above it a car yawing at 0.3 rad/s
-    with the wheels straight gets a counter-moment (clockwise)."""
+    and the allocator only shares the driver's torque, however the car yaws; just above it a car
+    yawing at 0.3 rad/s with the wheels straight (outside its stable region) gets a counter-moment
+    (clockwise), and the driver's drive yields to it."""
     from fourwis.control.dyc import ACTIVE_SPEED
 
     controller = StabilityController(P, law=law)
@@ -770,7 +780,7 @@ def test_the_dyc_asks_no_moment_below_its_active_speed_but_still_shares_the_driv
     np.testing.assert_array_equal(moment[:2], 0.0)
     np.testing.assert_allclose(command.torques[:2], base[:2])
     assert moment[2] < -50.0
-    np.testing.assert_allclose(command.torques[2].sum(), base[2].sum(), rtol=1e-9)
+    np.testing.assert_allclose(command.torques[2].sum(), 0.0, atol=1e-9)
 
 
 def test_the_friction_ellipse_leaves_a_cornering_tyre_less_longitudinal_force():
@@ -795,3 +805,30 @@ def test_the_friction_ellipse_leaves_a_cornering_tyre_less_longitudinal_force():
     assert ellipse.feasible[1]
     tyre_fx = np.abs(ellipse.torques[0]) / P.wheel_radius
     assert np.all(tyre_fx <= 0.6 * 2000.0 * (1 + 1e-6))
+
+
+def test_inside_the_stable_region_a_moment_against_the_yaw_error_fades_over_the_deadband():
+    """A sliding-mode DYC on a car cornering hard on mu 0.65 at 22 m/s just short of its reference
+    (inside the stable region, sideslip within half its bound): the law's model term asks for a
+    moment that would turn the car out of the bend, away from the reference; the controller scales
+    it by 1 - |r - r_ref| / YAW_DEADBAND, to nothing at the deadband, and lets a moment towards the
+    reference through whole."""
+    from fourwis.control import YAW_DEADBAND
+    from fourwis.control.dyc import SlidingModeYawController
+
+    u, front, mu = np.full(3, 22.0), np.full(3, 0.088), np.full((3, 4), 0.65)
+    r_ref = reference_yaw_rate(u, front, mu, P)  # (the lagged reference starts on the steady state)
+    error = np.array([-0.25, -1.5, 0.5]) * YAW_DEADBAND  # short of it twice, then past it
+    est = Estimate(
+        u=u, v=np.zeros(3), beta=np.zeros(3), r=r_ref + error, ax=np.zeros(3), ay=np.zeros(3), mu=mu,
+        fz=np.full((3, 4), P.mass * GRAVITY / 4), beta_std=np.zeros(3), mu_std=np.zeros((3, 4)),
+    )  # fmt: skip
+    shrunk = np.sign(error) * np.maximum(np.abs(error) - YAW_DEADBAND, 0.0)
+    asked = SlidingModeYawController(P).moment(u, 0.0, r_ref + shrunk, r_ref, front, 0.0, 0.002, mu)
+    assert np.all(asked < -100.0)  # the model's phantom yaw acceleration, cancelled: out of the bend
+    controller = StabilityController(P, law="smc")
+    controller(np.zeros(3), est, front, np.zeros((3, 4)))
+    delivered = controller.last_allocation.yaw_moment
+    np.testing.assert_allclose(delivered[0], asked[0] * 0.75, rtol=1e-6)  # against the error: faded
+    assert delivered[1] == 0.0  # beyond the deadband against the error: none
+    np.testing.assert_allclose(delivered[2], asked[2], rtol=1e-6)  # towards the reference: whole

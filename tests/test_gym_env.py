@@ -356,7 +356,7 @@ def test_async_vector_env_with_spawned_workers():
     try:
         obs, _ = env.reset(seed=0)
         obs2, reward, *_ = env.step(np.zeros((2, 2), dtype=np.float32))
-        assert obs.shape == (2, 14) and np.all(np.isfinite(obs2)) and reward.shape == (2,)
+        assert obs.shape == (2, 18) and np.all(np.isfinite(obs2)) and reward.shape == (2,)
     finally:
         env.close()
 
@@ -839,3 +839,43 @@ def test_a_numpy_control_step_is_the_multiple_of_2_ms_it_stands_for():
         assert EnvConfig(control_dt=np.float32(k * 0.002)).control_dt == k * 0.002
     with pytest.raises(ValueError, match="control_dt must be a multiple"):
         EnvConfig(control_dt=0.021)
+
+
+def test_the_esc_beneath_the_agent_brakes_on_ice_in_the_compiled_loop_as_in_python():
+    """esc=True puts the brake-based ESC under the agent's command: on a mu jump onto ice (0.1) with
+    the agent's actions zero it brakes a wheel where esc=False does not, and the compiled loop's
+    agent stage and the same controller called from Python drive the car alike."""
+    from fourwis.envs.gym_env import AgentController, EnvConfig
+    from fourwis.envs.layout import C_BRAKE
+    from fourwis.envs.scenarios import make_scenario
+    from fourwis.envs.simulation import ClosedLoop
+
+    brakes = {}
+    for esc in (False, True):
+        env = YawStabilityEnv(scenario="mu_jump", scenario_kwargs={"mu_patch": 0.1}, estimator="oracle", esc=esc)
+        env.reset(seed=0)
+        pressures = []
+        for _ in range(150):
+            env.step(np.zeros(2, dtype=np.float32))
+            pressures.append(env.unwrapped.core.loop.cars.controls[0, C_BRAKE : C_BRAKE + 4].max())
+        brakes[esc] = max(pressures)
+    assert brakes[False] == 0.0 and brakes[True] > 1e4
+
+    class PythonAgent:
+        def __init__(self, agent):
+            self.agent = agent
+
+        def reset(self):
+            pass
+
+        def __call__(self, *args):
+            return self.agent(*args)
+
+    scenario = make_scenario("mu_jump", mu_patch=0.1, duration=3.0)
+    config = EnvConfig(scenario="mu_jump", estimator="oracle", esc=True)
+    compiled = AgentController(scenario.vehicle_params, config, 1)
+    python = PythonAgent(AgentController(scenario.vehicle_params, config, 1))
+    loops = [ClosedLoop(scenario, c, "oracle", np.random.default_rng(0)) for c in (compiled, python)]
+    states = [loop.advance_steps(1500).state for loop in loops]
+    np.testing.assert_allclose(states[0], states[1], rtol=1e-9, atol=1e-9)
+    assert compiled.esc.active.shape == (1,)

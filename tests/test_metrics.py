@@ -333,3 +333,46 @@ def test_swd_shows_mirror_image_runs_as_one_row():
     assert len(rows) == 3
     assert "| 83 deg (5.0A) | L, R | 10.0% |" in rows[0]
     assert "| 91 deg (5.5A) | L | 10.0% |" in rows[1] and "| 91 deg (5.5A) | R | 30.0% |" in rows[2]
+
+
+def test_a_sine_with_dwell_result_names_each_criterion_it_fails():
+    """Constructed results: each FMVSS 126 criterion fails alone and together, in the regulation's
+    order; responsiveness does not apply below 5A (None), so it cannot fail there."""
+    from fourwis.envs.metrics import SWD_CRITERIA, SineWithDwellResult
+
+    def result(r1000, r1750, responsive):
+        return SineWithDwellResult(1, 3.0, 1.0, 2.9, 0.5, r1000, r1750, 2.1, responsive, False)
+
+    assert result(0.1, 0.05, True).failed_criteria == () and result(0.1, 0.05, True).passed
+    assert result(0.36, 0.05, True).failed_criteria == ("yaw ratio at 1.00 s",)
+    assert result(0.1, -0.21, True).failed_criteria == ("yaw ratio at 1.75 s",)
+    assert result(0.1, 0.05, False).failed_criteria == ("responsiveness at 1.07 s",)
+    assert result(math.inf, 0.5, False).failed_criteria == SWD_CRITERIA
+    assert result(0.1, 0.05, None).failed_criteria == () and result(0.1, 0.05, None).passed
+    assert result(0.1, 0.05, False).as_dict()["failed_criteria"] == "responsiveness at 1.07 s"
+    for r in (result(0.36, 0.05, True), result(0.1, 0.05, False), result(0.1, 0.05, None)):
+        assert r.passed == (not r.failed_criteria)
+
+
+def test_braking_metrics_on_a_constructed_stop():
+    """A stop at a constant 8 m/s^2 from 27.8 m/s (brakes at 0.5 s): distance v^2 / (2 a) and time
+    v / a from the application; a wheel locked for 0.3 s above 15 km/h and again below it counts
+    0.3 s (UN R13-H judges lock above 15 km/h only); a car that never stops has no distance."""
+    from fourwis.envs.metrics import WHEEL_LOCK_SPEED, braking_metrics
+
+    dt, v0, a, brake_at = 0.002, 27.8, 8.0, 0.5
+    t = np.arange(0.0, 5.0, dt)
+    braking = np.clip(t - brake_at, 0.0, v0 / a)
+    u = np.clip(v0 - a * braking, 0.0, None)
+    x = v0 * t - 0.5 * a * braking**2
+    rims = np.tile(u[:, None], (1, 4))
+    locked = (t >= 1.0) & (t < 1.3)
+    rims[locked, 2] = 0.0
+    rims[(u < WHEEL_LOCK_SPEED) & (u > 0.0), 1] = 0.0  # (a lock below 15 km/h: not judged)
+    result = braking_metrics(t, x, u, rims, brake_at)
+    assert result.stopping_distance == pytest.approx(v0**2 / (2 * a), rel=1e-3)
+    assert result.stopping_time == pytest.approx(v0 / a, abs=2 * dt)
+    assert result.initial_speed == pytest.approx(v0)
+    assert result.longest_lock == pytest.approx(0.3, abs=dt)
+    rolling = braking_metrics(t, v0 * t, np.full_like(t, v0), np.full((len(t), 4), v0), brake_at)
+    assert rolling.stopping_distance is None and rolling.longest_lock == 0.0

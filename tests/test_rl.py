@@ -10,6 +10,10 @@ from fourwis.envs.scenarios import make_scenario
 from fourwis.envs.simulation import simulate
 from fourwis.training.rl import ALGOS, PolicyController, SB3VecEnv, train
 
+#: the sensor seed of an env reset with seed 0 (EnvConfig.draw: its sensor generator is seeded from the
+#: episode's first draw), for simulate to read the same noise: the wheel-slip control acts on the
+#: measured wheel speeds, so with the oracle too the trajectory depends on the sensors' noise
+ENV_SENSOR_SEED = int(np.random.default_rng(0).integers(2**63))
 FAST = {"ppo": {"n_steps": 128, "batch_size": 256}, "sac": {"learning_starts": 256}, "td3": {"learning_starts": 256}}
 
 
@@ -47,7 +51,9 @@ def test_train_save_reload_and_evaluate_with_identical_deterministic_actions(alg
         action, _ = controller.model.predict(controller.normalise(obs[None]), deterministic=True)
         actions.append(action[0])
         obs, *_ = env.step(action[0])
-    traj = simulate(make_scenario("paper_sine", duration=40 * 0.02), controller=controller, estimator="oracle")
+    traj = simulate(
+        make_scenario("paper_sine", duration=40 * 0.02), controller=controller, estimator="oracle", seed=ENV_SENSOR_SEED
+    )
     np.testing.assert_allclose(traj.state[-1], env.unwrapped.core.loop.state[0], rtol=1e-9, atol=1e-9)
     assert np.ptp(np.array(actions), axis=0).max() > 0  # the policy acts, not a constant
     assert model_path == out / "model.zip"
@@ -87,7 +93,9 @@ def test_privileged_training_gives_an_actor_that_needs_no_truth(algo, tmp_path):
     for _ in range(40):
         action, _ = controller.model.predict(controller.normalise(obs[None]), deterministic=True)
         obs, *_ = env.step(action[0])
-    traj = simulate(make_scenario("paper_sine", duration=40 * 0.02), controller=controller, estimator="oracle")
+    traj = simulate(
+        make_scenario("paper_sine", duration=40 * 0.02), controller=controller, estimator="oracle", seed=ENV_SENSOR_SEED
+    )
     np.testing.assert_allclose(traj.state[-1], env.unwrapped.core.loop.state[0], rtol=1e-9, atol=1e-9)
 
 

@@ -7,32 +7,42 @@ import numpy as np
 import pytest
 
 from fourwis.core.types import CHANNELS
-from fourwis.envs.sensors import CHANNEL_OF_SENSOR, SENSORS, Fault, SensorModel, SensorParams
+from fourwis.envs.sensors import SENSORS, Fault, SensorModel, SensorParams
 from fourwis.envs.simulation import DT
 
 
 def run(faults=(), seed=0, n=2000, batch=2, params=SensorParams()):
-    """n readings of a constant truth: values and valid (n, batch, 13) per sensor (the channel
-    each sensor fills first), the truth, the model."""
+    """n readings of a constant truth: values and valid (n, batch, 17) per sensor, the truth, the model."""
     model = SensorModel(params, tuple(faults), batch, np.random.default_rng(seed))
-    truth = np.tile(np.linspace(1.0, 13.0, len(SENSORS)), (batch, 1))
-    readings = [model.measure(truth, k * DT) for k in range(n)]
-    values = np.stack([r.values[:, CHANNEL_OF_SENSOR] for r in readings])
-    valid = np.stack([r.valid[:, CHANNEL_OF_SENSOR] for r in readings])
+    truth = np.tile(np.linspace(1.0, 17.0, len(SENSORS)), (batch, 1))
+    readings = [model.read(truth, k * DT) for k in range(n)]
+    values = np.stack([r.values for r in readings])
+    valid = np.stack([r.valid for r in readings])
     return values, valid, truth, model
 
 
 def test_the_cars_sensors_fill_the_channel_layout():
-    """Each axle's one steer sensor fills both its wheels' channels; the car has no forward-speed
-    sensor, whose channel is NaN and invalid; every other channel is its sensor's reading."""
-    faults = (Fault("delta_f", "dropout", start=0.0, end=1.0),)
-    model = SensorModel(SensorParams().scaled(0.0), faults, 1, np.random.default_rng(0))
-    reading = model.measure(np.linspace(1.0, 13.0, len(SENSORS))[None], 0.0)
+    """Each axle's one steer sensor fills both its wheels' channels; each wheel's torque channel is
+    its motor torque less the brake gain times its brake pressure, invalid while the pressure
+    sensor is out; the car has no forward-speed sensor, whose channel is NaN and invalid; every
+    other channel is its sensor's reading."""
+    faults = (Fault("delta_f", "dropout", start=0.0, end=1.0), Fault("brake_rr", "dropout", start=0.0, end=1.0))
+    gain = 2.0e-4
+    model = SensorModel(SensorParams().scaled(0.0), faults, 1, np.random.default_rng(0), brake_gain=gain)
+    truth = np.linspace(1.0, 17.0, len(SENSORS))
+    truth[-4:] = [1e5, 2e5, 3e5, 4e5]  # brake pressures [Pa]
+    reading = model.measure(truth[None], 0.0)
     assert reading.values.shape == reading.valid.shape == (1, len(CHANNELS)) == (1, 16)
     row, ok = reading.values[0], reading.valid[0]
     for name in SENSORS:
-        if not name.startswith("delta_"):
+        if not name.startswith(("delta_", "torque_", "brake_")):
             assert row[CHANNELS.index(name)] == 1.0 + SENSORS.index(name), name
+    for wheel in ("fl", "fr", "rl", "rr"):
+        motor = truth[SENSORS.index(f"torque_{wheel}")]
+        # (the rr pressure is held at 0: never valid yet)
+        held = 0.0 if wheel == "rr" else truth[SENSORS.index(f"brake_{wheel}")]
+        assert row[CHANNELS.index(f"torque_{wheel}")] == pytest.approx(motor - gain * held, abs=1e-12)
+        assert ok[CHANNELS.index(f"torque_{wheel}")] == (wheel != "rr")
     assert row[CHANNELS.index("delta_fl")] == row[CHANNELS.index("delta_fr")] == 0.0  # (held: never valid yet)
     assert row[CHANNELS.index("delta_rl")] == row[CHANNELS.index("delta_rr")] == 9.0
     assert np.isnan(row[CHANNELS.index("speed")]) and not ok[CHANNELS.index("speed")]
@@ -49,21 +59,50 @@ def test_same_seed_same_stream_different_seed_different_stream():
 
 
 def test_a_reading_is_truth_plus_bias_plus_the_vehicles_own_draws_across_block_refills():
-    """One car's stream, redrawn from its generator: a bias draw, then blocks of NOISE_BLOCK
-    normal and uniform draws; the compiled noise step must follow it sample for sample."""
-    from fourwis.envs.sensors import NOISE_BLOCK
+    """One car's stream, redrawn from its generator: for the 13 sensors other than the brake
+    pressures a bias draw, then blocks of NOISE_BLOCK normal and uniform draws (the stream the car
+    had before it had brake sensors); for the brake pressures the same from the generator jumped
+    ahead. The compiled noise step must follow both sample for sample."""
+    from fourwis.envs.sensors import NOISE_BLOCK, S_BRAKE_SENSOR
 
     params = SensorParams()
     n = 2 * NOISE_BLOCK + 10
     values, _, truth, _ = run(seed=11, n=n, batch=1, params=params)
     rng = np.random.default_rng(11)
-    bias = rng.standard_normal(len(SENSORS)) * np.array(params.bias_std)
+    brakes = np.random.Generator(rng.bit_generator.jumped())
+    first = slice(0, S_BRAKE_SENSOR)
+    assert S_BRAKE_SENSOR == 13 and len(SENSORS) == 17
+    bias = np.concatenate([rng.standard_normal(13), brakes.standard_normal(4)]) * np.array(params.bias_std)
     normal = []
     for _ in range(3):
-        normal.append(rng.standard_normal((NOISE_BLOCK, len(SENSORS))))
+        block = rng.standard_normal((NOISE_BLOCK, 13))
         rng.random((NOISE_BLOCK, 2))
+        normal.append(np.column_stack([block, brakes.standard_normal((NOISE_BLOCK, 4))]))
     expected = truth[0] + bias + np.concatenate(normal)[:n] * np.array(params.noise_std)
+    np.testing.assert_array_equal(values[:, 0, first], expected[:, first])
     np.testing.assert_array_equal(values[:, 0], expected)
+
+
+def test_a_released_brakes_pressure_noise_stays_out_of_the_net_torque():
+    """Below the released-brake pressure a pressure reading adds no brake torque: with the brakes
+    released the torque channels read the motor torque sensors exactly; applied, the net torque."""
+    from fourwis.envs.sensors import BRAKE_RELEASED_PRESSURE
+
+    gain = 2.0e-4
+    model = SensorModel(SensorParams(), (), 1, np.random.default_rng(3), brake_gain=gain)
+    torque, brake = slice(SENSORS.index("torque_fl"), SENSORS.index("torque_fl") + 4), slice(-4, None)
+    channels = slice(CHANNELS.index("torque_fl"), CHANNELS.index("torque_fl") + 4)
+    for k in range(3000):  # a released brake: true pressure 0, its readings noise and bias
+        truth = np.full((1, len(SENSORS)), 50.0)
+        truth[0, brake] = 0.0
+        sensed = model.read(truth, k * DT)
+        assert np.all(np.abs(sensed.values[0, brake]) < BRAKE_RELEASED_PRESSURE)
+        np.testing.assert_array_equal(model.channels(sensed, k * DT).values[0, channels], sensed.values[0, torque])
+    truth[0, brake] = 3.0e6  # applied: 30 bar
+    sensed = model.read(truth, 1.0)
+    np.testing.assert_allclose(
+        model.channels(sensed, 1.0).values[0, channels], sensed.values[0, torque] - gain * sensed.values[0, brake]
+    )
 
 
 def test_noise_and_bias_have_the_configured_statistics():
@@ -72,11 +111,16 @@ def test_noise_and_bias_have_the_configured_statistics():
     error = values[:, 0, :] - truth[0]
     np.testing.assert_allclose(error.std(axis=0), params.noise_std, rtol=0.05)
     # the mean error is the run's drawn turn-on bias, up to each channel's own standard error
-    # (4 sigma), and the bias is there: the channels with a bias std draw one well outside it
+    # (4 sigma), and the bias is there: over the channels with a bias std, the mean errors in
+    # standard errors, squared and summed, lie far beyond chi-square's 99.99% point for no bias
+    # (35.9 for 11 channels; a single channel's draw can fall near zero)
     noise_std, bias_std = np.asarray(params.noise_std), np.asarray(params.bias_std)
-    assert np.all(np.abs(error.mean(axis=0) - model.bias[0]) <= 4 * noise_std / math.sqrt(20000))
+    standard_error = noise_std / math.sqrt(20000)
+    assert np.all(np.abs(error.mean(axis=0) - model.bias[0]) <= 4 * standard_error)
     assert np.all(model.bias[0][bias_std == 0.0] == 0.0)
-    assert np.all(np.abs(model.bias[0][bias_std > 0.0]) > 4 * noise_std[bias_std > 0.0] / math.sqrt(20000))
+    biased = bias_std > 0.0
+    assert biased.sum() == 11
+    assert np.sum((error.mean(axis=0)[biased] / standard_error[biased]) ** 2) > 10 * 35.9
     assert valid.all()
     # the turn-on biases across 4,000 cars: N(0, bias_std) per channel (standard error of a
     # standard deviation from 4,000 draws: 1.1%; of the mean: bias_std / sqrt(4000))
@@ -181,7 +225,7 @@ def test_bad_truth_raises_naming_the_channel():
         model.measure(truth, 0.0)
     with pytest.raises(ValueError, match="shape"):
         model.measure(np.zeros((2, len(SENSORS))), 0.0)
-    with pytest.raises(ValueError, match=r"noise_std must be 13 .*, got \[1. 1. 1. 1. 1. 1. 1. 1. 1. 1. 1. 1.\]"):
+    with pytest.raises(ValueError, match=r"noise_std must be 17 .*, got \[1. 1. 1. 1. 1. 1. 1. 1. 1. 1. 1. 1.\]"):
         SensorParams(noise_std=(1.0,) * 12)
 
 

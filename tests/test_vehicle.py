@@ -9,8 +9,12 @@ from fourwis.core.constants import GRAVITY
 from fourwis.envs.layout import (
     A_AX,
     A_AY,
+    A_BRAKE_TORQUE,
+    A_FX,
     A_FZ,
+    A_KAPPA,
     A_MU,
+    C_BRAKE,
     C_DELTA_F,
     C_DELTA_R,
     C_TORQUE,
@@ -18,6 +22,7 @@ from fourwis.envs.layout import (
     NX,
     S_AX,
     S_AY,
+    S_BRAKE,
     S_DELTA_F,
     S_DELTA_R,
     S_OMEGA,
@@ -276,14 +281,9 @@ def rk4_amplification(z: np.ndarray) -> np.ndarray:
     return np.abs(1 + z + z**2 / 2 + z**3 / 6 + z**4 / 24)
 
 
-@pytest.mark.parametrize("speed", [0.0, 0.5, 1.0, 5.0, 20.0, 45.0])
-def test_linearised_plant_is_inside_rk4_stability_region(speed):
-    """Wheel spin is stiff at low speed; the relaxed-slip tyre keeps every eigenvalue inside RK4's region."""
-    x0 = initial_state(P, speed)[0]
-    x0[10:14] = 200.0  # driving torque so that the tyres carry load in the linearisation
-    u0 = np.zeros(NU)
-    u0[:4] = 200.0
-    mu = np.ones((1, 4))
+def _jacobian(x0: np.ndarray, u0: np.ndarray, mu: np.ndarray) -> np.ndarray:
+    """The plant's Jacobian d(state_dot)/d(state) (NX, NX) at state x0 (NX,), controls u0 (NU,) and
+    friction mu (1, 4), by central differences."""
     jac = np.empty((NX, NX))
     for j in range(NX):
         h = 1e-6 * max(1.0, abs(x0[j]))
@@ -293,7 +293,18 @@ def test_linearised_plant_is_inside_rk4_stability_region(speed):
         jac[:, j] = (derivatives(xp[None], u0[None], mu, P)[0][0] - derivatives(xm[None], u0[None], mu, P)[0][0]) / (
             2 * h
         )
-    eig = np.linalg.eigvals(jac)
+    return jac
+
+
+@pytest.mark.parametrize("speed", [0.0, 0.5, 1.0, 5.0, 20.0, 45.0])
+def test_linearised_plant_is_inside_rk4_stability_region(speed):
+    """Wheel spin is stiff at low speed; the relaxed-slip tyre keeps every eigenvalue inside RK4's region."""
+    x0 = initial_state(P, speed)[0]
+    x0[10:14] = 200.0  # driving torque so that the tyres carry load in the linearisation
+    u0 = np.zeros(NU)
+    u0[:4] = 200.0
+    mu = np.ones((1, 4))
+    eig = np.linalg.eigvals(_jacobian(x0, u0, mu))
     assert rk4_amplification(eig * DT).max() <= 1.0 + 1e-9
 
 
@@ -500,3 +511,111 @@ def test_an_inner_wheel_lifts_at_1_n_and_its_axle_keeps_its_load():
     assert fz.min() == 1.0  # a wheel lifted
     np.testing.assert_allclose(fz.sum(axis=1), P.mass * GRAVITY, rtol=1e-12)
     assert np.abs(aux[:, 0, A_AY]).max() <= 1.05 * 2.0 * GRAVITY
+
+
+def braked(speed, pressure, seconds, mu=1.0, torque=0.0, params=P):
+    """A straight run from ``speed`` [m/s] with brake pressure command ``pressure`` [Pa] (scalar or
+    (4,)) and motor torque ``torque`` [N m] on every wheel: (states, aux) per 2 ms step."""
+    state = initial_state(params, speed)
+    controls = np.zeros((1, NU))
+    controls[0, C_BRAKE : C_BRAKE + 4] = pressure
+    controls[0, C_TORQUE : C_TORQUE + 4] = torque
+    tables = RoadTables.from_roads(uniform(mu), 1)
+    states, auxs = [], []
+    for _ in range(int(round(seconds / DT))):
+        state, aux = step(state, controls, params, tables, DT)
+        states.append(state[0])
+        auxs.append(aux[0])
+    return np.array(states), np.array(auxs)
+
+
+def test_brake_pressure_follows_its_rate_limit_then_its_lag_within_the_pressure_limit():
+    """From 0 towards a command beyond the limit: the pressure rises at the rate limit until it is
+    within rate * tau of the (clipped) limit, then approaches it as the first-order lag; the brake
+    torque never exceeds gain x pressure; a negative command releases to 0, not below."""
+    pmax, rate, tau = P.brake_max_pressure, P.brake_pressure_rate, P.brake_time_constant
+    states, aux = braked(20.0, 2.0 * pmax, 0.2)
+    pressure = states[:, S_BRAKE]
+    t = np.arange(1, len(pressure) + 1) * DT
+    knee = (pmax - rate * tau) / rate  # [s] where the lag takes over from the rate limit
+    ramp = t <= knee - DT
+    np.testing.assert_allclose(pressure[ramp], rate * t[ramp], rtol=1e-9)
+    after = t >= knee + DT
+    expected = pmax - rate * tau * np.exp(-(t[after] - knee) / tau)
+    np.testing.assert_allclose(pressure[after], expected, rtol=2e-3)
+    assert np.all(pressure <= pmax) and np.all(np.diff(pressure) >= 0.0)
+    capacity = P.brake_gain * states[:, S_BRAKE : S_BRAKE + 4]
+    assert np.all(np.abs(aux[:, A_BRAKE_TORQUE : A_BRAKE_TORQUE + 4]) <= capacity + 1e-9)
+    state = states[-1:].copy()
+    controls = np.zeros((1, NU))
+    controls[0, C_BRAKE : C_BRAKE + 4] = -1e7
+    for _ in range(100):
+        state = step(state, controls, P, uniform(1.0), DT).state
+    released = rate * tau * math.exp(-(0.2 - knee) / tau)  # the same ramp and lag, towards 0 (the clip)
+    np.testing.assert_allclose(state[0, S_BRAKE : S_BRAKE + 4], released, rtol=0.02)
+
+
+@pytest.mark.parametrize("mu", [1.0, 0.5, 0.2])
+def test_a_locked_wheel_stays_locked_and_its_tyre_slides_with_the_sliding_friction(mu):
+    """Full pressure at 25 m/s locks every wheel: the wheel speed settles at 0 (no chattering: the
+    brake torque keeps its sign, against the tyre's forward drag, and stays below the brake's
+    capacity once it holds the wheel) and each tyre's force is the Magic Formula's at kappa = -1
+    on that road, the tyre's sliding friction; the car decelerates at about that friction."""
+    states, aux = braked(25.0, P.brake_max_pressure, 1.0, mu=mu)
+    locked = slice(int(0.5 / DT), None)
+    omega = states[locked, S_OMEGA : S_OMEGA + 4]
+    assert np.abs(omega).max() < 1e-3
+    brake = aux[locked, A_BRAKE_TORQUE : A_BRAKE_TORQUE + 4]
+    assert np.all(brake > 0.0) and np.all(brake < P.brake_peak_torque)
+    fz, kappa = aux[-1, A_FZ : A_FZ + 4], aux[-1, A_KAPPA : A_KAPPA + 4]
+    np.testing.assert_allclose(kappa, -1.0, atol=0.06)  # (the relaxed slip's lag behind -1 as u falls)
+    sliding, _ = tyre_forces(P.tyre, fz, -1.0, 0.0, mu, P.reference_wheel_load)
+    # low-speed damping is off at 20 m/s; the force of the slip the relaxation holds, within 1%
+    np.testing.assert_allclose(aux[-1, A_FX : A_FX + 4], sliding, rtol=0.01)
+    u = states[locked, S_U]
+    drag = 0.5 * P.air_density * P.drag_area * u**2
+    expected = (-aux[locked, A_FX : A_FX + 4].sum(axis=1) + drag).mean() / P.mass
+    assert -np.diff(u).mean() / DT == pytest.approx(expected, rel=0.01)
+
+
+def test_locked_wheels_stop_the_car_within_the_sliding_distance_and_stay_locked_at_rest():
+    """Locked wheels bring the car from 15 m/s on mu 0.8 to rest within the distance of the
+    sliding friction (~0.7 on mu 0.8: the MF's kappa = -1 force), and the brakes hold the wheels
+    still through the stop and after it (RK4 on the stick phase at 2 ms, no sign flips). (The car
+    then rocks on its tyres' relaxed slip, which stores the sliding slip as a deflection:
+    docs/decisions/0038-friction-brakes-and-wheel-lock.md.)"""
+    states, _ = braked(15.0, P.brake_max_pressure, 4.0, mu=0.8)
+    stop = int(np.argmax(states[:, S_U] <= 0.0))
+    assert stop > 0 and states[stop, 0] < 15.0**2 / (2 * 0.65 * 0.8 * GRAVITY)
+    assert np.abs(states[int(0.5 / DT) :, S_OMEGA : S_OMEGA + 4]).max() < 1e-3
+
+
+def test_a_brake_below_the_locking_torque_exerts_its_capacity_and_the_wheel_rolls():
+    """300 N m of brake capacity at 20 m/s on mu 1 (about half the torque that locks a wheel): the
+    brake slides on its disc, exerting exactly gain x pressure, the wheel keeps rolling at a small
+    slip, and the car decelerates at four brake torques over the wheel radius, plus drag and
+    rolling resistance, over the mass and the wheels' spin inertia (m + 4 J / R^2)."""
+    capacity = 300.0
+    states, aux = braked(20.0, capacity / P.brake_gain, 1.0)
+    late = slice(int(0.5 / DT), None)
+    np.testing.assert_allclose(aux[late, A_BRAKE_TORQUE : A_BRAKE_TORQUE + 4], capacity, rtol=1e-9)
+    kappa = aux[late, A_KAPPA : A_KAPPA + 4]
+    assert np.all((kappa < 0.0) & (kappa > -0.08)) and np.all(states[late, S_OMEGA : S_OMEGA + 4] > 40.0)
+    u = states[late, S_U]
+    decel = -np.diff(u).mean() / DT
+    drag = 0.5 * P.air_density * P.drag_area * (u**2).mean()
+    resistance = 4 * capacity / P.wheel_radius + drag + P.rolling_resistance * P.mass * GRAVITY
+    assert decel == pytest.approx(resistance / (P.mass + 4 * P.wheel_inertia / P.wheel_radius**2), rel=0.01)
+
+
+def test_a_locked_wheel_is_inside_rk4_stability_region():
+    """Linearised about a sliding, locked car at 20 m/s (brakes holding, tyres at kappa = -1):
+    every eigenvalue, the stick phase's -1 / brake_lock_time_constant among them, within RK4's region."""
+    states, _ = braked(20.0, P.brake_max_pressure, 0.6)
+    x0 = states[-1].copy()
+    u0 = np.zeros(NU)
+    u0[C_BRAKE : C_BRAKE + 4] = P.brake_max_pressure
+    mu = np.ones((1, 4))
+    eig = np.linalg.eigvals(_jacobian(x0, u0, mu))
+    assert np.any(np.isclose(eig.real, -1.0 / P.brake_lock_time_constant, rtol=1e-3))
+    assert rk4_amplification(eig * DT).max() <= 1.0 + 1e-9

@@ -11,6 +11,8 @@ from dataclasses import fields
 from importlib import resources
 
 from fourwis.control import CONTROLLERS, make_controller
+from fourwis.control.esc import EXIT_SIDESLIP, EXIT_YAW_ERROR, BrakeESC
+from fourwis.control.reference import STABLE_SIDESLIP, STABLE_YAW_ERROR
 from fourwis.envs import scenarios as scenario_builders
 from fourwis.envs.gym_env import EnvConfig
 from fourwis.envs.scenarios import SCENARIOS
@@ -32,6 +34,7 @@ SCENARIO_SUMMARIES = {
     "slowly_increasing_steer": "FMVSS 126 characterisation: steering-wheel ramp at constant speed (finds A)",
     "iso3888_2": "ISO 3888-2 obstacle-avoidance lane change, coasting from the course entry",
     "mu_jump": "steady cornering at `lateral_g` onto a `mu_patch` surface from X = `patch_x` m",
+    "straight_braking": "full braking in a straight line from `speed_kph` at `brake_at` s (ABS on unless switched off)",
     "random": "domain-randomised RL training scenario (speed, road and steering drawn from `seed`)",
 }
 
@@ -53,6 +56,7 @@ CONTROLLER_SUMMARIES = {
     "dyc-smc": "direct yaw-moment control, sliding-mode law, torques allocated per wheel",
     "dyc-lqr-4ws": "dyc-lqr plus the paper's eq. 20 rear steer",
     "dyc-smc-4ws": "dyc-smc plus the paper's eq. 20 rear steer",
+    "esc": "brake-based ESC: single-wheel braking on yaw-rate and sideslip error, entry and exit thresholds",
 }
 
 
@@ -145,6 +149,11 @@ def controller_rows() -> list[tuple[str, str, str]]:
         controller = make_controller(name, VehicleParams())
         if controller is None:
             defaults = "no settings"
+        elif isinstance(controller, BrakeESC):
+            defaults = (
+                f"entry {STABLE_YAW_ERROR:g} rad/s or {STABLE_SIDESLIP:g} x the sideslip bound, exit "
+                f"{EXIT_YAW_ERROR:g} rad/s and {EXIT_SIDESLIP:g} x; step {1000 * controller.dt:g} ms"
+            )
         else:
             understeer = (
                 "the car's own" if controller.reference_understeer is None else f"{controller.reference_understeer:g}"

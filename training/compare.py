@@ -24,13 +24,15 @@ from fourwis.control import CONTROLLERS, make_controller
 from fourwis.control.allocation import wheel_force_map
 from fourwis.control.reference import PhasePlaneRegion
 from fourwis.core.checks import import_factory, is_integer, is_number
+from fourwis.core.constants import GRAVITY
 from fourwis.envs.fmvss126 import characterise
-from fourwis.envs.layout import A_AY, S_DELTA_F, S_DELTA_R, S_PSI, S_R, S_TORQUE, S_U, S_X, S_Y
+from fourwis.envs.layout import A_AY, A_BRAKE_TORQUE, S_DELTA_F, S_DELTA_R, S_OMEGA, S_PSI, S_R, S_TORQUE, S_U, S_X, S_Y
 from fourwis.envs.metrics import (
     DISPLACEMENT_LIMIT,
     YAW_RATIO_1000,
     YAW_RATIO_1750,
     alongside_path,
+    braking_metrics,
     cone_hits,
     mae,
     path_deviation,
@@ -66,7 +68,7 @@ HEADLINE = (
     "iso3888_2:speed_kph=70",
 )
 DEFAULT_ESTIMATORS = ("oracle", "ckf", "joint")
-DEFAULT_CONTROLLERS = ("none", "dyc-lqr")
+DEFAULT_CONTROLLERS = ("none", "dyc-lqr", "esc")
 RL_PREFIX = "rl:"  #: controller name prefix of a trained policy: ``rl:<run directory>`` (training.rl)
 SWD_MULTIPLE = 5.5  #: sine-with-dwell amplitude in multiples of A for the comparison
 SWD_MU = 0.5  #: road friction of the comparison's sine with dwell (wet asphalt)
@@ -217,10 +219,11 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
     region = PhasePlaneRegion.default()
     index = region.state_index(T)[np.abs(T.u) >= region.speeds[0]]
     out["phase_plane_peak"] = float(np.max(index)) if index.size else math.nan
-    # control effort: the yaw moment the motors' torques make by driving left and right wheels
-    # differently (straight-wheel arms, so equal drive torques on steered wheels count as no
-    # effort) [N m], and the rear steer [rad]
-    wheel_forces = traj.state[:, S_TORQUE : S_TORQUE + 4] / params.wheel_radius
+    # control effort: the yaw moment the net wheel torques (motor less friction brake) make by
+    # driving or braking left and right wheels differently (straight-wheel arms, so equal torques on
+    # steered wheels count as no effort) [N m], and the rear steer [rad]
+    net_torques = traj.state[:, S_TORQUE : S_TORQUE + 4] - traj.aux[:, A_BRAKE_TORQUE : A_BRAKE_TORQUE + 4]
+    wheel_forces = net_torques / params.wheel_radius
     _, straight_levers = wheel_force_map(params, 0.0, 0.0)
     out.update(yaw_moment_rms=rms(wheel_forces @ straight_levers[0]), rear_steer_rms=rms(traj.state[:, S_DELTA_R]))
     if scenario.reference_path is not None:
@@ -258,12 +261,20 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
             # FMVSS 126's responsiveness (displacement >= 1.83 m), which applies from 5A: NaN below
             swd_responsive=math.nan if res.passed_responsiveness is None else float(res.passed_responsiveness),
         )
-    # the pass-rate map's verdict: no spin-out, on a course its end reached, and on sine with
-    # dwell FMVSS 126 passed (the yaw ratios and the responsiveness displacement: a stable car
-    # can still fail the latter)
-    out["passed"] = float(
-        not out["spin_out"] and out.get("course_completed", 1.0) == 1.0 and out.get("swd_passed", 1.0) == 1.0
-    )
+    if scenario.name == "straight_braking":
+        rims = traj.state[:, S_OMEGA : S_OMEGA + 4] * params.wheel_radius
+        stop = braking_metrics(traj.t, traj.state[:, S_X], traj.state[:, S_U], rims, scenario.brake_after)
+        # the ideal stop on the road's lowest friction, v^2 / (2 mu g) (a uniform road: its own; NaN
+        # on a friction map without a table)
+        table = scenario.road.table()
+        lowest = math.nan if table is None else min([table[0], *table[1][:, 4]])
+        ideal = stop.initial_speed**2 / (2.0 * lowest * GRAVITY)
+        distance = math.nan if stop.stopping_distance is None else stop.stopping_distance
+        out.update(stop_distance=distance, stop_ratio=distance / ideal, longest_lock=stop.longest_lock)
+    # the pass-rate map's verdict (failed_criteria's): no spin-out, on a course its end reached and
+    # no cone displaced (ISO 3888-2: such a run is not valid), and on sine with dwell FMVSS 126
+    # passed (the yaw ratios and the responsiveness displacement: a stable car can still fail the latter)
+    out["passed"] = float(not failed_criteria(out))
     for name in ("u", "v", "beta", "r"):
         out[f"rmse_{name}"] = rmse(getattr(E, name), getattr(T, name))
         out[f"mae_{name}"] = mae(getattr(E, name), getattr(T, name))
@@ -291,6 +302,9 @@ METRIC_UNITS = {
     "swd_displacement": "m",
     "swd_passed": "0/1",
     "swd_responsive": "0/1",
+    "stop_distance": "m",
+    "stop_ratio": "-",
+    "longest_lock": "s",
     "passed": "0/1",
     "rmse_u": "m/s",
     "mae_u": "m/s",
@@ -317,8 +331,8 @@ CRITERIA = {
 
 
 def failed_criteria(metrics: dict[str, float]) -> tuple[str, ...]:
-    """The :data:`CRITERIA` one run of :func:`run_metrics` fails (empty: it passes). The same
-    judgement as its ``passed`` flag (the pass-rate map) but for one criterion more, the cones."""
+    """The :data:`CRITERIA` one run of :func:`run_metrics` fails (empty: it passes; its ``passed``
+    flag and the pass-rate map judge the same)."""
     swd = "swd_ratio_1000" in metrics
     failed = {
         "spin-out": bool(metrics["spin_out"]),
@@ -347,6 +361,38 @@ def verdict_cell(runs: Sequence[dict[str, float]]) -> str:
         return f"pass {len(runs)}/{len(runs)}"
     counts = {name: sum(name in f for f in failures) for name in CRITERIA}
     return f"FAIL {failing}/{len(runs)}: " + ", ".join(f"{name} {k}" for name, k in counts.items() if k)
+
+
+def criterion_pass_lines(runs: dict[tuple[str, str, str], list[dict]], scenarios, estimators, controllers) -> list[str]:
+    """The report's table of pass counts per criterion: for each controller and estimator, over every
+    scenario's runs to which a criterion applies, how many passed it (``k/n``; a dash where none applies)."""
+    applies = {
+        "spin-out": lambda m: True,
+        "course": lambda m: "course_completed" in m,
+        "cones": lambda m: "cone_hits" in m,
+        "FMVSS yaw 1.0 s": lambda m: "swd_ratio_1000" in m,
+        "FMVSS yaw 1.75 s": lambda m: "swd_ratio_1750" in m,
+        "FMVSS responsiveness": lambda m: m.get("swd_responsive") in (0.0, 1.0),
+    }
+    lines = [
+        "",
+        "## Passes per criterion",
+        "",
+        "Runs that passed each criterion over all scenarios' runs it applies to (responsiveness: from 5A).",
+        "",
+        "| controller | estimator | " + " | ".join(CRITERIA) + " |",
+        "|---|---|" + "---:|" * len(CRITERIA),
+    ]
+    for c in controllers:
+        for e in estimators:
+            cells = [m for s in scenarios for m in runs[(s, e, c)]]
+            counts = []
+            for name in CRITERIA:
+                judged = [m for m in cells if applies[name](m)]
+                passed = sum(name not in failed_criteria(m) for m in judged)
+                counts.append(f"{passed}/{len(judged)}" if judged else "—")
+            lines.append(f"| {c} | {e} | " + " | ".join(counts) + " |")
+    return lines
 
 
 def build_controller(name: str, params):
@@ -529,7 +575,7 @@ def markdown_report(
         "Verdict: `pass k/n` when all n seeds pass, else `FAIL k/n` (k seeds failed) and each failed "
         "criterion with the number of seeds that failed it: "
         + "; ".join(f"*{name}*: {text}" for name, text in CRITERIA.items())
-        + ". The pass-rate map (pass_rate.png, runs.csv `passed`) judges the same but for the cones.",
+        + ". The pass-rate map (pass_rate.png, runs.csv `passed`) judges the same.",
         "",
         "## Stability",
         "",
@@ -551,6 +597,8 @@ def markdown_report(
                     f"| {_fmt(m.get('swd_ratio_1750'), 100, 0)}{'%' if 'swd_ratio_1750' in m else ''} "
                     f"| {_fmt(m.get('swd_displacement'))} | {_fmt(m['yaw_moment_rms'], 1, 0)} |"
                 )
+    lines += criterion_pass_lines(runs, scenarios, estimators, controllers)
+    lines += braking_lines(table, scenarios, estimators, controllers)
     lines += oracle_ratio_lines(table, scenarios, estimators, controllers)
     estimated = [e for e in estimators if e != "oracle"]  # (the oracle's errors are zero by construction)
     c = "none" if "none" in controllers else controllers[0]
@@ -576,6 +624,37 @@ def markdown_report(
                     f"| {_fmt(m['rmse_r'], deg, 3)} | {_fmt(m['rmse_mu'], 1, 3)} | {_fmt(m['final_mu_error'], 1, 3)} |"
                 )
     return "\n".join(lines) + "\n"
+
+
+def braking_lines(
+    table: dict, scenarios: Sequence[str], estimators: Sequence[str], controllers: Sequence[str]
+) -> list[str]:
+    """The report's straight-line braking table (means over seeds): stopping distance from the brake
+    application and its ratio to the ideal v^2 / (2 mu g), and the longest time a wheel stayed locked
+    above 15 km/h; none without a ``straight_braking`` scenario."""
+    braking = [s for s in scenarios if s.split(":")[0] == "straight_braking"]
+    if not braking:
+        return []
+    lines = [
+        "",
+        "## Straight-line braking",
+        "",
+        "Full pedal from the scenario's speed: distance to standstill from the brake application, over "
+        "v^2 / (2 mu g) on the road's friction, and the longest wheel lock above 15 km/h "
+        "(envs.metrics.braking_metrics).",
+        "",
+        "| scenario | controller | estimator | stopping distance [m] | over ideal | longest lock [s] |",
+        "|---|---|---|---:|---:|---:|",
+    ]
+    for s in braking:
+        for c in controllers:
+            for e in estimators:
+                m = table[(s, e, c)]
+                lines.append(
+                    f"| {s} | {c} | {e} | {_fmt(m['stop_distance'], 1, 1)} | {_fmt(m['stop_ratio'], 1, 3)} "
+                    f"| {_fmt(m['longest_lock'], 1, 3)} |"
+                )
+    return lines
 
 
 #: the issue's target: a stability controller on the joint estimator within 10% of it on the truth
@@ -673,7 +752,8 @@ def plot_report(
         ax.set_title(f"controller {c}", fontsize=9)
     axes[-1, 0].set_xticks(range(len(scenarios)), scenarios, rotation=30, ha="right", fontsize=8)
     fig.suptitle(
-        f"pass rate over {over}: no spin-out, course completed, FMVSS 126 passed on sine with dwell", fontsize=9
+        f"pass rate over {over}: no spin-out, course completed, no cone hit, FMVSS 126 passed on sine with dwell",
+        fontsize=9,
     )
     paths.append(atomic_write(out / "pass_rate.png", lambda p: fig.savefig(p, format="png", dpi=110)))
     plt.close(fig)

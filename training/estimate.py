@@ -31,7 +31,7 @@ from fourwis.estimation import (
     make_estimator,
     parse_estimator_name,
 )
-from fourwis.estimation.joint import FRICTION_KINDS, KINDS
+from fourwis.estimation.joint import FRICTION_KINDS, KINDS, StateEstimator
 from fourwis.training.compare import (
     FAULT_SUFFIX,
     build_scenario,
@@ -46,6 +46,23 @@ from fourwis.training.pool import Backend, as_backend, parallel_map
 from fourwis.training.provenance import Provenance, provenance
 from fourwis.training.tables import mean_over_seeds, require_distinct, write_runs_csv
 from fourwis.training.tyre_fit import plot_tyre_curves
+
+#: The filters' consistency from their own covariance (:func:`filter_consistency`), each a mean of a
+#: normalised statistic (1: consistent) and the share of samples inside its chi-square 95% band
+#: (0.95: consistent): the NEES of (u, v, r) against the reported covariance (3 degrees of freedom),
+#: of the wheels' mean friction (1), and the NIS of the state and friction filters' innovations
+#: (their valid channels' count), each divided by its degrees of freedom
+CONSISTENCY_METRICS = (
+    "state_nees",
+    "state_nees_in_band",
+    "mu_nees",
+    "mu_nees_in_band",
+    "state_nis",
+    "state_nis_in_band",
+    "mu_nis",
+    "mu_nis_in_band",
+)
+
 
 #: the filters (the oracle is the truth itself) and the baselines they must beat (estimation.baselines)
 DEFAULT_ESTIMATORS = tuple(e for e in ESTIMATORS if e != "oracle") + BASELINES
@@ -64,6 +81,7 @@ METRICS = (
     "beta_nees_in_band",
     "mu_z_rms",
     "mu_nees_in_band",
+    *CONSISTENCY_METRICS,
 )
 #: the unit of each metric, as estimate.csv heads its columns ("-": dimensionless, "0/1": a flag)
 METRIC_UNITS = {
@@ -80,6 +98,7 @@ METRIC_UNITS = {
     "beta_nees_in_band": "-",
     "mu_z_rms": "-",
     "mu_nees_in_band": "-",
+    **{name: "-" for name in CONSISTENCY_METRICS},
 }
 #: the two-sided 95% chi-square band of a one-degree-of-freedom NEES, (error / sigma)^2 of one
 #: sample: a consistent filter's samples lie inside it 95% of the time
@@ -161,16 +180,67 @@ def run_metrics(traj: Trajectory) -> dict[str, float]:
     return out
 
 
+def in_chi2_band(statistic: np.ndarray, dof: np.ndarray) -> np.ndarray:
+    """Whether each sample's chi-square ``statistic`` with ``dof`` degrees of freedom (arrays of
+    one shape) lies inside its two-sided 95% band (a consistent filter's: 95% of its samples)."""
+    return (statistic >= chi2.ppf(0.025, dof)) & (statistic <= chi2.ppf(0.975, dof))
+
+
+def nees(error: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """The normalised estimation error squared e^T P^-1 e of each sample: errors (T, n) with their
+    reported covariances (T, n, n) (SI, alike); chi-square with n degrees of freedom for a
+    consistent filter."""
+    return np.einsum("ti,ti->t", error, np.linalg.solve(P, error[..., None])[..., 0])
+
+
+def filter_consistency(traj: Trajectory, estimator) -> dict[str, float]:
+    """The :data:`CONSISTENCY_METRICS` of the run ``traj`` by ``estimator`` (a fourwis filter, a
+    :class:`fourwis.estimation.StateEstimator` built afresh as the run's was, or its name): the
+    run's sensor log replayed through it with its diagnostics (StateEstimator.replay), which
+    reproduces the run's estimate exactly (checked: ValueError otherwise), from the first sample
+    on. NaN for an estimator without a covariance (the oracle, the baselines, your own) and for
+    a statistic without samples (the friction NIS of a filter that holds mu)."""
+    out = dict.fromkeys(CONSISTENCY_METRICS, math.nan)
+    if isinstance(estimator, str):
+        base, groups = parse_estimator_name(estimator)
+        if groups or base not in KINDS:
+            return out
+        estimator = make_estimator(estimator, traj.scenario.vehicle_params, traj.t[1] - traj.t[0])
+    if not isinstance(estimator, StateEstimator):
+        return out
+    replay = estimator.replay(traj.sensors, traj.sensor_valid, traj.t, traj.scenario.speed, diagnostics=True)
+    if replay.status[0] or not np.array_equal(replay.estimate.beta[:, 0], traj.estimate.beta, equal_nan=True):
+        raise ValueError(f"the {estimator.kind} filter's replay does not reproduce the run's estimate")
+    E, T, D = traj.estimate, traj.truth, replay.diagnostics
+    error = np.stack([E.u - T.u, E.v - T.v, E.r - T.r], axis=1)  # (T, 3)
+    state = nees(error, D.P_state[:, 0])
+    out["state_nees"] = float(np.mean(state) / 3.0)
+    out["state_nees_in_band"] = float(np.mean(in_chi2_band(state, np.full(state.shape, 3))))
+    if estimator.settings.friction:
+        mu_error = np.mean(E.mu - T.mu, axis=1)
+        mu_var = np.mean(D.P_mu[:, 0], axis=(1, 2))  # (the variance of the four's mean)
+        friction = mu_error**2 / mu_var
+        out["mu_nees"] = float(np.mean(friction))
+        out["mu_nees_in_band"] = float(np.mean(in_chi2_band(friction, np.ones(friction.shape))))
+    for name, updates in (("state", slice(0, 2)), ("mu", slice(2, 4))):
+        nis, dof = D.nis[:, 0, updates].ravel(), D.nis_dof[:, 0, updates].ravel()
+        ran = (dof > 0) & np.isfinite(nis)
+        if np.any(ran):
+            out[f"{name}_nis"] = float(np.mean(nis[ran] / dof[ran]))
+            out[f"{name}_nis_in_band"] = float(np.mean(in_chi2_band(nis[ran], dof[ran])))
+    return out
+
+
 @naming_the_run
 def _run(spec: RunSpec) -> tuple[RunSpec, dict[str, float], tuple[np.ndarray, Estimate, Estimate] | None]:
-    estimator = (
-        spec.estimator
-        if spec.nominal_mu is None
-        else make_estimator(spec.estimator, spec.scenario.vehicle_params, nominal_mu=spec.nominal_mu)
-    )
-    traj = simulate(spec.scenario, controller=None, estimator=estimator, seed=spec.seed)
+    def estimator():
+        if spec.nominal_mu is None:
+            return spec.estimator
+        return make_estimator(spec.estimator, spec.scenario.vehicle_params, nominal_mu=spec.nominal_mu)
+
+    traj = simulate(spec.scenario, controller=None, estimator=estimator(), seed=spec.seed)
     keep = (traj.t, traj.truth, traj.estimate) if spec.seed == 0 else None  # seed 0 feeds the plots
-    metrics = run_metrics(traj)
+    metrics = run_metrics(traj) | filter_consistency(traj, estimator())  # (a fresh one: it replays the run)
     if _reports_true_mu(spec.estimator):  # not an estimate of mu, however the road's friction moves
         metrics.update(mu_estimated=0.0, mu_convergence_time=math.nan)
     return spec, metrics, keep
@@ -345,6 +415,7 @@ def markdown_report(
         ]
         lines.append(f"| {stat} | {e} | " + " | ".join(cells) + " |")
     lines += _ratio_section(table, scenarios, estimators)
+    lines += _consistency_section(table, scenarios, estimators)
     lines += [
         "",
         "The estimators' tyre: `tyre_curves.png` draws the plant's PAC2002 curves against the fitted "
@@ -362,6 +433,46 @@ def markdown_report(
         "",
     ]
     return "\n".join(lines)
+
+
+def _consistency_section(table: dict, scenarios: Sequence[Scenario], estimators: Sequence[str]) -> list[str]:
+    """The filters' NEES and NIS (:func:`filter_consistency`) per scenario and estimator: each mean
+    divided by its degrees of freedom (1: consistent) with the share of the samples inside the
+    per-sample chi-square 95% band (95%: consistent); estimators without a covariance left out."""
+    has = [
+        e for e in estimators if any(math.isfinite(table[(s.name, e)].get("state_nees", math.nan)) for s in scenarios)
+    ]
+    if not has:
+        return []
+
+    def cell(m: dict, name: str) -> str:
+        value, inside = m.get(name, math.nan), m.get(f"{name}_in_band", math.nan)
+        return "—" if not math.isfinite(value) else f"{value:.3g} ({inside:.0%})"
+
+    bands = ", ".join(f"{dof} dof [{chi2.ppf(0.025, dof):.3g}, {chi2.ppf(0.975, dof):.3g}]" for dof in (1, 2, 3, 7))
+    lines = [
+        "",
+        "## Consistency: NEES and NIS",
+        "",
+        "Each filter's own covariance against its errors (its sensor log replayed with the filter's diagnostics): "
+        "the mean NEES of (u, v, r) over 3 (the covariance of v with the sideslip's consider term, as beta_std "
+        "reports it), of the wheels' mean friction (1 degree of freedom), and the mean NIS of the state and "
+        "friction filters' innovations over their valid channels; 1 is consistent, above 1 the filter is too "
+        "sure. In brackets the share of samples inside the per-sample chi-square 95% band (95% is consistent; "
+        f"bands: {bands}). Means over seeds; — where the filter has no such update.",
+        "",
+        "| scenario | estimator | NEES (u, v, r) / 3 | NEES friction | NIS state / dof | NIS friction / dof |",
+        "|---|---|---:|---:|---:|---:|",
+    ]
+    for s in scenarios:
+        for e in has:
+            m = table[(s.name, e)]
+            lines.append(
+                f"| {s.name} | {e} | "
+                + " | ".join(cell(m, n) for n in ("state_nees", "mu_nees", "state_nis", "mu_nis"))
+                + " |"
+            )
+    return lines
 
 
 def _ratio_section(table: dict, scenarios: Sequence[Scenario], estimators: Sequence[str]) -> list[str]:

@@ -44,7 +44,7 @@ from fourwis.estimation import check_estimator_name, make_estimator
 from fourwis.estimation.model import AxleTyre
 from fourwis.training import compare
 from fourwis.training.compare import ORACLE_TOLERANCE, build_controller, naming_the_run, oracle_ratio
-from fourwis.training.estimate import METRIC_UNITS, consistency, run_metrics
+from fourwis.training.estimate import METRIC_UNITS, consistency, filter_consistency, run_metrics
 from fourwis.training.io import atomic_write, atomic_write_text, check_writable, pyplot, staged_output
 from fourwis.training.pool import Backend, as_backend, parallel_map
 from fourwis.training.provenance import Provenance, provenance
@@ -207,8 +207,15 @@ class ModelError:
         if self.dev is None:
             return name
         model = params.replace(mass=params.mass * self.mass, yaw_inertia=params.yaw_inertia * self.yaw_inertia)
-        shipped = AxleTyre.shipped()
-        tyre = replace(shipped, m2=shipped.m2 * self.cornering, n2=shipped.n2 * self.cornering)
+        # (the estimator's own tyre, its shape and relaxation length as make_estimator gives it the
+        # shipped one, with the cornering stiffness off)
+        shipped = AxleTyre.shipped(shape="magic" if name == "joint" else "dugoff")
+        tyre = replace(
+            shipped,
+            m2=shipped.m2 * self.cornering,
+            n2=shipped.n2 * self.cornering,
+            relaxation_length=float(params.static_relaxation_lengths[1]),
+        )
         return make_estimator(name, model, tyres=(tyre, tyre))
 
 
@@ -357,7 +364,7 @@ def grid_cells(
     no model), ``seeds`` sensor seeds per condition (even ones for development conditions, odd
     ones for held-out), and, with ``closed_loop``, the closed-loop cells
     (:data:`CLOSED_LOOP_CONTROLLERS` x :data:`CLOSED_LOOP_ESTIMATORS`). ``quick``: a few cells
-    of each study."""
+    of each study, without the slow baseline (:data:`FRICTION_ONLY`)."""
     if half not in HALF_CHOICES:
         raise ValueError(f"half must be one of {list(HALF_CHOICES)}, got {half!r}")
     if not estimators:
@@ -399,8 +406,8 @@ def grid_cells(
             if estimator == "oracle" and error is not NOMINAL:
                 continue
             other_study = road.kind != "uniform" or speed != BASE_SPEED_KPH or error is not NOMINAL
-            if estimator in FRICTION_ONLY and (other_study or not _member(road.low, CLOSED_LOOP_FRICTIONS)):
-                continue
+            if estimator in FRICTION_ONLY and (quick or other_study or not _member(road.low, CLOSED_LOOP_FRICTIONS)):
+                continue  # (the slow Python baseline: not in a quick run)
             cells += _seeded(Cell(road, m, speed, 0, error, estimator), seeds)
     if closed_loop:
         for road in closed_roads:
@@ -488,7 +495,8 @@ def _run_cell(cell: Cell) -> tuple[Cell, dict[str, float]]:
     estimator = cell.model_error.estimator(cell.estimator, params)
     controller = None if cell.controller is None else build_controller(cell.controller, params)
     traj = simulate(scenario, controller=controller, estimator=estimator, seed=cell.seed)
-    metrics = run_metrics(traj)
+    # (NEES and NIS: a fresh estimator replays the run's sensors)
+    metrics = run_metrics(traj) | filter_consistency(traj, cell.model_error.estimator(cell.estimator, params))
     if controller is not None:  # (the comparison's own; its estimator errors are run_metrics')
         metrics |= {k: v for k, v in compare.run_metrics(traj).items() if k not in metrics}
     return cell, metrics | grid_metrics(traj, cell.manoeuvre)

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
-from scipy.optimize import minimize_scalar
+from scipy.optimize import least_squares, minimize_scalar
 
 from fourwis.envs.tyre import TyreParams, tyre_forces
 from fourwis.envs.vehicle import VehicleParams
@@ -46,6 +46,21 @@ def fit_friction_scale(tyre: TyreParams, m2: float, n2: float, reference_load: f
     with 1: pure cornering, tan(alpha) from 0.002 up to the plant tyre's peak (beyond it the
     Magic Formula falls off and Dugoff cannot follow), loads LOADS, road mu FRICTIONS, the plant
     normalising mu at ``reference_load`` [N] as the truth plant does."""
+    fz, mu, ta, fy = _plant_lateral(tyre, reference_load)
+    cy = m2 * fz - n2 * fz**2
+
+    def rms_error(k: float) -> float:
+        # the estimator's own tyre at zero longitudinal slip, Dugoff's speed term off
+        model = np.array([dugoff(f, 0.0, t, k * m, 1.0, c, 0.0, 0.0)[1] for f, t, m, c in zip(fz, ta, mu, cy)])
+        return float(np.sqrt(np.mean(((model - fy) / (mu * fz)) ** 2)))
+
+    best = minimize_scalar(rms_error, bounds=(0.5, 2.0), method="bounded", options={"xatol": 1e-5})
+    return float(best.x), rms_error(best.x), rms_error(1.0)
+
+
+def _plant_lateral(tyre: TyreParams, reference_load: float) -> tuple[np.ndarray, ...]:
+    """The plant tyre's pure-slip lateral force from zero slip to its peak (the fits' data): loads
+    (n,) [N], road mu (n,), tan(alpha) (n,) and |Fy| (n,) [N] over LOADS x FRICTIONS."""
     loads, frictions, slips, forces = [], [], [], []
     tan_alpha = np.linspace(0.002, 0.4, 400)
     for fz in LOADS:
@@ -56,16 +71,39 @@ def fit_friction_scale(tyre: TyreParams, m2: float, n2: float, reference_load: f
             frictions.append(np.full(n, mu))
             slips.append(tan_alpha[:n])
             forces.append(fy[:n])
-    fz, mu, ta, fy = map(np.concatenate, (loads, frictions, slips, forces))
+    return tuple(map(np.concatenate, (loads, frictions, slips, forces)))
+
+
+def magic_lateral_force(fz, tan_alpha, mu, cy, magic_c, magic_e, mu_scale, load_sensitivity, reference_load):
+    """The estimator's Magic Formula lateral force [N] (estimation.model.magic_lateral) on numpy
+    arrays: D sin(C atan(B x - E (B x - atan(B x)))), x the slip angle, D = k mu Fz (1 + s (Fz /
+    F0 - 1)), B = Cy / (C D)."""
+    d = mu_scale * mu * fz * (1.0 + load_sensitivity * (fz / reference_load - 1.0))
+    bx = cy / (magic_c * d) * np.arctan(tan_alpha)
+    return d * np.sin(magic_c * np.arctan(bx - magic_e * (bx - np.arctan(bx))))
+
+
+def fit_magic(tyre: TyreParams, m2: float, n2: float, reference_load: float) -> dict:
+    """The estimator's Magic Formula lateral shape fitted to the plant tyre: C, E, the friction
+    scale k and the load sensitivity s of the peak (about ``reference_load`` [N]) by least squares
+    on the lateral force [mu Fz] from zero slip to the plant tyre's peak (loads LOADS, mu
+    FRICTIONS), the stiffness at zero slip the eq. 17 fit's (m2, n2); with its RMS error [mu Fz]."""
+    fz, mu, ta, fy = _plant_lateral(tyre, reference_load)
     cy = m2 * fz - n2 * fz**2
 
-    def rms_error(k: float) -> float:
-        # the estimator's own tyre at zero longitudinal slip, Dugoff's speed term off
-        model = np.array([dugoff(f, 0.0, t, k * m, 1.0, c, 0.0, 0.0)[1] for f, t, m, c in zip(fz, ta, mu, cy)])
-        return float(np.sqrt(np.mean(((model - fy) / (mu * fz)) ** 2)))
+    def residual(p: np.ndarray) -> np.ndarray:
+        return (magic_lateral_force(fz, ta, mu, cy, *p, reference_load) - fy) / (mu * fz)
 
-    best = minimize_scalar(rms_error, bounds=(0.5, 2.0), method="bounded", options={"xatol": 1e-5})
-    return float(best.x), rms_error(best.x), rms_error(1.0)
+    best = least_squares(residual, [1.4, 0.0, 1.0, 0.0], bounds=([1.0, -5.0, 0.5, -1.0], [2.0, 1.0, 2.0, 1.0]))
+    c, e, k, s = (float(v) for v in best.x)
+    return {
+        "magic_c": c,
+        "magic_e": e,
+        "mu_scale": k,
+        "load_sensitivity": s,
+        "reference_load": float(reference_load),
+        "lateral_rms_error_mu_fz": float(np.sqrt(np.mean(best.fun**2))),
+    }
 
 
 def fit_dugoff(tyre: TyreParams | None = None, reference_load: float | None = None) -> dict:
@@ -89,13 +127,16 @@ def fit_dugoff(tyre: TyreParams | None = None, reference_load: float | None = No
         "lateral_rms_error_mu_fz_unscaled": rms_unscaled,
         "loads_N": [float(LOADS[0]), float(LOADS[-1])],
         "source": "least-squares fit of eq. 17 to the plant tyre (PAC2002, chrono mf_185_80R14.tir) stiffness; "
-        "mu_scale: least squares on the lateral force up to the plant tyre's peak",
+        "mu_scale: least squares on the lateral force up to the plant tyre's peak; magic: the Magic Formula "
+        "lateral shape (joint's tyre) by least squares on the same forces",
+        "magic": fit_magic(tyre, m2, n2, reference_load),
     }
 
 
 class TyreCurves(NamedTuple):
     """Pure-slip force curves at one load: slip ratios kappa (S,) [-] and slip angles (A,) [rad];
-    the plant's and the estimator's Dugoff longitudinal (S,) and lateral (A,) forces [N]."""
+    the plant's and the estimator's Dugoff longitudinal (S,) and lateral (A,) forces [N], and the
+    joint estimator's Magic Formula lateral force (A,) [N]."""
 
     kappa: np.ndarray
     fx_plant: np.ndarray
@@ -103,6 +144,7 @@ class TyreCurves(NamedTuple):
     alpha: np.ndarray
     fy_plant: np.ndarray
     fy_dugoff: np.ndarray
+    fy_magic: np.ndarray
 
 
 def tyre_curves(load: float, mu: float = 1.0, vehicle=None, points: int = 121) -> TyreCurves:
@@ -124,7 +166,11 @@ def tyre_curves(load: float, mu: float = 1.0, vehicle=None, points: int = 121) -
     k = p.front.mu_scale
     fx_dugoff = np.array([dugoff(load, s, 0.0, k * mu, cx, cy, 0.0, 0.0)[0] for s in slip])
     fy_dugoff = np.array([dugoff(load, 0.0, t, k * mu, cx, cy, 0.0, 0.0)[1] for t in np.tan(alpha)])
-    return TyreCurves(kappa, fx_plant, fx_dugoff, alpha, fy_plant, fy_dugoff)
+    m = ModelParams.from_vehicle(vehicle, shape="magic").front
+    fy_magic = magic_lateral_force(
+        load, np.tan(alpha), mu, cy, m.magic_c, m.magic_e, m.mu_scale, m.load_sensitivity, m.reference_load
+    )
+    return TyreCurves(kappa, fx_plant, fx_dugoff, alpha, fy_plant, fy_dugoff, fy_magic)
 
 
 def plot_tyre_curves(path: str | Path, mu: float = 1.0, loads=FIGURE_LOADS, vehicle=None) -> Path:
@@ -139,6 +185,7 @@ def plot_tyre_curves(path: str | Path, mu: float = 1.0, loads=FIGURE_LOADS, vehi
         ax_x.plot(c.kappa, c.fx_dugoff, "--", lw=1.2, color=line.get_color())
         ax_y.plot(np.degrees(c.alpha), c.fy_plant, lw=1.5, color=line.get_color(), label=f"{load / 1000:g} kN")
         ax_y.plot(np.degrees(c.alpha), c.fy_dugoff, "--", lw=1.2, color=line.get_color())
+        ax_y.plot(np.degrees(c.alpha), c.fy_magic, ":", lw=1.5, color=line.get_color())
     ax_x.set(
         xlabel="slip ratio [-]",
         ylabel="longitudinal force Fx [N]",
@@ -149,7 +196,11 @@ def plot_tyre_curves(path: str | Path, mu: float = 1.0, loads=FIGURE_LOADS, vehi
     )
     for ax in (ax_x, ax_y):
         ax.grid(alpha=0.3)
-        ax.legend(title="wheel load (solid: plant PAC2002, dashed: fitted Dugoff)", fontsize=8, title_fontsize=8)
+        ax.legend(
+            title="wheel load (solid: plant PAC2002, dashed: fitted Dugoff, dotted: joint's Magic Formula)",
+            fontsize=8,
+            title_fontsize=8,
+        )
     fig.suptitle(f"tyre curves on mu {mu:g}: the plant's Magic Formula and the estimator's Dugoff (eq. 17 fit)")
     fig.tight_layout()
     atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=100))
