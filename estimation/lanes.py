@@ -4,7 +4,7 @@ Each function here runs one filter operation for ``lanes`` cars at once: a car i
 lane axis is the last axis of every array (a vector (n, lanes), a matrix (n, n, lanes), cubature
 points (K, n, lanes)), and every loop over lanes is innermost, branch-free and call-free, so that
 LLVM runs it in packed vector instructions (docs/decisions/0005-plant-polynomial-math-in-simd-lanes.md
-gives the rules, docs/decisions/0048-estimator-in-lanes-of-cars.md the measurements). The sizes
+gives the rules, docs/decisions/0046-lane-estimator.md the measurements). The sizes
 ``n``, ``m`` and ``lanes`` are compile-time constants where the callers pass them as literals or
 module constants: the loops then have constant trip counts and the work arrays
 (:func:`fourwis.core.kernels.scratch`) sit on the stack at their exact size.
@@ -144,13 +144,17 @@ def _points_mean(Z, out, m, lanes) -> None:
 
 
 @numba.njit(**JIT)
-def measurement_update_lanes(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nll, ok, n, m, lanes) -> None:
+def measurement_update_lanes(
+    x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nll, ok, n, m, lanes, nu, S, z_centre=None
+) -> None:
     """:func:`fourwis.estimation.ckf.measurement_update` of each lane: from the cubature points
     (K, n, lanes) of x (n, lanes), P (n, n, lanes) and their predicted measurements Z (K, m, lanes),
     the measurement z (m, lanes), valid (m, lanes) bool and noise R (m, m, lanes), with the Huber
-    threshold ``huber_c`` (inf: plain update), into x_out, P_out; each lane's innovation negative
-    log-likelihood into nll (lanes,) and ok (lanes,) False where the innovation covariance is not
-    positive definite (nll NaN)."""
+    threshold ``huber_c`` (inf: plain update), into x_out, P_out, the innovation nu (m, lanes) and
+    its covariance S (m, m, lanes); each lane's innovation negative log-likelihood into nll
+    (lanes,) and ok (lanes,) False where the innovation covariance is not positive definite (nll
+    NaN). ``z_centre`` (m, lanes), where given: the innovation against it instead of the points'
+    mean (the single-car ``z_centre``)."""
     K = points.shape[0]
     t = scratch((lanes,))
     z_mean = scratch((m, lanes))
@@ -177,7 +181,11 @@ def measurement_update_lanes(x, P, points, Z, z, valid, R, huber_c, x_out, P_out
             for lane in range(lanes):
                 Pxz[i, j, lane] = t[lane] / K
     # the innovation and its noise (ckf.innovation): no information on invalid channels
-    nu, Rv, m_valid = scratch((m, lanes)), scratch((m, m, lanes)), scratch((lanes,))
+    Rv, m_valid = scratch((m, m, lanes)), scratch((lanes,))
+    if z_centre is not None:
+        for i in range(m):
+            for lane in range(lanes):
+                z_mean[i, lane] = z_centre[i, lane]  # (Pzz and Pxz are taken: the centre is the innovation's only)
     for lane in range(lanes):
         m_valid[lane] = 0.0
     for i in range(m):
@@ -199,7 +207,6 @@ def measurement_update_lanes(x, P, points, Z, z, valid, R, huber_c, x_out, P_out
             for j in range(m):
                 for lane in range(lanes):
                     Rv[i, j, lane] /= sqrt(weights[i, lane] * weights[j, lane])
-    S = scratch((m, m, lanes))
     for i in range(m):
         for j in range(m):
             for lane in range(lanes):

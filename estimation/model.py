@@ -420,11 +420,11 @@ def dugoff(
     (Dugoff's paper writes 1 - s for braking slip, positive when braking: the same law.) Below lambda = 1 the force
     depends on mu (the tyre is saturating)."""
     one_plus_s = max(1.0 + slip, 0.05)
-    demand = math.sqrt((cx * slip) ** 2 + (cy * tan_alpha) ** 2)
+    demand = vecmath.sqrt((cx * slip) * (cx * slip) + (cy * tan_alpha) * (cy * tan_alpha))
     lam = (
         mu
         * fz
-        * (1.0 - eps * speed * math.sqrt(slip * slip + tan_alpha * tan_alpha))
+        * (1.0 - eps * speed * vecmath.sqrt(slip * slip + tan_alpha * tan_alpha))
         * one_plus_s
         / (2.0 * max(demand, 1e-9))
     )
@@ -493,6 +493,37 @@ def lateral_force(fz, fx, slip, tan_alpha, tyre_mu, cx, cy, speed, pk, tyre) -> 
 
 
 @numba.njit(inline="always", **JIT)
+def wheel_drive(torque: float, omega_dot: float, omega: float, pk: ModelKernel) -> tuple[float, float]:
+    """A wheel's drive force [N] from its torque balance (eq. 7: a measured force, torque [N m] less
+    the wheel inertia times its acceleration ``omega_dot`` [rad/s^2]) and its rolling resistance
+    coefficient f_r with the sign of the wheel speed (``omega`` [rad/s]), smoothed below 0.05 m/s
+    as in the plant: the wheel's longitudinal force is drive - rolling Fz."""
+    wheel_speed = omega * pk.wheel_radius
+    rolling = pk.rolling_resistance * wheel_speed / vecmath.sqrt(wheel_speed * wheel_speed + 0.0025)
+    return (torque - pk.wheel_inertia * omega_dot) / pk.wheel_radius, rolling
+
+
+@numba.njit(inline="always", **JIT)
+def wheel_force(u, v, r, ax, ay, mu, trig, spin, drive, rolling, pk, w) -> tuple[float, float, float]:
+    """Wheel w's force on the body along x and y [N] and its yaw moment [N m] (eq. 4-6, corrected)
+    at the state u, v, r, ax, ay (loads from ax, ay) with friction ``mu``: Fx from
+    :func:`wheel_drive`'s ``drive`` and ``rolling`` limited to +/- k mu Fz against sensor noise, Fy
+    from :func:`lateral_force`; ``trig``: :func:`wheel_trig`, ``spin``: its speed [rad/s]. The one
+    evaluation :func:`body_forces` and :func:`body_forces_lanes` repeat."""
+    x_w, y_w = wheel_position(pk, w)
+    tyre = axle_tyre(pk, w)
+    fz = wheel_load(ax, ay, pk, w)
+    tan_alpha, slip, cx, cy = tyre_operating_point(u, v, r, fz, trig, spin, pk, w)
+    tyre_mu = tyre.mu_scale * mu
+    limit = peak_friction(fz, tyre_mu, tyre) * fz
+    fx = min(max(drive - rolling * fz, -limit), limit)
+    fy = lateral_force(fz, fx, slip, tan_alpha, tyre_mu, cx, cy, u, pk, tyre)
+    c, s = trig[0], trig[1]
+    f_long, f_lat = fx * c - fy * s, fx * s + fy * c
+    return f_long, f_lat, x_w * f_lat - y_w * f_long
+
+
+@numba.njit(inline="always", **JIT)
 def body_forces(
     state: np.ndarray,
     mu: np.ndarray,
@@ -505,11 +536,8 @@ def body_forces(
 ) -> None:
     """Body accelerations ax, ay [m/s^2] and yaw moment Gamma [N m] from the tyre forces (eq. 4-6,
     corrected) for K model evaluations at once: ``state`` (5, K) rows u, v, r, ax, ay and
-    ``mu`` (4, K) per wheel; writes the rows of out (3, K). Fx from the wheel's torque balance
-    (eq. 7, a measured force: torque and wheel acceleration, less the rolling resistance
-    f_r Fz with the sign of the wheel speed, smoothed below 0.05 m/s as in the plant), limited
-    to +/- k mu Fz against sensor noise; Fy from Dugoff with the slip angle and mu; the drag
-    drag_factor u|u| against ax.
+    ``mu`` (4, K) per wheel; writes the rows of out (3, K): the sum of each wheel's
+    :func:`wheel_force`, the drag drag_factor u|u| against ax.
     Loads from the (previous) ax, ay; ``steer``: :func:`steer_trig` of the steer angles.
 
     Wheel by wheel over all K evaluations (the K loop innermost and branch-free, so the
@@ -519,29 +547,53 @@ def body_forces(
     K = state.shape[1]
     out[:, :] = 0.0
     for w in range(4):
-        x_w, y_w = wheel_position(pk, w)
-        drive = (torque[w] - pk.wheel_inertia * omega_dot[w]) / pk.wheel_radius
-        tyre = axle_tyre(pk, w)
-        trig, spin, mu_scale = wheel_trig(steer, w), omega[w], tyre.mu_scale
-        c, s = trig[0], trig[1]
-        wheel_speed = spin * pk.wheel_radius
-        rolling = pk.rolling_resistance * wheel_speed / math.sqrt(wheel_speed * wheel_speed + 0.0025)
+        trig, spin = wheel_trig(steer, w), omega[w]
+        drive, rolling = wheel_drive(torque[w], omega_dot[w], spin, pk)
         for k in range(K):
-            u, v, r = state[0, k], state[1, k], state[2, k]
-            fz = wheel_load(state[3, k], state[4, k], pk, w)
-            tan_alpha, slip, cx, cy = tyre_operating_point(u, v, r, fz, trig, spin, pk, w)
-            tyre_mu = mu_scale * mu[w, k]
-            limit = peak_friction(fz, tyre_mu, tyre) * fz
-            fx = min(max(drive - rolling * fz, -limit), limit)
-            fy = lateral_force(fz, fx, slip, tan_alpha, tyre_mu, cx, cy, u, pk, tyre)
-            f_long, f_lat = fx * c - fy * s, fx * s + fy * c
+            f_long, f_lat, moment = wheel_force(
+                state[0, k], state[1, k], state[2, k], state[3, k], state[4, k], mu[w, k], trig, spin, drive, rolling,
+                pk, w,
+            )  # fmt: skip
             out[0, k] += f_long
             out[1, k] += f_lat
-            out[2, k] += x_w * f_lat - y_w * f_long
+            out[2, k] += moment
     for k in range(K):
         u = state[0, k]
         out[0, k] = (out[0, k] - pk.drag_factor * u * abs(u)) / pk.mass
         out[1, k] /= pk.mass
+
+
+@numba.njit(inline="always", **JIT)
+def body_forces_lanes(state, mu, steer, omega, torque, omega_dot, pk: ModelKernel, out, lanes) -> None:
+    """:func:`body_forces` for K evaluations of each of ``lanes`` cars, one car per SIMD lane (lane
+    axis last, estimation/lanes.py): state (5, K, lanes), mu (4, K, lanes), each car's wheel table
+    steer (4, 4, lanes) and its omega, torque, omega_dot (4, lanes); out (3, K, lanes). Each
+    evaluation the same operations in the same order as :func:`body_forces`' (bit for bit)."""
+    K = state.shape[1]
+    drive, rolling = scratch((4, lanes)), scratch((4, lanes))
+    for w in range(4):
+        for lane in range(lanes):
+            drive[w, lane], rolling[w, lane] = wheel_drive(torque[w, lane], omega_dot[w, lane], omega[w, lane], pk)
+    for i in range(3):
+        for k in range(K):
+            for lane in range(lanes):
+                out[i, k, lane] = 0.0
+    for w in range(4):
+        for k in range(K):
+            for lane in range(lanes):
+                trig = (steer[0, w, lane], steer[1, w, lane], steer[2, w, lane], steer[3, w, lane])
+                f_long, f_lat, moment = wheel_force(
+                    state[0, k, lane], state[1, k, lane], state[2, k, lane], state[3, k, lane], state[4, k, lane],
+                    mu[w, k, lane], trig, omega[w, lane], drive[w, lane], rolling[w, lane], pk, w,
+                )  # fmt: skip
+                out[0, k, lane] += f_long
+                out[1, k, lane] += f_lat
+                out[2, k, lane] += moment
+    for k in range(K):
+        for lane in range(lanes):
+            u = state[0, k, lane]
+            out[0, k, lane] = (out[0, k, lane] - pk.drag_factor * u * abs(u)) / pk.mass
+            out[1, k, lane] /= pk.mass
 
 
 @numba.njit(inline="always", **JIT)
@@ -559,6 +611,12 @@ def dugoff_lambdas(u, v, r, ax, ay, mu, steer, omega, pk, out) -> None:
 def substeps(dt: float) -> int:
     """How many model steps of at most MODEL_STEP a filter step of ``dt`` [s] integrates in."""
     return max(1, math.ceil(dt / MODEL_STEP - 1e-9))
+
+
+@numba.njit(inline="always", **JIT)
+def euler_step(u, v, ax, ay, r, gamma, h, pk) -> tuple[float, float, float]:
+    """eq. 1-3 over a step h [s]: u + h (ax + v r), v + h (ay - u r), r + h Gamma / Iz."""
+    return u + h * (ax + v * r), v + h * (ay - u * r), r + h * gamma / pk.yaw_inertia
 
 
 @numba.njit(inline="always", **JIT)
@@ -584,12 +642,55 @@ def transition(points: np.ndarray, out: np.ndarray, args: tuple) -> None:
     for _ in range(n):
         for k in range(K):
             u, v, ax, ay, r, gamma = out[k, 0], out[k, 1], out[k, 2], out[k, 3], out[k, 4], out[k, 5]
-            u_new, v_new, r_new = u + h * (ax + v * r), v + h * (ay - u * r), r + h * gamma / pk.yaw_inertia
+            u_new, v_new, r_new = euler_step(u, v, ax, ay, r, gamma, h, pk)
             out[k, 0], out[k, 1], out[k, 4] = u_new, v_new, r_new
             state[0, k], state[1, k], state[2, k], state[3, k], state[4, k] = u_new, v_new, r_new, ax, ay
         body_forces(state, mu_lanes, steer, omega, torque, omega_dot, pk, forces)
         for k in range(K):
             out[k, 2], out[k, 3], out[k, 5] = forces[0, k], forces[1, k], forces[2, k]
+
+
+@numba.njit(**JIT)
+def transition_lanes(points, out, mu, steer, omega, torque, omega_dot, pk: ModelKernel, dt, lanes) -> None:
+    """:func:`transition` of the K points (K, 6, lanes) of each of ``lanes`` cars (lane axis last)
+    into out (K, 6, lanes): each car's friction mu (4, lanes), wheel table steer (4, 4, lanes),
+    omega, torque, omega_dot (4, lanes) and step dt (lanes,) [s], each car in its own
+    :func:`substeps` (a car with fewer than the most holds its state through the others). Each
+    point the same operations as :func:`transition`'s (bit for bit)."""
+    K = points.shape[0]
+    state, mu_k, forces = scratch((5, K, lanes)), scratch((4, K, lanes)), scratch((3, K, lanes))
+    steps, h = scratch((lanes,), np.int64), scratch((lanes,))
+    most = 1
+    for lane in range(lanes):
+        steps[lane] = substeps(dt[lane])
+        most = max(most, steps[lane])
+        h[lane] = dt[lane] / steps[lane]
+    for k in range(K):
+        for i in range(6):
+            for lane in range(lanes):
+                out[k, i, lane] = points[k, i, lane]
+        for w in range(4):
+            for lane in range(lanes):
+                mu_k[w, k, lane] = mu[w, lane]
+    for step in range(most):
+        for k in range(K):
+            for lane in range(lanes):
+                u, v, ax, ay = out[k, 0, lane], out[k, 1, lane], out[k, 2, lane], out[k, 3, lane]
+                r, gamma = out[k, 4, lane], out[k, 5, lane]
+                u_new, v_new, r_new = euler_step(u, v, ax, ay, r, gamma, h[lane], pk)
+                moving = step < steps[lane]
+                out[k, 0, lane] = u_new if moving else u
+                out[k, 1, lane] = v_new if moving else v
+                out[k, 4, lane] = r_new if moving else r
+                state[0, k, lane], state[1, k, lane], state[2, k, lane] = u_new, v_new, r_new
+                state[3, k, lane], state[4, k, lane] = ax, ay
+        body_forces_lanes(state, mu_k, steer, omega, torque, omega_dot, pk, forces, lanes)
+        for k in range(K):
+            for lane in range(lanes):
+                moving = step < steps[lane]
+                out[k, 2, lane] = forces[0, k, lane] if moving else out[k, 2, lane]
+                out[k, 3, lane] = forces[1, k, lane] if moving else out[k, 3, lane]
+                out[k, 5, lane] = forces[2, k, lane] if moving else out[k, 5, lane]
 
 
 # ---- Python entry points -------------------------------------------------------------------

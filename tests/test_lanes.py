@@ -93,13 +93,18 @@ def test_cubature_points_and_moments_in_lanes_equal_the_single_car_ones(lanes):
 
 
 @numba.njit
-def _update_lanes(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nll, ok, n, m, lanes):
-    measurement_update_lanes(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nll, ok, n, m, lanes)
+def _update_lanes(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nll, ok, n, m, lanes, nu, S, z_centre):
+    if z_centre.shape[0] == 0:
+        measurement_update_lanes(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nll, ok, n, m, lanes, nu, S)
+    else:
+        measurement_update_lanes(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nll, ok, n, m, lanes, nu, S,
+                                 z_centre)  # fmt: skip
 
 
+@pytest.mark.parametrize("centred", [False, True])
 @pytest.mark.parametrize("huber_c", [math.inf, 1.5])
 @pytest.mark.parametrize("lanes", [1, 5, 32])
-def test_the_measurement_update_in_lanes_equals_the_single_car_one(lanes, huber_c):
+def test_the_measurement_update_in_lanes_equals_the_single_car_one(lanes, huber_c, centred):
     rng = np.random.default_rng(10 + lanes)
     x, P = rng.normal(size=(lanes, N)), covariances(rng, lanes, N)
     P[np.isnan(P)] = 1.0
@@ -113,15 +118,18 @@ def test_the_measurement_update_in_lanes_equals_the_single_car_one(lanes, huber_
     if lanes > 3:
         R[3] = -np.eye(M)  # an innovation covariance that is not positive definite
     x_out, P_out, nll = np.full((lanes, N), np.nan), np.full((lanes, N, N), np.nan), np.empty(lanes)
+    nu, S = np.empty((lanes, M)), np.empty((lanes, M, M))
+    z_centre = np.tanh(x @ mix) + 0.1 * x[:, :1] if centred else np.empty((0, M))
     for b in range(lanes):
         nll[b] = measurement_update(
-            x[b], P[b], points[b], Z[b], z[b], valid[b], R[b], huber_c, x_out[b], P_out[b],
-            np.empty(M), np.empty((M, M)), np.empty(M),
+            x[b], P[b], points[b], Z[b], z[b], valid[b], R[b], huber_c, x_out[b], P_out[b], nu[b], S[b], np.empty(M),
+            *((z_centre[b],) if centred else ()),
         )  # fmt: skip
     x_l, P_l, nll_l, ok_l = np.empty((N, lanes)), np.empty((N, N, lanes)), np.empty(lanes), np.empty(lanes, np.bool_)
+    nu_l, S_l = np.empty((M, lanes)), np.empty((M, M, lanes))
     _update_lanes(
         lanes_of(x), lanes_of(P), lanes_of(points), lanes_of(Z), lanes_of(z), lanes_of(valid), lanes_of(R),
-        huber_c, x_l, P_l, nll_l, ok_l, N, M, lanes,
+        huber_c, x_l, P_l, nll_l, ok_l, N, M, lanes, nu_l, S_l, lanes_of(z_centre) if centred else z_centre,
     )  # fmt: skip
     good = np.isfinite(nll)
     np.testing.assert_array_equal(ok_l, good)
@@ -129,6 +137,8 @@ def test_the_measurement_update_in_lanes_equals_the_single_car_one(lanes, huber_
     np.testing.assert_array_equal(nll_l, nll)  # (NaN where it failed)
     np.testing.assert_array_equal(cars_of(x_l)[good], x_out[good])
     np.testing.assert_array_equal(cars_of(P_l)[good], P_out[good])
+    np.testing.assert_array_equal(cars_of(nu_l)[good], nu[good])
+    np.testing.assert_array_equal(cars_of(S_l)[good], S[good])
 
 
 @numba.njit
@@ -164,3 +174,4 @@ def test_the_fusion_inverse_and_sharing_in_lanes_equal_the_single_car_ones(lanes
     assert ok.sum() == lanes - (1 if lanes > 2 else 0)
     for got, want in ((x_l, x_g), (P_l, P_g), (confidence_l, confidence), (beta_l, beta)):
         np.testing.assert_array_equal(cars_of(got)[ok], want[ok])
+

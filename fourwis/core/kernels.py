@@ -91,7 +91,7 @@ if not numba.config.CACHE_DIR:
 SCRATCH_BYTES = 1024
 #: bytes a :func:`scratch` array whose shape is all compile-time constants may take on the stack
 #: (exactly its size; larger ones go to the heap): the lane kernels' blocks of cars, e.g. 12
-#: cubature points x 7 measurements x 64 cars (43 KB) (docs/decisions/0048-estimator-in-lanes-of-cars.md)
+#: cubature points x 7 measurements x 64 cars (43 KB) (docs/decisions/0046-lane-estimator.md)
 STACK_LIMIT = 128 * 1024
 
 
