@@ -70,7 +70,7 @@ from fourwis.envs.sensors import (
     to_channels,
 )
 from fourwis.envs.vehicle import BLOCK, Plant, advance_block, sideslip
-from fourwis.estimation.joint import OK, FilterKernel, step_vehicle
+from fourwis.estimation.joint import OK, FilterKernel, step_vehicles
 from fourwis.estimation.oracle import TruthKernel
 
 
@@ -466,11 +466,11 @@ def _filter_rows(estimator: FilterKernel, rows, count, reading: SensorReading, e
                  statuses) -> None:  # fmt: skip
     """The estimator's step of the vehicles ``rows[:count]`` on their ``reading`` into their rows of
     ``estimate``, each one's status into ``statuses`` (and the estimator's own into ``value``)."""
+    codes = scratch((LOOP_BLOCK,), np.int64)  # (a federated kind's block in SIMD lanes)
+    step_vehicles(estimator, rows, count, reading, estimate, rows, codes)
     for j in range(count):
-        b = rows[j]
-        status = step_vehicle(estimator, b, reading, estimate, b)
-        if status != OK:
-            value[b] = status
+        if codes[j] != OK:
+            value[rows[j]] = codes[j]
             statuses[j] = Status.ESTIMATOR_FAILED
         else:
             statuses[j] = Status.DONE

@@ -100,6 +100,13 @@ from fourwis.estimation.ckf import (
     predicted_moments,
 )
 from fourwis.estimation.federated import fuse, sharing_coefficients
+from fourwis.estimation.lanes import (
+    cubature_points_lanes,
+    fuse_lanes,
+    measurement_update_lanes,
+    predicted_moments_lanes,
+    sharing_coefficients_lanes,
+)
 from fourwis.estimation.model import (
     MIN_SPEED,
     ModelInputs,
@@ -107,9 +114,11 @@ from fourwis.estimation.model import (
     ModelParams,
     axle_tyre,
     body_forces,
+    body_forces_lanes,
     dugoff_lambdas,
     fill_steer_trig,
     transition,
+    transition_lanes,
     wheel_kinematics,
     wheel_loads,
     wheel_trig,
@@ -848,8 +857,19 @@ def _considered_v_var(x, mu, P_mu, steer, omega, torque, omega_dot, pk, force_st
     off by ``force_std`` of itself (std, relative; the axles' errors independent: (force_std
     ay)^2 / 2 for a car whose axles carry half each) and mu off by its standard deviation
     (the four wheels together, sqrt of P_mu's mean). Near the peak d ay / d v falls to zero and
-    the term grows (capped at CONSIDER_MAX_V_STD): there the sensors no longer tell v."""
+    the term grows (capped at CONSIDER_MAX_V_STD): there the sensors no longer tell v. The model
+    at the five points of :func:`_consider_points`, :func:`_consider_variance` of its ay there."""
     state, mus, out = scratch((5, 5)), scratch((4, 5)), scratch((3, 5))
+    h = _consider_points(x, mu, P_mu, state, mus)
+    body_forces(state, mus, steer, omega, torque, omega_dot, pk, out)
+    return _consider_variance(out[1, 0], out[1, 1], out[1, 2], out[1, 3], out[1, 4], h, x[I_U], force_std)
+
+
+@numba.njit(inline="always", **JIT)
+def _consider_points(x, mu, P_mu, state, mus) -> float:
+    """The five model evaluations of :func:`_considered_v_var` into state (5, 5) and mus (4, 5):
+    v less and plus the finite-difference step h, the estimate itself, mu plus and less its
+    standard deviation; returns h [m/s]."""
     h = CONSIDER_V_STEP * max(abs(x[I_U]), MIN_SPEED)
     sigma_mu = math.sqrt(max((P_mu[0, 0] + P_mu[1, 1] + P_mu[2, 2] + P_mu[3, 3]) / 4.0, 0.0))
     for k in range(5):
@@ -861,11 +881,17 @@ def _considered_v_var(x, mu, P_mu, steer, omega, torque, omega_dot, pk, force_st
     for w in range(4):
         mus[w, 3] = mu[w] + sigma_mu
         mus[w, 4] = max(mu[w] - sigma_mu, MU_BOUNDS[0])
-    body_forces(state, mus, steer, omega, torque, omega_dot, pk, out)
-    slope = abs(out[1, 1] - out[1, 0]) / (2.0 * h)
-    from_mu = 0.5 * (out[1, 3] - out[1, 4])
-    error_var = 0.5 * (force_std * out[1, 2]) ** 2 + from_mu * from_mu
-    cap = CONSIDER_MAX_V_STD * max(abs(x[I_U]), MIN_SPEED)
+    return h
+
+
+@numba.njit(inline="always", **JIT)
+def _consider_variance(ay_less, ay_more, ay, ay_mu_more, ay_mu_less, h, u, force_std) -> float:
+    """:func:`_considered_v_var` from the model's ay [m/s^2] at its five points
+    (:func:`_consider_points`), the step h [m/s] and the forward speed u [m/s]."""
+    slope = abs(ay_more - ay_less) / (2.0 * h)
+    from_mu = 0.5 * (ay_mu_more - ay_mu_less)
+    error_var = 0.5 * (force_std * ay) ** 2 + from_mu * from_mu
+    cap = CONSIDER_MAX_V_STD * max(abs(u), MIN_SPEED)
     if error_var >= (cap * slope) ** 2:
         return cap * cap
     return error_var / (slope * slope)
@@ -883,44 +909,128 @@ def _record_innovation(nu, S, valid, update: int, first: int, innov, innov_std, 
     nis[update], dof[update] = value if count > 0 else math.nan, count
 
 
+class StepWork(NamedTuple):
+    """One step of a block of cars between its opening (:func:`_open_step`) and its filters, one row
+    per car (leading axis: the block's lanes; a single car's step has one): the step dt [s] and
+    its multiple of the nominal one (L,), the readings less the learnt ay offset and their
+    validity after the held-sample check (L, N_CHANNELS), the repeat counts (L, N_HELD), the
+    advanced zero-point state (L, 5), the grip floor's acceleration (L,), the wheel accelerations
+    (L, 4), the wheel table (L, 4, 4), the relaxed slips (L, 4), the state filters' measurements
+    and noise (z1 (L, 7), R1 (L, 7, 7); z2, valid2 (L, 3), R2 (L, 3, 3): [ay, r, Gamma], Gamma
+    with the yaw balance only), the process noise Q (L, 6, 6) and whether a slide goes unseen by
+    the friction gate (L,)."""
+
+    dt: np.ndarray
+    elapsed_steps: np.ndarray
+    values: np.ndarray
+    valid: np.ndarray
+    repeats: np.ndarray
+    zero_point: np.ndarray
+    grip_accel: np.ndarray
+    omega_dot: np.ndarray
+    steer: np.ndarray
+    relaxed: np.ndarray
+    z1: np.ndarray
+    R1: np.ndarray
+    z2: np.ndarray
+    valid2: np.ndarray
+    R2: np.ndarray
+    Q: np.ndarray
+    unseen_slide: np.ndarray
+
+
+class StepResult(NamedTuple):
+    """What the filters of a block of cars give, one row per car (leading axis L): the state
+    filter's x (L, 6), P (L, 6, 6), sharing coefficients (L, 2), innovation NLL (L,) and its
+    sub-filters' innovations and their covariances (nu1 (L, 7), S1 (L, 7, 7), nu2 (L, 3), S2 (L,
+    3, 3)); whether the friction filter runs (L,), its inputs (the random walk and the prior
+    covariance it starts from (L, 4, 4), the noise R1_mu (L, 3, 3), R2_mu (L, 2, 2)) and its
+    fused mu (L, 4), P_mu (L, 4, 4), sharing coefficients (L, 2) and innovations (nu1_mu (L, 3),
+    S1_mu (L, 3, 3), nu2_mu (L, 2), S2_mu (L, 2, 2))."""
+
+    x: np.ndarray
+    P: np.ndarray
+    beta: np.ndarray
+    nll: np.ndarray
+    nu1: np.ndarray
+    S1: np.ndarray
+    nu2: np.ndarray
+    S2: np.ndarray
+    friction: np.ndarray
+    walk: np.ndarray
+    P_mu_in: np.ndarray
+    R1_mu: np.ndarray
+    R2_mu: np.ndarray
+    mu: np.ndarray
+    P_mu: np.ndarray
+    beta_mu: np.ndarray
+    nu1_mu: np.ndarray
+    S1_mu: np.ndarray
+    nu2_mu: np.ndarray
+    S2_mu: np.ndarray
+
+
+@numba.njit(inline="always", **JIT)
+def _step_work(lanes) -> StepWork:
+    """A :class:`StepWork` of ``lanes`` rows on the caller's stack."""
+    return StepWork(
+        scratch((lanes,)), scratch((lanes,)), scratch((lanes, N_CHANNELS)), scratch((lanes, N_CHANNELS), np.bool_),
+        scratch((lanes, N_HELD)), scratch((lanes, 5)), scratch((lanes,)), scratch((lanes, 4)),
+        scratch((lanes, 4, 4)), scratch((lanes, 4)), scratch((lanes, 7)), scratch((lanes, 7, 7)),
+        scratch((lanes, 3)), scratch((lanes, 3), np.bool_), scratch((lanes, 3, 3)),
+        scratch((lanes, N_STATE, N_STATE)), scratch((lanes,), np.bool_),
+    )  # fmt: skip
+
+
+@numba.njit(inline="always", **JIT)
+def _step_result(lanes) -> StepResult:
+    """A :class:`StepResult` of ``lanes`` rows on the caller's stack."""
+    return StepResult(
+        scratch((lanes, N_STATE)), scratch((lanes, N_STATE, N_STATE)), scratch((lanes, 2)), scratch((lanes,)),
+        scratch((lanes, 7)), scratch((lanes, 7, 7)), scratch((lanes, 3)), scratch((lanes, 3, 3)),
+        scratch((lanes,), np.bool_), scratch((lanes, 4, 4)), scratch((lanes, 4, 4)), scratch((lanes, 3, 3)),
+        scratch((lanes, 2, 2)), scratch((lanes, 4)), scratch((lanes, 4, 4)), scratch((lanes, 2)),
+        scratch((lanes, 3)), scratch((lanes, 3, 3)), scratch((lanes, 2)), scratch((lanes, 2, 2)),
+    )  # fmt: skip
+
+
 @numba.njit(**JIT)
-def _step_vehicle(f: FilterKernel, i: int, reading, valid_in, t: float, out: Estimate, j: int) -> tuple[int, float]:
-    """One step of vehicle i's filters (:class:`FilterKernel` ``f``) on its raw sensor ``reading``
-    and ``valid_in`` (N_CHANNELS,) taken at time ``t`` [s] (NaN: unknown, a step of the nominal
-    dt); its state rows are updated in place only on success. Returns (status, innovation NLL)
-    and writes the estimate into row j of ``out``."""
+def _open_step(f: FilterKernel, i: int, reading, valid_in, t: float, w: StepWork, lane: int) -> int:
+    """The opening of vehicle i's step on its raw ``reading`` and ``valid_in`` (N_CHANNELS,) at
+    time ``t`` [s] (NaN: unknown, a step of the nominal dt), into row ``lane`` of ``w``: the step's
+    time, the input and held-sample checks, the zero point and slide rate, the grip floor's
+    acceleration, the model's inputs and the filters' measurements and noise. Returns OK,
+    BAD_TIME or BAD_MEASUREMENT (then the row is not to be used). Reads the state, writes none."""
     settings, pk = f.settings, f.model
     q = i if f.noise.process_var.shape[0] > 1 else 0
-    process_var, sensor_var, mu_var = f.noise.process_var[q], f.noise.sensor_var[q], f.noise.mu_var
+    process_var, sensor_var = f.noise.process_var[q], f.noise.sensor_var[q]
     state = f.state
-    x, P, mu, P_mu, beta, beta_mu = state.x[i], state.P[i], state.mu[i], state.P_mu[i], state.beta[i], state.beta_mu[i]
+    x, mu = state.x[i], state.mu[i]
     omega_prev, omega_dot, inertial_prev = state.omega_prev[i], state.omega_dot[i], state.inertial_prev[i]
-    inertial_repeats, zero_point, slip_relaxed = state.inertial_repeats[i], state.zero_point[i], state.slip_relaxed[i]
     # the step: the time since the previous reading (the nominal dt where a clock's rounding is all
     # that differs); the noise given per nominal step scales with it
     dt = settings.dt
     if math.isfinite(t) and math.isfinite(state.t_prev[i]):
         elapsed = t - state.t_prev[i]
         if elapsed < 0.0:
-            return BAD_TIME, math.nan
+            return BAD_TIME
         if elapsed > 0.0 and abs(elapsed - dt) > CLOCK_TOLERANCE * dt:  # (0: a caller without a clock)
             dt = elapsed
-    elapsed_steps = dt / settings.dt  # (1.0 exactly on a fixed-rate clock)
+    w.dt[lane], w.elapsed_steps[lane] = dt, dt / settings.dt  # (1.0 exactly on a fixed-rate clock)
     for c in range(reading.shape[0]):  # the inputs drive the model, valid or not
         if (valid_in[c] or _is_input(c)) and not math.isfinite(reading[c]):
-            return BAD_MEASUREMENT, math.nan
-    channels = reading.shape[0]
-    valid, repeats = scratch((channels,), np.bool_), scratch((N_HELD,))
-    valid[:], repeats[:] = valid_in, inertial_repeats
+            return BAD_MEASUREMENT
+    valid, repeats = w.valid[lane], w.repeats[lane]
+    valid[:], repeats[:] = valid_in, state.inertial_repeats[i]
     for m in range(N_HELD):  # held samples and stuck sensors (StateEstimator.stuck_samples)
         c = HELD_CHANNELS[m]
         repeats[m] = repeats[m] + 1.0 if valid_in[c] and reading[c] == inertial_prev[m] else 0.0
         if repeats[m] >= settings.stuck_samples:
             valid[c] = False
-    zero_point_new = scratch((5,))
-    zero_point_new[:] = zero_point
+    zero_point_new = w.zero_point[lane]
+    zero_point_new[:] = state.zero_point[i]
     _learn_zero_point(zero_point_new, reading, valid, x[I_U], dt, settings.zero_point_time_constant)
-    values = scratch((channels,))
+    values = w.values[lane]
     values[:] = reading
     values[CH_AY] -= zero_point_new[ZP_OFFSET]
     grip_accel = state.grip_accel[i]
@@ -928,40 +1038,39 @@ def _step_vehicle(f: FilterKernel, i: int, reading, valid_in, t: float, out: Est
         grip_accel = _low_pass(
             grip_accel, math.hypot(values[CH_AX], values[CH_AY]), dt, settings.grip_floor_time_constant
         )
+    w.grip_accel[lane] = grip_accel
     # inputs; wheel angular acceleration for eq. 7: differentiated wheel speed, low-passed
-    omega, torque, od = values[CH_OMEGA : CH_OMEGA + 4], values[CH_TORQUE : CH_TORQUE + 4], scratch((4,))
-    for w in range(4):
-        od[w] = _low_pass(omega_dot[w], (omega[w] - omega_prev[w]) / dt, dt, OMEGA_DOT_TIME_CONSTANT)
-    steer, relaxed_new = scratch((4, 4)), scratch((4,))
+    omega, od = values[CH_OMEGA : CH_OMEGA + 4], w.omega_dot[lane]
+    for k in range(4):
+        od[k] = _low_pass(omega_dot[k], (omega[k] - omega_prev[k]) / dt, dt, OMEGA_DOT_TIME_CONSTANT)
+    steer = w.steer[lane]
     fill_steer_trig(
         (values[CH_DELTA], values[CH_DELTA + 1], values[CH_DELTA + 2], values[CH_DELTA + 3]), steer
     )  # fmt: skip
-    _relax_slip(x, steer, slip_relaxed, pk, dt, relaxed_new)
+    _relax_slip(x, steer, state.slip_relaxed[i], pk, dt, w.relaxed[lane])
     ax_var, ay_var, gyro_var, wheel_var = sensor_var[0], sensor_var[1], sensor_var[2], sensor_var[3]
     # sub-filter 1: [ax, ay, r, the wheel-centre speeds R omega] (channels 0-6), sub-filter 2: [ay, r]
-    z1 = scratch((7,))
+    z1, R1 = w.z1[lane], w.R1[lane]
     z1[:3] = values[:3]
-    for w in range(4):
-        z1[3 + w] = values[CH_OMEGA + w] * pk.wheel_radius
-    valid1, z2, valid2 = valid[:7], values[CH_AY : CH_YAW_RATE + 1], valid[CH_AY : CH_YAW_RATE + 1]
-    R1, R2, Q = scratch((7, 7)), scratch((2, 2)), scratch((6, 6))
+    for k in range(4):
+        z1[3 + k] = values[CH_OMEGA + k] * pk.wheel_radius
     _fill_diagonal((ax_var, ay_var, gyro_var, wheel_var, wheel_var, wheel_var, wheel_var), R1)
-    _fill_diagonal((ay_var, gyro_var), R2)
     if settings.adaptive:  # (covariance matching of the wheel speeds: ADAPTIVE_TIME_CONSTANT)
-        for w in range(4):
-            R1[3 + w, 3 + w] *= max(state.wheel_nis[i, w], 1.0)
+        for k in range(4):
+            R1[3 + k, 3 + k] *= max(state.wheel_nis[i, k], 1.0)
     # the state's sub-filter 2: [ay, r], and with the yaw balance Gamma = 0, measured in steady
     # driving (a third channel, invalid otherwise)
-    m2 = 3 if settings.yaw_balance else 2
-    z2_state, valid2_state, R2_state = scratch((m2,)), scratch((m2,), np.bool_), scratch((m2, m2))
-    z2_state[:2], valid2_state[:2], R2_state[:2, :2] = z2, valid2, R2
+    z2, valid2, R2 = w.z2[lane], w.valid2[lane], w.R2[lane]
+    z2[0], z2[1], z2[2] = values[CH_AY], values[CH_YAW_RATE], 0.0
+    valid2[0], valid2[1], valid2[2] = valid[CH_AY], valid[CH_YAW_RATE], False
+    _fill_diagonal((ay_var, gyro_var, 1.0), R2)
     if settings.yaw_balance:
-        z2_state[2], R2_state[2, :2], R2_state[:2, 2] = 0.0, 0.0, 0.0
-        R2_state[2, 2] = settings.yaw_balance_std**2
-        valid2_state[2] = _settled(zero_point_new, x[I_U])
+        R2[2, 2] = settings.yaw_balance_std**2
+        valid2[2] = _settled(zero_point_new, x[I_U])
+    Q = w.Q[lane]
     _fill_diagonal(process_var, Q)
     for k in range(N_STATE):  # (the process noise is per nominal step)
-        Q[k, k] *= elapsed_steps
+        Q[k, k] *= w.elapsed_steps[lane]
     unseen_slide = False  # (SLIDE_*: sliding in a steady turn while the friction gate is shut)
     outward = -zero_point_new[ZP_SLIDE] * math.copysign(1.0, zero_point_new[ZP_YAW])
     if settings.slide_detection and outward > settings.slide_rate and zero_point_new[ZP_STEADY] > SLIDE_TAU:
@@ -971,111 +1080,185 @@ def _step_vehicle(f: FilterKernel, i: int, reading, valid_in, t: float, out: Est
     if unseen_slide:
         accel_floor = SLIDE_ACCEL_STD**2 * dt / NOISE_STEP
         Q[I_AX, I_AX], Q[I_AY, I_AY] = max(Q[I_AX, I_AX], accel_floor), max(Q[I_AY, I_AY], accel_floor)
-    x_new, P_new, beta_new = scratch((6,)), scratch((6, 6)), scratch((2,))
-    beta_new[:] = beta
-    nu1, S1, nu2, S2 = scratch((7,)), scratch((7, 7)), scratch((m2,)), scratch((m2, m2))
-    measurement = MeasurementInputs(steer, pk)
-    # (the friction measurements at the previous estimate: the state filter does not evaluate them)
-    args = ModelArgs(
-        ModelInputs(mu, steer, omega, torque, od, pk, dt),
-        measurement,
-        FrictionInputs(x, steer, omega, torque, od, pk, dt),
+    w.unseen_slide[lane] = unseen_slide
+    return OK
+
+
+@numba.njit(inline="always", **JIT)
+def _model_args(f: FilterKernel, i: int, w: StepWork, lane: int, x_friction) -> ModelArgs:
+    """The models' inputs of vehicle i's step (row ``lane`` of ``w``), the friction measurements
+    at the state estimate ``x_friction`` (6,)."""
+    values, od, steer, pk, dt = w.values[lane], w.omega_dot[lane], w.steer[lane], f.model, w.dt[lane]
+    omega, torque = values[CH_OMEGA : CH_OMEGA + 4], values[CH_TORQUE : CH_TORQUE + 4]
+    return ModelArgs(
+        ModelInputs(f.state.mu[i], steer, omega, torque, od, pk, dt),
+        MeasurementInputs(steer, pk),
+        FrictionInputs(x_friction, steer, omega, torque, od, pk, dt),
     )
+
+
+@numba.njit(**JIT)
+def _state_filter(f: FilterKernel, i: int, w: StepWork, lane: int, res: StepResult) -> int:
+    """Vehicle i's state filter (its kind's: federated, EKF or CKF) on row ``lane`` of ``w``,
+    car by car, into row ``lane`` of ``res``; OK or FILTER_FAILED."""
+    settings, state = f.settings, f.state
+    x, P, beta = state.x[i], state.P[i], state.beta[i]
+    x_new, P_new, beta_new = res.x[lane], res.P[lane], res.beta[lane]
+    beta_new[:] = beta
+    # (the friction measurements at the previous estimate: the state filter does not evaluate them)
+    args = _model_args(f, i, w, lane, x)
+    valid1 = w.valid[lane, :7]
+    nu1, S1 = res.nu1[lane], res.S1[lane]
     if settings.federated:
+        m2 = 3 if settings.yaw_balance else 2
+        z2, valid2, R2 = scratch((m2,)), scratch((m2,), np.bool_), scratch((m2, m2))
+        nu2, S2 = scratch((m2,)), scratch((m2, m2))
+        z2[:], valid2[:], R2[:, :] = w.z2[lane, :m2], w.valid2[lane, :m2], w.R2[lane, :m2, :m2]
         huber_c = settings.huber_c if settings.robust else NO_HUBER
         nll = _federated(
-            x, P, Q, beta, TRANSITION, z1, valid1, R1, STATE_1, z2_state, valid2_state, R2_state, STATE_2, huber_c,
-            args, x_new, P_new, beta_new, nu1, S1, nu2, S2,
+            x, P, w.Q[lane], beta, TRANSITION, w.z1[lane], valid1, w.R1[lane], STATE_1, z2, valid2, R2, STATE_2,
+            huber_c, args, x_new, P_new, beta_new, nu1, S1, nu2, S2,
         )  # fmt: skip
+        res.nu2[lane, :m2], res.S2[lane, :m2, :m2] = nu2, S2
     elif settings.extended:
-        nll = _ekf_step(x, P, Q, z1, valid1, R1, args, x_new, P_new, nu1, S1)
+        nll = _ekf_step(x, P, w.Q[lane], w.z1[lane], valid1, w.R1[lane], args, x_new, P_new, nu1, S1)
     else:
         x_pred, P_pred = scratch((6,)), scratch((6, 6))
-        if not _ckf_predict(x, P, Q, TRANSITION, args, x_pred, P_pred):
-            return FILTER_FAILED, math.nan
-        nll = _ckf_update(x_pred, P_pred, z1, valid1, R1, NO_HUBER, STATE_1, args, x_new, P_new, nu1, S1)
-    if not math.isfinite(nll):
-        return FILTER_FAILED, math.nan
+        if not _ckf_predict(x, P, w.Q[lane], TRANSITION, args, x_pred, P_pred):
+            return FILTER_FAILED
+        nll = _ckf_update(
+            x_pred, P_pred, w.z1[lane], valid1, w.R1[lane], NO_HUBER, STATE_1, args, x_new, P_new, nu1, S1
+        )
+    res.nll[lane] = nll
+    return OK if math.isfinite(nll) else FILTER_FAILED
+
+
+@numba.njit(**JIT)
+def _after_state(f: FilterKernel, i: int, w: StepWork, lane: int, res: StepResult) -> int:
+    """After vehicle i's state filter (row ``lane`` of ``res``): the measured forward speed's update,
+    whether its friction filter runs, and that filter's noise and starting covariance; OK or
+    FILTER_FAILED."""
+    settings, mu_var = f.settings, f.noise.mu_var
+    x_new, P_new = res.x[lane], res.P[lane]
+    q = i if f.noise.sensor_var.shape[0] > 1 else 0
+    sensor_var = f.noise.sensor_var[q]
+    values, valid = w.values[lane], w.valid[lane]
+    if valid[settings.speed_channel]:  # a measured forward speed
+        huber_c = settings.huber_c if settings.robust else NO_HUBER
+        res.nll[lane] += _speed_update(x_new, P_new, values[settings.speed_channel], sensor_var[4], huber_c)
+        if not math.isfinite(res.nll[lane]):
+            return FILTER_FAILED
+    res.friction[lane] = settings.friction and x_new[I_U] > MU_MIN_SPEED
+    if res.friction[lane]:
+        gyro_var = sensor_var[2]
+        _fill_correlated(mu_var[0] * w.elapsed_steps[lane], res.walk[lane])
+        _fill_diagonal((mu_var[1], mu_var[1], gyro_var), res.R1_mu[lane])
+        _fill_diagonal((mu_var[1], gyro_var), res.R2_mu[lane])
+        if w.unseen_slide[lane]:  # restart from the prior covariance (mu_max_std)
+            _fill_correlated(mu_var[2], res.P_mu_in[lane])
+        else:
+            res.P_mu_in[lane] = f.state.P_mu[i]
+    return OK
+
+
+@numba.njit(**JIT)
+def _friction_filter(f: FilterKernel, i: int, w: StepWork, lane: int, res: StepResult) -> int:
+    """Vehicle i's friction filter, car by car, into row ``lane`` of ``res``; OK or FILTER_FAILED."""
+    settings, state = f.settings, f.state
+    values, valid = w.values[lane], w.valid[lane]
+    args = _model_args(f, i, w, lane, res.x[lane])
+    nll_mu = _federated(
+        state.mu[i], res.P_mu_in[lane], res.walk[lane], state.beta_mu[i], RANDOM_WALK, values[: CH_YAW_RATE + 1],
+        valid[: CH_YAW_RATE + 1], res.R1_mu[lane], MU_1, values[CH_AY : CH_YAW_RATE + 1],
+        valid[CH_AY : CH_YAW_RATE + 1], res.R2_mu[lane], MU_2, settings.huber_c, args, res.mu[lane], res.P_mu[lane],
+        res.beta_mu[lane], res.nu1_mu[lane], res.S1_mu[lane], res.nu2_mu[lane], res.S2_mu[lane],
+        settings.centred_friction,
+    )  # fmt: skip
+    return OK if math.isfinite(nll_mu) else FILTER_FAILED
+
+
+@numba.njit(**JIT)
+def _close_step(f: FilterKernel, i: int, reading, valid_in, t: float, w: StepWork, lane: int, res: StepResult) -> None:
+    """The close of vehicle i's step after its filters (rows ``lane`` of ``w`` and ``res``): the
+    innovations and their NIS, the friction gate, bounds, grip floor and the cap of its random walk,
+    and the commit of its state rows (then :func:`_estimate_row`)."""
+    settings, pk, state, mu_var = f.settings, f.model, f.state, f.noise.mu_var
+    x, P, mu, P_mu = state.x[i], state.P[i], state.mu[i], state.P_mu[i]
+    values, valid, dt = w.values[lane], w.valid[lane], w.dt[lane]
+    zero_point_new, steer, od = w.zero_point[lane], w.steer[lane], w.omega_dot[lane]
+    omega = values[CH_OMEGA : CH_OMEGA + 4]
+    x_new, unseen_slide = res.x[lane], w.unseen_slide[lane]
     # the innovations and their NIS (INNOVATIONS, UPDATES), NaN where an update did not run
     innov, innov_std, nis, dof = scratch((N_INNOVATIONS,)), scratch((N_INNOVATIONS,)), scratch((4,)), scratch((4,))
     innov[:], innov_std[:], nis[:], dof[:] = math.nan, math.nan, math.nan, 0.0
-    _record_innovation(nu1, S1, valid1, 0, 0, innov, innov_std, nis, dof)
+    _record_innovation(res.nu1[lane], res.S1[lane], valid[:7], 0, 0, innov, innov_std, nis, dof)
     if settings.federated:
-        _record_innovation(nu2, S2, valid2_state, 1, 7, innov, innov_std, nis, dof)
-    if valid[settings.speed_channel]:  # a measured forward speed
-        huber_c = settings.huber_c if settings.robust else NO_HUBER
-        nll += _speed_update(x_new, P_new, values[settings.speed_channel], sensor_var[4], huber_c)
-        if not math.isfinite(nll):
-            return FILTER_FAILED, math.nan
+        m2 = 3 if settings.yaw_balance else 2
+        _record_innovation(
+            res.nu2[lane, :m2], res.S2[lane, :m2, :m2], w.valid2[lane, :m2], 1, 7, innov, innov_std, nis, dof
+        )
     mu_new, P_mu_new, beta_mu_new = scratch((4,)), scratch((4, 4)), scratch((2,))
-    mu_new[:], P_mu_new[:, :], beta_mu_new[:] = mu, P_mu, beta_mu
-    if settings.friction and x_new[I_U] > MU_MIN_SPEED:
-        nu1_mu, S1_mu, nu2_mu, S2_mu = scratch((3,)), scratch((3, 3)), scratch((2,)), scratch((2, 2))
-        walk, R1_mu, R2_mu = scratch((4, 4)), scratch((3, 3)), scratch((2, 2))
-        _fill_correlated(mu_var[0] * elapsed_steps, walk)
-        _fill_diagonal((mu_var[1], mu_var[1], gyro_var), R1_mu)
-        _fill_diagonal((mu_var[1], gyro_var), R2_mu)
-        args = ModelArgs(args.process, measurement, FrictionInputs(x_new, steer, omega, torque, od, pk, dt))
-        mu_fused, P_fused, P_mu_in = scratch((4,)), scratch((4, 4)), scratch((4, 4))
-        P_mu_in[:, :] = P_mu
-        if unseen_slide:  # restart from the prior covariance (mu_max_std)
-            _fill_correlated(mu_var[2], P_mu_in)
-        valid1_mu, valid2_mu = valid[: CH_YAW_RATE + 1], valid2
-        nll_mu = _federated(
-            mu, P_mu_in, walk, beta_mu, RANDOM_WALK, values[:CH_YAW_RATE + 1], valid1_mu, R1_mu, MU_1,
-            z2, valid2_mu, R2_mu, MU_2,
-            settings.huber_c, args, mu_fused, P_fused, beta_mu_new, nu1_mu, S1_mu, nu2_mu, S2_mu,
-            settings.centred_friction,
-        )  # fmt: skip
-        if not math.isfinite(nll_mu):
-            return FILTER_FAILED, math.nan
-        _record_innovation(nu1_mu, S1_mu, valid1_mu, 2, 10, innov, innov_std, nis, dof)
-        _record_innovation(nu2_mu, S2_mu, valid2_mu, 3, 13, innov, innov_std, nis, dof)
+    mu_new[:], P_mu_new[:, :], beta_mu_new[:] = mu, P_mu, state.beta_mu[i]
+    if res.friction[lane]:
+        valid2 = valid[CH_AY : CH_YAW_RATE + 1]
+        _record_innovation(res.nu1_mu[lane], res.S1_mu[lane], valid[: CH_YAW_RATE + 1], 2, 10, innov, innov_std,
+                           nis, dof)  # fmt: skip
+        _record_innovation(res.nu2_mu[lane], res.S2_mu[lane], valid2, 3, 13, innov, innov_std, nis, dof)
+        mu_fused, P_fused, P_mu_in, walk = res.mu[lane], res.P_mu[lane], res.P_mu_in[lane], res.walk[lane]
+        beta_mu_new[:] = res.beta_mu[lane]
         # hold mu where the lateral demand is far from saturation (lambda >= EXCITATION_LAMBDA);
         # the covariance keeps the update (see the module docstring)
         lam = scratch((4,))
         dugoff_lambdas(x_new[I_U], x_new[I_V], x_new[I_R], x_new[I_AX], x_new[I_AY], mu, steer, omega, pk, lam)
         steady_hold = settings.steady_hold and _settled(zero_point_new, x_new[I_U])
         if (lam.min() < EXCITATION_LAMBDA and not steady_hold) or unseen_slide or not settings.friction_gate:
-            for w in range(4):
-                mu_new[w] = min(max(mu_fused[w], MU_BOUNDS[0]), MU_BOUNDS[1])
+            for k in range(4):
+                mu_new[k] = min(max(mu_fused[k], MU_BOUNDS[0]), MU_BOUNDS[1])
                 if unseen_slide:  # (a slide tells only that the road is slipperier than mu_hat)
-                    mu_new[w] = min(mu_new[w], mu[w])
+                    mu_new[k] = min(mu_new[k], mu[k])
         elif settings.held_covariance:  # (HELD_COVARIANCE)
             for a_ in range(4):
                 for b_ in range(4):
                     P_fused[a_, b_] = P_mu_in[a_, b_] + (0.0 if steady_hold else walk[a_, b_])
         if settings.grip_floor:  # (GRIP_FLOOR_TIME_CONSTANT)
-            for w in range(4):
-                floor = grip_accel / (GRAVITY * axle_tyre(pk, w).mu_scale)
-                mu_new[w] = max(mu_new[w], min(floor, MU_BOUNDS[1]))
+            for k in range(4):
+                floor = w.grip_accel[lane] / (GRAVITY * axle_tyre(pk, k).mu_scale)
+                mu_new[k] = max(mu_new[k], min(floor, MU_BOUNDS[1]))
         # cap the random walk's growth where mu is unobservable
         scale = scratch((4,))
-        for w in range(4):
-            scale[w] = math.sqrt(min(P_fused[w, w], mu_var[2]) / max(P_fused[w, w], 1e-300))
+        for k in range(4):
+            scale[k] = math.sqrt(min(P_fused[k, k], mu_var[2]) / max(P_fused[k, k], 1e-300))
         for a in range(4):
             for b in range(4):
                 P_mu_new[a, b] = P_fused[a, b] * scale[a] * scale[b]
     # commit
-    x[:], P[:, :], beta[:] = x_new, P_new, beta_new
-    mu[:], P_mu[:, :], beta_mu[:] = mu_new, P_mu_new, beta_mu_new
-    omega_prev[:], omega_dot[:] = omega, od
-    inertial_repeats[:] = repeats
-    zero_point[:] = zero_point_new
-    slip_relaxed[:] = relaxed_new
+    x[:], P[:, :], state.beta[i] = x_new, res.P[lane], res.beta[lane]
+    mu[:], P_mu[:, :], state.beta_mu[i] = mu_new, P_mu_new, beta_mu_new
+    state.omega_prev[i], state.omega_dot[i] = omega, od
+    state.inertial_repeats[i] = w.repeats[lane]
+    state.zero_point[i] = zero_point_new
+    state.slip_relaxed[i] = w.relaxed[lane]
     for m in range(N_HELD):
         if valid_in[HELD_CHANNELS[m]]:
-            inertial_prev[m] = reading[HELD_CHANNELS[m]]
+            state.inertial_prev[i, m] = reading[HELD_CHANNELS[m]]
     if math.isfinite(t):
         state.t_prev[i] = t
-    state.grip_accel[i] = grip_accel
+    state.grip_accel[i] = w.grip_accel[lane]
     state.innovation[i], state.innovation_std[i], state.nis[i], state.nis_dof[i] = innov, innov_std, nis, dof
     if settings.adaptive:
-        for w in range(4):
-            if math.isfinite(innov[3 + w]):  # (its squared standardised innovation, of the unscaled noise)
-                ratio = (innov[3 + w] / innov_std[3 + w]) ** 2 * max(state.wheel_nis[i, w], 1.0)
-                state.wheel_nis[i, w] = _low_pass(state.wheel_nis[i, w], ratio, dt, settings.adaptive_time_constant)
-    # the estimate
+        for k in range(4):
+            if math.isfinite(innov[3 + k]):  # (its squared standardised innovation, of the unscaled noise)
+                ratio = (innov[3 + k] / innov_std[3 + k]) ** 2 * max(state.wheel_nis[i, k], 1.0)
+                state.wheel_nis[i, k] = _low_pass(state.wheel_nis[i, k], ratio, dt, settings.adaptive_time_constant)
+
+
+@numba.njit(**JIT)
+def _estimate_row(f: FilterKernel, i: int, consider_var: float, out: Estimate, j: int) -> None:
+    """Vehicle i's estimate from its committed state into row j of ``out``, its sideslip sigma with
+    the consider term's variance ``consider_var`` [m^2/s^2] of v (:func:`_considered_v_var`; kept
+    in the state, unused where the kind has none)."""
+    settings, state = f.settings, f.state
+    x, P, mu, P_mu = state.x[i], state.P[i], state.mu[i], state.P_mu[i]
     u, v = x[I_U], x[I_V]
     out.u[j], out.v[j], out.r[j], out.ax[j], out.ay[j] = u, v, x[I_R], x[I_AX], x[I_AY]
     speed = max(abs(u), MIN_SPEED)  # sideslip of a car at rest: lateral speed over a floored speed
@@ -1085,14 +1268,42 @@ def _step_vehicle(f: FilterKernel, i: int, reading, valid_in, t: float, out: Est
     grad_v = speed / denom
     beta_var = grad_u**2 * P[I_U, I_U] + 2 * grad_u * grad_v * P[I_U, I_V] + grad_v**2 * P[I_V, I_V]
     if settings.consider_std > 0.0:  # (CONSIDER_*)
-        state.consider_var[i] = _considered_v_var(x, mu, P_mu, steer, omega, torque, od, pk, settings.consider_std)
-        beta_var += grad_v**2 * state.consider_var[i]
+        state.consider_var[i] = consider_var
+        beta_var += grad_v**2 * consider_var
     out.beta_std[j] = math.sqrt(max(beta_var, 0.0))
-    wheel_loads(x[I_AX], x[I_AY], pk, out.fz[j])
-    for w in range(4):
-        out.mu[j, w] = mu[w]
-        out.mu_std[j, w] = math.sqrt(P_mu[w, w]) if settings.friction else 0.0
-    return OK, nll
+    wheel_loads(x[I_AX], x[I_AY], f.model, out.fz[j])
+    for k in range(4):
+        out.mu[j, k] = mu[k]
+        out.mu_std[j, k] = math.sqrt(P_mu[k, k]) if settings.friction else 0.0
+
+
+@numba.njit(**JIT)
+def _step_vehicle(f: FilterKernel, i: int, reading, valid_in, t: float, out: Estimate, j: int) -> tuple[int, float]:
+    """One step of vehicle i's filters (:class:`FilterKernel` ``f``) on its raw sensor ``reading``
+    and ``valid_in`` (N_CHANNELS,) taken at time ``t`` [s] (NaN: unknown, a step of the nominal
+    dt); its state rows are updated in place only on success. Returns (status, innovation NLL)
+    and writes the estimate into row j of ``out``. The block step (:func:`_step_block`) runs the
+    same opening and close around its filters in lanes."""
+    w, res = _step_work(1), _step_result(1)
+    status = _open_step(f, i, reading, valid_in, t, w, 0)
+    if status == OK:
+        status = _state_filter(f, i, w, 0, res)
+    if status == OK:
+        status = _after_state(f, i, w, 0, res)
+    if status == OK and res.friction[0]:
+        status = _friction_filter(f, i, w, 0, res)
+    if status != OK:
+        return status, math.nan
+    _close_step(f, i, reading, valid_in, t, w, 0, res)
+    consider_var = 0.0
+    if f.settings.consider_std > 0.0:
+        state, values = f.state, w.values[0]
+        consider_var = _considered_v_var(
+            state.x[i], state.mu[i], state.P_mu[i], w.steer[0], values[CH_OMEGA : CH_OMEGA + 4],
+            values[CH_TORQUE : CH_TORQUE + 4], w.omega_dot[0], f.model, f.settings.consider_std,
+        )  # fmt: skip
+    _estimate_row(f, i, consider_var, out, j)
+    return OK, res.nll[0]
 
 
 @numba.njit(**JIT)
@@ -1107,11 +1318,437 @@ def step_vehicle(f: FilterKernel, i: int, reading: SensorReading, out: Estimate,
     return status
 
 
+# ---- the step of a block of cars in SIMD lanes -------------------------------------------------
+#: cars per block of the lane step (its SIMD lanes: at 64 LLVM packs the lane loops into vectors,
+#: at 16 or 32 it unrolls them into scalar code; docs/decisions/0046-lane-estimator.md)
+LANES = 64
+#: a block of fewer cars than this steps car by car (:func:`_step_vehicle`): the lanes' fixed cost
+#: (all LANES lanes run) outweighs their speed below it (docs/decisions/0046-lane-estimator.md)
+MIN_LANE_CARS = 8
+N_POINTS = 2 * N_STATE  #: the state filter's cubature points
+N_MU = 4  #: the friction filter's states (one mu per wheel)
+N_MU_POINTS = 2 * N_MU  #: the friction filter's cubature points
+
+
+class LaneArgs(NamedTuple):
+    """What the models of a block of cars need besides their points (lane axis last): each car's
+    friction mu (4, lanes) (the state filter's), wheel table steer (4, 4, lanes), wheel speeds,
+    torques and wheel accelerations (4, lanes), the model, the step dt (lanes,) [s] and the state
+    estimate x (6, lanes) the friction filter's measurements are evaluated at."""
+
+    mu: np.ndarray
+    steer: np.ndarray
+    omega: np.ndarray
+    torque: np.ndarray
+    omega_dot: np.ndarray
+    model: ModelKernel
+    dt: np.ndarray
+    x: np.ndarray
+
+
+@numba.njit(**JIT)
+def _evaluate_lanes(model, points, out, args: LaneArgs, lanes) -> None:
+    """:func:`_evaluate` in lanes: model ``model`` at the K points (K, n, lanes) of each car into
+    out (K, k, lanes), each point the same operations as the single car's."""
+    K, pk = points.shape[0], args.model
+    if model == TRANSITION:
+        transition_lanes(points, out, args.mu, args.steer, args.omega, args.torque, args.omega_dot, pk, args.dt, lanes)
+    elif model == STATE_1:
+        steer = args.steer
+        for k in range(K):
+            for lane in range(lanes):
+                u, v, r = points[k, I_U, lane], points[k, I_V, lane], points[k, I_R, lane]
+                out[k, 0, lane], out[k, 1, lane], out[k, 2, lane] = points[k, I_AX, lane], points[k, I_AY, lane], r
+                for w in range(4):
+                    trig = (steer[0, w, lane], steer[1, w, lane], steer[2, w, lane], steer[3, w, lane])
+                    out[k, 3 + w, lane] = wheel_kinematics(u, v, r, trig, pk, w)[1]
+    elif model == STATE_2:
+        for k in range(K):
+            for lane in range(lanes):
+                out[k, 0, lane], out[k, 1, lane] = points[k, I_AY, lane], points[k, I_R, lane]
+            if out.shape[1] > 2:
+                for lane in range(lanes):
+                    out[k, 2, lane] = points[k, I_GAMMA, lane]
+    elif model == RANDOM_WALK:
+        for k in range(K):
+            for i in range(points.shape[1]):
+                for lane in range(lanes):
+                    out[k, i, lane] = points[k, i, lane]
+    else:  # the mu sub-filters' measurements (_mu_predictions): [ax, ay, r] (MU_1) or [ay, r] (MU_2)
+        x, dt = args.x, args.dt
+        state, mu, predicted = scratch((5, K, lanes)), scratch((4, K, lanes)), scratch((3, K, lanes))
+        for k in range(K):
+            for lane in range(lanes):
+                state[0, k, lane], state[1, k, lane], state[2, k, lane] = x[I_U, lane], x[I_V, lane], x[I_R, lane]
+                state[3, k, lane], state[4, k, lane] = x[I_AX, lane], x[I_AY, lane]
+            for w in range(4):
+                for lane in range(lanes):
+                    mu[w, k, lane] = points[k, w, lane]
+        body_forces_lanes(state, mu, args.steer, args.omega, args.torque, args.omega_dot, pk, predicted, lanes)
+        first = 0 if model == MU_1 else 1
+        for k in range(K):
+            for lane in range(lanes):
+                r_prev = x[I_R, lane] - dt[lane] * x[I_GAMMA, lane] / pk.yaw_inertia
+                predicted[2, k, lane] = r_prev + dt[lane] * predicted[2, k, lane] / pk.yaw_inertia
+            for i in range(first, 3):
+                for lane in range(lanes):
+                    out[k, i - first, lane] = predicted[i, k, lane]
+
+
+@numba.njit(**JIT)
+def _ckf_predict_lanes(x, P, Q, model, args, x_out, P_out, ok, n, K, lanes) -> None:
+    """:func:`_ckf_predict` of each lane (K = 2n points); ok (lanes,) False where P has no factor."""
+    points, moved = scratch((K, n, lanes)), scratch((K, n, lanes))
+    cubature_points_lanes(x, P, points, ok, n, lanes)
+    _evaluate_lanes(model, points, moved, args, lanes)
+    predicted_moments_lanes(moved, Q, x_out, P_out, n, lanes)
+
+
+@numba.njit(**JIT)
+def _ckf_update_lanes(x, P, z, valid, R, huber_c, model, args, x_out, P_out, nu, S, nll, ok, centred, n, m, K,
+                      lanes) -> None:  # fmt: skip
+    """:func:`_ckf_update` of each lane (K = 2n points): its innovation nu (m, lanes), covariance S
+    (m, m, lanes) and NLL (lanes,), NaN and ok False where it fails; ``centred``: the innovation
+    against the model at x (its value there is one evaluation more, the same as the single car's
+    extra point)."""
+    points, Z, ok_points = scratch((K, n, lanes)), scratch((K, m, lanes)), scratch((lanes,), np.bool_)
+    cubature_points_lanes(x, P, points, ok_points, n, lanes)
+    _evaluate_lanes(model, points, Z, args, lanes)
+    if centred:
+        centre, Z_centre = scratch((1, n, lanes)), scratch((1, m, lanes))
+        for i in range(n):
+            for lane in range(lanes):
+                centre[0, i, lane] = x[i, lane]
+        _evaluate_lanes(model, centre, Z_centre, args, lanes)
+        measurement_update_lanes(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nll, ok, n, m, lanes, nu, S,
+                                 Z_centre[0])  # fmt: skip
+    else:
+        measurement_update_lanes(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nll, ok, n, m, lanes, nu, S)
+    for lane in range(lanes):
+        ok[lane] = ok[lane] and ok_points[lane]
+        nll[lane] = nll[lane] if ok_points[lane] else math.nan
+
+
+@numba.njit(**JIT)
+def _federated_lanes(
+    x, P, Q, beta, f_model, z1, valid1, R1, h1_model, z2, valid2, R2, h2_model, huber_c, args, x_out, P_out,
+    beta_out, nu1, S1, nu2, S2, nll, ok, centred, n, m1, m2, K, lanes,
+) -> None:  # fmt: skip
+    """:func:`_federated` of each lane (estimation/lanes.py's arithmetic): the summed innovation NLL
+    into nll (lanes,), NaN and ok (lanes,) False where the cycle fails."""
+    xs, Ps = scratch((2, n, lanes)), scratch((2, n, n, lanes))
+    x_pred, P_pred = scratch((n, lanes)), scratch((n, n, lanes))
+    P_shared, Q_shared = scratch((n, n, lanes)), scratch((n, n, lanes))
+    total, each, each_ok = scratch((lanes,)), scratch((lanes,)), scratch((lanes,), np.bool_)
+    for lane in range(lanes):
+        total[lane], ok[lane] = 0.0, True
+    for s in range(2):
+        for i in range(n):
+            for j in range(n):
+                for lane in range(lanes):
+                    P_shared[i, j, lane] = P[i, j, lane] / beta[s, lane]
+                    Q_shared[i, j, lane] = Q[i, j, lane] / beta[s, lane]
+        _ckf_predict_lanes(x, P_shared, Q_shared, f_model, args, x_pred, P_pred, each_ok, n, K, lanes)
+        for lane in range(lanes):
+            ok[lane] = ok[lane] and each_ok[lane]
+        if s == 0:
+            _ckf_update_lanes(x_pred, P_pred, z1, valid1, R1, huber_c, h1_model, args, xs[0], Ps[0], nu1, S1, each,
+                              each_ok, centred, n, m1, K, lanes)  # fmt: skip
+        else:
+            _ckf_update_lanes(x_pred, P_pred, z2, valid2, R2, huber_c, h2_model, args, xs[1], Ps[1], nu2, S2, each,
+                              each_ok, centred, n, m2, K, lanes)  # fmt: skip
+        for lane in range(lanes):
+            ok[lane] = ok[lane] and each_ok[lane]
+            total[lane] += each[lane]
+    confidence = scratch((2, lanes))
+    fuse_lanes(xs, Ps, x_out, P_out, confidence, each_ok, n, lanes)
+    sharing_coefficients_lanes(confidence, beta_out, lanes)
+    for lane in range(lanes):
+        ok[lane] = ok[lane] and each_ok[lane]
+        nll[lane] = total[lane] if ok[lane] else math.nan
+
+
+@numba.njit(inline="always", **JIT)
+def _to_lane(z_row, valid_row, R_row, z, valid, R, lane: int, m: int) -> None:
+    """A car's measurement z_row, valid_row (m,) and noise R_row (m, m) into lane ``lane`` of z,
+    valid (m, lanes) and R (m, m, lanes)."""
+    for a in range(m):
+        z[a, lane], valid[a, lane] = z_row[a], valid_row[a]
+        for b in range(m):
+            R[a, b, lane] = R_row[a, b]
+
+
+@numba.njit(inline="always", **JIT)
+def _inputs_to_lane(w: StepWork, g: int, steer, omega, torque, od, dt, lane: int) -> None:
+    """Row g of ``w``'s model inputs (wheel table, wheel speeds, torques and accelerations, dt)
+    into lane ``lane`` of steer (4, 4, lanes), omega, torque, od (4, lanes) and dt (lanes,)."""
+    for k in range(4):
+        od[k, lane] = w.omega_dot[g, k]
+        omega[k, lane], torque[k, lane] = w.values[g, CH_OMEGA + k], w.values[g, CH_TORQUE + k]
+        for a in range(4):
+            steer[a, k, lane] = w.steer[g, a, k]
+    dt[lane] = w.dt[g]
+
+
+@numba.njit(**JIT)
+def _state_filters_lanes(f: FilterKernel, car, source, w: StepWork, res: StepResult, ok, lanes) -> None:
+    """The federated state filter of the vehicles car (lanes,) in lanes, lane ``lane`` on row
+    ``source[lane]`` of ``w`` (a lane whose opening failed takes another's, its results unused),
+    into the rows of ``res``; ok (lanes,) False where it fails."""
+    settings, state, pk = f.settings, f.state, f.model
+    x, P, Q, beta = (
+        scratch((N_STATE, lanes)),
+        scratch((N_STATE, N_STATE, lanes)),
+        scratch((N_STATE, N_STATE, lanes)),
+        scratch((2, lanes)),
+    )
+    z1, valid1, R1 = scratch((7, lanes)), scratch((7, lanes), np.bool_), scratch((7, 7, lanes))
+    z2, valid2, R2 = scratch((3, lanes)), scratch((3, lanes), np.bool_), scratch((3, 3, lanes))
+    mu, steer, omega, torque = scratch((4, lanes)), scratch((4, 4, lanes)), scratch((4, lanes)), scratch((4, lanes))
+    od, dt = scratch((4, lanes)), scratch((lanes,))
+    for lane in range(lanes):
+        g = source[lane]
+        i = car[g]
+        for a in range(N_STATE):
+            x[a, lane] = state.x[i, a]
+            for b in range(N_STATE):
+                P[a, b, lane], Q[a, b, lane] = state.P[i, a, b], w.Q[g, a, b]
+        beta[0, lane], beta[1, lane] = state.beta[i, 0], state.beta[i, 1]
+        _to_lane(w.z1[g], w.valid[g], w.R1[g], z1, valid1, R1, lane, 7)
+        _to_lane(w.z2[g], w.valid2[g], w.R2[g], z2, valid2, R2, lane, 3)
+        for k in range(4):
+            mu[k, lane] = state.mu[i, k]
+        _inputs_to_lane(w, g, steer, omega, torque, od, dt, lane)
+    args = LaneArgs(mu, steer, omega, torque, od, pk, dt, x)
+    x_new, P_new, beta_new = scratch((N_STATE, lanes)), scratch((N_STATE, N_STATE, lanes)), scratch((2, lanes))
+    nu1, S1, nll = scratch((7, lanes)), scratch((7, 7, lanes)), scratch((lanes,))
+    huber_c = settings.huber_c if settings.robust else NO_HUBER
+    m2 = 3 if settings.yaw_balance else 2
+    nu2, S2 = scratch((3, lanes)), scratch((3, 3, lanes))
+    if settings.yaw_balance:
+        _federated_lanes(
+            x, P, Q, beta, TRANSITION, z1, valid1, R1, STATE_1, z2, valid2, R2, STATE_2, huber_c, args, x_new, P_new,
+            beta_new, nu1, S1, nu2, S2, nll, ok, False, N_STATE, 7, 3, N_POINTS, lanes,
+        )  # fmt: skip
+    else:
+        z2b, valid2b, R2b, nu2b, S2b = (
+            scratch((2, lanes)), scratch((2, lanes), np.bool_), scratch((2, 2, lanes)), scratch((2, lanes)),
+            scratch((2, 2, lanes)),
+        )  # fmt: skip
+        for a in range(2):
+            for lane in range(lanes):
+                z2b[a, lane], valid2b[a, lane] = z2[a, lane], valid2[a, lane]
+            for b in range(2):
+                for lane in range(lanes):
+                    R2b[a, b, lane] = R2[a, b, lane]
+        _federated_lanes(
+            x, P, Q, beta, TRANSITION, z1, valid1, R1, STATE_1, z2b, valid2b, R2b, STATE_2, huber_c, args, x_new,
+            P_new, beta_new, nu1, S1, nu2b, S2b, nll, ok, False, N_STATE, 7, 2, N_POINTS, lanes,
+        )  # fmt: skip
+        for a in range(2):
+            for lane in range(lanes):
+                nu2[a, lane] = nu2b[a, lane]
+            for b in range(2):
+                for lane in range(lanes):
+                    S2[a, b, lane] = S2b[a, b, lane]
+    for lane in range(lanes):
+        for a in range(N_STATE):
+            res.x[lane, a] = x_new[a, lane]
+            for b in range(N_STATE):
+                res.P[lane, a, b] = P_new[a, b, lane]
+        res.beta[lane, 0], res.beta[lane, 1], res.nll[lane] = beta_new[0, lane], beta_new[1, lane], nll[lane]
+        for a in range(7):
+            res.nu1[lane, a] = nu1[a, lane]
+            for b in range(7):
+                res.S1[lane, a, b] = S1[a, b, lane]
+        for a in range(m2):
+            res.nu2[lane, a] = nu2[a, lane]
+            for b in range(m2):
+                res.S2[lane, a, b] = S2[a, b, lane]
+
+
+@numba.njit(**JIT)
+def _friction_filters_lanes(f: FilterKernel, car, source, w: StepWork, res: StepResult, ok, lanes) -> None:
+    """The friction filter of the vehicles car (lanes,) in lanes, lane ``lane`` on row
+    ``source[lane]`` of ``w`` and ``res`` (one whose friction filter runs), into the rows of
+    ``res``; ok (lanes,) False where it fails."""
+    settings, state, pk = f.settings, f.state, f.model
+    mu, P_mu, walk, beta = (
+        scratch((N_MU, lanes)),
+        scratch((N_MU, N_MU, lanes)),
+        scratch((N_MU, N_MU, lanes)),
+        scratch((2, lanes)),
+    )
+    z1, valid1, R1 = scratch((3, lanes)), scratch((3, lanes), np.bool_), scratch((3, 3, lanes))
+    z2, valid2, R2 = scratch((2, lanes)), scratch((2, lanes), np.bool_), scratch((2, 2, lanes))
+    x, steer, omega, torque = (
+        scratch((N_STATE, lanes)),
+        scratch((4, 4, lanes)),
+        scratch((4, lanes)),
+        scratch((4, lanes)),
+    )
+    od, dt = scratch((4, lanes)), scratch((lanes,))
+    for lane in range(lanes):
+        g = source[lane]
+        i = car[g]
+        for a in range(N_MU):
+            mu[a, lane] = state.mu[i, a]
+            for b in range(N_MU):
+                P_mu[a, b, lane], walk[a, b, lane] = res.P_mu_in[g, a, b], res.walk[g, a, b]
+        beta[0, lane], beta[1, lane] = state.beta_mu[i, 0], state.beta_mu[i, 1]
+        _to_lane(w.values[g], w.valid[g], res.R1_mu[g], z1, valid1, R1, lane, 3)
+        _to_lane(w.values[g, CH_AY:], w.valid[g, CH_AY:], res.R2_mu[g], z2, valid2, R2, lane, 2)
+        for a in range(N_STATE):
+            x[a, lane] = res.x[g, a]
+        _inputs_to_lane(w, g, steer, omega, torque, od, dt, lane)
+    args = LaneArgs(mu, steer, omega, torque, od, pk, dt, x)
+    mu_new, P_new, beta_new = scratch((N_MU, lanes)), scratch((N_MU, N_MU, lanes)), scratch((2, lanes))
+    nu1, S1, nu2, S2, nll = (
+        scratch((3, lanes)),
+        scratch((3, 3, lanes)),
+        scratch((2, lanes)),
+        scratch((2, 2, lanes)),
+        scratch((lanes,)),
+    )
+    _federated_lanes(
+        mu, P_mu, walk, beta, RANDOM_WALK, z1, valid1, R1, MU_1, z2, valid2, R2, MU_2, settings.huber_c, args, mu_new,
+        P_new, beta_new, nu1, S1, nu2, S2, nll, ok, settings.centred_friction, N_MU, 3, 2, N_MU_POINTS, lanes,
+    )  # fmt: skip
+    for lane in range(lanes):
+        for a in range(N_MU):
+            res.mu[lane, a] = mu_new[a, lane]
+            for b in range(N_MU):
+                res.P_mu[lane, a, b] = P_new[a, b, lane]
+        res.beta_mu[lane, 0], res.beta_mu[lane, 1] = beta_new[0, lane], beta_new[1, lane]
+        for a in range(3):
+            res.nu1_mu[lane, a] = nu1[a, lane]
+            for b in range(3):
+                res.S1_mu[lane, a, b] = S1[a, b, lane]
+        for a in range(2):
+            res.nu2_mu[lane, a] = nu2[a, lane]
+            for b in range(2):
+                res.S2_mu[lane, a, b] = S2[a, b, lane]
+
+
+@numba.njit(**JIT)
+def _considered_v_var_lanes(f: FilterKernel, car, source, w: StepWork, out, lanes) -> None:
+    """:func:`_considered_v_var` of the vehicles car (lanes,) at their committed state, lane
+    ``lane`` on row ``source[lane]`` of ``w``, into out (lanes,): the model's five evaluations in
+    lanes, each the single car's operations."""
+    state, pk = f.state, f.model
+    points, mus, forces = scratch((5, 5, lanes)), scratch((4, 5, lanes)), scratch((3, 5, lanes))
+    steer, omega, torque, od, dt, h = (
+        scratch((4, 4, lanes)), scratch((4, lanes)), scratch((4, lanes)), scratch((4, lanes)), scratch((lanes,)),
+        scratch((lanes,)),
+    )  # fmt: skip
+    one, one_mu = scratch((5, 5)), scratch((4, 5))
+    for lane in range(lanes):
+        g = source[lane]
+        i = car[g]
+        h[lane] = _consider_points(state.x[i], state.mu[i], state.P_mu[i], one, one_mu)
+        for k in range(5):
+            for a in range(5):
+                points[a, k, lane] = one[a, k]
+            for a in range(4):
+                mus[a, k, lane] = one_mu[a, k]
+        _inputs_to_lane(w, g, steer, omega, torque, od, dt, lane)
+    body_forces_lanes(points, mus, steer, omega, torque, od, pk, forces, lanes)
+    for lane in range(lanes):
+        ay = forces[1, :, lane]
+        out[lane] = _consider_variance(
+            ay[0], ay[1], ay[2], ay[3], ay[4], h[lane], state.x[car[source[lane]], I_U], f.settings.consider_std
+        )
+
+
+@numba.njit(**JIT)
+def _step_block(f: FilterKernel, rows, count: int, reading: SensorReading, out: Estimate, out_rows, status, nll,
+                lanes) -> None:  # fmt: skip
+    """One step of the vehicles rows[:count] (count <= lanes; a federated kind) with their
+    filters in SIMD lanes: each vehicle's reading from its row of ``reading``, its estimate into
+    row out_rows[j] of ``out``, its status into status[j] and its innovation NLL into nll[j] (NaN
+    on a failure, whose state rows stay as they were). The same opening and close as
+    :func:`_step_vehicle`'s, car by car, around the same filter arithmetic in lanes: each
+    vehicle's results equal its single-car step's. Lanes beyond count repeat a vehicle, their
+    results unused."""
+    w, res = _step_work(lanes), _step_result(lanes)
+    car, source, ok = scratch((lanes,), np.int64), scratch((lanes,), np.int64), scratch((lanes,), np.bool_)
+    codes = scratch((lanes,), np.int64)
+    first = -1
+    for lane in range(lanes):
+        i = rows[min(lane, count - 1)]
+        car[lane] = i
+        t = reading.t[i] if reading.t.shape[0] > 0 else math.nan
+        codes[lane] = _open_step(f, i, reading.values[i], reading.valid[i], t, w, lane)
+        if codes[lane] == OK and first < 0:
+            first = lane
+    if first >= 0:
+        for lane in range(lanes):
+            source[lane] = lane if codes[lane] == OK else first
+        _state_filters_lanes(f, car, source, w, res, ok, lanes)
+        first = -1
+        for lane in range(count):
+            if codes[lane] == OK:
+                codes[lane] = _after_state(f, car[lane], w, lane, res) if ok[lane] else FILTER_FAILED
+            if codes[lane] == OK and res.friction[lane] and first < 0:
+                first = lane
+        if first >= 0:
+            for lane in range(lanes):
+                source[lane] = lane if lane < count and codes[lane] == OK and res.friction[lane] else first
+            _friction_filters_lanes(f, car, source, w, res, ok, lanes)
+            for lane in range(count):
+                if codes[lane] == OK and res.friction[lane] and not ok[lane]:
+                    codes[lane] = FILTER_FAILED
+    first = -1
+    for lane in range(count):
+        i = car[lane]
+        status[lane], nll[lane] = codes[lane], math.nan
+        if codes[lane] == OK:
+            t = reading.t[i] if reading.t.shape[0] > 0 else math.nan
+            _close_step(f, i, reading.values[i], reading.valid[i], t, w, lane, res)
+            nll[lane] = res.nll[lane]
+            first = lane if first < 0 else first
+    if first < 0:
+        return
+    consider_var = scratch((lanes,))
+    if f.settings.consider_std > 0.0:
+        for lane in range(lanes):
+            source[lane] = lane if lane < count and codes[lane] == OK else first
+        _considered_v_var_lanes(f, car, source, w, consider_var, lanes)
+    for lane in range(count):
+        if codes[lane] == OK:
+            _estimate_row(f, car[lane], consider_var[lane], out, out_rows[lane])
+
+
+@numba.njit(**JIT)
+def step_vehicles(f: FilterKernel, rows, count: int, reading: SensorReading, out: Estimate, out_rows, status) -> None:
+    """:func:`step_vehicle` of the vehicles rows[:count], vehicle rows[j]'s estimate into row
+    out_rows[j] of ``out`` and its status into status[j]: a federated kind in blocks of LANES cars
+    in SIMD lanes (:func:`_step_block`), a block of fewer than MIN_LANE_CARS and the other kinds
+    car by car; the same results either way."""
+    block_rows, block_out, block_status, nll = (
+        scratch((LANES,), np.int64), scratch((LANES,), np.int64), scratch((LANES,), np.int64), scratch((LANES,)),
+    )  # fmt: skip
+    for lo in range(0, count, LANES):
+        n = min(LANES, count - lo)
+        if not f.settings.federated or n < MIN_LANE_CARS:
+            for j in range(lo, lo + n):
+                status[j] = step_vehicle(f, rows[j], reading, out, out_rows[j])
+            continue
+        for j in range(n):
+            block_rows[j], block_out[j] = rows[lo + j], out_rows[lo + j]
+        _step_block(f, block_rows, n, reading, out, block_out, block_status, nll, LANES)
+        for j in range(n):
+            status[lo + j] = block_status[j]
+            f.state.last_nll[block_rows[j]] = nll[j]
+
+
 @numba.njit(nogil=True, **JIT)
 def _step_rows(positions, rows, f: FilterKernel, reading: SensorReading, out: Estimate, status) -> None:
-    """:func:`step_vehicle` of vehicle rows[j] into row j of ``out`` and ``status``, for j in ``positions``."""
-    for j in positions:
-        status[j] = step_vehicle(f, rows[j], reading, out, j)
+    """:func:`step_vehicles` of the vehicles rows[j] into row j of ``out`` and ``status``, for j in
+    ``positions`` (consecutive)."""
+    n = positions.shape[0]
+    lo = positions[0] if n else 0
+    step_vehicles(f, rows[lo : lo + n], n, reading, out, positions, status[lo : lo + n])
 
 
 class Diagnostics(NamedTuple):

@@ -8,8 +8,14 @@ import numba
 import numpy as np
 import pytest
 
+from fourwis.core.types import CH_AY, CH_OMEGA, SensorReading
+from fourwis.envs.scenarios import make_scenario
+from fourwis.envs.simulation import simulate
+from fourwis.envs.vehicle import VehicleParams
+from fourwis.estimation import make_estimator
 from fourwis.estimation.ckf import cubature_points, measurement_update, predicted_moments, spd_inverse
 from fourwis.estimation.federated import fuse, sharing_coefficients
+from fourwis.estimation.joint import NoiseParams, empty_estimate, step_vehicle, step_vehicles
 from fourwis.estimation.lanes import (
     cubature_points_lanes,
     fuse_lanes,
@@ -175,3 +181,76 @@ def test_the_fusion_inverse_and_sharing_in_lanes_equal_the_single_car_ones(lanes
     for got, want in ((x_l, x_g), (P_l, P_g), (confidence_l, confidence), (beta_l, beta)):
         np.testing.assert_array_equal(cars_of(got)[ok], want[ok])
 
+
+# ---- the joint estimator's step in lanes (estimation/joint.py: _step_block) ------------------------
+@numba.njit
+def _steps_in_lanes(f, rows, reading, out, status):
+    step_vehicles(f, rows, rows.shape[0], reading, out, rows, status)
+
+
+@numba.njit
+def _steps_car_by_car(f, rows, reading, out, status):
+    for j in range(rows.shape[0]):
+        status[j] = step_vehicle(f, rows[j], reading, out, rows[j])
+
+
+def _drive_logs(duration: float) -> list:
+    """Sensor logs (values, valid, t) of closed-loop runs that excite the friction filter, the
+    slide detection and the yaw balance differently."""
+    runs = []
+    for name, seed in (("paper_sine", 1), ("paper_step", 2), ("mu_jump", 3), ("paper_dlc", 4)):
+        traj = simulate(make_scenario(name, duration=duration), estimator="oracle", seed=seed)
+        runs.append((traj.sensors, traj.sensor_valid, traj.t))
+    return runs
+
+
+@pytest.mark.parametrize("kind", ["joint", "alo-fkf"])
+def test_the_estimator_stepped_in_lanes_equals_it_car_by_car(kind):
+    """84 cars (a block of 64 and one of 20, padded) on four logs at different offsets: each car's
+    estimate, status and whole filter state after every step equal bit for bit its single-car
+    step's, with a clock gap (substeps), dropouts, a car below the friction filter's speed, a
+    car whose reading is refused and per-car noise."""
+    steps, B = 400, 84
+    logs = _drive_logs(2.0 + steps * 0.002)
+    rng = np.random.default_rng(0)
+    which, offset = np.arange(B) % len(logs), rng.integers(0, 500, B)
+    noise = NoiseParams().scaled(rng.normal(scale=0.3, size=(B, 4)))
+    estimators = [make_estimator(kind, VehicleParams(), 0.002, noise=noise) for _ in range(2)]
+    params = estimators[0].params
+
+    def reading(k: int) -> SensorReading:
+        values = np.stack([logs[which[b]][0][offset[b] + k] for b in range(B)])
+        valid = np.stack([logs[which[b]][1][offset[b] + k] for b in range(B)])
+        t = np.array([logs[which[b]][2][offset[b] + k] for b in range(B)])
+        t[5] += 0.004 if k >= 50 else 0.0  # (a gap: three substeps in one step, then steps of dt again)
+        valid[7:70:9, CH_AY] = (k // 20) % 2 == 0  # (dropouts, on and off)
+        if k == 30:
+            values[11, CH_OMEGA] = math.nan  # (refused: the car's state stays as it was)
+        return SensorReading(values, valid, t)
+
+    initial_speed = np.array([logs[which[b]][0][offset[b], CH_OMEGA] * params.wheel_radius for b in range(B)])
+    initial_speed[9] = 1.0  # (below MU_MIN_SPEED at first: the friction filter waits)
+    for estimator in estimators:
+        estimator.reset(reading(0), initial_speed)
+    rows = np.arange(B)
+    ran_friction = np.zeros((B, 4), bool)
+    for k in range(1, steps):
+        r = reading(k)
+        outs, statuses = [], []
+        for estimator, step in zip(estimators, (_steps_in_lanes, _steps_car_by_car)):
+            out, status = empty_estimate(B), np.empty(B, np.int64)
+            mu_before = estimator.state.mu.copy()
+            step(estimator.kernel(), rows, r, out, status)
+            outs.append(out)
+            statuses.append(status)
+        ran_friction |= estimators[1].state.mu != mu_before
+        np.testing.assert_array_equal(statuses[0], statuses[1])
+        good = statuses[1] == 0
+        for a, b in zip(outs[0], outs[1]):
+            np.testing.assert_array_equal(a[good], b[good])
+        for a, b in zip(estimators[0].state, estimators[1].state):
+            np.testing.assert_array_equal(a, b)
+    assert (statuses[1] != 0).sum() == 0  # (the refused car stepped on after its refused reading)
+    if kind == "joint":
+        moved = ran_friction.any(axis=1)  # (the friction filters moved mu in both blocks: their updates are compared)
+        assert moved[:64].any() and moved[64:].any()
