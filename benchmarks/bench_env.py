@@ -10,11 +10,18 @@ step = 1 simulated second), CommonRoad's multi-body vehicle model
 gymnasium's ``CartPoleVectorEnv`` (256 envs, 20 ms steps). Reports env-steps/s and
 simulated seconds per wall-clock second.
 
+Each fourwis rate is also given per CPU second (``time.process_time``: every thread of the
+process, so a shared, loaded host slows it less than the wall clock), in the JSON object that
+ends the output. ``--envs NAME ...`` measures only those rows (``single``, ``vector64``,
+``vector256``, ``lanes256``, ``oracle256``, ``peers``).
+
 Run: ``.venv/bin/python benchmarks/bench_env.py`` (or ``fourwis bench --only env``).
 """
 
 from __future__ import annotations
 
+import argparse
+import json
 import os
 import platform
 import time
@@ -26,14 +33,21 @@ SECONDS = 4.0  #: wall time per measurement [s]
 WARM_UP = 1.0  #: untimed wall time first [s]: compiles and cache loads of the paths one step does not reach (resets)
 
 
-def _rate(step: Callable[[], int], seconds: float = SECONDS) -> float:
-    """Env steps per wall second of repeated ``step()`` calls (each returns how many env steps it made)."""
+#: each fourwis row's env steps per CPU second (process time), by its label (:func:`_rate`'s)
+CPU_RATES: dict[str, float] = {}
+
+
+def _rate(step: Callable[[], int], seconds: float = SECONDS, label: str | None = None) -> float:
+    """Env steps per wall second of repeated ``step()`` calls (each returns how many env steps it
+    made); with a ``label``, the steps per CPU second of the process go into CPU_RATES."""
     start = time.perf_counter()
     while time.perf_counter() - start < WARM_UP:  # warm-up (JIT, caches, the first episode ends)
         step()
-    count, start = 0, time.perf_counter()
+    count, start, cpu = 0, time.perf_counter(), time.process_time()
     while time.perf_counter() - start < seconds:
         count += step()
+    if label is not None:
+        CPU_RATES[label] = count / (time.process_time() - cpu)
     return count / (time.perf_counter() - start)
 
 
@@ -50,7 +64,7 @@ def fourwis_single(estimator: str) -> float:
             env.reset()
         return 1
 
-    return _rate(step)
+    return _rate(step, label=f"fourwis single env, {estimator}")
 
 
 def fourwis_vector(estimator: str, n: int, course_share: float = 0.0) -> float:
@@ -66,7 +80,8 @@ def fourwis_vector(estimator: str, n: int, course_share: float = 0.0) -> float:
         env.step(action)
         return n
 
-    return _rate(step)
+    lane_changes = ", lane changes" if course_share else ""
+    return _rate(step, label=f"fourwis vector env x{n}, {estimator}{lane_changes}")
 
 
 def highway_fast() -> float | None:
@@ -136,18 +151,31 @@ def cartpole_vector(n: int = 256) -> float:
     return _rate(step)
 
 
-def main() -> None:
+GROUPS = ("single", "vector64", "vector256", "lanes256", "oracle256", "peers")  #: --envs choices
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--envs", nargs="*", choices=GROUPS, default=list(GROUPS), help="rows to measure")
+    chosen = set(parser.parse_args(argv).envs)
     rows: list[tuple[str, float | None, float]] = []  # name, env-steps/s, simulated s per env step
-    for estimator in ("oracle", "ckf", "joint"):
-        rows.append((f"fourwis single env, {estimator}", fourwis_single(estimator), 0.02))
+    if "single" in chosen:
+        for estimator in ("oracle", "ckf", "joint"):
+            rows.append((f"fourwis single env, {estimator}", fourwis_single(estimator), 0.02))
     for n in (64, 256):
-        rows.append((f"fourwis vector env x{n}, joint", fourwis_vector("joint", n), 0.02))
-    rows.append(("fourwis vector env x256, joint, lane changes", fourwis_vector("joint", 256, course_share=1.0), 0.02))
-    rows.append(("fourwis vector env x256, oracle", fourwis_vector("oracle", 256), 0.02))
-    rows.append(("highway-env highway-fast-v0", highway_fast(), 1.0))
-    rows.append(("CommonRoad MB model (RK4, 1 ms)", commonroad_mb(), 0.001))
-    rows.append(("gymnasium CartPoleVectorEnv x256", cartpole_vector(), 0.02))
-    highway = next(rate for name, rate, _ in rows if name.startswith("highway-env"))
+        if f"vector{n}" in chosen:
+            rows.append((f"fourwis vector env x{n}, joint", fourwis_vector("joint", n), 0.02))
+    if "lanes256" in chosen:
+        rows.append(
+            ("fourwis vector env x256, joint, lane changes", fourwis_vector("joint", 256, course_share=1.0), 0.02)
+        )
+    if "oracle256" in chosen:
+        rows.append(("fourwis vector env x256, oracle", fourwis_vector("oracle", 256), 0.02))
+    if "peers" in chosen:
+        rows.append(("highway-env highway-fast-v0", highway_fast(), 1.0))
+        rows.append(("CommonRoad MB model (RK4, 1 ms)", commonroad_mb(), 0.001))
+        rows.append(("gymnasium CartPoleVectorEnv x256", cartpole_vector(), 0.02))
+    highway = next((rate for name, rate, _ in rows if name.startswith("highway-env")), None)
     import numba
 
     print(
@@ -163,6 +191,7 @@ def main() -> None:
             continue
         ratio = f"{rate * sim_dt / highway:.2f}" if highway else "n/a"
         print(f"| {name} | {rate:,.0f} | {rate * sim_dt:,.1f} | {ratio} |")
+    print(json.dumps({f"{name}, per CPU second [env-steps/s]": rate for name, rate in CPU_RATES.items()}, indent=1))
 
 
 if __name__ == "__main__":

@@ -3,11 +3,16 @@ vehicle in a batch of 1024, and one `ckf` step (predict + update, one vehicle) a
 filterpy UnscentedKalmanFilter step with cubature weights on the same compiled 6-state
 estimation model and the same 7 measurements (sub-filter 1: ax, ay, r, four wheel speeds).
 
+Also the joint estimator per vehicle-step at batches 1, 64, 256 and 1024 (``--batches``), by the
+wall clock and by the process's CPU time (every thread's: batches step on all cores), the
+measure that a shared, loaded host disturbs least. ``--no-peer`` leaves filterpy out.
+
 Run: ``.venv/bin/python benchmarks/bench_estimator.py`` (or ``fourwis bench --only estimator``).
 """
 
 from __future__ import annotations
 
+import argparse
 import math
 import time
 from collections.abc import Callable
@@ -25,14 +30,20 @@ from fourwis.estimation.joint import MeasurementInputs, measure_state_1
 from fourwis.estimation.model import ModelInputs, steer_trig, transition
 
 
-def _per_call(fn: Callable[[], None], seconds: float = 3.0) -> float:
-    """Mean wall time [s] of ``fn()`` over ~``seconds`` after a warm-up."""
+def _timed(fn: Callable[[], None], seconds: float = 3.0) -> tuple[float, float]:
+    """Mean wall and CPU time (``time.process_time``: all threads) [s] of ``fn()`` over
+    ~``seconds`` after a warm-up."""
     fn()
-    count, start = 0, time.perf_counter()
+    count, start, cpu = 0, time.perf_counter(), time.process_time()
     while time.perf_counter() - start < seconds:
         fn()
         count += 1
-    return (time.perf_counter() - start) / count
+    return (time.perf_counter() - start) / count, (time.process_time() - cpu) / count
+
+
+def _per_call(fn: Callable[[], None], seconds: float = 3.0) -> float:
+    """Mean wall time [s] of ``fn()`` over ~``seconds`` after a warm-up."""
+    return _timed(fn, seconds)[0]
 
 
 def _started(name: str, batch: int, **options):
@@ -58,6 +69,12 @@ def joint_step_time(batch: int, tyre_relaxation: bool = False) -> float:
     the tyre relaxation in its model."""
     estimator, reading = _started("joint", batch, tyre_relaxation=tyre_relaxation)
     return _per_call(lambda: estimator.step(reading))
+
+
+def joint_step_times(batch: int) -> tuple[float, float]:
+    """Wall and CPU seconds per ``joint`` step for ``batch`` vehicles (see :func:`_started`)."""
+    estimator, reading = _started("joint", batch)
+    return _timed(lambda: estimator.step(reading))
 
 
 def ckf_versus_filterpy() -> tuple[float, float]:
@@ -110,19 +127,30 @@ def ckf_versus_filterpy() -> tuple[float, float]:
     return _per_call(lambda: estimator.step(reading)), _per_call(filterpy_step)
 
 
-def main() -> None:
-    try:  # the peer, from the bench extra: named before the timed runs, not after them
-        import filterpy  # noqa: F401
-    except ModuleNotFoundError as err:
-        raise ModuleNotFoundError(
-            "the estimator benchmark's peer needs filterpy: pip install 'fourwis[bench]'"
-        ) from err
-    single = joint_step_time(1)
-    batch = joint_step_time(1024)
-    relaxed = joint_step_time(1024, tyre_relaxation=True)
-    ours, theirs = ckf_versus_filterpy()
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--batches", nargs="*", type=int, default=[1, 64, 256, 1024], help="batch sizes")
+    parser.add_argument("--no-peer", action="store_true", help="leave out the filterpy comparison")
+    args = parser.parse_args(argv)
+    if not args.no_peer:
+        try:  # the peer, from the bench extra: named before the timed runs, not after them
+            import filterpy  # noqa: F401
+        except ModuleNotFoundError as err:
+            raise ModuleNotFoundError(
+                "the estimator benchmark's peer needs filterpy: pip install 'fourwis[bench]'"
+            ) from err
+    times = {batch: joint_step_times(batch) for batch in args.batches}
     print("| measurement | time | target | ratio to target |")
     print("|---|---:|---:|---:|")
+    for batch, (wall, cpu) in times.items():
+        print(f"| joint estimator, batch {batch}, wall per vehicle-step | {wall / batch * 1e6:,.2f} us | | |")
+        print(f"| joint estimator, batch {batch}, CPU per vehicle-step | {cpu / batch * 1e6:,.2f} us | | |")
+    if args.no_peer:
+        return
+    single = times[1][0] if 1 in times else joint_step_time(1)
+    batch = times[1024][0] if 1024 in times else joint_step_time(1024)
+    relaxed = joint_step_time(1024, tyre_relaxation=True)
+    ours, theirs = ckf_versus_filterpy()
     print(f"| joint estimator, one vehicle, per step | {single * 1e6:,.0f} us | <= 100 us | {100e-6 / single:.2f}x |")
     print(
         f"| joint estimator, batch 1024, per vehicle-step | {batch / 1024 * 1e6:,.1f} us | <= 20 us "

@@ -1,6 +1,7 @@
 """Benchmarks of two versions of fourwis side by side, in one run on one machine.
 
     .venv/bin/python benchmarks/side_by_side.py --before REF [--after REF] [--only plant env ...]
+        [--scripts this] [--script-args 'env=--envs vector256 oracle256' ...]
 
 Each version runs its own ``benchmarks/bench_<name>.py`` scripts: ``--before REF`` and ``--after
 REF`` (git commits, branches or tags of this repository), each built into a wheel and unpacked into
@@ -9,6 +10,9 @@ checkout this script is in, as installed in the venv. Each script runs once per 
 (numba compiles and caches its kernels), then ``--repeats`` times per version, the versions
 alternating, so that a busy host slows both alike. A script's numbers are read from the JSON object
 it prints (benchmarks/_common.report) or from its Markdown table rows (``| label | number ... |``);
+``--scripts this`` runs this checkout's scripts against both versions' packages instead (the
+same measurements where the older scripts lack them; the scripts then use only what both
+versions have), ``--script-args NAME=ARGS`` hands ARGS to ``bench_NAME.py``;
 the table gives each measurement's best value per version (highest: the scripts report rates or
 ratios where higher is better, unless the label names a time) and their ratio. Writes the table to
 ``--out`` if given (a Markdown page: docs/results/side-by-side.md).
@@ -22,6 +26,7 @@ import json
 import os
 import platform
 import re
+import shlex
 import subprocess
 import sys
 import tempfile
@@ -64,12 +69,12 @@ def build(ref: str, into: Path) -> tuple[Path, Path]:
     return tree, site
 
 
-def run(script: Path, site: Path | None) -> str:
-    """The stdout of ``script`` (with ``site`` first on its path, if given)."""
+def run(script: Path, site: Path | None, args: list[str] = ()) -> str:
+    """The stdout of ``script`` with ``args`` (with ``site`` first on its path, if given)."""
     env = dict(os.environ)
     if site is not None:
         env["PYTHONPATH"] = str(site)
-    result = subprocess.run([sys.executable, str(script)], env=env, capture_output=True, text=True,
+    result = subprocess.run([sys.executable, str(script), *args], env=env, capture_output=True, text=True,
                             cwd=tempfile.gettempdir())  # fmt: skip
     if result.returncode:
         raise RuntimeError(f"{script} failed:\n{result.stderr[-2000:]}")
@@ -108,29 +113,38 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--only", nargs="*", help="benchmark names (default: every bench_*.py both versions have)")
     parser.add_argument("--repeats", type=int, default=2, help="timed runs per version (alternating)")
     parser.add_argument("--out", type=Path, help="also write the table here (Markdown)")
+    parser.add_argument("--scripts", choices=("own", "this"), default="own",
+                        help="each version's own benchmark scripts, or this checkout's for both")  # fmt: skip
+    parser.add_argument("--script-args", action="append", default=[], metavar="NAME=ARGS",
+                        help="arguments for bench_NAME.py (repeatable)")  # fmt: skip
     args = parser.parse_args(argv)
+    script_args = {name: shlex.split(rest) for name, _, rest in (a.partition("=") for a in args.script_args)}
     load = os.getloadavg()[0]
     refs = {"before": args.before, "after": args.after}
     with tempfile.TemporaryDirectory(prefix="fourwis-side-by-side-") as tmp:
         versions = {v: build(ref, Path(tmp) / v) if ref else (ROOT, None) for v, ref in refs.items()}
         try:
+            scripts_of = {
+                v: (HERE if args.scripts == "this" else tree / "benchmarks") for v, (tree, _) in versions.items()
+            }
             common = sorted(
                 p.stem.removeprefix("bench_")
                 for p in HERE.glob("bench_*.py")
-                if all((tree / "benchmarks" / p.name).exists() for tree, _ in versions.values())
+                if all((folder / p.name).exists() for folder in scripts_of.values())
             )
             names = args.only or [name for name in common if name != "cluster"]
             if set(names) - set(common):
                 raise SystemExit(f"benchmarks not in both versions: {sorted(set(names) - set(common))}; both: {common}")
             rows = []
             for name in names:
-                scripts = {v: (tree / "benchmarks" / f"bench_{name}.py", site) for v, (tree, site) in versions.items()}
+                scripts = {v: (scripts_of[v] / f"bench_{name}.py", site) for v, (_, site) in versions.items()}
+                extra = script_args.get(name, [])
                 for script, path in scripts.values():  # untimed: compile and cache
-                    run(script, path)
+                    run(script, path, extra)
                 seen: dict[str, dict[str, list[float]]] = {"before": {}, "after": {}}
                 for _ in range(args.repeats):
                     for version, (script, path) in scripts.items():
-                        for label, value in measurements(run(script, path)).items():
+                        for label, value in measurements(run(script, path, extra)).items():
                             seen[version].setdefault(label, []).append(value)
                 for label in seen["after"]:
                     if label in seen["before"]:
