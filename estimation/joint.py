@@ -1743,6 +1743,19 @@ def step_vehicles(f: FilterKernel, rows, count: int, reading: SensorReading, out
 
 
 @numba.njit(nogil=True, **JIT)
+def _step_blocks(blocks, rows, f: FilterKernel, reading: SensorReading, out: Estimate, status) -> None:
+    """:func:`step_vehicles` of the vehicles rows[j] into row j of ``out`` and ``status``, for the
+    j of each block b of ``blocks`` (j from b LANES, LANES of them: one block of lanes each)."""
+    positions = scratch((LANES,), np.int64)
+    for b in blocks:
+        lo = b * LANES
+        n = min(LANES, rows.shape[0] - lo)
+        for j in range(n):
+            positions[j] = lo + j
+        step_vehicles(f, rows[lo : lo + n], n, reading, out, positions, status[lo : lo + n])
+
+
+@numba.njit(nogil=True, **JIT)
 def _step_rows(positions, rows, f: FilterKernel, reading: SensorReading, out: Estimate, status) -> None:
     """:func:`step_vehicles` of the vehicles rows[j] into row j of ``out`` and ``status``, for j in
     ``positions`` (consecutive)."""
@@ -2172,10 +2185,14 @@ class StateEstimator:
         t = np.ascontiguousarray(getattr(reading, "t", None) if getattr(reading, "t", None) is not None else [], float)
         if t.size and t.shape != (B,):
             raise ValueError(f"reading times must have shape ({B},) (or be empty), got {t.shape}")
-        run_parallel(
-            _step_rows, np.arange(len(rows)), rows, f, SensorReading(values, valid, t), out, status,
-            min_items=PARALLEL_MIN_BATCH,
-        )  # fmt: skip
+        if self.settings.federated and len(rows) >= MIN_LANE_CARS:  # (whole blocks of lanes to each thread)
+            blocks = np.arange(-(-len(rows) // LANES))
+            run_parallel(_step_blocks, blocks, rows, f, SensorReading(values, valid, t), out, status)
+        else:
+            run_parallel(
+                _step_rows, np.arange(len(rows)), rows, f, SensorReading(values, valid, t), out, status,
+                min_items=PARALLEL_MIN_BATCH,
+            )  # fmt: skip
         if np.count_nonzero(status):
             j = int(np.flatnonzero(status)[0])
             raise self.step_error(
