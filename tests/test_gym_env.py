@@ -15,7 +15,7 @@ from gymnasium.vector import AutoresetMode
 import fourwis  # noqa: F401  (registers the environment)
 from fourwis.control.reference import reference_yaw_rate
 from fourwis.core.types import CHANNELS
-from fourwis.envs.gym_env import YawStabilityEnv, YawStabilityVectorEnv
+from fourwis.envs.gym_env import N_OBS, YawStabilityEnv, YawStabilityVectorEnv
 from fourwis.envs.layout import S_DELTA_R
 from fourwis.envs.render import FRAME_HEIGHT, FRAME_WIDTH
 from fourwis.envs.sensors import Fault
@@ -356,7 +356,7 @@ def test_async_vector_env_with_spawned_workers():
     try:
         obs, _ = env.reset(seed=0)
         obs2, reward, *_ = env.step(np.zeros((2, 2), dtype=np.float32))
-        assert obs.shape == (2, 18) and np.all(np.isfinite(obs2)) and reward.shape == (2,)
+        assert obs.shape == (2, N_OBS) and np.all(np.isfinite(obs2)) and reward.shape == (2,)
     finally:
         env.close()
 
