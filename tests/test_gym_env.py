@@ -16,7 +16,7 @@ import fourwis  # noqa: F401  (registers the environment)
 from fourwis.control.reference import reference_yaw_rate
 from fourwis.core.types import CHANNELS
 from fourwis.envs.gym_env import N_OBS, YawStabilityEnv, YawStabilityVectorEnv
-from fourwis.envs.layout import S_DELTA_R
+from fourwis.envs.layout import S_DELTA_R, S_OMEGA, S_PSI, S_U
 from fourwis.envs.render import FRAME_HEIGHT, FRAME_WIDTH
 from fourwis.envs.sensors import Fault
 
@@ -172,12 +172,26 @@ def test_bad_and_out_of_range_actions():
         YawStabilityEnv(scenario="nope")
 
 
-def test_yaw_moment_action_turns_the_car():
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_yaw_moment_action_turns_the_car(sign):
+    """A full left (right) moment on the straight lead-in of the 35 km/h lane change on mu 0.5
+    yaws the car left (right): measured 2026-12-07, peak yaw rate 0.161 rad/s at 0.16 s, heading
+    0.047 rad after 0.5 s, while the steering driver counter-steers (-0.063 rad) and the yaw rate
+    decays (0.006 rad/s at 0.5 s). Traction control and ABS hold the wheels near the tyre's peak
+    slip (|R omega - u| ~ 0.6 m/s); without them the wheels spin up (7 m/s at 0.5 s) and the car
+    yaws away (0.53 rad/s), which is what an end-of-window yaw-rate check used to measure."""
     env = YawStabilityEnv(scenario="paper_dlc", estimator="oracle", observation="true")
     env.reset(seed=0)
+    cars, radius = env.unwrapped.core.loop.cars, env.unwrapped.core.params.wheel_radius
+    yaw_rates, rim_slip = [], []
     for _ in range(25):
-        obs, *_ = env.step(np.array([1.0, 0.0], dtype=np.float32))
-    assert obs[2] > 0.05  # positive (left) moment: positive yaw rate on the straight lead-in
+        obs, *_ = env.step(np.array([sign, 0.0], dtype=np.float32))
+        yaw_rates.append(obs[2])
+        state = cars.state[0]
+        rim_slip.append(np.abs(radius * state[S_OMEGA : S_OMEGA + 4] - state[S_U]).max())
+    assert sign * max(yaw_rates, key=abs) > 0.1 and sign * cars.state[0, S_PSI] > 0.02
+    assert sign * env.unwrapped.core.loop.sample().front_steer[0] < 0.0  # the driver steers against it
+    assert max(rim_slip) < 1.5  # [m/s] no wheel spun up
 
 
 def test_random_actions_across_scenarios_never_produce_nan():
