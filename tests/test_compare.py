@@ -141,12 +141,14 @@ def test_control_effort_is_zero_without_control_and_reflects_the_dyc_moment_and_
 
 def test_partial_oracles_attribute_the_joint_estimators_closed_loop_loss_to_its_friction():
     """DYC-LQR on the step (mu 0.3, sensor seed 0): the joint estimator's peak sideslip exceeds the
-    oracle's (measured 0.479 against 0.408 deg); the road's true friction with everything else
-    estimated closes at least three quarters of that gap (measured all of it: 0.404), the true
-    sideslip none of it (0.479)."""
+    oracle's; the road's true friction with everything else estimated closes the larger part of that
+    gap, the true sideslip next to none, and the true friction and yaw rate together nearly all of
+    it: the stable region's yaw-rate rules (0042) read r_hat. Measured 2026-12-07: oracle 0.288,
+    joint 0.387, joint+true-mu 0.324 (0.64 of the gap), joint+true-beta 0.386, joint+true-mu-r
+    0.292 deg (0.96); before 0042, 0.408, 0.479, 0.404 (all of it), 0.479."""
     results, _ = run_matrix(
         ["paper_step"],
-        ["oracle", "joint", "joint+true-mu", "joint+true-beta"],
+        ["oracle", "joint", "joint+true-mu", "joint+true-beta", "joint+true-mu-r"],
         ["dyc-lqr"],
         seeds=1,
         jobs=1,
@@ -155,8 +157,9 @@ def test_partial_oracles_attribute_the_joint_estimators_closed_loop_loss_to_its_
     peak = {spec.estimator: m["peak_beta"] for spec, m in results}
     gap = peak["joint"] - peak["oracle"]
     assert gap > 0.05 * peak["oracle"]  # a loss to attribute
-    assert peak["joint"] - peak["joint+true-mu"] >= 0.75 * gap
+    assert peak["joint"] - peak["joint+true-mu"] > 0.5 * gap
     assert abs(peak["joint"] - peak["joint+true-beta"]) <= 0.25 * gap
+    assert peak["joint"] - peak["joint+true-mu-r"] >= 0.9 * gap
 
 
 def test_the_phase_plane_peak_tells_a_spin_and_a_fixed_mu_slide_from_a_held_car():
