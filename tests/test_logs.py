@@ -313,14 +313,29 @@ def test_the_revs_vehicle_file_gives_the_publications_car():
 
 
 def test_a_vehicle_file_written_for_a_car_reads_back_to_the_same_model(tmp_path):
+    """fourwis's own car (no [tyres] written) gives every kind its own model back (joint: the
+    Magic Formula with relaxation, the others: Dugoff); a car with explicit tyres, one of them of
+    the Magic Formula shape (docs/decisions/0045), gets the same AxleTyre back, field by field."""
+    import dataclasses
+
     from fourwis.envs.vehicle import VehicleParams
+    from fourwis.estimation.model import AxleTyre
+    from fourwis.training.vehicle_file import Vehicle
 
     params = VehicleParams(mass=900.0, rear_steer_feedforward=True)
     (tmp_path / "v.toml").write_text(vehicle_toml(fourwis_vehicle(params)))
     back = read_vehicle(tmp_path / "v.toml")
-    assert back.params == params
-    ours = make_estimator("joint", params).params
-    assert make_estimator("joint", back.params, **back.estimator_options()).params == ours
+    assert back.params == params and back.tyres is None
+    for kind in ("joint", "ckf", "joint-paper"):
+        ours = make_estimator(kind, params).params
+        assert make_estimator(kind, back.params, **back.estimator_options()).params == ours, kind
+    magic = dataclasses.replace(AxleTyre.shipped(shape="magic"), relaxation_length=0.4)
+    tyres = (magic, AxleTyre(20.0, 0.0, 16.0, 0.0, mu_scale=1.1))
+    (tmp_path / "w.toml").write_text(vehicle_toml(Vehicle("other", params, tyres)))
+    back = read_vehicle(tmp_path / "w.toml")
+    assert back.tyres == tyres
+    given = make_estimator("joint", params, tyres=tyres).params
+    assert make_estimator("joint", params, tyres=back.tyres).params == given
 
 
 def test_a_tyre_table_is_fitted_by_eq_17_and_bad_vehicle_files_are_named(tmp_path):
@@ -343,6 +358,10 @@ def test_a_tyre_table_is_fitted_by_eq_17_and_bad_vehicle_files_are_named(tmp_pat
         ("[drive]\nlayout = 'sideways'\n", r"layout must be one of \['front', 'rear', 'all'\], got 'sideways'"),
         ("nominal_mu = 3.0\n", r"nominal_mu must lie in \(0.1, 1.2\)"),
         ("[tyres.front]\n[tyres.rear]\n", r"\[tyres.front\] needs a cornering_stiffness"),
+        (
+            "[tyres.front]\ncornering_stiffness = 1.0\nmagic_c = -1.0\n[tyres.rear]\ncornering_stiffness = 1.0\n",
+            r"\[tyres.front\] magic_c must be a finite number >= 0, got -1.0",
+        ),
     ):
         path.write_text(text)
         with pytest.raises(ValueError, match=match):
