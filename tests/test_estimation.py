@@ -306,6 +306,8 @@ def test_the_compiled_federated_cycle_equals_federated_step_on_the_vehicle_model
         huber_c,
     )
     x_out, P_out, beta_out = np.empty_like(x), np.empty_like(P), np.empty(2)
+    m1, m2 = len(z1), len(z2)  # (the innovations and their covariances, kept for NIS: written, not compared)
+    nu1, S1, nu2, S2 = np.empty(m1), np.empty((m1, m1)), np.empty(m2), np.empty((m2, m2))
     nll = _federated(
         x,
         P,
@@ -325,6 +327,10 @@ def test_the_compiled_federated_cycle_equals_federated_step_on_the_vehicle_model
         x_out,
         P_out,
         beta_out,
+        nu1,
+        S1,
+        nu2,
+        S2,
     )
     np.testing.assert_allclose(x_out, reference.x[0], rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(P_out, reference.P[0], rtol=1e-10, atol=1e-15)
