@@ -782,27 +782,34 @@ def test_joint_estimator_follows_a_friction_drop_and_the_dyc_stays_stable():
     assert np.all(joint.truth.mu[last] == pytest.approx(0.3))
 
 
-def test_slide_detection_sees_a_friction_drop_the_gate_misses_and_is_silent_where_the_car_grips():
-    """The same drop with the estimator started from mu 0.9 (as after hard driving on the dry
-    road): the friction gate, judging from mu_hat = 0.9, stays shut, and without the slide
-    detection mu_hat stays at 0.9 and the DYC slides the car to 13.9 deg (measured). With it
-    (SLIDE_*: the sensors' sideslip rate in a steady turn) mu_hat comes down (measured 0.42 over
-    the last 2 s) and the peak sideslip is 2.6 deg. From the nominal 0.8, where the gate opens
-    by itself, the detection never fires: the estimates are identical with it off."""
+def test_the_gate_sees_a_friction_drop_from_a_high_start_and_slide_detection_stays_silent():
+    """The drop with the estimator started from mu 0.9 (as after hard driving on the dry road).
+    Before record 0045 the friction gate, judging from mu_hat = 0.9, stayed shut: without the
+    slide detection mu_hat stayed at 0.9 and the DYC slid the car to 13.9 deg, with it mu_hat came
+    down (0.42 over the last 2 s) and the peak sideslip was 2.6 deg. joint's gate (the innovation
+    at mu_hat, the Magic Formula tyre) now opens on the drop by itself: with the slide detection
+    off, mu_hat falls below 0.6 within 0.3 s of the front wheels reaching the patch, reads the
+    road over the last 2 s, and the peak sideslip stays under half of what the detection gave
+    (measured 2026-12-07: 0.14 s, 0.32 on 0.30, 1.27 deg; from 0.8: 0.10 s, 0.31, 1.20 deg). The
+    detection
+    (SLIDE_*) then never fires, from 0.9 or the nominal 0.8: the estimates are identical with it
+    off."""
     from fourwis.control import make_controller
 
     def run(nominal_mu, slide_rate):
         estimator = make_estimator("joint", VehicleParams(), nominal_mu=nominal_mu, slide_rate=slide_rate)
         return simulate("mu_jump", controller=make_controller("dyc-lqr", VehicleParams()), estimator=estimator, seed=0)
 
-    blind, seeing = run(0.9, math.inf), run(0.9, SLIDE_RATE)
-    last = seeing.t >= seeing.t[-1] - 2.0
-    assert np.all(blind.estimate.mu[last] == 0.9)  # the gate alone never opens
-    assert seeing.estimate.mu[last].mean() < 0.5
-    assert np.abs(seeing.truth.beta).max() < np.abs(blind.truth.beta).max() / 3
-    gripping, unchecked = run(0.8, SLIDE_RATE), run(0.8, math.inf)
-    for field in ("mu", "beta", "u"):
-        np.testing.assert_array_equal(getattr(gripping.estimate, field), getattr(unchecked.estimate, field))
+    for nominal_mu in (0.9, 0.8):
+        gate, seeing = run(nominal_mu, math.inf), run(nominal_mu, SLIDE_RATE)
+        last = gate.t >= gate.t[-1] - 2.0
+        assert abs(gate.estimate.mu[last].mean() - gate.truth.mu[last].mean()) < 0.05, nominal_mu
+        on_patch = gate.t[np.flatnonzero(gate.truth.mu.min(axis=1) < 0.5)[0]]  # (the front wheels)
+        seen = gate.t[np.flatnonzero(gate.estimate.mu.mean(axis=1) < 0.6)[0]]
+        assert 0.0 <= seen - on_patch < 0.3, nominal_mu
+        assert np.abs(gate.truth.beta).max() < math.radians(2.6) / 2, nominal_mu
+        for field in ("mu", "beta", "u"):
+            np.testing.assert_array_equal(getattr(seeing.estimate, field), getattr(gate.estimate, field))
 
 
 def test_slide_detection_stays_silent_while_the_car_turns_and_on_an_accelerometer_reading_high():
@@ -811,7 +818,10 @@ def test_slide_detection_stays_silent_while_the_car_turns_and_on_an_acceleromete
     offset fault reading high in a steady turn on a gripping road (mu_jump onto a 0.9 patch,
     estimator from 0.9, DYC-LQR, +1 m/s^2 from 2.5 s) is no slide: the car cannot give more
     lateral force than the turn takes (one reading low, -1 m/s^2, is the documented false
-    alarm)."""
+    alarm); estimates identical with it on and off, and mu_hat does not fall after the fault
+    (the high reading asks for more grip: measured 2026-12-07, 0.76 at 2.5 s to 0.96). Before
+    record 0045 the gate stayed shut there and mu_hat stayed 0.9; that it now reads the road
+    low before the fault is test_joint_reads_a_gripping_road_low_in_a_steady_turn_under_dyc."""
     from fourwis.control import make_controller
     from fourwis.envs.sensors import Fault
 
@@ -837,7 +847,26 @@ def test_slide_detection_stays_silent_while_the_car_turns_and_on_an_acceleromete
         for rate in (SLIDE_RATE, math.inf)
     )
     np.testing.assert_array_equal(on.estimate.mu, off.estimate.mu)
-    assert np.all(on.estimate.mu == 0.9)
+    faulty = on.t >= 2.5
+    assert np.all(on.estimate.mu[faulty].mean(axis=1) >= on.estimate.mu[faulty][0].mean())
+
+
+@pytest.mark.xfail(strict=True, reason="found 2026-12-07 on issue-41, reported, not fixed: a behaviour change")
+def test_joint_reads_a_gripping_road_low_in_a_steady_turn_under_dyc():
+    """A steady turn at 0.44 of the grip on a uniform 0.9 road (mu_jump with a 0.9 patch),
+    DYC-LQR, joint from its nominal 0.8: mu_hat should not read the road low by more than 0.05
+    (record 0037's target below half the grip). It does (measured 2026-12-07: 0.669, sigma
+    0.036; open loop 0.774; from 0.9: 0.741), and the steady hold then keeps it; before record
+    0045 the gate stayed shut there. Expected to fail until the friction filter is fixed."""
+    from fourwis.control import make_controller
+
+    traj = simulate(
+        make_scenario("mu_jump", mu_patch=0.9),
+        controller=make_controller("dyc-lqr", VehicleParams()),
+        estimator="joint",
+        seed=0,
+    )
+    assert traj.estimate.mu[-1].mean() > 0.9 - 0.05
 
 
 #: joint's sideslip RMSE bound [deg] per paper scenario: the issue's 0.2 deg target where
