@@ -34,8 +34,9 @@ the box, by lever per unit of drive force; |delta| < 90 deg); outside it (``stab
 :func:`fourwis.control.reference.outside_stable_region`) stability comes first, the yaw moment
 clipped to the largest the bounds allow at any drive force, then the drive force to the one
 nearest the driver's that still delivers that moment (exact: the achievable (force, moment) set
-is the convex hull of the box vertices' images). The result reports what was delivered and flags
-it.
+is the convex hull of the box vertices' images). Outside it the driver's drive also yields
+whether or not the demand is feasible: the drive force asked is at most zero (a production ESC's
+engine-torque request; braking passes). The result reports what was delivered and flags it.
 """
 
 from __future__ import annotations
@@ -68,7 +69,8 @@ class AllocationInputs(NamedTuple):
     force), the yaw moment (B,) [N m], the estimated wheel loads (B, 4) [N], friction (B, 4) and
     lateral tyre forces (B, 4) [N] (the friction ellipse; zero: the circle), the speed (B,)
     [m/s] (the motors' power limit), the front and rear road-wheel angles (B,) [rad], and
-    whether the yaw moment comes before the drive force when both cannot be met (B,) bool."""
+    whether the yaw moment comes before the drive force when both cannot be met, and the drive force
+    yields to at most zero (B,) bool."""
 
     base_torques: np.ndarray
     yaw_moment: np.ndarray

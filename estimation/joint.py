@@ -800,7 +800,10 @@ def _relax_slip(x, steer, slip_relaxed, pk, dt, relaxed_new) -> None:
     tyre's does (which keeps v observable through ay); only its offset lags. Without a
     relaxation length no lag (row 3 keeps :func:`estimation.model.fill_steer_trig`'s zeros, and
     NaN is kept); on the first step (NaN) the relaxed slip starts at the kinematic one, which
-    that zero row lets :func:`wheel_kinematics` give."""
+    that zero row lets :func:`wheel_kinematics` give. A wheel rolling slower than MIN_SPEED has
+    no lag either (its relaxed slip is the kinematic one): its slip angle is noise over the
+    floored speed, and lagging it by sigma / MIN_SPEED (0.36 s) made the state filter chase its
+    own lag, the sideslip of a car at rest ringing at 0.3 deg, 8 of its sigmas."""
     for w in range(4):
         sigma = axle_tyre(pk, w).relaxation_length
         if sigma <= 0.0:
@@ -808,8 +811,8 @@ def _relax_slip(x, steer, slip_relaxed, pk, dt, relaxed_new) -> None:
             continue
         tan_kin, along = wheel_kinematics(x[I_U], x[I_V], x[I_R], wheel_trig(steer, w), pk, w)
         relaxed_new[w] = (
-            _low_pass(slip_relaxed[w], tan_kin, dt, sigma / max(abs(along), MIN_SPEED))
-            if math.isfinite(slip_relaxed[w])
+            _low_pass(slip_relaxed[w], tan_kin, dt, sigma / abs(along))
+            if math.isfinite(slip_relaxed[w]) and abs(along) >= MIN_SPEED
             else tan_kin
         )
         steer[3, w] = tan_kin - relaxed_new[w]

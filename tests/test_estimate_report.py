@@ -12,7 +12,14 @@ from fourwis.envs.metrics import mae, rmse
 from fourwis.envs.scenarios import make_scenario
 from fourwis.envs.simulation import simulate
 from fourwis.training.cli import main
-from fourwis.training.estimate import METRIC_UNITS, METRICS, convergence_time, estimate_report, markdown_report
+from fourwis.training.estimate import (
+    METRIC_UNITS,
+    METRICS,
+    convergence_time,
+    estimate_report,
+    filter_consistency,
+    markdown_report,
+)
 
 T = np.arange(0.0, 5.0, 0.5)  # 0.0 .. 4.5 s
 
@@ -69,12 +76,14 @@ def test_report_writes_csv_markdown_and_plot(report):
         ("paper_sine", "joint", "0"),
     ]
     # each metric's column headed with its unit (SI: beta in rad, the convergence time in s)
+    assert len(set(METRICS)) == len(METRICS)  # (a name twice: one run dict key overwrote the other)
     header = [f"{m} [{METRIC_UNITS[m]}]" for m in METRICS]
     assert list(rows[0]) == ["scenario", "estimator", "seed", *header]
     assert "mae_beta [rad]" in header and "mu_convergence_time [s]" in header and "rmse_u [m/s]" in header
     rows = [{**r, **{m: r[h] for m, h in zip(METRICS, header)}} for r in rows]
     for r in rows:  # the CSV holds the metrics of that run, recomputed here from a fresh simulation
-        expected = _metrics_of(simulate(make_scenario("paper_sine", duration=1.5), estimator=r["estimator"], seed=0))
+        traj = simulate(make_scenario("paper_sine", duration=1.5), estimator=r["estimator"], seed=0)
+        expected = _metrics_of(traj) | filter_consistency(traj, r["estimator"])  # (its NEES / NIS: 0045)
         # 6 significant digits; NaN (a convergence that never came) as the one missing value, an empty field
         assert {m: r[m] for m in METRICS} == {m: "" if math.isnan(v) else f"{v:.6g}" for m, v in expected.items()}
     ckf, joint = rows

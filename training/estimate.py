@@ -51,16 +51,17 @@ from fourwis.training.tyre_fit import plot_tyre_curves
 #: normalised statistic (1: consistent) and the share of samples inside its chi-square 95% band
 #: (0.95: consistent): the NEES of (u, v, r) against the reported covariance (3 degrees of freedom),
 #: of the wheels' mean friction (1), and the NIS of the state and friction filters' innovations
-#: (their valid channels' count), each divided by its degrees of freedom
+#: (their valid channels' count), each divided by its degrees of freedom. The friction's are named
+#: friction_*: :func:`run_metrics`' mu_nees_in_band is each wheel's mu against its own sigma
 CONSISTENCY_METRICS = (
     "state_nees",
     "state_nees_in_band",
-    "mu_nees",
-    "mu_nees_in_band",
+    "friction_nees",
+    "friction_nees_in_band",
     "state_nis",
     "state_nis_in_band",
-    "mu_nis",
-    "mu_nis_in_band",
+    "friction_nis",
+    "friction_nis_in_band",
 )
 
 
@@ -220,9 +221,9 @@ def filter_consistency(traj: Trajectory, estimator) -> dict[str, float]:
         mu_error = np.mean(E.mu - T.mu, axis=1)
         mu_var = np.mean(D.P_mu[:, 0], axis=(1, 2))  # (the variance of the four's mean)
         friction = mu_error**2 / mu_var
-        out["mu_nees"] = float(np.mean(friction))
-        out["mu_nees_in_band"] = float(np.mean(in_chi2_band(friction, np.ones(friction.shape))))
-    for name, updates in (("state", slice(0, 2)), ("mu", slice(2, 4))):
+        out["friction_nees"] = float(np.mean(friction))
+        out["friction_nees_in_band"] = float(np.mean(in_chi2_band(friction, np.ones(friction.shape))))
+    for name, updates in (("state", slice(0, 2)), ("friction", slice(2, 4))):
         nis, dof = D.nis[:, 0, updates].ravel(), D.nis_dof[:, 0, updates].ravel()
         ran = (dof > 0) & np.isfinite(nis)
         if np.any(ran):
@@ -469,7 +470,7 @@ def _consistency_section(table: dict, scenarios: Sequence[Scenario], estimators:
             m = table[(s.name, e)]
             lines.append(
                 f"| {s.name} | {e} | "
-                + " | ".join(cell(m, n) for n in ("state_nees", "mu_nees", "state_nis", "mu_nis"))
+                + " | ".join(cell(m, n) for n in ("state_nees", "friction_nees", "state_nis", "friction_nis"))
                 + " |"
             )
     return lines

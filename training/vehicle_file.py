@@ -22,8 +22,11 @@ estimators' inputs (steering geometry, drive layout, brakes, its sensors' noise)
     # slip_stiffness = 8.3e4      #   (optional) and its slip stiffness [N]
     # cornering_stiffness_table = [[2000, 3.2e4], [4000, 5.6e4]]  # per tyre: [load N, N/rad], ...
     # m1, n1, m2, n2 = ...        #   or the eq. 17 fit itself (estimation.model.AxleTyre)
-    # mu_scale = 1.0              # Dugoff's friction scale (default 1: its force peaks at mu Fz)
+    # mu_scale = 1.0              # the friction scale k (default 1: the force peaks at mu Fz)
     # relaxation_length = 0.4     # lateral relaxation length [m] (make_estimator tyre_relaxation)
+    # magic_c, magic_e = 1.48, 0.03  # the Magic Formula's shape and curvature (AxleTyre; 0: Dugoff's)
+    # load_sensitivity = -0.09    # the peak's change per static load [-] (default 0)
+    # reference_load = 3400.0     # the load the peak is given at [N] (default 1)
 
     [drive]
     layout = "rear"               # the driven wheels: "front", "rear" or "all"
@@ -41,7 +44,10 @@ at its static load, and the stiffness grows in proportion to the load (eq. 17 wi
 load dependence such data leave open); from a table, the least-squares eq. 17 fit of
 training/tyre_fit.py. Without a slip stiffness it is the cornering stiffness times that of
 fourwis's own tyre over its cornering stiffness at its static load (1.19: the PAC2002 tyre of
-envs.tyre). Without a ``[tyres]`` section the car has fourwis's own tyre fit on both axles.
+envs.tyre). Without a ``[tyres]`` section the car has fourwis's own tyre fit on both axles. A
+tyre's Magic Formula shape (magic_c > 0, with magic_e, load_sensitivity, reference_load:
+:class:`fourwis.estimation.model.AxleTyre`) is read where given; without it, ``joint`` gives
+the tyre the fit's shape on its stiffness (``ModelParams.from_vehicle(shape="magic")``).
 """
 
 from __future__ import annotations
@@ -74,6 +80,10 @@ TYRE_KEYS = (
     "n2",
     "mu_scale",
     "relaxation_length",
+    "magic_c",
+    "magic_e",
+    "load_sensitivity",
+    "reference_load",
 )
 DRIVE_KEYS = ("layout", "front_share", "gear_ratios", "driveline_efficiency", "brake_balance", "brake_gain")
 STEERING_KEYS = ("ackermann",)
@@ -206,6 +216,10 @@ def _tyre(path, axle: str, table: dict, static_load: float) -> AxleTyre:
             n2,
             _number(path, f"[{where}] mu_scale", table.get("mu_scale", 1.0)),
             _number(path, f"[{where}] relaxation_length", table.get("relaxation_length", 0.0), ">= 0"),
+            _number(path, f"[{where}] magic_c", table.get("magic_c", 0.0), ">= 0"),
+            _number(path, f"[{where}] magic_e", table.get("magic_e", 0.0), "any"),
+            _number(path, f"[{where}] load_sensitivity", table.get("load_sensitivity", 0.0), "any"),
+            _number(path, f"[{where}] reference_load", table.get("reference_load", 1.0)),
         )
     except ValueError as err:
         raise _error(path, f"[{where}]: {err}") from None
@@ -290,8 +304,12 @@ def read_vehicle(path: str | Path) -> Vehicle:
 
 def vehicle_toml(vehicle: Vehicle) -> str:
     """A vehicle file's text for ``vehicle`` that :func:`read_vehicle` reads back to the same
-    estimator model (what ``fourwis simulate`` writes beside its log): its body, its tyres as
-    the eq. 17 fit (fourwis's own fit on both axles if it has none), the drive and its nominal mu."""
+    estimator model for every kind (what ``fourwis simulate`` writes beside its log): its body,
+    its tyres as the eq. 17 fit with every :class:`AxleTyre` field, the drive and its nominal mu.
+    A car with fourwis's own tyres (``tyres`` None) gets no ``[tyres]`` section, which reads back
+    as the same: each kind then takes the shipped fit in its own shape, with ``joint``'s Magic
+    Formula, load sensitivity and relaxation length (docs/decisions/0045), which one explicit
+    tyre could not give every kind."""
     params, default = vehicle.params, VehicleParams()
     lines = [f"name = {vehicle.name!r}".replace("'", '"'), f"nominal_mu = {vehicle.nominal_mu!r}", "", "[body]"]
     for f in fields(VehicleParams):
@@ -301,7 +319,9 @@ def vehicle_toml(vehicle: Vehicle) -> str:
         if value != getattr(default, f.name) or f.name in ("mass", "cg_to_front", "cg_to_rear", "wheel_radius"):
             lines.append(f"{f.name} = {str(value).lower() if isinstance(value, bool) else repr(float(value))}")
     lines += ["", "[steering]", f"ackermann = {vehicle.ackermann!r}"]
-    for axle, tyre in zip(("front", "rear"), vehicle.tyres or (AxleTyre.shipped(),) * 2):
+    if vehicle.tyres is None:
+        lines += ["", "# no [tyres]: fourwis's own tyre fit on both axles (estimation/data/dugoff_fit.json)"]
+    for axle, tyre in zip(("front", "rear"), vehicle.tyres or ()):
         lines += ["", f"[tyres.{axle}]"] + [f"{f.name} = {getattr(tyre, f.name)!r}" for f in fields(AxleTyre)]
     lines += [
         "",
