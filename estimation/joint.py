@@ -1104,7 +1104,8 @@ def _model_args(f: FilterKernel, i: int, w: StepWork, lane: int, x_friction) -> 
 def _state_filter(f: FilterKernel, i: int, w: StepWork, lane: int, res: StepResult) -> int:
     """Vehicle i's state filter (its kind's: federated, EKF or CKF) on row ``lane`` of ``w``,
     car by car, into row ``lane`` of ``res``; OK or FILTER_FAILED."""
-    settings, state = f.settings, f.state
+    settings = f.settings
+    state = f.state  # (on its own: numba loses writes through a NamedTuple unpacked from a tuple)
     x, P, beta = state.x[i], state.P[i], state.beta[i]
     x_new, P_new, beta_new = res.x[lane], res.P[lane], res.beta[lane]
     beta_new[:] = beta
@@ -1167,7 +1168,8 @@ def _after_state(f: FilterKernel, i: int, w: StepWork, lane: int, res: StepResul
 @numba.njit(**JIT)
 def _friction_filter(f: FilterKernel, i: int, w: StepWork, lane: int, res: StepResult) -> int:
     """Vehicle i's friction filter, car by car, into row ``lane`` of ``res``; OK or FILTER_FAILED."""
-    settings, state = f.settings, f.state
+    settings = f.settings
+    state = f.state  # (on its own: numba loses writes through a NamedTuple unpacked from a tuple)
     values, valid = w.values[lane], w.valid[lane]
     args = _model_args(f, i, w, lane, res.x[lane])
     nll_mu = _federated(
@@ -1185,7 +1187,8 @@ def _close_step(f: FilterKernel, i: int, reading, valid_in, t: float, w: StepWor
     """The close of vehicle i's step after its filters (rows ``lane`` of ``w`` and ``res``): the
     innovations and their NIS, the friction gate, bounds, grip floor and the cap of its random walk,
     and the commit of its state rows (then :func:`_estimate_row`)."""
-    settings, pk, state, mu_var = f.settings, f.model, f.state, f.noise.mu_var
+    settings, pk, mu_var = f.settings, f.model, f.noise.mu_var
+    state = f.state  # (on its own: numba loses writes through a NamedTuple unpacked from a tuple)
     x, P, mu, P_mu = state.x[i], state.P[i], state.mu[i], state.P_mu[i]
     values, valid, dt = w.values[lane], w.valid[lane], w.dt[lane]
     zero_point_new, steer, od = w.zero_point[lane], w.steer[lane], w.omega_dot[lane]
@@ -1260,7 +1263,8 @@ def _estimate_row(f: FilterKernel, i: int, consider_var: float, out: Estimate, j
     """Vehicle i's estimate from its committed state into row j of ``out``, its sideslip sigma with
     the consider term's variance ``consider_var`` [m^2/s^2] of v (:func:`_considered_v_var`; kept
     in the state, unused where the kind has none)."""
-    settings, state = f.settings, f.state
+    settings = f.settings
+    state = f.state  # (on its own: numba loses writes through a NamedTuple unpacked from a tuple)
     x, P, mu, P_mu = state.x[i], state.P[i], state.mu[i], state.P_mu[i]
     u, v = x[I_U], x[I_V]
     out.u[j], out.v[j], out.r[j], out.ax[j], out.ay[j] = u, v, x[I_R], x[I_AX], x[I_AY]
@@ -1300,7 +1304,8 @@ def _step_vehicle(f: FilterKernel, i: int, reading, valid_in, t: float, out: Est
     _close_step(f, i, reading, valid_in, t, w, 0, res)
     consider_var = 0.0
     if f.settings.consider_std > 0.0:
-        state, values = f.state, w.values[0]
+        state = f.state
+        values = w.values[0]
         consider_var = _considered_v_var(
             state.x[i], state.mu[i], state.P_mu[i], w.steer[0], values[CH_OMEGA : CH_OMEGA + 4],
             values[CH_TORQUE : CH_TORQUE + 4], w.omega_dot[0], f.model, f.settings.consider_std,
@@ -1498,7 +1503,8 @@ def _state_filters_lanes(f: FilterKernel, car, source, w: StepWork, res: StepRes
     """The federated state filter of the vehicles car (lanes,) in lanes, lane ``lane`` on row
     ``source[lane]`` of ``w`` (a lane whose opening failed takes another's, its results unused),
     into the rows of ``res``; ok (lanes,) False where it fails."""
-    settings, state, pk = f.settings, f.state, f.model
+    settings, pk = f.settings, f.model
+    state = f.state
     x, P, Q, beta = (
         scratch((N_STATE, lanes)),
         scratch((N_STATE, N_STATE, lanes)),
@@ -1575,7 +1581,8 @@ def _friction_filters_lanes(f: FilterKernel, car, source, w: StepWork, res: Step
     """The friction filter of the vehicles car (lanes,) in lanes, lane ``lane`` on row
     ``source[lane]`` of ``w`` and ``res`` (one whose friction filter runs), into the rows of
     ``res``; ok (lanes,) False where it fails."""
-    settings, state, pk = f.settings, f.state, f.model
+    settings, pk = f.settings, f.model
+    state = f.state
     mu, P_mu, walk, beta = (
         scratch((N_MU, lanes)),
         scratch((N_MU, N_MU, lanes)),
@@ -1638,7 +1645,8 @@ def _considered_v_var_lanes(f: FilterKernel, car, source, w: StepWork, out, lane
     """:func:`_considered_v_var` of the vehicles car (lanes,) at their committed state, lane
     ``lane`` on row ``source[lane]`` of ``w``, into out (lanes,): the model's five evaluations in
     lanes, each the single car's operations."""
-    state, pk = f.state, f.model
+    pk = f.model
+    state = f.state
     points, mus, forces = scratch((5, 5, lanes)), scratch((4, 5, lanes)), scratch((3, 5, lanes))
     steer, omega, torque, od, dt, h = (
         scratch((4, 4, lanes)), scratch((4, lanes)), scratch((4, lanes)), scratch((4, lanes)), scratch((lanes,)),

@@ -250,6 +250,9 @@ def test_the_estimator_stepped_in_lanes_equals_it_car_by_car(kind):
             np.testing.assert_array_equal(a[good], b[good])
         for a, b in zip(estimators[0].state, estimators[1].state):
             np.testing.assert_array_equal(a, b)
+        committed = estimators[0].state  # (each stepped car's state moved on to this reading)
+        np.testing.assert_array_equal(committed.t_prev[good], r.t[good])
+        np.testing.assert_array_equal(committed.omega_prev[good], r.values[good, CH_OMEGA : CH_OMEGA + 4])
     assert (statuses[1] != 0).sum() == 0  # (the refused car stepped on after its refused reading)
     if kind == "joint":
         moved = ran_friction.any(axis=1)  # (the friction filters moved mu in both blocks: their updates are compared)
