@@ -1355,12 +1355,15 @@ class LaneArgs(NamedTuple):
 
 
 @numba.njit(**JIT)
-def _evaluate_lanes(model, points, out, args: LaneArgs, lanes) -> None:
+def _evaluate_lanes(model, points, out, args: LaneArgs, K, lanes) -> None:
     """:func:`_evaluate` in lanes: model ``model`` at the K points (K, n, lanes) of each car into
-    out (K, k, lanes), each point the same operations as the single car's."""
-    K, pk = points.shape[0], args.model
+    out (K, k, lanes), each point the same operations as the single car's (K and lanes
+    compile-time constants: the work arrays stay on the stack)."""
+    pk = args.model
     if model == TRANSITION:
-        transition_lanes(points, out, args.mu, args.steer, args.omega, args.torque, args.omega_dot, pk, args.dt, lanes)
+        transition_lanes(
+            points, out, args.mu, args.steer, args.omega, args.torque, args.omega_dot, pk, args.dt, K, lanes
+        )
     elif model == STATE_1:
         steer = args.steer
         for k in range(K):
@@ -1408,7 +1411,7 @@ def _ckf_predict_lanes(x, P, Q, model, args, x_out, P_out, ok, n, K, lanes) -> N
     """:func:`_ckf_predict` of each lane (K = 2n points); ok (lanes,) False where P has no factor."""
     points, moved = scratch((K, n, lanes)), scratch((K, n, lanes))
     cubature_points_lanes(x, P, points, ok, n, lanes)
-    _evaluate_lanes(model, points, moved, args, lanes)
+    _evaluate_lanes(model, points, moved, args, K, lanes)
     predicted_moments_lanes(moved, Q, x_out, P_out, n, lanes)
 
 
@@ -1421,13 +1424,13 @@ def _ckf_update_lanes(x, P, z, valid, R, huber_c, model, args, x_out, P_out, nu,
     extra point)."""
     points, Z, ok_points = scratch((K, n, lanes)), scratch((K, m, lanes)), scratch((lanes,), np.bool_)
     cubature_points_lanes(x, P, points, ok_points, n, lanes)
-    _evaluate_lanes(model, points, Z, args, lanes)
+    _evaluate_lanes(model, points, Z, args, K, lanes)
     if centred:
         centre, Z_centre = scratch((1, n, lanes)), scratch((1, m, lanes))
         for i in range(n):
             for lane in range(lanes):
                 centre[0, i, lane] = x[i, lane]
-        _evaluate_lanes(model, centre, Z_centre, args, lanes)
+        _evaluate_lanes(model, centre, Z_centre, args, 1, lanes)
         measurement_update_lanes(x, P, points, Z, z, valid, R, huber_c, x_out, P_out, nll, ok, n, m, lanes, nu, S,
                                  Z_centre[0])  # fmt: skip
     else:

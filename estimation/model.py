@@ -651,13 +651,13 @@ def transition(points: np.ndarray, out: np.ndarray, args: tuple) -> None:
 
 
 @numba.njit(**JIT)
-def transition_lanes(points, out, mu, steer, omega, torque, omega_dot, pk: ModelKernel, dt, lanes) -> None:
-    """:func:`transition` of the K points (K, 6, lanes) of each of ``lanes`` cars (lane axis last)
+def transition_lanes(points, out, mu, steer, omega, torque, omega_dot, pk: ModelKernel, dt, K, lanes) -> None:
+    """:func:`transition` of the K points (K, 6, lanes) of each of ``lanes`` cars (lane axis last;
+    K and lanes compile-time constants: the work arrays then stay on the stack)
     into out (K, 6, lanes): each car's friction mu (4, lanes), wheel table steer (4, 4, lanes),
     omega, torque, omega_dot (4, lanes) and step dt (lanes,) [s], each car in its own
     :func:`substeps` (a car with fewer than the most holds its state through the others). Each
     point the same operations as :func:`transition`'s (bit for bit)."""
-    K = points.shape[0]
     state, mu_k, forces = scratch((5, K, lanes)), scratch((4, K, lanes)), scratch((3, K, lanes))
     steps, h = scratch((lanes,), np.int64), scratch((lanes,))
     most = 1
