@@ -30,7 +30,7 @@ from fourwis.control.reference import PhasePlaneRegion, reference_yaw_rate
 from fourwis.core.checks import is_integer, is_number
 from fourwis.core.types import Command, Estimate
 from fourwis.envs.fmvss126 import characterise
-from fourwis.envs.layout import A_AY, S_DELTA_F, S_DELTA_R, S_R, S_U, S_X, S_Y
+from fourwis.envs.layout import A_AY, S_DELTA_F, S_DELTA_R, S_R, S_U, S_V, S_X, S_Y
 from fourwis.envs.loop import HeldAction, Sample, wheel_torque_action
 from fourwis.envs.metrics import (
     SPIN_OUT_SIDESLIP,
@@ -390,6 +390,7 @@ class YawStabilityCore:
                     self.params.cg_to_front,
                     self.params.cg_to_rear,
                 ),
+                speed=np.hypot(state[:, S_U], state[:, S_V]),
             )
         terminated = (spin | (deviation > MAX_PATH_DEVIATION)) & moved
         reward = np.where(moved, reward - TERMINATION_PENALTY * terminated, 0.0)

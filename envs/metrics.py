@@ -46,6 +46,9 @@ ROLLING_SIDESLIP_TOLERANCE = math.radians(5.0)
 #: the largest lateral acceleration of a turn a car can be rolling round [m/s^2] (1 g)
 ROLLING_LATERAL_ACCELERATION = G_UNIT
 SPIN_OUT_HEADING = math.pi / 2  #: heading this far from the course counts as a spin-out [rad]
+#: below this ground speed [m/s] a sideslip is not a spin: atan(v / u) of a car at rest is the
+#: direction of millimetres per second (a stopped car read 42 deg at u = -0.0015 m/s)
+SPIN_OUT_MIN_SPEED = 1.0
 TINY = np.finfo(float).tiny  #: floor of a path segment's squared length [m^2]
 
 
@@ -495,17 +498,25 @@ def rolling_sideslip(speed, delta_f, delta_r, cg_to_front: float, cg_to_rear: fl
     return np.where(demand <= ROLLING_LATERAL_ACCELERATION, geometry, np.nan)
 
 
-def spun_sideslip(beta, rolling=None, threshold_beta: float = SPIN_OUT_SIDESLIP):
+def spun_sideslip(beta, rolling=None, threshold_beta: float = SPIN_OUT_SIDESLIP, speed=None):
     """Per sample: |beta| > ``threshold_beta``, unless it lies within ROLLING_SIDESLIP_TOLERANCE
     (5 deg) of the ``rolling`` sideslip (:func:`rolling_sideslip`, same shape; NaN: none): a car
     whose sideslip the geometry explains is rolling round a slow full-lock turn, not sliding (at
-    walking pace the plant stays within 1.3 deg of it, its parallel-steered wheels scrubbing)."""
+    walking pace the plant stays within 1.3 deg of it, its parallel-steered wheels scrubbing);
+    nor where the ground speed ``speed`` (same shape, [m/s], optional) is below
+    SPIN_OUT_MIN_SPEED: a stopped car has no sideslip to speak of."""
     beta = np.asarray(beta, dtype=float)
     spun = np.abs(beta) > threshold_beta
-    return spun if rolling is None else spun & ~(np.abs(beta - rolling) <= ROLLING_SIDESLIP_TOLERANCE)
+    if rolling is not None:
+        spun &= ~(np.abs(beta - rolling) <= ROLLING_SIDESLIP_TOLERANCE)
+    if speed is not None:
+        spun &= np.asarray(speed, dtype=float) >= SPIN_OUT_MIN_SPEED
+    return spun
 
 
-def spin_out(beta, psi=None, course_heading=None, threshold_beta: float = SPIN_OUT_SIDESLIP, rolling=None) -> bool:
+def spin_out(
+    beta, psi=None, course_heading=None, threshold_beta: float = SPIN_OUT_SIDESLIP, rolling=None, speed=None
+) -> bool:
     """Whether the car spun out.
 
     ``beta`` (n,) sideslip [rad]: spin-out once |beta| > ``threshold_beta`` (default 20 deg;
@@ -514,6 +525,8 @@ def spin_out(beta, psi=None, course_heading=None, threshold_beta: float = SPIN_O
     ``rolling`` (n,) [rad], optional: the sideslip of a car rolling round the turn its wheels
     make (:func:`rolling_sideslip`); a sample within 5 deg of it does not count
     (:func:`spun_sideslip`): a turn at walking pace near full lock is no spin.
+    ``speed`` (n,) ground speed [m/s], optional: a sample below SPIN_OUT_MIN_SPEED (1 m/s) does
+    not count (a stopped car's atan(v / u) is any angle).
     ``psi`` (n,) heading [rad], optional: spin-out also when the heading deviates more than
     90 deg from ``course_heading`` [rad] (scalar or (n,): the direction of travel the
     course asks for; None: the initial heading psi[0]); NHTSA's ESC research counted a
@@ -525,7 +538,9 @@ def spin_out(beta, psi=None, course_heading=None, threshold_beta: float = SPIN_O
         rolling = np.asarray(rolling, dtype=float)
         if rolling.shape != beta.shape:
             raise ValueError(f"rolling has {rolling.size} samples, expected {len(beta)} (the length of beta)")
-    spun = bool(np.any(spun_sideslip(beta, rolling, threshold_beta)))
+    if speed is not None:
+        speed = _series("speed", speed, len(beta))
+    spun = bool(np.any(spun_sideslip(beta, rolling, threshold_beta, speed)))
     if psi is not None:
         psi = _series("psi", psi, len(beta))
         course = psi[0] if course_heading is None else np.asarray(course_heading, dtype=float)

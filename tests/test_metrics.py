@@ -222,6 +222,15 @@ def test_spin_out():
     assert not spin_out(np.radians([0, 10, 15, 15]), rolling=-geometry)  # |beta| below 20 deg
     with pytest.raises(ValueError, match="rolling has 2 samples"):
         spin_out(np.radians([0, 10, 21]), rolling=geometry[:2])
+    # a stopped car's atan(v / u) is any angle: below SPIN_OUT_MIN_SPEED of ground speed it is no
+    # spin; a car sliding sideways at speed (u ~ 0, v large) is one
+    u, v = np.array([20.0, 5.0, -0.0015, 0.0]), np.array([0.0, 0.1, 0.00135, 0.0])
+    assert not spin_out(np.arctan2(v, np.maximum(np.abs(u), 1e-9)), speed=np.hypot(u, v))
+    assert spin_out(np.radians([0, 42, 0, 0]), speed=np.hypot(u, v))  # 42 deg at 5 m/s
+    sliding = np.array([0.0, 0.0, 8.0, 0.0])
+    assert spin_out(np.radians([0, 0, 85, 0]), speed=np.hypot(np.array([20.0, 10.0, 0.5, 0.0]), sliding))
+    with pytest.raises(ValueError, match="speed has 3 samples"):
+        spin_out(np.radians([0, 10, 21, 0]), speed=np.ones(3))
 
 
 def test_a_turn_near_the_lock_is_rolling_only_at_walking_pace():

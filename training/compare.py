@@ -211,6 +211,7 @@ def run_metrics(traj: Trajectory, swd_A: float | None = None) -> dict[str, float
                     params.cg_to_front,
                     params.cg_to_rear,
                 ),
+                speed=np.hypot(T.u, T.v),
             )
         ),
     }
