@@ -40,6 +40,7 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 NUMBER = re.compile(r"^-?[\d,]*\.?\d+(?:e[-+]?\d+)?")
 #: labels whose values are times or costs (lower is better); the others are rates (higher is better)
+UNIT = re.compile(r"[A-Za-z][A-Za-z/%-]*")  #: a unit after a number in a value's cell ("us", "steps/s")
 LOWER_IS_BETTER = re.compile(r"\b(us|ms|seconds?|time|wall|cost|per step|per vehicle-step|\[s\])\b", re.IGNORECASE)
 
 
@@ -97,13 +98,16 @@ def measurements(output: str) -> dict[str, float]:
         for cell in cells[1:]:
             match = NUMBER.match(cell.replace(" ", ""))
             if match and cells[0] and not set(cells[0]) <= set("-:"):
-                found.setdefault(cells[0], float(match.group(0).replace(",", "")))
+                # (a unit in the value's cell, "40.1 us", goes into the label where it has none)
+                unit = cell.replace(" ", "")[match.end() :]
+                label = cells[0] if not UNIT.fullmatch(unit) or cells[0].endswith("]") else f"{cells[0]} [{unit}]"
+                found.setdefault(label, float(match.group(0).replace(",", "")))
                 break
     return found
 
 
 def best(values: list[float], label: str) -> float:
-    return min(values) if LOWER_IS_BETTER.search(label) else max(values)
+    return min(values) if better(label) == "lower" else max(values)
 
 
 def main(argv: list[str] | None = None) -> int:
