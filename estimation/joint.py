@@ -48,7 +48,10 @@ the paper's filter):
   measured), not below MU_MIN_SPEED, and its random-walk growth is capped at ``mu_max_std``. The
   covariance still takes the update, so a held mu's reported sigma shrinks slowly without
   excitation. Judged from mu_hat itself, a high mu_hat can keep the gate shut after a friction drop
-  (``friction_gate=False``: the paper's update; docs/decisions/0015-friction-gate.md);
+  (``friction_gate=False``: the paper's update; docs/decisions/0015-friction-gate.md); so
+  ``joint`` judges it a sigma below mu_hat (``gate_sigmas``) and also opens it, restarting the
+  friction covariance, while the friction filter's low-passed NIS says its mu is refuted
+  (``friction_alarm``; docs/decisions/0047-friction-alarm.md);
 * slide detection (``joint``): an outward slide in a steady turn that the sensors alone show
   (SLIDE_*) reopens the gate, mu then only allowed to fall (``slide_rate=math.inf``: off;
   docs/decisions/0016-slide-detection.md);
@@ -385,6 +388,18 @@ INNOVATIONS = (
 )
 N_INNOVATIONS = len(INNOVATIONS)
 
+#: The joint estimator's gate where mu_hat reads the road too high (its blind spot: judged at
+#: mu_hat, a turn on a road far slipperier looks far from saturation, so the gate and the steady
+#: hold keep mu shut). GATE_SIGMAS: the gate is judged at mu_hat minus this many of mu's sigmas,
+#: a friction the filter still finds plausible. FRICTION_ALARM: the friction filter's NIS per
+#: degree of freedom, low-passed with FRICTION_ALARM_TIME_CONSTANT [s], above this (it averages
+#: 0.35 where mu is right: its model-error noise is generous) opens the gate, lifts the hold and
+#: restarts the friction covariance from its prior (mu_max_std) until the filter explains the
+#: sensors again (docs/decisions/0047-friction-alarm.md)
+GATE_SIGMAS = 1.0
+FRICTION_ALARM = 2.0
+FRICTION_ALARM_TIME_CONSTANT = 0.5
+
 
 # ---- the compiled step's bundles -----------------------------------------------------------
 class FilterSettings(NamedTuple):
@@ -415,6 +430,9 @@ class FilterSettings(NamedTuple):
     slide_rate: float  #: [rad/s]
     yaw_balance_std: float  #: [N m]
     grip_floor_time_constant: float  #: [s]
+    #: the low-passed friction NIS per degree of freedom that opens the gate (inf: off)
+    friction_alarm: float
+    gate_sigmas: float  #: the gate is judged at mu_hat minus this many of mu's sigmas
 
 
 class FilterNoise(NamedTuple):
@@ -440,7 +458,8 @@ class FilterState(NamedTuple):
     channel had no valid reading or an update did not run) and each update's NIS and its valid
     channel count (B, 4: UPDATES; NaN and 0 where it did not run), for the consistency reports;
     the low-passed squared standardised innovation of each wheel speed (B, 4)
-    (ADAPTIVE_TIME_CONSTANT) and the consider term's variance of v (B,) [m^2/s^2] (CONSIDER_*)."""
+    (ADAPTIVE_TIME_CONSTANT), the consider term's variance of v (B,) [m^2/s^2] (CONSIDER_*) and the
+    low-passed NIS per degree of freedom of the friction filter (B,) (FRICTION_ALARM_*)."""
 
     x: np.ndarray
     P: np.ndarray
@@ -463,6 +482,7 @@ class FilterState(NamedTuple):
     nis_dof: np.ndarray
     wheel_nis: np.ndarray
     consider_var: np.ndarray
+    friction_nis: np.ndarray
 
 
 class FilterKernel(NamedTuple):
@@ -1158,7 +1178,8 @@ def _after_state(f: FilterKernel, i: int, w: StepWork, lane: int, res: StepResul
         _fill_correlated(mu_var[0] * w.elapsed_steps[lane], res.walk[lane])
         _fill_diagonal((mu_var[1], mu_var[1], gyro_var), res.R1_mu[lane])
         _fill_diagonal((mu_var[1], gyro_var), res.R2_mu[lane])
-        if w.unseen_slide[lane]:  # restart from the prior covariance (mu_max_std)
+        # restart from the prior covariance (mu_max_std) on a slide or the friction alarm
+        if w.unseen_slide[lane] or f.state.friction_nis[i] > settings.friction_alarm:
             _fill_correlated(mu_var[2], res.P_mu_in[lane])
         else:
             res.P_mu_in[lane] = f.state.P_mu[i]
@@ -1210,14 +1231,21 @@ def _close_step(f: FilterKernel, i: int, reading, valid_in, t: float, w: StepWor
         _record_innovation(res.nu1_mu[lane], res.S1_mu[lane], valid[: CH_YAW_RATE + 1], 2, 10, innov, innov_std,
                            nis, dof)  # fmt: skip
         _record_innovation(res.nu2_mu[lane], res.S2_mu[lane], valid2, 3, 13, innov, innov_std, nis, dof)
+        ran = dof[2] + dof[3]
+        if ran > 0:  # (FRICTION_ALARM_*)
+            ratio = ((nis[2] if dof[2] > 0 else 0.0) + (nis[3] if dof[3] > 0 else 0.0)) / ran
+            state.friction_nis[i] = _low_pass(state.friction_nis[i], ratio, dt, FRICTION_ALARM_TIME_CONSTANT)
+        alarm = state.friction_nis[i] > settings.friction_alarm
         mu_fused, P_fused, P_mu_in, walk = res.mu[lane], res.P_mu[lane], res.P_mu_in[lane], res.walk[lane]
         beta_mu_new[:] = res.beta_mu[lane]
         # hold mu where the lateral demand is far from saturation (lambda >= EXCITATION_LAMBDA);
         # the covariance keeps the update (see the module docstring)
-        lam = scratch((4,))
-        dugoff_lambdas(x_new[I_U], x_new[I_V], x_new[I_R], x_new[I_AX], x_new[I_AY], mu, steer, omega, pk, lam)
-        steady_hold = settings.steady_hold and _settled(zero_point_new, x_new[I_U])
-        if (lam.min() < EXCITATION_LAMBDA and not steady_hold) or unseen_slide or not settings.friction_gate:
+        lam, mu_gate = scratch((4,)), scratch((4,))
+        for k in range(4):  # (a friction the filter finds plausible: GATE_SIGMAS)
+            mu_gate[k] = max(mu[k] - settings.gate_sigmas * math.sqrt(P_mu[k, k]), MU_BOUNDS[0])
+        dugoff_lambdas(x_new[I_U], x_new[I_V], x_new[I_R], x_new[I_AX], x_new[I_AY], mu_gate, steer, omega, pk, lam)
+        steady_hold = settings.steady_hold and _settled(zero_point_new, x_new[I_U]) and not alarm
+        if (lam.min() < EXCITATION_LAMBDA and not steady_hold) or unseen_slide or alarm or not settings.friction_gate:
             for k in range(4):
                 mu_new[k] = min(max(mu_fused[k], MU_BOUNDS[0]), MU_BOUNDS[1])
                 if unseen_slide:  # (a slide tells only that the road is slipperier than mu_hat)
@@ -1914,6 +1942,13 @@ class StateEstimator:
     #: the time constant [s] of the wheel speeds' covariance matching (ADAPTIVE_TIME_CONSTANT,
     #: the kinds ADAPTIVE_KINDS); math.inf switches it off
     adaptive_time_constant: float = ADAPTIVE_TIME_CONSTANT
+    #: the joint estimator's friction alarm: the low-passed NIS per degree of freedom of the
+    #: friction filter (FRICTION_ALARM_*) above which mu is updated whatever the gate and the
+    #: steady hold say; math.inf switches it off
+    friction_alarm: float = FRICTION_ALARM
+    #: the joint estimator's gate is judged at mu_hat minus this many of mu's sigmas
+    #: (GATE_SIGMAS); 0 judges it at mu_hat
+    gate_sigmas: float = GATE_SIGMAS
     needs_truth: bool = False
 
     def __post_init__(self) -> None:
@@ -1975,6 +2010,15 @@ class StateEstimator:
                 f"adaptive_time_constant applies to {list(ADAPTIVE_KINDS)}; {self.kind!r} has none, "
                 f"got adaptive_time_constant={self.adaptive_time_constant!r}"
             )
+        if not (is_number(self.friction_alarm) and self.friction_alarm > 0):
+            raise ValueError(f"friction_alarm must be > 0 (math.inf: off), got {self.friction_alarm!r}")
+        if not (is_number(self.gate_sigmas) and 0 <= self.gate_sigmas < math.inf):
+            raise ValueError(f"gate_sigmas must be finite and >= 0, got {self.gate_sigmas!r}")
+        if (self.friction_alarm, self.gate_sigmas) != (FRICTION_ALARM, GATE_SIGMAS) and self.kind != "joint":
+            raise ValueError(
+                f"friction_alarm and gate_sigmas apply to the joint estimator; {self.kind!r} has neither, got "
+                f"friction_alarm={self.friction_alarm!r}, gate_sigmas={self.gate_sigmas!r}"
+            )
         friction = self.kind in FRICTION_KINDS
         self.settings = FilterSettings(
             extended=self.kind == "ekf",
@@ -1999,6 +2043,8 @@ class StateEstimator:
             yaw_balance_std=float(self.yaw_balance_std),
             grip_floor_time_constant=float(self.grip_floor_time_constant),
             speed_channel=CH_SPEED,
+            friction_alarm=float(self.friction_alarm) if self.kind == "joint" else math.inf,
+            gate_sigmas=float(self.gate_sigmas) if self.kind == "joint" else 0.0,
         )
         self.state: FilterState | None = None
         self.set_noise(self.noise)
@@ -2101,6 +2147,7 @@ class StateEstimator:
             nis_dof=np.zeros((B, len(UPDATES))),
             wheel_nis=np.ones((B, 4)),
             consider_var=np.zeros(B),
+            friction_nis=np.ones(B),
         )
         if mask is None or not started:
             self.state = fresh

@@ -856,8 +856,9 @@ def test_joint_reads_a_gripping_road_low_in_a_steady_turn_under_dyc():
     """A steady turn at 0.44 of the grip on a uniform 0.9 road (mu_jump with a 0.9 patch),
     DYC-LQR, joint from its nominal 0.8: mu_hat should not read the road low by more than 0.05
     (record 0037's target below half the grip). It does (measured 2026-12-07: 0.669, sigma
-    0.036; open loop 0.774; from 0.9: 0.741), and the steady hold then keeps it; before record
-    0045 the gate stayed shut there. Expected to fail until the friction filter is fixed."""
+    0.036; open loop 0.774; from 0.9: 0.741; 0.721 with record 0047's gate, judged a sigma
+    below mu_hat), and the steady hold then keeps it; before record 0045 the gate stayed shut
+    there. Expected to fail until the friction filter is fixed."""
     from fourwis.control import make_controller
 
     traj = simulate(
@@ -911,7 +912,7 @@ def test_joint_meets_the_papers_accuracy_targets_on_its_scenarios(scenario):
     assert np.mean(np.abs(joint.estimate.mu[after] - joint.truth.mu[after])) <= 0.05
 
 
-FROZEN_ON_A_LOW_PATCH = "found 2026-12-07: record 0045's joint keeps mu_hat 0.93 on the 0.27 patch (issue 41)"
+FROZEN_ON_A_LOW_PATCH = "found 2026-12-07: joint reads the 0.27 patch 0.12 off (0.66 before record 0047; issue 41)"
 
 
 @pytest.mark.parametrize(
@@ -921,10 +922,11 @@ def test_joint_mu_converges_on_a_friction_value_never_used_in_development(seed):
     """Open loop, a 0.4 g turn from mu 0.9 onto 0.27 (a value no tuning or design choice saw):
     over the last half of the run the wheel-mean mu_hat is within 0.1 of the truth (measured
     0.05 for both seeds before record 0045; with the wheels' mu correlated at 0.8 instead of 0.99
-    it stayed near 0.9, an error of ~0.6). Seed 12 misses since record 0045 (measured error 0.66,
-    2026-12-07): mu_hat reaches 0.93 before the patch, where ay 2.6 m/s^2 is 0.29 of that grip, so
-    the gate judged at mu_hat stays shut while the friction filter's NIS per degree of freedom
-    reads 3-17; a gate that opens on a persistent NIS excess is the proposed fix."""
+    it stayed near 0.9, an error of ~0.6). Seed 12 misses: with record 0045 mu_hat stayed at
+    0.93 (error 0.66: the gate judged at mu_hat read the turn as 0.29 of the grip); record 0047's
+    friction alarm takes it down within a second of the patch, but it settles ~0.06 high and
+    the mean error over the last half is 0.118 (measured 2026-12-07). Expected to fail until the
+    friction filter is fixed."""
     from fourwis.envs.scenarios import make_scenario
 
     traj = simulate(make_scenario("mu_jump", mu_patch=0.27, duration=8.0), estimator="joint", seed=seed)
