@@ -49,9 +49,9 @@ the paper's filter):
   covariance still takes the update, so a held mu's reported sigma shrinks slowly without
   excitation. Judged from mu_hat itself, a high mu_hat can keep the gate shut after a friction drop
   (``friction_gate=False``: the paper's update; docs/decisions/0015-friction-gate.md); so
-  ``joint`` judges it a sigma below mu_hat (``gate_sigmas``) and also opens it, restarting the
-  friction covariance, while the friction filter's low-passed NIS says its mu is refuted
-  (``friction_alarm``; docs/decisions/0047-friction-alarm.md);
+  ``joint`` judges it again a sigma below mu_hat, where mu may then only fall (``gate_sigmas``),
+  and opens it, restarting the friction covariance, while the friction filter's low-passed NIS
+  says its mu is refuted (``friction_alarm``; docs/decisions/0047-friction-alarm.md);
 * slide detection (``joint``): an outward slide in a steady turn that the sensors alone show
   (SLIDE_*) reopens the gate, mu then only allowed to fall (``slide_rate=math.inf``: off;
   docs/decisions/0016-slide-detection.md);
@@ -390,12 +390,13 @@ N_INNOVATIONS = len(INNOVATIONS)
 
 #: The joint estimator's gate where mu_hat reads the road too high (its blind spot: judged at
 #: mu_hat, a turn on a road far slipperier looks far from saturation, so the gate and the steady
-#: hold keep mu shut). GATE_SIGMAS: the gate is judged at mu_hat minus this many of mu's sigmas,
-#: a friction the filter still finds plausible. FRICTION_ALARM: the friction filter's NIS per
-#: degree of freedom, low-passed with FRICTION_ALARM_TIME_CONSTANT [s], above this (it averages
-#: 0.35 where mu is right: its model-error noise is generous) opens the gate, lifts the hold and
-#: restarts the friction covariance from its prior (mu_max_std) until the filter explains the
-#: sensors again (docs/decisions/0047-friction-alarm.md)
+#: hold keep mu shut). GATE_SIGMAS: where the gate is shut at mu_hat it is judged again at mu_hat
+#: minus this many of mu's sigmas, a friction the filter still finds plausible; opened only there,
+#: mu may only fall (the saturation it sees says only that the road is slipperier). FRICTION_ALARM:
+#: the friction filter's NIS per degree of freedom, low-passed with FRICTION_ALARM_TIME_CONSTANT
+#: [s], above this (it averages 0.35 where mu is right: its model-error noise is generous) opens
+#: the gate either way, lifts the hold and restarts the friction covariance from its prior
+#: (mu_max_std) until the filter explains the sensors again (docs/decisions/0047-friction-alarm.md)
 GATE_SIGMAS = 1.0
 FRICTION_ALARM = 2.0
 FRICTION_ALARM_TIME_CONSTANT = 0.5
@@ -1240,15 +1241,22 @@ def _close_step(f: FilterKernel, i: int, reading, valid_in, t: float, w: StepWor
         beta_mu_new[:] = res.beta_mu[lane]
         # hold mu where the lateral demand is far from saturation (lambda >= EXCITATION_LAMBDA);
         # the covariance keeps the update (see the module docstring)
-        lam, mu_gate = scratch((4,)), scratch((4,))
-        for k in range(4):  # (a friction the filter finds plausible: GATE_SIGMAS)
-            mu_gate[k] = max(mu[k] - settings.gate_sigmas * math.sqrt(P_mu[k, k]), MU_BOUNDS[0])
-        dugoff_lambdas(x_new[I_U], x_new[I_V], x_new[I_R], x_new[I_AX], x_new[I_AY], mu_gate, steer, omega, pk, lam)
+        lam = scratch((4,))
+        dugoff_lambdas(x_new[I_U], x_new[I_V], x_new[I_R], x_new[I_AX], x_new[I_AY], mu, steer, omega, pk, lam)
+        excited, falls_only = lam.min() < EXCITATION_LAMBDA, False
+        if not excited and settings.gate_sigmas > 0.0:  # (judged a sigma lower, mu may only fall: GATE_SIGMAS)
+            mu_gate = scratch((4,))
+            for k in range(4):
+                mu_gate[k] = max(mu[k] - settings.gate_sigmas * math.sqrt(P_mu[k, k]), MU_BOUNDS[0])
+            dugoff_lambdas(x_new[I_U], x_new[I_V], x_new[I_R], x_new[I_AX], x_new[I_AY], mu_gate, steer, omega, pk, lam)
+            excited = falls_only = lam.min() < EXCITATION_LAMBDA
         steady_hold = settings.steady_hold and _settled(zero_point_new, x_new[I_U]) and not alarm
-        if (lam.min() < EXCITATION_LAMBDA and not steady_hold) or unseen_slide or alarm or not settings.friction_gate:
+        if (excited and not steady_hold) or unseen_slide or alarm or not settings.friction_gate:
             for k in range(4):
                 mu_new[k] = min(max(mu_fused[k], MU_BOUNDS[0]), MU_BOUNDS[1])
-                if unseen_slide:  # (a slide tells only that the road is slipperier than mu_hat)
+                # (a slide, or a saturation only a lower friction explains, tells only that the
+                # road is slipperier than mu_hat)
+                if unseen_slide or (falls_only and not alarm):
                     mu_new[k] = min(mu_new[k], mu[k])
         elif settings.held_covariance:  # (HELD_COVARIANCE)
             for a_ in range(4):

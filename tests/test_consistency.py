@@ -237,9 +237,9 @@ def test_the_friction_alarm_takes_mu_off_a_reading_the_sensors_refute():
     mu_hat reached 0.93 before the patch): judged at mu_hat the turn uses 0.29 of the grip, so
     the gate and the steady hold alone keep mu_hat frozen near 0.93 on the patch. The friction
     filter's innovations refute it; their low-passed NIS per degree of freedom opens the gate
-    (FRICTION_ALARM) and the gate judged a sigma below mu_hat (GATE_SIGMAS) keeps it learning:
+    (FRICTION_ALARM) and the gate judged a sigma below mu_hat (GATE_SIGMAS) lets it fall:
     over the last half mu_hat is far nearer the truth (measured 2026-12-07: error 0.66 without,
-    0.12 with), and the alarm has cleared by the end."""
+    0.026 with), and the alarm has cleared by the end."""
     traj = simulate(make_scenario("mu_jump", mu_patch=0.27, duration=8.0), estimator="oracle", seed=12)
     params, half = traj.scenario.vehicle_params, traj.t > traj.t[-1] / 2
     errors = {}
