@@ -47,7 +47,7 @@ ROLLING_SIDESLIP_TOLERANCE = math.radians(5.0)
 ROLLING_LATERAL_ACCELERATION = G_UNIT
 SPIN_OUT_HEADING = math.pi / 2  #: heading this far from the course counts as a spin-out [rad]
 #: below this ground speed [m/s] a sideslip is not a spin: atan(v / u) of a car at rest is the
-#: direction of millimetres per second (a stopped car read 42 deg at u = -0.0015 m/s)
+#: direction of millimetres per second, any angle
 SPIN_OUT_MIN_SPEED = 1.0
 TINY = np.finfo(float).tiny  #: floor of a path segment's squared length [m^2]
 

@@ -394,8 +394,8 @@ N_INNOVATIONS = len(INNOVATIONS)
 #: minus this many of mu's sigmas, a friction the filter still finds plausible; opened only there,
 #: mu may only fall (the saturation it sees says only that the road is slipperier). FRICTION_ALARM:
 #: the friction filter's NIS per degree of freedom, low-passed with FRICTION_ALARM_TIME_CONSTANT
-#: [s], above this (it averages 0.35 where mu is right: its model-error noise is generous) opens
-#: the gate either way, lifts the hold and restarts the friction covariance from its prior
+#: [s], above this (several times its level where mu is right: its model-error noise is generous)
+#: opens the gate either way, lifts the hold and restarts the friction covariance from its prior
 #: (mu_max_std) until the filter explains the sensors again (docs/decisions/0047-friction-alarm.md)
 GATE_SIGMAS = 1.0
 FRICTION_ALARM = 2.0
@@ -823,8 +823,7 @@ def _relax_slip(x, steer, slip_relaxed, pk, dt, relaxed_new) -> None:
     NaN is kept); on the first step (NaN) the relaxed slip starts at the kinematic one, which
     that zero row lets :func:`wheel_kinematics` give. A wheel rolling slower than MIN_SPEED has
     no lag either (its relaxed slip is the kinematic one): its slip angle is noise over the
-    floored speed, and lagging it by sigma / MIN_SPEED (0.36 s) made the state filter chase its
-    own lag, the sideslip of a car at rest ringing at 0.3 deg, 8 of its sigmas."""
+    floored speed, which a lag would let the state filter chase (docs/decisions/0045)."""
     for w in range(4):
         sigma = axle_tyre(pk, w).relaxation_length
         if sigma <= 0.0:
@@ -1158,6 +1157,13 @@ def _state_filter(f: FilterKernel, i: int, w: StepWork, lane: int, res: StepResu
     return OK if math.isfinite(nll) else FILTER_FAILED
 
 
+@numba.njit(inline="always", **JIT)
+def _friction_alarm(f: FilterKernel, i: int) -> bool:
+    """Whether vehicle i's low-passed friction NIS per degree of freedom says its mu is refuted
+    (FRICTION_ALARM_*)."""
+    return f.state.friction_nis[i] > f.settings.friction_alarm
+
+
 @numba.njit(**JIT)
 def _after_state(f: FilterKernel, i: int, w: StepWork, lane: int, res: StepResult) -> int:
     """After vehicle i's state filter (row ``lane`` of ``res``): the measured forward speed's update,
@@ -1180,7 +1186,7 @@ def _after_state(f: FilterKernel, i: int, w: StepWork, lane: int, res: StepResul
         _fill_diagonal((mu_var[1], mu_var[1], gyro_var), res.R1_mu[lane])
         _fill_diagonal((mu_var[1], gyro_var), res.R2_mu[lane])
         # restart from the prior covariance (mu_max_std) on a slide or the friction alarm
-        if w.unseen_slide[lane] or f.state.friction_nis[i] > settings.friction_alarm:
+        if w.unseen_slide[lane] or _friction_alarm(f, i):
             _fill_correlated(mu_var[2], res.P_mu_in[lane])
         else:
             res.P_mu_in[lane] = f.state.P_mu[i]
@@ -1236,7 +1242,7 @@ def _close_step(f: FilterKernel, i: int, reading, valid_in, t: float, w: StepWor
         if ran > 0:  # (FRICTION_ALARM_*)
             ratio = ((nis[2] if dof[2] > 0 else 0.0) + (nis[3] if dof[3] > 0 else 0.0)) / ran
             state.friction_nis[i] = _low_pass(state.friction_nis[i], ratio, dt, FRICTION_ALARM_TIME_CONSTANT)
-        alarm = state.friction_nis[i] > settings.friction_alarm
+        alarm = _friction_alarm(f, i)
         mu_fused, P_fused, P_mu_in, walk = res.mu[lane], res.P_mu[lane], res.P_mu_in[lane], res.walk[lane]
         beta_mu_new[:] = res.beta_mu[lane]
         # hold mu where the lateral demand is far from saturation (lambda >= EXCITATION_LAMBDA);
