@@ -122,7 +122,9 @@ class Estimator(Protocol):
     ``reading`` is a :class:`SensorReading`. ``reset`` (re)initialises the members selected by
     ``mask`` (B,) bool (all if None) from a reading and the initial speed [m/s] (B,) (a car
     starts from a known speed, like a vehicle's speed estimate that has been running since
-    standstill). ``step`` with ``members`` (M,) row indices (the vector env's partial resets)
+    standstill); then every reading is stepped, the one reset from first, as ``simulate``, the
+    envs and the log replay do (a loop that steps from the second reading runs another filter).
+    ``step`` with ``members`` (M,) row indices (the vector env's partial resets)
     steps only those rows: the reading still has all B rows, ``truth`` only the M, and the
     estimate must have M rows. The estimate's mu, mu_std and fz steer the DYC (it plans with a
     cautious mu_hat - k mu_std), so a friction estimator's mu_std should be calibrated; an
