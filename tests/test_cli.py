@@ -219,6 +219,23 @@ def test_the_thread_count_reaches_the_kernels_and_the_workers(tmp_path, monkeypa
     assert kernels.kernel_threads() == 1 and os.environ["FOURWIS_THREADS"] == "1"
 
 
+def _sigint_handler(_):
+    import signal
+
+    return signal.getsignal(signal.SIGINT)
+
+
+def test_local_workers_leave_ctrl_c_to_the_parent():
+    """A terminal's Ctrl-C reaches every process of the group; the local pool's workers ignore
+    it, so the parent alone unwinds (tests/test_output_sets.py: the interrupted sets)."""
+    import signal
+
+    from fourwis.training.pool import parallel_map
+
+    assert list(parallel_map(_sigint_handler, [0, 1], 2, "test", progress=False)) == [signal.SIG_IGN] * 2
+    assert signal.getsignal(signal.SIGINT) is not signal.SIG_IGN  # (the parent keeps its handler)
+
+
 @pytest.mark.parametrize("jobs", [0, -1])
 def test_parallel_map_refuses_fewer_than_one_job_before_iterating(jobs, tmp_path):
     from fourwis.training.compare import compare

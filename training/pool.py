@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import signal
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -179,7 +180,7 @@ class LocalPool(Pool):
 
     def submit(self, fn: Callable, item) -> Future:
         if self._executor is None:  # (lazily: a pool opened for in-process work starts no process)
-            self._executor = ProcessPoolExecutor(self.slots, initializer=share_cores, initargs=(self.slots,))
+            self._executor = ProcessPoolExecutor(self.slots, initializer=_start_worker, initargs=(self.slots,))
         return self._executor.submit(fn, item)
 
     def result(self, future: Future):
@@ -191,6 +192,15 @@ class LocalPool(Pool):
     def close(self) -> None:
         if self._executor is not None:
             self._executor.shutdown(cancel_futures=True)
+
+
+def _start_worker(slots: int) -> None:
+    """A local worker's start: it leaves Ctrl-C to the parent, which cancels what has not started
+    and waits for the runs in progress (a terminal sends the signal to every process of the group;
+    a worker interrupted inside the pool's queues can leave the parent's shutdown waiting on it for
+    ever), and takes its share of the cores (share_cores)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    share_cores(slots)
 
 
 class RayPool(Pool):
