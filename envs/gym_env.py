@@ -728,6 +728,9 @@ class YawStabilityVectorEnv(VectorEnv):
     """
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": list(RENDER_MODES), "render_fps": 50}
+    #: the human-mode window; a class default too, so that an env whose constructor raised, which
+    #: gymnasium's VectorEnv.__del__ closes, closes quietly
+    _window = None
 
     def __init__(
         self,

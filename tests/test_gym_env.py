@@ -320,6 +320,24 @@ def test_vector_env_without_autoreset_waits_for_a_masked_reset():
         YawStabilityVectorEnv(num_envs=2, autoreset_mode="Later")
 
 
+def test_a_vector_env_refused_at_construction_is_collected_quietly():
+    """A constructor that raises leaves a half-built env, which gymnasium's VectorEnv.__del__
+    closes when it is collected: that close must not raise (an "Exception ignored" traceback
+    after the user's own error)."""
+    import gc
+    import sys
+
+    seen = []
+    hook, sys.unraisablehook = sys.unraisablehook, seen.append
+    try:
+        with pytest.raises(ValueError, match="num_envs"):
+            YawStabilityVectorEnv(num_envs=0)
+        gc.collect()
+    finally:
+        sys.unraisablehook = hook
+    assert not seen, [u.exc_value for u in seen]
+
+
 def test_gymnasium_stateful_vector_wrappers_take_the_next_step_native_env():
     """gymnasium's NormalizeObservation refuses SAME_STEP; on NEXT_STEP it normalises, and
     RecordEpisodeStatistics counts the episodes the env ends."""
