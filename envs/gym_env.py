@@ -786,7 +786,6 @@ class YawStabilityVectorEnv(VectorEnv):
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._rngs, self._car_seeds = map(list, zip(*(seeding.np_random() for _ in range(self.num_envs))))
         self._core: YawStabilityCore | None = None
-        self._window = None
         self._finished = np.zeros(self.num_envs, dtype=bool)  # ended, not yet reset (NEXT_STEP, DISABLED)
 
     def _seeds(self, seed) -> list:

@@ -856,11 +856,10 @@ def test_slide_detection_stays_silent_while_the_car_turns_and_on_an_acceleromete
 def test_joint_reads_a_gripping_road_low_in_a_steady_turn_under_dyc(seed):
     """A steady turn at 0.3-0.44 of the grip on a uniform 0.9 road (mu_jump with a 0.9 patch),
     DYC-LQR, joint from its nominal 0.8: mu_hat should not read the road low by more than 0.05
-    (record 0037's target below half the grip). It does: 0.642 with seed 0, 0.338 with seed 3,
-    whose DYC then drives a differential torque of up to 100 N m (record 0048; seed 1 reads
-    0.837), and the steady hold keeps it. Neither the filter's start in the turn nor the
-    model's missing resistances causes it; the sensors' turn-on offsets move it (seed 0 with
-    them removed: 0.73). Expected to fail until the friction filter is fixed."""
+    (record 0037's target below half the grip). It does (measured 2026-12-07: 0.642 with seed
+    0, 0.338 with seed 3, whose DYC then drives a differential torque of up to 100 N m), and the
+    steady hold keeps it; docs/decisions/0048 on what does and does not cause it. Expected to
+    fail until the friction filter is fixed."""
     from fourwis.control import make_controller
 
     traj = simulate(
@@ -919,9 +918,8 @@ def test_joint_mu_converges_on_a_friction_value_never_used_in_development(seed):
     """Open loop, a 0.4 g turn from mu 0.9 onto 0.27 (a value no tuning or design choice saw):
     over the last half of the run the wheel-mean mu_hat is within 0.1 of the truth (measured
     0.05 for both seeds before record 0045; with the wheels' mu correlated at 0.8 instead of 0.99
-    it stayed near 0.9, an error of ~0.6). Record 0045's gate, judged at mu_hat alone, kept seed
-    12's mu_hat at 0.93 on the patch (error 0.66); with record 0047's gate and friction alarm
-    the errors are 0.022 and 0.026 (measured 2026-12-07)."""
+    it stayed near 0.9, an error of ~0.6); measured 2026-12-07: 0.022 and 0.026 (record 0047 on
+    the gate judged at mu_hat alone, which kept seed 12's mu_hat at 0.93)."""
     from fourwis.envs.scenarios import make_scenario
 
     traj = simulate(make_scenario("mu_jump", mu_patch=0.27, duration=8.0), estimator="joint", seed=seed)
