@@ -40,7 +40,7 @@ from fourwis.control.allocation import Allocation, AllocationInputs, AllocatorLi
 from fourwis.control.dyc import DycKernel, stability_command
 from fourwis.control.esc import EscKernel, esc_torques, unstable
 from fourwis.control.wheel_slip import WheelActuators, actuate, reference_speeds
-from fourwis.core.kernels import JIT, bundle_dispatch, run_parallel, scratch
+from fourwis.core.kernels import JIT, borrowed, bundle_dispatch, run_parallel, scratch
 from fourwis.core.types import CH_AX, CH_OMEGA, N_CHANNELS, Estimate, SensorReading
 from fourwis.envs.driver import DRIVEN, NEEDS_PREVIEW, DriverTables, drive
 from fourwis.envs.layout import (
@@ -691,7 +691,8 @@ def _run_block(members, call: Call, cars: Cars, sample: Sample, parts: Parts, ti
 @numba.njit(nogil=True, **JIT)
 def run_cars(cars_to_run, call: Call, cars: Cars, sample: Sample, parts: Parts, timing: Timing, records: StepRecord):
     """:func:`_run_block` for the vehicles of ``cars_to_run`` (M,) int64 in blocks of LOOP_BLOCK,
-    without the GIL."""
+    without the GIL (every bundle :func:`fourwis.core.kernels.borrowed` for the call)."""
+    call, cars, sample, parts, records = borrowed((call, cars, sample, parts, records))
     for lo in range(0, cars_to_run.shape[0], LOOP_BLOCK):
         _run_block(cars_to_run[lo : lo + LOOP_BLOCK], call, cars, sample, parts, timing, records)
 

@@ -68,7 +68,7 @@ from fourwis.control.reference import eq20_gain  # the 4WS law, written once (co
 from fourwis.core import vecmath
 from fourwis.core.checks import is_integer, is_number
 from fourwis.core.constants import GRAVITY
-from fourwis.core.kernels import JIT, run_parallel
+from fourwis.core.kernels import JIT, borrowed, run_parallel
 from fourwis.core.vecmath import LANE_MULTIPLE
 from fourwis.envs.layout import (
     A_ALPHA,
@@ -738,7 +738,9 @@ def advance_block(x, ctrl, plant: Plant, road: RoadTables, dt, n_steps, aux, sta
 
 @numba.njit(nogil=True, **JIT)
 def _advance_blocks(blocks, x, ctrl, plant: Plant, road: RoadTables, dt, n_steps, aux, status):
-    """:func:`advance_block` of each block of BLOCK cars in ``blocks`` (indices of blocks)."""
+    """:func:`advance_block` of each block of BLOCK cars in ``blocks`` (indices of blocks; every
+    array :func:`fourwis.core.kernels.borrowed` for the call)."""
+    x, ctrl, road, aux, status = borrowed((x, ctrl, road, aux, status))
     for block in blocks:
         lo, hi = block * BLOCK, min((block + 1) * BLOCK, x.shape[0])
         rows = RoadTables(road.base_mu[lo:hi], road.rects[lo:hi], road.mu_given[lo:hi], road.use_map)

@@ -76,7 +76,7 @@ import numpy as np
 
 from fourwis.core.checks import check_step, is_number, member_rows
 from fourwis.core.constants import GRAVITY
-from fourwis.core.kernels import JIT, dot, matmul, run_parallel, scratch
+from fourwis.core.kernels import JIT, borrowed, dot, matmul, run_parallel, scratch
 from fourwis.core.types import (
     CH_AX,
     CH_AY,
@@ -1801,7 +1801,9 @@ def step_vehicles(f: FilterKernel, rows, count: int, reading: SensorReading, out
 @numba.njit(nogil=True, **JIT)
 def _step_blocks(blocks, rows, f: FilterKernel, reading: SensorReading, out: Estimate, status) -> None:
     """:func:`step_vehicles` of the vehicles rows[j] into row j of ``out`` and ``status``, for the
-    j of each block b of ``blocks`` (j from b LANES, LANES of them: one block of lanes each)."""
+    j of each block b of ``blocks`` (j from b LANES, LANES of them: one block of lanes each;
+    every bundle :func:`fourwis.core.kernels.borrowed` for the call)."""
+    f, reading, out = borrowed((f, reading, out))
     positions = scratch((LANES,), np.int64)
     for b in blocks:
         lo = b * LANES
@@ -1814,7 +1816,8 @@ def _step_blocks(blocks, rows, f: FilterKernel, reading: SensorReading, out: Est
 @numba.njit(nogil=True, **JIT)
 def _step_rows(positions, rows, f: FilterKernel, reading: SensorReading, out: Estimate, status) -> None:
     """:func:`step_vehicles` of the vehicles rows[j] into row j of ``out`` and ``status``, for j in
-    ``positions`` (consecutive)."""
+    ``positions`` (consecutive; every bundle :func:`fourwis.core.kernels.borrowed` for the call)."""
+    f, reading, out = borrowed((f, reading, out))
     n = positions.shape[0]
     lo = positions[0] if n else 0
     step_vehicles(f, rows[lo : lo + n], n, reading, out, positions, status[lo : lo + n])
@@ -1862,7 +1865,8 @@ def _replay_members(
     N_CHANNELS), t (T,)), from its state as it stands: the estimate of step k into row k B + b of
     ``out`` if ``record`` (else row b), and into ``diagnostics`` where its arrays have T rows (else
     none), the summed innovation NLL into nll[b]; a failure stops b at its step at[b] with its
-    status[b]."""
+    status[b]. Every bundle is :func:`fourwis.core.kernels.borrowed` for the call."""
+    f, out, diagnostics = borrowed((f, out, diagnostics))
     B = f.state.x.shape[0]
     keep = diagnostics.nis.shape[0] == values.shape[0]
     for b in members:

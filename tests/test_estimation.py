@@ -1014,6 +1014,69 @@ def test_scratch_arrays_live_on_the_stack_and_large_ones_on_the_heap(heap_alloca
     assert isinstance(from_python, np.ndarray) and from_python.shape == (3, 2) and from_python.dtype == np.bool_
 
 
+def test_a_borrowed_bundle_shares_its_data_and_owns_no_array():
+    """kernels.borrowed: every array of a nested bundle keeps its data, shape and strides but loses
+    its owner (NULL meminfo: nothing to count references on); writes through it, in the borrowing
+    function and in those it calls, reach the caller's arrays; the arrays' Python reference counts
+    are as before; the other values pass as they are; from Python it is the bundle itself."""
+    import sys
+    from typing import NamedTuple
+
+    import numba
+    from numba import types
+    from numba.core import cgutils
+    from numba.extending import intrinsic
+    from numba.np.arrayobj import make_array
+
+    from fourwis.core.kernels import borrowed
+
+    @intrinsic
+    def owned(typingctx, array):
+        def codegen(context, builder, signature, args):
+            meminfo = make_array(signature.args[0])(context, builder, value=args[0]).meminfo
+            return cgutils.is_not_null(builder, meminfo)
+
+        return types.boolean(array), codegen
+
+    class Inner(NamedTuple):
+        rows: np.ndarray
+        scale: float
+
+    class Outer(NamedTuple):
+        inner: Inner
+        column: np.ndarray
+        count: int
+
+    @numba.njit
+    def add_where_positive(bundle, i):  # (branches: where numba's pruning leaves the counts)
+        if bundle.inner.rows[i, 0] < 0.0:
+            return 0
+        bundle.inner.rows[i, 1] += bundle.inner.scale * bundle.column[i]
+        return 1
+
+    @numba.njit
+    def run(bundle):
+        before = (owned(bundle.inner.rows), owned(bundle.column))
+        bundle = borrowed(bundle)
+        added = 0
+        for i in range(bundle.column.shape[0]):
+            added += add_where_positive(bundle, i)
+            bundle.column[i] += 10.0  # (a write in the borrowing function itself)
+        return before, (owned(bundle.inner.rows), owned(bundle.column)), added, bundle.count, bundle.inner.scale
+
+    rows, column = np.array([[1.0, 0.0], [-1.0, 0.0], [2.0, 0.0]]), np.arange(3.0)
+    bundle = Outer(Inner(rows, 2.0), column, 7)
+    counts = sys.getrefcount(rows), sys.getrefcount(column)
+    before, after, added, count, scale = run(bundle)
+    assert before == (True, True) and after == (False, False)
+    assert (added, count, scale) == (2, 7, 2.0)
+    np.testing.assert_array_equal(rows[:, 1], [0.0, 0.0, 4.0])
+    np.testing.assert_array_equal(column, [10.0, 11.0, 12.0])
+    run(bundle)
+    assert (sys.getrefcount(rows), sys.getrefcount(column)) == counts
+    assert borrowed(bundle) is bundle
+
+
 @pytest.mark.parametrize("name", ESTIMATORS[1:])
 def test_an_estimator_step_allocates_nothing_per_vehicle(name, heap_allocations):
     """The compiled step keeps its work arrays on the stack: a step of 64 vehicles makes as

@@ -228,6 +228,54 @@ def _intp_shape(typingctx, shape):
     return result(shape), codegen
 
 
+def borrowed(bundle):
+    """``bundle`` (an array, or a tuple / NamedTuple nesting arrays and other values) with every
+    array in it a borrowed view: the same data, shape and strides, without an owner whose count
+    of references the compiled code keeps. A kernel entry point calls it once on each bundle it is
+    handed, so that the functions it calls with them count nothing: numba increfs every array of a
+    bundle at the entry of a function that branches and decrefs them at its exits, and LLVM merges
+    those exits (a phi) before numba's pruning pass looks, so each such call costs two atomic
+    operations per array (docs/decisions/0049-borrowed-bundles.md). Only for bundles the caller
+    keeps alive for the whole call, never returned or stored. From Python, and with
+    NUMBA_DISABLE_JIT, ``bundle`` itself."""
+    return bundle
+
+
+@overload(borrowed, jit_options=JIT)
+def _borrowed_compiled(bundle):
+    # (a call, not inlined: numba 0.68's IR inlining of this overload into a function that
+    # rebinds the bundle's name drops that function's own writes through it; the test has one)
+    return lambda bundle: _borrow(bundle)
+
+
+def _borrowed_value(context, builder, value_type, value):
+    """:func:`borrowed`'s code for one value of numba type ``value_type``: an array's meminfo and
+    parent set to NULL, a tuple's items in turn, any other value as it is (with the reference the
+    result owns, where its type counts them)."""
+    if isinstance(value_type, types.Array):
+        array = make_array(value_type)(context, builder, value=value)
+        array.meminfo = cgutils.get_null_value(array.meminfo.type)
+        array.parent = cgutils.get_null_value(array.parent.type)
+        return array._getvalue()
+    if isinstance(value_type, types.BaseTuple):
+        for i, item_type in enumerate(value_type.types):
+            item = builder.extract_value(value, i)
+            value = builder.insert_value(value, _borrowed_value(context, builder, item_type, item), i)
+        return value
+    context.nrt.incref(builder, value_type, value)
+    return value
+
+
+@intrinsic
+def _borrow(typingctx, bundle):
+    """The compiled :func:`borrowed`."""
+
+    def codegen(context, builder, signature, args):
+        return _borrowed_value(context, builder, signature.args[0], args[0])
+
+    return bundle(bundle), codegen
+
+
 @numba.njit(inline="always", **JIT)
 def dot(a: np.ndarray, b: np.ndarray) -> float:
     """sum_i a_i b_i, summed in index order (as numba's ``(a * b).sum()``, without the
