@@ -24,6 +24,7 @@ from fourwis.estimation.lanes import (
     sharing_coefficients_lanes,
     spd_inverse_lanes,
 )
+from fourwis.estimation.model import ModelParams, body_forces, body_forces_lanes, steer_trig
 
 N, M = 6, 7  #: a state filter's sizes (sub-filter 1)
 
@@ -257,3 +258,43 @@ def test_the_estimator_stepped_in_lanes_equals_it_car_by_car(kind):
     if kind == "joint":
         moved = ran_friction.any(axis=1)  # (the friction filters moved mu in both blocks: their updates are compared)
         assert moved[:64].any() and moved[64:].any()
+
+
+@numba.njit
+def _forces_lanes(state, mu, steer, omega, torque, omega_dot, pk, out, lanes):
+    body_forces_lanes(state, mu, steer, omega, torque, omega_dot, pk, out, lanes)
+
+
+@pytest.mark.parametrize(
+    ("force_ellipse", "shape"),
+    [(False, "dugoff"), (True, "dugoff"), (True, "magic")],
+    ids=["dugoff-slip", "dugoff-ellipse", "magic-ellipse"],
+)
+def test_the_body_forces_in_lanes_equal_the_single_cars_for_each_lateral_law(force_ellipse, shape):
+    """body_forces_lanes equals body_forces car by car bit for bit for each of the model's lateral
+    laws (Dugoff's cut by the wheel-speed slip, the friction ellipse around Dugoff's or the Magic
+    Formula's pure-slip force), on states from rest to past the grip limit, some wheels braking and
+    some driving. (The estimator's lane test steps joint and alo-fkf, two of the three laws.)"""
+    pk = ModelParams.from_vehicle(VehicleParams(), force_ellipse=force_ellipse, shape=shape).kernel
+    assert (pk.front.magic_c > 0.0) == (shape == "magic")
+    rng = np.random.default_rng(4)
+    B, K = 9, 5
+    states = np.empty((B, 5, K))
+    states[:, 0] = rng.uniform(0.0, 40.0, (B, K))  # u [m/s], from rest
+    states[:, 1] = rng.normal(0.0, 2.0, (B, K))  # v [m/s]: sideslip up to ~30 deg at low speed
+    states[:, 2] = rng.normal(0.0, 0.6, (B, K))  # r [rad/s]
+    states[:, 3:] = rng.normal(0.0, 6.0, (B, 2, K))  # ax, ay [m/s^2]: beyond the grip
+    mu = rng.uniform(0.1, 1.2, (B, 4, K))
+    steer = np.stack([steer_trig(rng.normal(0.0, 0.2, 4)) for _ in range(B)])
+    omega = states[:, 0, :1] / 0.3 * (1.0 + rng.normal(0.0, 0.2, (B, 4)))
+    torque, omega_dot = rng.normal(0.0, 400.0, (B, 4)), rng.normal(0.0, 50.0, (B, 4))
+    expected = np.empty((B, 3, K))
+    for b in range(B):
+        body_forces(states[b].copy(), mu[b].copy(), steer[b], omega[b], torque[b], omega_dot[b], pk, expected[b])
+    out = np.empty((3, K, B))
+    _forces_lanes(
+        lanes_of(states), lanes_of(mu), lanes_of(steer), lanes_of(omega), lanes_of(torque), lanes_of(omega_dot), pk,
+        out, B,
+    )  # fmt: skip
+    assert np.all(np.isfinite(expected))
+    np.testing.assert_array_equal(cars_of(out), expected)
