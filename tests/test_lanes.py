@@ -286,11 +286,11 @@ def test_the_body_forces_in_lanes_equal_the_single_cars_for_each_lateral_law(for
     states[:, 3:] = rng.normal(0.0, 6.0, (B, 2, K))  # ax, ay [m/s^2]: beyond the grip
     mu = rng.uniform(0.1, 1.2, (B, 4, K))
     steer = np.stack([steer_trig(rng.normal(0.0, 0.2, 4)) for _ in range(B)])
-    omega = states[:, 0, :1] / 0.3 * (1.0 + rng.normal(0.0, 0.2, (B, 4)))
+    omega = states[:, 0, :1] / pk.wheel_radius * (1.0 + rng.normal(0.0, 0.2, (B, 4)))  # slips of ~20%
     torque, omega_dot = rng.normal(0.0, 400.0, (B, 4)), rng.normal(0.0, 50.0, (B, 4))
     expected = np.empty((B, 3, K))
     for b in range(B):
-        body_forces(states[b].copy(), mu[b].copy(), steer[b], omega[b], torque[b], omega_dot[b], pk, expected[b])
+        body_forces(states[b], mu[b], steer[b], omega[b], torque[b], omega_dot[b], pk, expected[b])
     out = np.empty((3, K, B))
     _forces_lanes(
         lanes_of(states), lanes_of(mu), lanes_of(steer), lanes_of(omega), lanes_of(torque), lanes_of(omega_dot), pk,
