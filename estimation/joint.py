@@ -120,6 +120,7 @@ from fourwis.estimation.model import (
     body_forces_lanes,
     dugoff_lambdas,
     fill_steer_trig,
+    shared_state_forces_lanes,
     transition,
     transition_lanes,
     wheel_kinematics,
@@ -1429,15 +1430,15 @@ def _evaluate_lanes(model, points, out, args: LaneArgs, K, lanes) -> None:
                     out[k, i, lane] = points[k, i, lane]
     else:  # the mu sub-filters' measurements (_mu_predictions): [ax, ay, r] (MU_1) or [ay, r] (MU_2)
         x, dt = args.x, args.dt
-        state, mu, predicted = scratch((5, K, lanes)), scratch((4, K, lanes)), scratch((3, K, lanes))
+        state, mu, predicted = scratch((5, 1, lanes)), scratch((4, K, lanes)), scratch((3, K, lanes))
+        for lane in range(lanes):  # (one state for the K points: their operating points taken once)
+            state[0, 0, lane], state[1, 0, lane], state[2, 0, lane] = x[I_U, lane], x[I_V, lane], x[I_R, lane]
+            state[3, 0, lane], state[4, 0, lane] = x[I_AX, lane], x[I_AY, lane]
         for k in range(K):
-            for lane in range(lanes):
-                state[0, k, lane], state[1, k, lane], state[2, k, lane] = x[I_U, lane], x[I_V, lane], x[I_R, lane]
-                state[3, k, lane], state[4, k, lane] = x[I_AX, lane], x[I_AY, lane]
             for w in range(4):
                 for lane in range(lanes):
                     mu[w, k, lane] = points[k, w, lane]
-        body_forces_lanes(state, mu, args.steer, args.omega, args.torque, args.omega_dot, pk, predicted, lanes)
+        shared_state_forces_lanes(state, mu, args.steer, args.omega, args.torque, args.omega_dot, pk, predicted, lanes)
         first = 0 if model == MU_1 else 1
         for k in range(K):
             for lane in range(lanes):

@@ -460,32 +460,49 @@ def peak_friction(fz: float, tyre_mu: float, tyre) -> float:
 
 
 @numba.njit(inline="always", **JIT)
-def magic_lateral(fz: float, tan_alpha: float, tyre_mu: float, cy: float, tyre) -> float:
+def magic_lateral(fz: float, alpha: float, tyre_mu: float, cy: float, tyre) -> float:
     """The simplified Magic Formula's pure-slip lateral force [N] (Pacejka, *Tire and Vehicle
     Dynamics*, 3rd ed., eq. 4.49 without shifts): D sin(C atan(B x - E (B x - atan(B x)))), x the
-    slip angle, D :func:`peak_friction` times Fz, C ``tyre.magic_c``, E ``tyre.magic_e`` and B = Cy / (C D),
-    so that the slope at zero slip is the eq. 17 stiffness ``cy`` [N/rad] at any friction."""
+    slip angle ``alpha`` [rad], D :func:`peak_friction` times Fz, C ``tyre.magic_c``, E ``tyre.magic_e`` and
+    B = Cy / (C D), so that the slope at zero slip is the eq. 17 stiffness ``cy`` [N/rad] at any friction."""
     d = max(peak_friction(fz, tyre_mu, tyre) * fz, 1e-9)
-    bx = cy / (tyre.magic_c * d) * vecmath.atan(tan_alpha)
+    bx = cy / (tyre.magic_c * d) * alpha
     return d * vecmath.sin(tyre.magic_c * vecmath.atan(bx - tyre.magic_e * (bx - vecmath.atan(bx))))
 
 
+#: the lateral tyre laws :func:`lateral_force` chooses between (:func:`lateral_law`)
+LATERAL_DUGOFF_SLIP, LATERAL_DUGOFF_ELLIPSE, LATERAL_MAGIC_ELLIPSE = 0, 1, 2
+
+
 @numba.njit(inline="always", **JIT)
-def lateral_force(fz, fx, slip, tan_alpha, tyre_mu, cx, cy, speed, pk, tyre) -> float:
-    """A wheel's lateral force [N] at load ``fz`` [N] and friction ``tyre_mu`` (k mu) with the
-    wheel's axle ``tyre``. Dugoff's combined slip cuts it by the longitudinal ``slip`` from the
-    wheel speed (the paper's); with ``pk.force_ellipse`` the pure-slip force (Dugoff's, or the
-    Magic Formula's where ``tyre.magic_c`` > 0, :func:`magic_lateral`) is cut by the friction
-    ellipse of the measured longitudinal force ``fx`` [N] (|fx| <= tyre_mu fz):
+def lateral_law(pk, tyre) -> int:
+    """The lateral law of the model ``pk`` for the axle ``tyre`` (LATERAL_*): Dugoff's cut by
+    the wheel-speed slip without ``pk.force_ellipse``, else the friction ellipse around Dugoff's
+    pure-slip force, or around the Magic Formula's where ``tyre.magic_c`` > 0."""
+    if not pk.force_ellipse:
+        return LATERAL_DUGOFF_SLIP
+    return LATERAL_MAGIC_ELLIPSE if tyre.magic_c > 0.0 else LATERAL_DUGOFF_ELLIPSE
+
+
+@numba.njit(inline="always", **JIT)
+def lateral_force(fz, fx, slip, tan_alpha, alpha, tyre_mu, cx, cy, speed, pk, tyre, law: int) -> float:
+    """A wheel's lateral force [N] at load ``fz`` [N], tan(slip angle) ``tan_alpha`` and slip angle
+    ``alpha`` [rad] (the Magic Formula's) and friction ``tyre_mu`` (k mu) with the
+    wheel's axle ``tyre`` by its :func:`lateral_law` ``law`` (a compile-time constant in the lane
+    loops of the Magic Formula's law: that loop then has no branch). Dugoff's combined slip cuts
+    it by the longitudinal ``slip`` from the wheel speed (the paper's); with ``pk.force_ellipse``
+    the pure-slip force (Dugoff's, or the Magic Formula's where ``tyre.magic_c`` > 0,
+    :func:`magic_lateral`) is cut by the friction ellipse of the measured longitudinal force
+    ``fx`` [N] (|fx| <= tyre_mu fz):
     Fy0 sqrt(1 - (Fx / (mu Fz))^2) (the friction-ellipse combination; Wong, Theory of Ground
     Vehicles, sec. 1.4). A wheel speed swings around the force its wheel carries when torques
     change fast (random torques at 8 m/s: slips of 10-30% while the car holds 0.85 g), and
     Dugoff's cut at that slip removes lateral force the car still has
     (docs/decisions/0034-combined-slip-from-the-measured-force.md)."""
-    if not pk.force_ellipse:
+    if law == LATERAL_DUGOFF_SLIP:
         return dugoff(fz, slip, tan_alpha, tyre_mu, cx, cy, speed, pk.eps)[1]
-    if tyre.magic_c > 0.0:
-        pure = magic_lateral(fz, tan_alpha, tyre_mu, cy, tyre)
+    if law == LATERAL_MAGIC_ELLIPSE:
+        pure = magic_lateral(fz, alpha, tyre_mu, cy, tyre)
     else:
         pure = dugoff(fz, 0.0, tan_alpha, tyre_mu, cx, cy, speed, pk.eps)[1]
     share = fx / max(peak_friction(fz, tyre_mu, tyre) * fz, 1e-9)
@@ -504,23 +521,41 @@ def wheel_drive(torque: float, omega_dot: float, omega: float, pk: ModelKernel) 
 
 
 @numba.njit(inline="always", **JIT)
-def wheel_force(u, v, r, ax, ay, mu, trig, spin, drive, rolling, pk, w) -> tuple[float, float, float]:
-    """Wheel w's force on the body along x and y [N] and its yaw moment [N m] (eq. 4-6, corrected)
-    at the state u, v, r, ax, ay (loads from ax, ay) with friction ``mu``: Fx from
-    :func:`wheel_drive`'s ``drive`` and ``rolling`` limited to +/- k mu Fz against sensor noise, Fy
-    from :func:`lateral_force`; ``trig``: :func:`wheel_trig`, ``spin``: its speed [rad/s]. The one
-    evaluation :func:`body_forces` and :func:`body_forces_lanes` repeat."""
-    x_w, y_w = wheel_position(pk, w)
-    tyre = axle_tyre(pk, w)
+def wheel_operating_point(u, v, r, ax, ay, trig, spin, pk, w, law: int):
+    """Wheel w's load fz [N] (from ax, ay), tan(slip angle), longitudinal slip, stiffnesses Cx,
+    Cy (:func:`tyre_operating_point`) and slip angle [rad] (the Magic Formula's ``law``, else 0)
+    at the state u, v, r, ax, ay: what :func:`wheel_force_at` needs that does not depend on mu."""
     fz = wheel_load(ax, ay, pk, w)
     tan_alpha, slip, cx, cy = tyre_operating_point(u, v, r, fz, trig, spin, pk, w)
+    alpha = vecmath.atan(tan_alpha) if law == LATERAL_MAGIC_ELLIPSE else 0.0
+    return fz, tan_alpha, slip, cx, cy, alpha
+
+
+@numba.njit(inline="always", **JIT)
+def wheel_force_at(fz, tan_alpha, slip, cx, cy, alpha, u, mu, trig, drive, rolling, pk, w, law: int):
+    """Wheel w's force on the body along x and y [N] and its yaw moment [N m] (eq. 4-6, corrected)
+    at its :func:`wheel_operating_point` (fz .. alpha) and forward speed u [m/s] with friction
+    ``mu``: Fx from :func:`wheel_drive`'s ``drive`` and ``rolling`` limited to +/- k mu Fz against
+    sensor noise, Fy from :func:`lateral_force` by the wheel's :func:`lateral_law` ``law``;
+    ``trig``: :func:`wheel_trig`."""
+    x_w, y_w = wheel_position(pk, w)
+    tyre = axle_tyre(pk, w)
     tyre_mu = tyre.mu_scale * mu
     limit = peak_friction(fz, tyre_mu, tyre) * fz
     fx = min(max(drive - rolling * fz, -limit), limit)
-    fy = lateral_force(fz, fx, slip, tan_alpha, tyre_mu, cx, cy, u, pk, tyre)
+    fy = lateral_force(fz, fx, slip, tan_alpha, alpha, tyre_mu, cx, cy, u, pk, tyre, law)
     c, s = trig[0], trig[1]
     f_long, f_lat = fx * c - fy * s, fx * s + fy * c
     return f_long, f_lat, x_w * f_lat - y_w * f_long
+
+
+@numba.njit(inline="always", **JIT)
+def wheel_force(u, v, r, ax, ay, mu, trig, spin, drive, rolling, pk, w, law: int) -> tuple[float, float, float]:
+    """Wheel w's :func:`wheel_force_at` at the state u, v, r, ax, ay (its operating point there)
+    with friction ``mu``; ``spin``: its speed [rad/s]. The one evaluation :func:`body_forces` and
+    :func:`body_forces_lanes` repeat."""
+    fz, tan_alpha, slip, cx, cy, alpha = wheel_operating_point(u, v, r, ax, ay, trig, spin, pk, w, law)
+    return wheel_force_at(fz, tan_alpha, slip, cx, cy, alpha, u, mu, trig, drive, rolling, pk, w, law)
 
 
 @numba.njit(inline="always", **JIT)
@@ -549,10 +584,11 @@ def body_forces(
     for w in range(4):
         trig, spin = wheel_trig(steer, w), omega[w]
         drive, rolling = wheel_drive(torque[w], omega_dot[w], spin, pk)
+        law = lateral_law(pk, axle_tyre(pk, w))
         for k in range(K):
             f_long, f_lat, moment = wheel_force(
                 state[0, k], state[1, k], state[2, k], state[3, k], state[4, k], mu[w, k], trig, spin, drive, rolling,
-                pk, w,
+                pk, w, law,
             )  # fmt: skip
             out[0, k] += f_long
             out[1, k] += f_lat
@@ -563,13 +599,49 @@ def body_forces(
         out[1, k] /= pk.mass
 
 
+@numba.njit(**JIT)
+def _add_wheel_lanes(state, mu, steer, omega, drive, rolling, pk, w: int, law: int, shared: bool, out, K, lanes):
+    """Wheel w's :func:`wheel_force` by ``law`` (its :func:`lateral_law`) at the K evaluations of
+    each of ``lanes`` cars, added to out (3, K, lanes) (:func:`body_forces_lanes`' arguments);
+    ``shared`` (a constant): each car's state is state[:, 0] for all K evaluations, which then
+    differ in mu alone, and the wheel's :func:`wheel_operating_point` is taken once per car.
+
+    Not inlined: compiled once per (``law`` constant or not, ``shared``, ``lanes``) and called,
+    where inlined copies at every call site took 2.5 times the estimator's first compile
+    (docs/decisions/0051-lane-kernels-compiled-once.md)."""
+    point = scratch((6, lanes))
+    if shared:
+        for lane in range(lanes):
+            trig = (steer[0, w, lane], steer[1, w, lane], steer[2, w, lane], steer[3, w, lane])
+            fz, tan_alpha, slip, cx, cy, alpha = wheel_operating_point(
+                state[0, 0, lane], state[1, 0, lane], state[2, 0, lane], state[3, 0, lane], state[4, 0, lane], trig,
+                omega[w, lane], pk, w, law,
+            )  # fmt: skip
+            point[0, lane], point[1, lane], point[2, lane] = fz, tan_alpha, slip
+            point[3, lane], point[4, lane], point[5, lane] = cx, cy, alpha
+    for k in range(K):
+        for lane in range(lanes):
+            trig = (steer[0, w, lane], steer[1, w, lane], steer[2, w, lane], steer[3, w, lane])
+            if shared:
+                f_long, f_lat, moment = wheel_force_at(
+                    point[0, lane], point[1, lane], point[2, lane], point[3, lane], point[4, lane], point[5, lane],
+                    state[0, 0, lane], mu[w, k, lane], trig, drive[w, lane], rolling[w, lane], pk, w, law,
+                )  # fmt: skip
+            else:
+                f_long, f_lat, moment = wheel_force(
+                    state[0, k, lane], state[1, k, lane], state[2, k, lane], state[3, k, lane], state[4, k, lane],
+                    mu[w, k, lane], trig, omega[w, lane], drive[w, lane], rolling[w, lane], pk, w, law,
+                )  # fmt: skip
+            out[0, k, lane] += f_long
+            out[1, k, lane] += f_lat
+            out[2, k, lane] += moment
+
+
 @numba.njit(inline="always", **JIT)
-def body_forces_lanes(state, mu, steer, omega, torque, omega_dot, pk: ModelKernel, out, lanes) -> None:
-    """:func:`body_forces` for K evaluations of each of ``lanes`` cars, one car per SIMD lane (lane
-    axis last, estimation/lanes.py): state (5, K, lanes), mu (4, K, lanes), each car's wheel table
-    steer (4, 4, lanes) and its omega, torque, omega_dot (4, lanes); out (3, K, lanes). Each
-    evaluation the same operations in the same order as :func:`body_forces`' (bit for bit)."""
-    K = state.shape[1]
+def _body_forces_lanes(state, mu, steer, omega, torque, omega_dot, pk, out, lanes, shared: bool) -> None:
+    """:func:`body_forces_lanes` (``shared`` False) and :func:`shared_state_forces_lanes`
+    (``shared`` True; a constant in each)."""
+    K = mu.shape[1]
     drive, rolling = scratch((4, lanes)), scratch((4, lanes))
     for w in range(4):
         for lane in range(lanes):
@@ -579,21 +651,39 @@ def body_forces_lanes(state, mu, steer, omega, torque, omega_dot, pk: ModelKerne
             for lane in range(lanes):
                 out[i, k, lane] = 0.0
     for w in range(4):
-        for k in range(K):
-            for lane in range(lanes):
-                trig = (steer[0, w, lane], steer[1, w, lane], steer[2, w, lane], steer[3, w, lane])
-                f_long, f_lat, moment = wheel_force(
-                    state[0, k, lane], state[1, k, lane], state[2, k, lane], state[3, k, lane], state[4, k, lane],
-                    mu[w, k, lane], trig, omega[w, lane], drive[w, lane], rolling[w, lane], pk, w,
-                )  # fmt: skip
-                out[0, k, lane] += f_long
-                out[1, k, lane] += f_lat
-                out[2, k, lane] += moment
+        # the Magic Formula's law (the joint estimator's) chosen outside the loops, a compile-time
+        # constant in a loop of its own without branches; Dugoff's laws share one
+        law = lateral_law(pk, axle_tyre(pk, w))
+        if law == LATERAL_MAGIC_ELLIPSE:
+            _add_wheel_lanes(
+                state, mu, steer, omega, drive, rolling, pk, w, LATERAL_MAGIC_ELLIPSE, shared, out, K, lanes
+            )
+        else:
+            _add_wheel_lanes(state, mu, steer, omega, drive, rolling, pk, w, law, shared, out, K, lanes)
     for k in range(K):
+        row = 0 if shared else k
         for lane in range(lanes):
-            u = state[0, k, lane]
+            u = state[0, row, lane]
             out[0, k, lane] = (out[0, k, lane] - pk.drag_factor * u * abs(u)) / pk.mass
             out[1, k, lane] /= pk.mass
+
+
+@numba.njit(inline="always", **JIT)
+def body_forces_lanes(state, mu, steer, omega, torque, omega_dot, pk: ModelKernel, out, lanes) -> None:
+    """:func:`body_forces` for K evaluations of each of ``lanes`` cars, one car per SIMD lane (lane
+    axis last, estimation/lanes.py): state (5, K, lanes), mu (4, K, lanes), each car's wheel table
+    steer (4, 4, lanes) and its omega, torque, omega_dot (4, lanes); out (3, K, lanes). Each
+    evaluation the same operations in the same order as :func:`body_forces`' (bit for bit)."""
+    _body_forces_lanes(state, mu, steer, omega, torque, omega_dot, pk, out, lanes, False)
+
+
+@numba.njit(inline="always", **JIT)
+def shared_state_forces_lanes(state, mu, steer, omega, torque, omega_dot, pk: ModelKernel, out, lanes) -> None:
+    """:func:`body_forces_lanes` for K evaluations that share each car's state (5, 1, lanes) and
+    differ in mu (4, K, lanes) alone (the friction filter's points): each wheel's
+    :func:`wheel_operating_point` is taken once per car. Bit for bit :func:`body_forces`' at the
+    state repeated K times."""
+    _body_forces_lanes(state, mu, steer, omega, torque, omega_dot, pk, out, lanes, True)
 
 
 @numba.njit(inline="always", **JIT)

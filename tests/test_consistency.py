@@ -131,7 +131,7 @@ def test_the_magic_formula_at_the_true_state_beats_dugoff_where_the_tyres_work(s
                 S[k, S_U], S[k, S_V], S[k, S_R], fz, tuple(steer[:, w]), S[k, S_OMEGA + w], paper.kernel, w
             )
             fy = {
-                "magic": magic_lateral(fz, tan_alpha, magic.front.mu_scale * mu, cy, magic.front.kernel),
+                "magic": magic_lateral(fz, math.atan(tan_alpha), magic.front.mu_scale * mu, cy, magic.front.kernel),
                 "dugoff": dugoff(fz, 0.0, tan_alpha, paper.front.mu_scale * mu, cx, cy, 0.0, 0.0)[1],
             }
             for name, value in fy.items():

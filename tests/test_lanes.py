@@ -24,7 +24,17 @@ from fourwis.estimation.lanes import (
     sharing_coefficients_lanes,
     spd_inverse_lanes,
 )
-from fourwis.estimation.model import ModelParams, body_forces, body_forces_lanes, steer_trig
+from fourwis.estimation.model import (
+    LATERAL_DUGOFF_ELLIPSE,
+    LATERAL_DUGOFF_SLIP,
+    LATERAL_MAGIC_ELLIPSE,
+    ModelParams,
+    body_forces,
+    body_forces_lanes,
+    lateral_law,
+    shared_state_forces_lanes,
+    steer_trig,
+)
 
 N, M = 6, 7  #: a state filter's sizes (sub-filter 1)
 
@@ -262,35 +272,48 @@ def test_the_estimator_stepped_in_lanes_equals_it_car_by_car(kind):
 
 @numba.njit
 def _forces_lanes(state, mu, steer, omega, torque, omega_dot, pk, out, lanes):
-    body_forces_lanes(state, mu, steer, omega, torque, omega_dot, pk, out, lanes)
+    if state.shape[1] == 1:
+        shared_state_forces_lanes(state, mu, steer, omega, torque, omega_dot, pk, out, lanes)
+    else:
+        body_forces_lanes(state, mu, steer, omega, torque, omega_dot, pk, out, lanes)
+
+
+@numba.njit
+def _law(pk, w):
+    return lateral_law(pk, pk.front if w < 2 else pk.rear)
 
 
 @pytest.mark.parametrize(
-    ("force_ellipse", "shape"),
-    [(False, "dugoff"), (True, "dugoff"), (True, "magic")],
-    ids=["dugoff-slip", "dugoff-ellipse", "magic-ellipse"],
+    ("force_ellipse", "shape", "law"),
+    [
+        (False, "dugoff", LATERAL_DUGOFF_SLIP),
+        (True, "dugoff", LATERAL_DUGOFF_ELLIPSE),
+        (True, "magic", LATERAL_MAGIC_ELLIPSE),
+    ],
 )
-def test_the_body_forces_in_lanes_equal_the_single_cars_for_each_lateral_law(force_ellipse, shape):
-    """body_forces_lanes equals body_forces car by car bit for bit for each of the model's lateral
-    laws (Dugoff's cut by the wheel-speed slip, the friction ellipse around Dugoff's or the Magic
-    Formula's pure-slip force), on states from rest to past the grip limit, some wheels braking and
-    some driving. (The estimator's lane test steps joint and alo-fkf, two of the three laws.)"""
+@pytest.mark.parametrize("shared", [False, True])
+def test_the_body_forces_in_lanes_equal_the_single_cars_for_each_lateral_law(force_ellipse, shape, law, shared):
+    """body_forces_lanes (the Magic Formula's law chosen outside its loops) and
+    shared_state_forces_lanes (one state for a car's evaluations, the friction filter's points:
+    each wheel's operating point taken once) equal body_forces car by car bit for bit, on states
+    from near rest to past the grip limit, some wheels braking and some driving."""
     pk = ModelParams.from_vehicle(VehicleParams(), force_ellipse=force_ellipse, shape=shape).kernel
-    assert (pk.front.magic_c > 0.0) == (shape == "magic")
+    assert [_law(pk, w) for w in range(4)] == [law] * 4
     rng = np.random.default_rng(4)
     B, K = 9, 5
-    states = np.empty((B, 5, K))
-    states[:, 0] = rng.uniform(0.0, 40.0, (B, K))  # u [m/s], from rest
-    states[:, 1] = rng.normal(0.0, 2.0, (B, K))  # v [m/s]: sideslip up to ~30 deg at low speed
-    states[:, 2] = rng.normal(0.0, 0.6, (B, K))  # r [rad/s]
-    states[:, 3:] = rng.normal(0.0, 6.0, (B, 2, K))  # ax, ay [m/s^2]: beyond the grip
+    states = np.empty((B, 5, 1 if shared else K))
+    states[:, 0] = rng.uniform(0.0, 40.0, states[:, 0].shape)  # u [m/s], from rest
+    states[:, 1] = rng.normal(0.0, 2.0, states[:, 1].shape)  # v: sideslip up to ~30 deg at low speed
+    states[:, 2] = rng.normal(0.0, 0.6, states[:, 2].shape)  # r [rad/s]
+    states[:, 3:] = rng.normal(0.0, 6.0, states[:, 3:].shape)  # ax, ay [m/s^2]: beyond the grip
     mu = rng.uniform(0.1, 1.2, (B, 4, K))
     steer = np.stack([steer_trig(rng.normal(0.0, 0.2, 4)) for _ in range(B)])
     omega = states[:, 0, :1] / pk.wheel_radius * (1.0 + rng.normal(0.0, 0.2, (B, 4)))  # slips of ~20%
     torque, omega_dot = rng.normal(0.0, 400.0, (B, 4)), rng.normal(0.0, 50.0, (B, 4))
     expected = np.empty((B, 3, K))
     for b in range(B):
-        body_forces(states[b], mu[b], steer[b], omega[b], torque[b], omega_dot[b], pk, expected[b])
+        per_evaluation = np.ascontiguousarray(np.broadcast_to(states[b], (5, K)))
+        body_forces(per_evaluation, mu[b], steer[b], omega[b], torque[b], omega_dot[b], pk, expected[b])
     out = np.empty((3, K, B))
     _forces_lanes(
         lanes_of(states), lanes_of(mu), lanes_of(steer), lanes_of(omega), lanes_of(torque), lanes_of(omega_dot), pk,
