@@ -32,14 +32,15 @@ def _train(algo: str, out: str, steps: int) -> None:
 def main() -> None:
     with tempfile.TemporaryDirectory() as out:  # untimed: numba cache loads and first-call set-up, which
         _train("ppo", out, 1)  # would otherwise fall on the first row only (~1 s of PPO's ~5 s)
-    print("| algorithm | env steps | wall [s] | env-steps/s |")
+    # (the rate first: benchmarks/side_by_side.py reads a row's first number)
+    print("| algorithm | env-steps/s | env steps | wall [s] |")
     print("|---|---:|---:|---:|")
     for algo, steps in STEPS.items():
         with tempfile.TemporaryDirectory() as out:
             start = time.perf_counter()
             _train(algo, out, steps)
             wall = time.perf_counter() - start
-        print(f"| {algo} | {steps:,} | {wall:.1f} | {steps / wall:,.0f} |")
+        print(f"| {algo.upper()} | {steps / wall:,.0f} | {steps:,} | {wall:.1f} |")
 
 
 if __name__ == "__main__":
