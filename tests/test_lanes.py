@@ -29,6 +29,7 @@ from fourwis.estimation.model import (
     LATERAL_DUGOFF_SLIP,
     LATERAL_MAGIC_ELLIPSE,
     ModelParams,
+    axle_tyre,
     body_forces,
     body_forces_lanes,
     lateral_law,
@@ -280,7 +281,7 @@ def _forces_lanes(state, mu, steer, omega, torque, omega_dot, pk, out, lanes):
 
 @numba.njit
 def _law(pk, w):
-    return lateral_law(pk, pk.front if w < 2 else pk.rear)
+    return lateral_law(pk, axle_tyre(pk, w))
 
 
 @pytest.mark.parametrize(
