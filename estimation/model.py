@@ -606,8 +606,8 @@ def _add_wheel_lanes(state, mu, steer, omega, drive, rolling, pk, w: int, law: i
     ``shared`` (a constant): each car's state is state[:, 0] for all K evaluations, which then
     differ in mu alone, and the wheel's :func:`wheel_operating_point` is taken once per car.
 
-    Not inlined: compiled once per (``law`` constant or not, ``shared``, ``lanes``) and called,
-    where inlined copies at every call site took 2.5 times the estimator's first compile
+    Not inlined: compiled once per (``law`` constant or not, ``shared``, ``lanes``) and called, so
+    that its loops are not typed and vectorised again at every call site
     (docs/decisions/0051-lane-kernels-compiled-once.md)."""
     point = scratch((6, lanes))
     if shared:
