@@ -330,11 +330,10 @@ def steering_angle_at_lateral_acceleration(
     ``t`` (n,) [s], ``steering_wheel_angle`` [rad], ``lateral_acceleration`` [m/s^2] (n,).
     The standard defines A as the steering-wheel angle that produces a lateral acceleration of
     0.3 g in the 13.5 deg/s ramp at 80 km/h, found by linear regression (NHTSA TP-126: over
-    0.1-0.375 g). The ramp is quasi-steady only: for the shipped car at 80 km/h the yaw lag
-    puts A (16.55 deg) well above the steady-state angle for 0.3 g (12.8 deg), as the
-    procedure intends. Here the filtered |steering angle| (10 Hz) is regressed
-    on the filtered |ay| (6 Hz) [g] over ``fit_range_g`` while ay still rises (up to its
-    peak), and the fitted line is read at ``target_g``. Sensor offsets are assumed removed
+    0.1-0.375 g). The ramp is quasi-steady only: at 80 km/h the yaw lag puts A above the
+    steady-state angle for 0.3 g, as the procedure intends. Here the filtered |steering
+    angle| (10 Hz) is regressed on the filtered |ay| (6 Hz) [g] over ``fit_range_g`` while ay
+    still rises (up to its peak), and the fitted line is read at ``target_g``. Sensor offsets are assumed removed
     (the standard zeroes with static pre-test data). Returns a positive magnitude."""
     t = _series("t", t)
     fs = _sample_rate(t)

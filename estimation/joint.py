@@ -2103,7 +2103,9 @@ class StateEstimator:
     def reset(self, reading, initial_speed: np.ndarray, mask: np.ndarray | None = None) -> None:
         """Start (or, with ``mask`` (B,) bool, restart those rows of) the batch from a first
         ``reading`` (values and valid (B, N_CHANNELS)) and the forward speed [m/s] (scalar or
-        (B,)): nominal mu, the inertial states from the reading (0 where a channel is invalid)."""
+        (B,)): nominal mu, the inertial states from the reading (0 where a channel is invalid).
+        The reading's time is not kept: the first :meth:`step` after a reset takes the nominal
+        dt, each later one the time since the previous reading (the module docstring's rule)."""
         values = np.asarray(reading.values, dtype=float)
         if values.ndim != 2 or values.shape[1] != N_CHANNELS:
             raise ValueError(f"sensor reading must have shape (B, {N_CHANNELS}), got {values.shape}")
