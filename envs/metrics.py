@@ -333,8 +333,9 @@ def steering_angle_at_lateral_acceleration(
     0.1-0.375 g). The ramp is quasi-steady only: at 80 km/h the yaw lag puts A above the
     steady-state angle for 0.3 g, as the procedure intends. Here the filtered |steering
     angle| (10 Hz) is regressed on the filtered |ay| (6 Hz) [g] over ``fit_range_g`` while ay
-    still rises (up to its peak), and the fitted line is read at ``target_g``. Sensor offsets are assumed removed
-    (the standard zeroes with static pre-test data). Returns a positive magnitude."""
+    still rises (up to its peak), and the fitted line is read at ``target_g``. Sensor offsets
+    are assumed removed (the standard zeroes with static pre-test data). Returns a positive
+    magnitude."""
     t = _series("t", t)
     fs = _sample_rate(t)
     lo, hi = fit_range_g
