@@ -329,8 +329,8 @@ def steering_angle_at_lateral_acceleration(
 
     ``t`` (n,) [s], ``steering_wheel_angle`` [rad], ``lateral_acceleration`` [m/s^2] (n,).
     The standard defines A as the steering-wheel angle that produces a lateral acceleration of
-    0.3 g in the 13.5 deg/s ramp at 80 km/h, found by linear regression (NHTSA TP-126: over
-    0.1-0.375 g). The ramp is quasi-steady only: at 80 km/h the yaw lag puts A above the
+    0.3 g in the 13.5 deg/s ramp at 80 km/h, read off a straight line fitted over 0.1-0.375 g
+    (NHTSA TP-126). The ramp is quasi-steady only: at 80 km/h the yaw lag puts A above the
     steady-state angle for 0.3 g, as the procedure intends. Here the filtered |steering
     angle| (10 Hz) is regressed on the filtered |ay| (6 Hz) [g] over ``fit_range_g`` while ay
     still rises (up to its peak), and the fitted line is read at ``target_g``. Sensor offsets

@@ -2104,7 +2104,7 @@ class StateEstimator:
         """Start (or, with ``mask`` (B,) bool, restart those rows of) the batch from a first
         ``reading`` (values and valid (B, N_CHANNELS)) and the forward speed [m/s] (scalar or
         (B,)): nominal mu, the inertial states from the reading (0 where a channel is invalid).
-        The reading's time is not kept: the first :meth:`step` after a reset takes the nominal
+        The reading's time is ignored: the first :meth:`step` after a reset takes the nominal
         dt, each later one the time since the previous reading (the module docstring's rule)."""
         values = np.asarray(reading.values, dtype=float)
         if values.ndim != 2 or values.shape[1] != N_CHANNELS:
